@@ -1,0 +1,1 @@
+"""Controllers for flexible-link FMUs (LQR, Kalman, PD) -- reserved for the controllers issue."""

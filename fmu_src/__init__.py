@@ -1,0 +1,1 @@
+"""The generic C half of every flexlink FMU (FMI glue, SS22 integrator), shipped as package data."""
