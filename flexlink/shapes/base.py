@@ -1,0 +1,140 @@
+"""Common interface of the shape families and the constant integrals the Lagrangian needs.
+
+Every family reduces its integrals to one quadrature rule ``(x, w)`` that is exact (or converged to
+machine precision) for its integrands; :func:`integrals_from_rule` then forms all of them with a few
+dense matrix products, so they are computed once, offline, and never at simulation time.
+"""
+
+from __future__ import annotations
+
+import abc
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.polynomial.legendre import leggauss
+
+
+@dataclass(frozen=True)
+class ShapeIntegrals:
+    """Constant integrals for UNIT linear density and UNIT stiffness (multiply by ρ, EI later).
+
+    The arrays are read-only: they are cached on the basis and shared by every model built from it.
+    """
+
+    phi: np.ndarray  # (n,)   ∫ φ dx
+    x_phi: np.ndarray  # (n,)   ∫ x φ dx
+    phi_phi: np.ndarray  # (n,n)  ∫ φ φᵀ dx
+    curv: np.ndarray  # (n,n)  ∫ φ'' φ''ᵀ dx
+    fs: np.ndarray  # (n,n)  ∫₀ᴸ ∫₀ˣ φ'φ'ᵀ dξ dx   (foreshortening u(x) = −½ ηᵀ[∫₀ˣ φ'φ'ᵀ dξ]η)
+    fs_x: np.ndarray  # (n,n)  ∫₀ᴸ x ∫₀ˣ φ'φ'ᵀ dξ dx
+    fs_tip: np.ndarray  # (n,n)  ∫₀ᴸ φ'φ'ᵀ dx          (u(L))
+    tip: np.ndarray  # (n,)   φ(L)
+    tip_slope: np.ndarray  # (n,)   φ'(L)
+    root_curvature: np.ndarray  # (n,) φ''(0)
+
+
+class ShapeBasis(abc.ABC):
+    """Assumed shapes φ(x) of one clamped-root link, v(x, t) = φ(x)ᵀ η(t), 0 ≤ x ≤ L."""
+
+    kind: str = ""
+
+    def __init__(self, count: int, length: float, linear_density: float = 1.0):
+        self.count = _check_count(count)
+        self.length = _check_positive(length, "length")
+        self.linear_density = _check_positive(linear_density, "linear_density")
+
+    @property
+    @abc.abstractmethod
+    def n(self) -> int:
+        """Number of generalized coordinates η."""
+
+    @abc.abstractmethod
+    def _evaluate(self, x: np.ndarray, derivative: int) -> np.ndarray:
+        """d^k φ/dx^k at the (validated, 1-D) points x, shape (len(x), n)."""
+
+    @abc.abstractmethod
+    def _quadrature(self) -> tuple[np.ndarray, np.ndarray]:
+        """Nodes and weights on [0, L] exact (or converged) for every integrand of ShapeIntegrals."""
+
+    def evaluate(self, x, derivative: int = 0) -> np.ndarray:
+        """d^k φ/dx^k (k = ``derivative``) at the points ``x`` in [0, L]; shape (len(x), n)."""
+        if isinstance(derivative, bool) or not isinstance(derivative, (int, np.integer)) or derivative < 0:
+            raise ValueError(f"derivative must be a non-negative integer, got {derivative!r}")
+        xs = np.atleast_1d(np.asarray(x, dtype=float)).ravel()
+        # Round-off of callers' grids (e.g. k*L/N) must not make x = L fail.
+        slack = 1e-12 * self.length
+        if xs.size and (not np.all(np.isfinite(xs)) or xs.min() < -slack or xs.max() > self.length + slack):
+            raise ValueError(f"x must lie in [0, L] = [0, {self.length:g}]")
+        return self._evaluate(np.clip(xs, 0.0, self.length), int(derivative))
+
+    @functools.cached_property
+    def integrals(self) -> ShapeIntegrals:
+        x, w = self._quadrature()
+        return integrals_from_rule(self, x, w)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(count={self.count}, length={self.length:g}, n={self.n})"
+
+
+def integrals_from_rule(basis: ShapeBasis, x: np.ndarray, w: np.ndarray) -> ShapeIntegrals:
+    """All ShapeIntegrals from one quadrature rule.
+
+    The double integrals are turned into single ones by swapping the order of integration,
+    ∫₀ᴸ f(x) ∫₀ˣ g(ξ) dξ dx = ∫₀ᴸ g(ξ) ∫_ξᴸ f(x) dx dξ, i.e. weights (L − ξ) for ``fs`` and
+    (L² − ξ²)/2 for ``fs_x``: this accumulates the contributions of all earlier elements exactly and
+    only raises the polynomial degree by 2.
+    """
+    length = basis.length
+    phi0 = basis.evaluate(x, 0)
+    phi1 = basis.evaluate(x, 1)
+    phi2 = basis.evaluate(x, 2)
+
+    def gram(a: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        m = a.T @ (weights[:, None] * a)
+        return 0.5 * (m + m.T)  # exactly symmetric for eigh, Cholesky and the symbolic model
+
+    ends = np.array([0.0, length])
+    fields = dict(
+        phi=w @ phi0,
+        x_phi=(w * x) @ phi0,
+        phi_phi=gram(phi0, w),
+        curv=gram(phi2, w),
+        fs=gram(phi1, w * (length - x)),
+        fs_x=gram(phi1, w * 0.5 * (length**2 - x**2)),
+        fs_tip=gram(phi1, w),
+        tip=basis.evaluate(ends[1:], 0)[0],
+        tip_slope=basis.evaluate(ends[1:], 1)[0],
+        root_curvature=basis.evaluate(ends[:1], 2)[0],
+    )
+    for value in fields.values():
+        value.setflags(write=False)
+    return ShapeIntegrals(**fields)
+
+
+def composite_gauss_legendre(edges: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss–Legendre rule with ``order`` points on each interval [edges[i], edges[i+1]]."""
+    t, wt = leggauss(order)
+    a, b = np.asarray(edges[:-1], dtype=float), np.asarray(edges[1:], dtype=float)
+    half = 0.5 * (b - a)
+    x = (0.5 * (a + b))[:, None] + half[:, None] * t[None, :]
+    w = half[:, None] * wt[None, :]
+    return x.ravel(), w.ravel()
+
+
+def _check_count(count) -> int:
+    if isinstance(count, bool) or not isinstance(count, (int, np.integer)):
+        raise ValueError(f"shape count must be an integer >= 1, got {count!r}")
+    if count < 1:
+        raise ValueError(f"shape count must be >= 1, got {count}")
+    return int(count)
+
+
+def _check_positive(value, name: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a positive number, got {value!r}") from None
+    if not (np.isfinite(v) and v > 0.0):
+        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+    return v

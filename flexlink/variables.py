@@ -1,0 +1,77 @@
+"""The FMU's variables, in value-reference order: one list for the C tables and the XML alike.
+
+Names follow the contract of SCENE.md.  The value reference of a variable is its position here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from flexlink.model import SymbolicModel
+
+BIG = 1e300   # "no bound" in the C tables (finite, so the glue can compare)
+
+
+@dataclass(frozen=True)
+class FmuVariable:
+    name: str
+    kind: str                 # VAR_PARAMETER | VAR_START_Q | VAR_START_V | VAR_SOLVER | VAR_INPUT | VAR_OUTPUT
+    index: int                # into p, q/v, solver settings, u or y
+    start: float
+    causality: str            # parameter | input | output
+    variability: str          # tunable | fixed | continuous
+    unit: str = ""
+    description: str = ""
+    min: float = -BIG
+    max: float = BIG
+    min_exclusive: bool = False
+    feedthrough: tuple[int, ...] = ()   # for outputs: indices into u of the inputs it depends on directly
+
+    @property
+    def tunable(self) -> bool:
+        return self.variability == "tunable" or self.causality == "input"
+
+
+SOLVER_SETTINGS = ("SOLVER_STEP", "SOLVER_THETA1", "SOLVER_THETA2", "SOLVER_TOLERANCE")
+
+
+def fmu_variables(model: SymbolicModel, feedthrough: dict[int, tuple[int, ...]] | None = None
+                  ) -> list[FmuVariable]:
+    """All variables of the model's FMU.  ``feedthrough`` maps output index → input indices."""
+    scene = model.scene
+    feedthrough = feedthrough or {}
+    out: list[FmuVariable] = []
+    for i, par in enumerate(model.parameters):
+        lo = par.min if np.isfinite(par.min) else -BIG
+        out.append(FmuVariable(par.name, "VAR_PARAMETER", i, par.value, "parameter", "tunable", par.unit,
+                               par.description, min=lo, min_exclusive=par.min_exclusive))
+    for s in model.start_values:
+        out.append(FmuVariable(s.name, "VAR_START_V" if s.rate else "VAR_START_Q", s.coordinate, s.value,
+                               "parameter", "fixed", s.unit, s.description))
+    th1, th2 = scene.fmu.theta
+    out += [
+        FmuVariable("solver.step", "VAR_SOLVER", 0, scene.fmu.step, "parameter", "fixed", "s",
+                    "SS22 internal step (communication steps are split into steps of at most this size)",
+                    min=0.0, min_exclusive=True),
+        FmuVariable("solver.theta1", "VAR_SOLVER", 1, th1, "parameter", "fixed", "",
+                    "SS22 Theta1 (0.5: second order; larger: numerical damping)", min=0.5, max=1.0),
+        FmuVariable("solver.theta2", "VAR_SOLVER", 2, th2, "parameter", "fixed", "",
+                    "SS22 Theta2 (>= Theta1 for unconditional stability)", min=0.5, max=1.0),
+        FmuVariable("solver.tolerance", "VAR_SOLVER", 3, scene.fmu.tolerance, "parameter", "fixed", "",
+                    "Newton tolerance on the step's rate change, in nominal units", min=0.0,
+                    min_exclusive=True),
+    ]
+    for i, sig in enumerate(model.inputs):
+        if sig.fmu_variable:
+            out.append(FmuVariable(sig.name, "VAR_INPUT", i, sig.start, "input", "continuous", sig.unit,
+                                   sig.description))
+    for i, sig in enumerate(model.outputs):
+        out.append(FmuVariable(sig.name, "VAR_OUTPUT", i, 0.0, "output", "continuous", sig.unit,
+                               sig.description, feedthrough=feedthrough.get(i, ())))
+    names = [v.name for v in out]
+    if len(set(names)) != len(names):
+        dup = sorted({n for n in names if names.count(n) > 1})
+        raise ValueError(f"duplicate FMU variable names: {dup}")
+    return out

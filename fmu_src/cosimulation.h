@@ -1,0 +1,130 @@
+/* cosimulation.h -- the instance of a flexlink FMU and everything behind the FMI functions:
+ * lifecycle, logging, variable access, initialisation, the communication step and FMU states.
+ *
+ * fmi2Functions.c checks arguments and the call sequence and calls the functions below; these know
+ * the generic model of model.h (residual form, kinematic laws, variables) and nothing of beams.
+ *
+ * Everything numeric of an instance sits in one plain struct (FmuData, no pointers), so that
+ *   - an FMU state is a copy of it (fmi2GetFMUstate / fmi2SetFMUstate),
+ *   - its serialisation is a header (magic, GUID, size, checksum) followed by its bytes,
+ *   - a failed communication step is undone by copying back the FmuData of its start.
+ * The rest of the instance (name, callbacks, logging switches, scratch memory) is not state. */
+#ifndef FLEXLINK_COSIMULATION_H
+#define FLEXLINK_COSIMULATION_H
+
+#include <stdarg.h>
+#include "fmi2Functions.h"
+#include "model.h"
+#include "ss22.h"
+
+/* The FMI 2.0 Co-Simulation states, one bit each so that every FMI function can name the set of
+ * states it is allowed in (fmi2Functions.c).  A doStep that returns fmi2Discard has undone itself:
+ * the FMU stays in step mode at the communication point, so no separate "step failed" state. */
+typedef enum {
+    PHASE_INSTANTIATED = 1 << 0,
+    PHASE_INITIALIZATION = 1 << 1,   /* initialization mode                                */
+    PHASE_STEP = 1 << 2,             /* step mode (stepComplete)                           */
+    PHASE_TERMINATED = 1 << 3,
+    PHASE_ERROR = 1 << 4,            /* a function returned fmi2Error: reset or set a state */
+    PHASE_FATAL = 1 << 5
+} Phase;
+
+#define PHASE_ANY (PHASE_INSTANTIATED | PHASE_INITIALIZATION | PHASE_STEP | PHASE_TERMINATED | PHASE_ERROR)
+
+/* Log categories (modelDescription.xml <LogCategories> lists the same names, in this order). */
+typedef enum {
+    LOG_EVENTS,          /* initialisation, retried steps: only when logging is on   */
+    LOG_STATUS_WARNING,  /* always reported                                            */
+    LOG_STATUS_DISCARD,  /* always reported                                            */
+    LOG_STATUS_ERROR,    /* always reported                                            */
+    LOG_ALL,             /* every FMI call (debugging): only when logging is on        */
+    N_LOG_CATEGORIES
+} LogCategory;
+
+extern const char *const LOG_CATEGORY_NAMES[N_LOG_CATEGORIES];
+
+#define FMU_SZ(n) ((n) > 0 ? (n) : 1)   /* C99 has no zero-length arrays */
+
+/* Everything numeric: an FMU state is a copy of this struct. */
+typedef struct {
+    int phase;                        /* Phase                                                  */
+    int outputs_valid;                /* y and acceleration are up to date                      */
+    int acceleration_ok;              /* acceleration is the consistent one (M(q) non-singular) */
+    int stop_time_defined;
+    int experiment_tolerance_defined;
+    double start_time, stop_time, experiment_tolerance;
+    double time;                      /* current communication point                            */
+    double last_successful_time;
+    double q[N_Q], v[N_Q];            /* state                                                  */
+    double alpha[N_Q];                /* SS22 acceleration of the last step (Newton guess)      */
+    double acceleration[N_Q];         /* consistent acceleration at time (outputs)              */
+    double p[FMU_SZ(N_P)];                /* tunable parameters                                      */
+    double u[FMU_SZ(N_U)];                /* inputs as the host set them                             */
+    double q_start[N_Q], v_start[N_Q];
+    double solver[N_SOLVER_SETTINGS];
+    double y[FMU_SZ(N_Y)];                /* outputs at time                                         */
+    double law_time[FMU_SZ(N_LAWS)];      /* host-driven law k: time at which u[offset..+2] hold      */
+    SS22 ss22;                        /* integrator, with its factorisations and counters        */
+} FmuData;
+
+typedef struct {
+    unsigned long magic;              /* INSTANCE_MAGIC while alive                              */
+    char *name;
+    fmi2CallbackFunctions cb;
+    int logging_on;
+    int category_on[N_LOG_CATEGORIES];
+    FmuData d;                        /* the state                                               */
+    FmuData backup;                   /* d at the start of the current doStep                    */
+    /* scratch, so that a step allocates nothing and nothing big sits on the stack */
+    ModelWork work;
+    double u0[FMU_SZ(N_U)], u1[FMU_SZ(N_U)];
+    double J[N_Q * N_Q];
+    double Js[FMU_SZ(N_STATIC * N_STATIC)];
+    double r[N_Q], dq[N_Q];
+    int piv[N_Q];
+    char message[1024], escaped[2048];
+} Instance;
+
+#define INSTANCE_MAGIC 0x464c584cUL  /* "FLXL" */
+
+/* A copy of the state, as handed to the host as fmi2FMUstate. */
+typedef struct {
+    unsigned long magic;              /* STATE_MAGIC while alive */
+    FmuData d;
+} SavedState;
+
+#define STATE_MAGIC 0x53544154UL     /* "STAT" */
+
+/* ------------------------------------------------------------------ lifecycle */
+Instance *fmu_instantiate(fmi2String name, fmi2Type type, fmi2String guid,
+                          const fmi2CallbackFunctions *functions, fmi2Boolean logging_on);
+void fmu_free(Instance *inst);
+void fmu_reset(Instance *inst);
+const char *fmu_phase_name(int phase);
+
+/* -------------------------------------------------------------------- logging */
+/* Errors, discards and warnings are always reported; LOG_EVENTS / LOG_ALL only when switched on. */
+void fmu_log(Instance *inst, fmi2Status status, LogCategory category, const char *format, ...);
+int fmu_logs(const Instance *inst, LogCategory category);
+fmi2Status fmu_set_debug_logging(Instance *inst, fmi2Boolean on, size_t n, const fmi2String categories[]);
+
+/* ------------------------------------------------------------ variable access */
+fmi2Status fmu_get_real(Instance *inst, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]);
+fmi2Status fmu_set_real(Instance *inst, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]);
+
+/* ---------------------------------------------------------------- simulation */
+fmi2Status fmu_setup_experiment(Instance *inst, fmi2Boolean tolerance_defined, fmi2Real tolerance,
+                                fmi2Real start_time, fmi2Boolean stop_time_defined, fmi2Real stop_time);
+fmi2Status fmu_enter_initialization(Instance *inst);
+fmi2Status fmu_exit_initialization(Instance *inst);
+fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h);
+
+/* ------------------------------------------------------------------ FMU state */
+fmi2Status fmu_get_state(Instance *inst, fmi2FMUstate *state);
+fmi2Status fmu_set_state(Instance *inst, fmi2FMUstate state);
+fmi2Status fmu_free_state(Instance *inst, fmi2FMUstate *state);
+size_t fmu_serialized_size(void);
+fmi2Status fmu_serialize(Instance *inst, fmi2FMUstate state, fmi2Byte buffer[], size_t size);
+fmi2Status fmu_deserialize(Instance *inst, const fmi2Byte buffer[], size_t size, fmi2FMUstate *state);
+
+#endif /* FLEXLINK_COSIMULATION_H */

@@ -1,0 +1,48 @@
+/* linalg.c -- see linalg.h.  Small and dependency-free: an FMU must not need LAPACK. */
+#include <math.h>
+#include "linalg.h"
+
+int lu_factor(double *A, int n, int *piv) {
+    for (int k = 0; k < n; k++) {
+        int p = k;
+        double amax = fabs(A[k + k * n]);
+        for (int i = k + 1; i < n; i++) {
+            double a = fabs(A[i + k * n]);
+            if (a > amax) { amax = a; p = i; }
+        }
+        piv[k] = p;
+        if (amax == 0.0 || !isfinite(amax)) return k + 1;
+        if (p != k) {
+            for (int j = 0; j < n; j++) {
+                double t = A[k + j * n]; A[k + j * n] = A[p + j * n]; A[p + j * n] = t;
+            }
+        }
+        double inv = 1.0 / A[k + k * n];
+        for (int i = k + 1; i < n; i++) A[i + k * n] *= inv;
+        for (int j = k + 1; j < n; j++) {
+            double akj = A[k + j * n];
+            if (akj != 0.0) {
+                double *colj = A + j * n;
+                const double *colk = A + k * n;
+                for (int i = k + 1; i < n; i++) colj[i] -= colk[i] * akj;
+            }
+        }
+    }
+    return 0;
+}
+
+void lu_solve(const double *LU, int n, const int *piv, double *b) {
+    for (int k = 0; k < n; k++) {
+        int p = piv[k];
+        if (p != k) { double t = b[k]; b[k] = b[p]; b[p] = t; }
+    }
+    for (int j = 0; j < n; j++) {           /* L y = P b, unit diagonal */
+        double bj = b[j];
+        if (bj != 0.0) for (int i = j + 1; i < n; i++) b[i] -= LU[i + j * n] * bj;
+    }
+    for (int j = n - 1; j >= 0; j--) {      /* U x = y */
+        b[j] /= LU[j + j * n];
+        double bj = b[j];
+        if (bj != 0.0) for (int i = 0; i < j; i++) b[i] -= LU[i + j * n] * bj;
+    }
+}

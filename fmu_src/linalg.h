@@ -1,0 +1,12 @@
+/* linalg.h -- dense LU with partial pivoting for the small systems of an implicit step.
+ * Column-major storage, as the generated CasADi code writes its matrices. */
+#ifndef FLEXLINK_LINALG_H
+#define FLEXLINK_LINALG_H
+
+/* Factorise the n x n matrix A in place (A = P L U); returns 0, or k+1 if pivot k is zero. */
+int lu_factor(double *A, int n, int *piv);
+
+/* Solve A x = b with the factors of lu_factor; b is overwritten by x. */
+void lu_solve(const double *LU, int n, const int *piv, double *b);
+
+#endif

@@ -1,0 +1,115 @@
+/*
+ * model.h -- the narrow contract between the generic half of every flexlink FMU
+ * (fmi2Functions.c, cosimulation.c, ss22.c, linalg.c) and one generated model
+ * (config.h + model.c, written by flexlink.codegen).
+ *
+ * Nothing here knows about links, beams or joints.  A model is a second-order
+ * mechanical system in residual form
+ *
+ *     r(q, v, a, u, p) = M(q, p) a + h(q, v, u, p) = 0        (N_Q free coordinates)
+ *
+ * with inputs u (N_U), tunable parameters p (N_P) and outputs y (N_Y).  Some
+ * entries of u are "kinematic laws" (position-driven coordinates): three
+ * consecutive entries (position, rate, acceleration) that the glue fills either
+ * from a built-in law table or from the host's inputs.
+ */
+#ifndef FLEXLINK_MODEL_H
+#define FLEXLINK_MODEL_H
+
+#include <stddef.h>
+#include "config.h"
+
+/* ---------------------------------------------------------------- variables */
+
+typedef enum {
+    VAR_PARAMETER,   /* tunable model parameter: p[index]                          */
+    VAR_START_Q,     /* initial position of free coordinate index (fixed parameter)   */
+    VAR_START_V,     /* initial rate of free coordinate index (fixed parameter)       */
+    VAR_SOLVER,      /* solver setting: index is a SolverSetting                       */
+    VAR_INPUT,       /* input: u[index]                                              */
+    VAR_OUTPUT       /* output: y[index], computed by model_outputs                    */
+} VarKind;
+
+typedef enum { SOLVER_STEP, SOLVER_THETA1, SOLVER_THETA2, SOLVER_TOLERANCE, N_SOLVER_SETTINGS } SolverSetting;
+
+typedef struct {
+    const char *name;     /* the FMU variable name, for messages                           */
+    VarKind kind;
+    int index;
+    double start;
+    double min, max;      /* allowed range; the glue refuses NaN/Inf always               */
+    int min_exclusive;    /* 1: value must be > min (e.g. a stiffness stays > 0)          */
+    int tunable;          /* 1: may be set in step mode (variability="tunable")           */
+} VarInfo;
+
+/* MODEL_VARS[vr] describes value reference vr (0 .. N_VARS-1). */
+extern const VarInfo MODEL_VARS[N_VARS];
+
+/* ------------------------------------------------------------ kinematic laws */
+
+/* One segment of a built-in law, valid for t < until:
+ *   x(t) = sum_k poly[k] t^k + sum_j amp_j cos(w_j t + phase_j)      (t absolute) */
+typedef struct {
+    double until;
+    int n_poly;
+    const double *poly;
+    int n_cos;
+    const double *cos;    /* n_cos triplets (amp, w, phase) */
+} LawSegment;
+
+typedef struct {
+    int u_offset;         /* u[u_offset + 0/1/2] = position, rate, acceleration            */
+    int builtin;          /* 1: segments below; 0: the host sets u[u_offset..+2] as inputs
+                             at each communication point and the glue extends them over
+                             the step as x + xd (t - tc) + xdd (t - tc)^2 / 2              */
+    int n_segments;
+    const LawSegment *segments;
+} KinematicLaw;
+
+#if N_LAWS > 0
+extern const KinematicLaw MODEL_LAWS[N_LAWS];
+#endif
+
+/* Free coordinates solved for static equilibrium at the end of initialization
+ * (scene: initial_deformation = "static"); the others are held at their start values. */
+#if N_STATIC > 0
+extern const int MODEL_STATIC_COORDS[N_STATIC];
+#endif
+
+/* Nominal magnitude of each free coordinate (Newton convergence test, ME nominals). */
+extern const double MODEL_NOMINAL_Q[N_Q];
+
+/* -------------------------------------------------------------- work memory */
+
+/* Scratch memory for the generated functions: one per instance, never shared.
+ * Sizes are the maxima over all generated functions (config.h). */
+typedef struct {
+    const double *arg[MODEL_SZ_ARG];
+    double *res[MODEL_SZ_RES];
+    long long int iw[MODEL_SZ_IW > 0 ? MODEL_SZ_IW : 1];
+    double w[MODEL_SZ_W > 0 ? MODEL_SZ_W : 1];
+} ModelWork;
+
+/* ---------------------------------------------------------- model functions */
+/* All return 0 on success, non-zero if the generated code failed.  Matrices are
+ * dense, column-major.  None of them allocates or keeps state. */
+
+/* r = M(q,p) a + h(q,v,u,p)  (N_Q) */
+int model_residual(const double *q, const double *v, const double *a, const double *u,
+                   const double *p, double *r, ModelWork *work);
+
+/* J = ca dr/da + cv dr/dv + cq dr/dq at (q, v, a, u, p)  (N_Q x N_Q).
+ * SS22 uses ca = 1, cv = theta1 dt, cq = theta2 dt^2/2; (1, 0, 0) gives M(q). */
+int model_newton_matrix(const double *q, const double *v, const double *a, const double *u,
+                        const double *p, double ca, double cv, double cq, double *J,
+                        ModelWork *work);
+
+/* y = outputs(q, v, a, u, p)  (N_Y); a is the acceleration consistent with the state. */
+int model_outputs(const double *q, const double *v, const double *a, const double *u,
+                  const double *p, double *y, ModelWork *work);
+
+/* MODEL_LINEAR_IN_STATE (config.h): 1 if r is affine in (q, v, a): one linear solve
+ * per step, no Newton iteration.  MODEL_JACOBIAN_CONSTANT: 1 if moreover the Newton
+ * matrix depends on p (and the step) only: factorised only when they change. */
+
+#endif /* FLEXLINK_MODEL_H */

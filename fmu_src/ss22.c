@@ -1,0 +1,155 @@
+/* ss22.c -- see ss22.h. */
+#include <math.h>
+#include <string.h>
+#include "linalg.h"
+#include "ss22.h"
+
+void ss22_init(SS22 *s, double theta1, double theta2, double tolerance) {
+    memset(s, 0, sizeof(*s));
+    s->theta1 = theta1;
+    s->theta2 = theta2;
+    s->tolerance = tolerance;
+    s->max_iterations = 20;
+}
+
+void ss22_invalidate(SS22 *s) {
+    for (int k = 0; k < SS22_CACHE; k++) s->cache[k].valid = 0;
+}
+
+const char *ss22_status_message(SS22Status status) {
+    switch (status) {
+    case SS22_OK: return "ok";
+    case SS22_NOT_CONVERGED: return "the Newton iteration of the SS22 step did not converge";
+    case SS22_NOT_FINITE: return "the SS22 step produced a NaN or an infinite value";
+    case SS22_SINGULAR: return "the SS22 step matrix is singular";
+    case SS22_MODEL_FAILED: return "the generated model failed to evaluate";
+    }
+    return "unknown SS22 status";
+}
+
+void ss22_weighted_inputs(const SS22 *s, double dt, const double *u0, const double *u1, double *u_bar) {
+    const double t1 = s->theta1;
+    for (int i = 0; i < N_U; i++) u_bar[i] = t1 * u1[i] + (1.0 - t1) * u0[i];
+#if N_LAWS > 0
+    const double t2 = s->theta2;
+    for (int k = 0; k < N_LAWS; k++) {
+        const int o = MODEL_LAWS[k].u_offset;
+        const double x0 = u0[o], xd0 = u0[o + 1], x1 = u1[o];
+        const double abar = 2.0 * (x1 - x0 - dt * xd0) / (dt * dt);
+        u_bar[o] = x0 + t1 * dt * xd0 + t2 * 0.5 * dt * dt * abar;
+        u_bar[o + 1] = xd0 + t1 * dt * abar;
+        u_bar[o + 2] = abar;
+    }
+#else
+    (void)dt;
+#endif
+}
+
+static int all_finite(const double *x, int n) {
+    for (int i = 0; i < n; i++) if (!isfinite(x[i])) return 0;
+    return 1;
+}
+
+/* The factorised step matrix for (dt, theta): from the cache when the model's Newton matrix is
+ * constant, else evaluated at the current iterate. */
+static SS22Status step_matrix(SS22 *s, double dt, const double *alpha, const double *p, ModelWork *work,
+                              SS22Factor **out) {
+    const double cv = s->theta1 * dt, cq = s->theta2 * 0.5 * dt * dt;
+    SS22Factor *f = NULL;
+#if MODEL_JACOBIAN_CONSTANT
+    for (int k = 0; k < SS22_CACHE; k++) {
+        SS22Factor *c = &s->cache[k];
+        if (c->valid && c->dt == dt && c->theta1 == s->theta1 && c->theta2 == s->theta2) {
+            c->stamp = ++s->clock;
+            *out = c;
+            return SS22_OK;
+        }
+    }
+#endif
+    f = &s->cache[0];                                   /* replace the least recently used */
+    for (int k = 1; k < SS22_CACHE; k++) if (s->cache[k].stamp < f->stamp) f = &s->cache[k];
+    if (model_newton_matrix(s->q_bar, s->v_bar, alpha, s->u_bar, p, 1.0, cv, cq, f->LU, work)) {
+        f->valid = 0;
+        return SS22_MODEL_FAILED;
+    }
+    s->factorisations++;
+    if (!all_finite(f->LU, N_Q * N_Q)) { f->valid = 0; return SS22_NOT_FINITE; }
+    if (lu_factor(f->LU, N_Q, f->piv)) { f->valid = 0; return SS22_SINGULAR; }
+    f->dt = dt; f->theta1 = s->theta1; f->theta2 = s->theta2;
+    f->valid = 1;
+    f->stamp = ++s->clock;
+    *out = f;
+    return SS22_OK;
+}
+
+static void weighted_state(SS22 *s, double dt, const double *q, const double *v, const double *alpha) {
+    const double cv = s->theta1 * dt, cq = s->theta2 * 0.5 * dt * dt;
+    for (int i = 0; i < N_Q; i++) {
+        s->q_bar[i] = q[i] + cv * v[i] + cq * alpha[i];
+        s->v_bar[i] = v[i] + cv * alpha[i];
+    }
+}
+
+SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
+                     const double *u0, const double *u1, const double *p, ModelWork *work) {
+    double a[N_Q];
+    SS22Factor *f = NULL;
+    SS22Status st;
+
+    ss22_weighted_inputs(s, dt, u0, u1, s->u_bar);
+    memcpy(a, alpha, sizeof(a));
+#if MODEL_LINEAR_IN_STATE
+    /* r is affine in (q, v, a): r(alpha) = r(0) + J alpha, one solve, no iteration. */
+    memset(a, 0, sizeof(a));
+    weighted_state(s, dt, q, v, a);
+    if (model_residual(s->q_bar, s->v_bar, a, s->u_bar, p, s->r, work)) return SS22_MODEL_FAILED;
+    s->residual_evaluations++;
+    if ((st = step_matrix(s, dt, a, p, work, &f)) != SS22_OK) return st;
+    for (int i = 0; i < N_Q; i++) a[i] = -s->r[i];
+    lu_solve(f->LU, N_Q, f->piv, a);
+    if (!all_finite(a, N_Q)) return SS22_NOT_FINITE;
+#else
+    {
+        double delta[N_Q];
+        int converged = 0, fresh = 0;
+        double previous = INFINITY;
+        for (int it = 0; it < s->max_iterations; it++) {
+            weighted_state(s, dt, q, v, a);
+            if (model_residual(s->q_bar, s->v_bar, a, s->u_bar, p, s->r, work)) return SS22_MODEL_FAILED;
+            s->residual_evaluations++;
+            if (!all_finite(s->r, N_Q)) return SS22_NOT_FINITE;
+            if (f == NULL) {
+                if ((st = step_matrix(s, dt, a, p, work, &f)) != SS22_OK) return st;
+                fresh = 1;
+            }
+            for (int i = 0; i < N_Q; i++) delta[i] = -s->r[i];
+            lu_solve(f->LU, N_Q, f->piv, delta);
+            double err = 0.0;
+            for (int i = 0; i < N_Q; i++) {
+                a[i] += delta[i];
+                const double e = fabs(delta[i]) * dt / MODEL_NOMINAL_Q[i];
+                if (e > err) err = e;
+            }
+            s->newton_iterations++;
+            if (!isfinite(err)) return SS22_NOT_FINITE;
+            if (err <= s->tolerance) { converged = 1; break; }
+            /* simplified Newton: keep the matrix while it contracts by at least 2 per iteration */
+            if (err > 0.5 * previous) {
+                if (fresh && err >= previous) return SS22_NOT_CONVERGED;   /* diverging with a fresh matrix */
+                f = NULL;
+            } else {
+                fresh = 0;
+            }
+            previous = err;
+        }
+        if (!converged) return SS22_NOT_CONVERGED;
+    }
+#endif
+    for (int i = 0; i < N_Q; i++) {
+        q[i] += dt * v[i] + 0.5 * dt * dt * a[i];
+        v[i] += dt * a[i];
+    }
+    memcpy(alpha, a, sizeof(a));
+    s->steps++;
+    return SS22_OK;
+}

@@ -1,0 +1,65 @@
+/* ss22.h -- the Zienkiewicz-Wood-Hine single-step algorithm of degree 2 (SS22) over a
+ * model in residual form r(q, v, a, u, p) = 0 (model.h); seed 001 part 3, DESIGN.md §3.
+ *
+ * On [t0, t0 + dt] the acceleration is the unknown constant alpha and
+ *     q1 = q0 + dt v0 + dt^2/2 alpha,      v1 = v0 + dt alpha.
+ * alpha solves the weighted residual  r(q_bar, v_bar, alpha, u_bar, p) = 0  with
+ *     q_bar = q0 + theta1 dt v0 + theta2 dt^2/2 alpha,   v_bar = v0 + theta1 dt alpha,
+ *     u_bar = theta1 u1 + (1 - theta1) u0,
+ * which for M a + C v + K q = F is exactly the thesis's
+ *     (M + dt theta1 C + dt^2/2 theta2 K) alpha = F_bar - C v0 - K (q0 + dt theta1 v0)
+ * and for theta1 = theta2 = 1 evaluates the state-dependent matrices at the end of the step.
+ * Nonlinear models: Newton on alpha with the matrix dr/da + theta1 dt dr/dv + theta2 dt^2/2 dr/dq
+ * (model_newton_matrix), kept while it contracts well (simplified Newton). */
+#ifndef FLEXLINK_SS22_H
+#define FLEXLINK_SS22_H
+
+#include "model.h"
+
+#define SS22_CACHE 2     /* factorisations kept: the regular step and a shortened last one */
+
+typedef enum {
+    SS22_OK = 0,
+    SS22_NOT_CONVERGED,
+    SS22_NOT_FINITE,
+    SS22_SINGULAR,
+    SS22_MODEL_FAILED
+} SS22Status;
+
+typedef struct {
+    double dt, theta1, theta2;   /* key of the cached factorisation */
+    int valid;
+    unsigned long stamp;         /* last use, for replacement */
+    double LU[N_Q * N_Q];
+    int piv[N_Q];
+} SS22Factor;
+
+typedef struct {
+    double theta1, theta2, tolerance;
+    int max_iterations;
+    SS22Factor cache[SS22_CACHE];
+    unsigned long clock;
+    /* scratch, kept here so that a step allocates nothing */
+    double q_bar[N_Q], v_bar[N_Q], r[N_Q], u_bar[N_U > 0 ? N_U : 1];
+    /* counters, for benchmarks and logging */
+    unsigned long steps, newton_iterations, factorisations, residual_evaluations;
+} SS22;
+
+void ss22_init(SS22 *s, double theta1, double theta2, double tolerance);
+
+/* Parameters changed: the constant Newton matrix of a linear model must be rebuilt. */
+void ss22_invalidate(SS22 *s);
+
+/* Weighted inputs over the step; kinematic-law slots (MODEL_LAWS) of u0 hold the law's
+ * (position, rate, acceleration) at t0 and those of u1 at t0 + dt.  The law's coordinate
+ * moves as SS22 would move it, landing exactly on its position at t0 + dt. */
+void ss22_weighted_inputs(const SS22 *s, double dt, const double *u0, const double *u1, double *u_bar);
+
+/* One step of size dt from (q, v).  alpha: in, an initial guess (e.g. the previous step's);
+ * out, the solution.  On anything but SS22_OK, q and v are left untouched. */
+SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
+                     const double *u0, const double *u1, const double *p, ModelWork *work);
+
+const char *ss22_status_message(SS22Status status);
+
+#endif
