@@ -28,7 +28,8 @@ EXPAND_MAX_COORDINATES = 24   # above this, keep the matrix graph (see benchmark
 @dataclass
 class GeneratedModel:
     directory: Path
-    sources: list[Path]            # the model half's C files
+    sources: list[Path]            # the model half's C files to compile
+    generated: list[Path]          # every generated file
     variables: list[FmuVariable]
     guid: str
     identifier: str
@@ -164,7 +165,19 @@ def generate(model: SymbolicModel, directory: Path) -> GeneratedModel:
  * The model half of the FMU: variable table, kinematic laws, and the three functions of
  * fmu_src/model.h as calls into the CasADi-generated {cname}.c. */
 #include "model.h"
-#include "{cname}.h"
+
+/* The CasADi-generated code is compiled as part of this file, with the few warnings it is known
+ * to raise silenced here only, so that the rest of the FMU builds with -Wall -Wextra -Werror. */
+#if defined(__GNUC__)
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wunused-parameter"
+#pragma GCC diagnostic ignored "-Wunused-variable"
+#pragma GCC diagnostic ignored "-Wunused-function"
+#endif
+#include "{cname}.c"
+#if defined(__GNUC__)
+#pragma GCC diagnostic pop
+#endif
 
 const VarInfo MODEL_VARS[N_VARS] = {{
     /* name, kind, index, start, min, max, min_exclusive, tunable */
@@ -190,5 +203,6 @@ int model_outputs(const double *q, const double *v, const double *a, const doubl
 }}
 """
     (directory / "model.c").write_text(model_c)
-    sources = [directory / "model.c", directory / f"{cname}.c"]
-    return GeneratedModel(directory, sources, variables, guid, ident, expanded, operations)
+    sources = [directory / "model.c"]          # includes the CasADi file
+    generated = [directory / "model.c", directory / f"{cname}.c", directory / f"{cname}.h"]
+    return GeneratedModel(directory, sources, generated, variables, guid, ident, expanded, operations)

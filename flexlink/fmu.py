@@ -158,7 +158,7 @@ def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, ke
                 z.write(f, f"sources/{f.name}")
         tmp.replace(output)
         t4 = time.perf_counter()
-        generated_bytes = sum(p.stat().st_size for p in gen.sources)
+        generated_bytes = sum(p.stat().st_size for p in gen.generated)
         return BuildReport(output, gen.guid, {"model": t1 - t0, "codegen": t2 - t1, "compile": t3 - t2,
                                               "package": t4 - t3}, model.n_q, gen.operations,
                            generated_bytes, output.stat().st_size)

@@ -330,7 +330,7 @@ def build_model(scene: Scene) -> SymbolicModel:
     out.append((Signal(f"{link.name}.root.moment", "N.m", "bending moment at the root EI v''(0)"),
                 EI * ca.dot(ca.DM(shp.root_curvature), eta)))
     for k in range(n_eta):
-        out.append((Signal(f"{link.name}.eta[{k + 1}]", "1", f"elastic coordinate {k + 1}"), eta[k]))
+        out.append((Signal(f"{link.name}.eta[{k + 1}]", "", f"elastic coordinate {k + 1}"), eta[k]))
     r_tip = ca.mtimes(rotation, tip.position)
     v_tip = ca.jtimes(r_tip, qa, va)
     a_tip = ca.jtimes(v_tip, qa, va) + ca.jtimes(v_tip, va, aa)

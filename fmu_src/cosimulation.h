@@ -81,6 +81,8 @@ typedef struct {
     double J[N_Q * N_Q];
     double Js[FMU_SZ(N_STATIC * N_STATIC)];
     double r[N_Q], dq[N_Q];
+    double zero[N_Q];                 /* always 0: the acceleration argument of statics        */
+    double q_save[N_Q], v_save[N_Q], alpha_save[N_Q];   /* an internal step being retried */
     int piv[N_Q];
     char message[1024], escaped[2048];
 } Instance;
@@ -104,6 +106,9 @@ const char *fmu_phase_name(int phase);
 
 /* -------------------------------------------------------------------- logging */
 /* Errors, discards and warnings are always reported; LOG_EVENTS / LOG_ALL only when switched on. */
+#ifdef __GNUC__
+__attribute__((format(printf, 4, 5)))
+#endif
 void fmu_log(Instance *inst, fmi2Status status, LogCategory category, const char *format, ...);
 int fmu_logs(const Instance *inst, LogCategory category);
 fmi2Status fmu_set_debug_logging(Instance *inst, fmi2Boolean on, size_t n, const fmi2String categories[]);

@@ -1,0 +1,76 @@
+"""FMU build time, size, and cost per SS22 step / per simulated second (issue 3's figures).
+
+    python benchmarks/fmu_speed.py [SCENE.toml ...] [--repeats N] [--sim-time T]
+
+The FMU is timed with one long communication step (fmi2DoStep over the whole run) so that no Python
+loop is charged; each figure is the median of ``--repeats`` runs (the machine is shared and noisy).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+DEFAULT = ["rotating_link_linear.toml", "rotating_link.toml", "steel_beam_raise.toml", "flexible_pendulum.toml"]
+
+
+def time_fmu(fmu: Path, sim_time: float, step: float, repeats: int) -> list[float]:
+    import fmpy
+    from fmpy.fmi2 import FMU2Slave
+
+    md = fmpy.read_model_description(str(fmu))
+    unzipdir = fmpy.extract(str(fmu))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    walls = []
+    for _ in range(repeats):
+        s = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName="bench")
+        s.instantiate()
+        s.setReal([vr["solver.step"]], [step])
+        s.setupExperiment(startTime=0.0)
+        s.enterInitializationMode()
+        s.exitInitializationMode()
+        if "hub.tau" in vr:
+            s.setReal([vr["hub.tau"]], [0.2])
+        t0 = time.perf_counter()
+        s.doStep(0.0, sim_time)
+        walls.append(time.perf_counter() - t0)
+        s.terminate()
+        s.freeInstance()
+    return walls
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("scenes", nargs="*")
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--sim-time", type=float, default=10.0)
+    args = ap.parse_args()
+    from flexlink.fmu import build_fmu
+    from flexlink.scene import load_scene
+
+    scenes = args.scenes or [str(ROOT / "examples" / s) for s in DEFAULT]
+    print(f"{'scene':28s} {'n_q':>4s} {'build s':>8s} {'FMU KiB':>8s} {'C KiB':>7s} {'step s':>8s} "
+          f"{'us/step':>8s} {'ms/sim s':>9s}")
+    with tempfile.TemporaryDirectory() as tmp:
+        for path in scenes:
+            scene = load_scene(path)
+            builds = []
+            for k in range(max(1, min(3, args.repeats))):
+                rep = build_fmu(scene, Path(tmp) / f"{scene.model_identifier}-{k}.fmu")
+                builds.append(sum(rep.seconds.values()))
+            step = scene.fmu.step
+            walls = time_fmu(rep.fmu, args.sim_time, step, args.repeats)
+            wall = statistics.median(walls)
+            n_steps = round(args.sim_time / step)
+            print(f"{Path(path).stem:28s} {rep.n_coordinates:4d} {statistics.median(builds):8.2f} "
+                  f"{rep.fmu_bytes / 1024:8.0f} {rep.generated_c_bytes / 1024:7.0f} {step:8.1e} "
+                  f"{wall / n_steps * 1e6:8.3f} {wall / args.sim_time * 1e3:9.3f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,102 @@
+"""Compiling the C half of an FMU: where its sources and the FMI headers are, and one compiler call.
+
+The generic C sources (``fmu_src/`` in the repository) are shipped as the package data
+``flexlink.fmu_src``; the FMI 2.0 headers come from fmpy (``fmpy/c-code``) and are never copied.
+Everything is built with all warnings as errors and ``-fvisibility=hidden``: an FMU library exports
+the ``fmi2…`` functions only (their declarations in ``fmi2Functions.h`` carry the visibility).
+"""
+
+from __future__ import annotations
+
+import importlib.resources
+import importlib.util
+import os
+import shlex
+import subprocess
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+
+from flexlink.errors import BuildError
+
+#: Flags of every FMU build (generated CasADi code included).
+CFLAGS: tuple[str, ...] = (
+    "-shared", "-fPIC", "-O2", "-std=c99", "-Wall", "-Wextra", "-Werror", "-fvisibility=hidden",
+)
+#: Added for a memory-checked build; the later ``-O1`` wins over ``-O2``.
+SANITIZE_CFLAGS: tuple[str, ...] = (
+    "-fsanitize=address,undefined", "-fno-omit-frame-pointer", "-g", "-O1",
+)
+
+
+def fmi_headers_dir() -> Path:
+    """The directory of fmpy's FMI 2.0 headers (``fmi2Functions.h`` and the two it includes)."""
+    spec = importlib.util.find_spec("fmpy")
+    if spec is None or spec.origin is None:
+        raise BuildError("fmpy is not installed: it provides the FMI 2.0 headers (pip install fmpy)")
+    path = Path(spec.origin).parent / "c-code"
+    if not (path / "fmi2Functions.h").is_file():
+        raise BuildError(f"fmpy's FMI headers are missing: no fmi2Functions.h in {path}")
+    return path
+
+
+def fmu_src_dir() -> Path:
+    """The directory of the generic C sources (the package data ``flexlink.fmu_src``)."""
+    try:
+        path = Path(str(importlib.resources.files("flexlink.fmu_src")))
+    except ModuleNotFoundError:  # a source tree on sys.path without the installed package mapping
+        path = Path(__file__).resolve().parent.parent / "fmu_src"
+    if not (path / "fmi2Functions.c").is_file():
+        raise BuildError(f"the generic FMU sources are missing: no fmi2Functions.c in {path}")
+    return path
+
+
+def compiler() -> list[str]:
+    """The C compiler command: ``$CC`` (may carry arguments, e.g. ``ccache gcc``) or ``gcc``."""
+    return shlex.split(os.environ.get("CC", "").strip() or "gcc")
+
+
+def compile_shared_library(
+    sources: Iterable[str | os.PathLike[str]],
+    include_dirs: Iterable[str | os.PathLike[str]],
+    output: str | os.PathLike[str],
+    *,
+    extra_cflags: Sequence[str] = (),
+    sanitize: bool = False,
+) -> Path:
+    """Compile C sources into one shared library and return its path.
+
+    Parameters
+    ----------
+    sources
+        C files to compile and link together.
+    include_dirs
+        Directories searched for headers (``-I``), in order.
+    output
+        Path of the library to write; its directory is created if needed.
+    extra_cflags
+        Further compiler flags, after the standard ones (e.g. ``-DFLEXLINK_TEST_FAIL``).
+    sanitize
+        Build with AddressSanitizer and UndefinedBehaviorSanitizer (for tests: the program that loads
+        the library must be built with them too, or preload their runtime).
+
+    Raises
+    ------
+    BuildError
+        If the compiler is missing or fails; the message carries its command line and stderr.
+    """
+    output = Path(output)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    command = [
+        *compiler(), *CFLAGS, *(SANITIZE_CFLAGS if sanitize else ()), *extra_cflags,
+        *(f"-I{d}" for d in include_dirs), *(str(s) for s in sources), "-o", str(output), "-lm",
+    ]
+    try:
+        result = subprocess.run(command, capture_output=True, text=True, check=False)
+    except OSError as error:
+        raise BuildError(f"cannot run the C compiler {command[0]!r}: {error}") from error
+    if result.returncode != 0:
+        raise BuildError(
+            f"compiling {output.name} failed (exit {result.returncode}):\n  {shlex.join(command)}\n"
+            f"{result.stderr.strip()}"
+        )
+    return output

@@ -1,0 +1,119 @@
+"""The ``flexlink`` command (SCENE.md "Commands").  Bad input: one message, exit status 2."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from flexlink.errors import FlexlinkError
+
+
+def _cmd_build(args) -> int:
+    from flexlink.fmu import build_fmu
+
+    rep = build_fmu(args.scene, args.output, keep_dir=args.keep_sources)
+    total = sum(rep.seconds.values())
+    print(f"{rep.fmu}: {rep.n_coordinates} coordinates, {rep.operations} operations, "
+          f"{rep.generated_c_bytes / 1024:.0f} KiB generated C, FMU {rep.fmu_bytes / 1024:.0f} KiB, "
+          f"built in {total:.2f} s (" + ", ".join(f"{k} {v:.2f} s" for k, v in rep.seconds.items()) + ")")
+    return 0
+
+
+def _cmd_modes(args) -> int:
+    from flexlink.analysis import natural_frequencies
+    from flexlink.model import build_model
+    from flexlink.scene import load_scene
+
+    model = build_model(load_scene(args.scene))
+    modes = natural_frequencies(model, args.rate)
+    if args.json:
+        print(json.dumps({"rate": args.rate, "frequencies_hz": modes.frequencies_hz, "unstable": modes.unstable_hz}))
+        return 0
+    print(f"{model.scene.name}: {model.n_q} coordinates ({', '.join(model.coordinates)}), hub rate {args.rate} rad/s")
+    for k, f in enumerate(modes.frequencies_hz, 1):
+        print(f"  mode {k}: {f:12.6g} Hz")
+    for f in modes.unstable_hz:
+        print(f"  unstable (divergence): |omega| = {f:.6g} Hz")
+    if modes.rigid:
+        print(f"  ({modes.rigid} rigid-body mode(s) left out)")
+    return 0
+
+
+def _cmd_simulate(args) -> int:
+    from flexlink.fmu import cached_fmu
+    from flexlink.simulate import parse_assignments, plot_result, read_input_csv, simulate, write_csv
+
+    start = parse_assignments(args.set)
+    fmu = cached_fmu(args.scene)
+    inputs = None
+    if args.input:
+        import fmpy
+
+        md = fmpy.read_model_description(str(fmu))
+        inputs = read_input_csv(args.input, [v.name for v in md.modelVariables if v.causality == "input"])
+    t0 = time.perf_counter()
+    result = simulate(fmu, args.stop_time, step=args.step, inputs=inputs, start_values=start)
+    wall = time.perf_counter() - t0
+    if args.csv:
+        write_csv(result, args.csv)
+    if args.plot:
+        plot_result(result, args.plot, title=Path(args.scene).stem)
+    last = result[-1]
+    shown = [n for n in result.dtype.names if n != "time"][:8]
+    print(f"simulated {args.stop_time} s in {wall:.3f} s wall ({len(result)} points); at t = {last['time']:.6g}:")
+    for n in shown:
+        print(f"  {n:24s} {last[n]: .6g}")
+    return 0
+
+
+def _cmd_demo(args) -> int:
+    from flexlink.demo import run_demo
+
+    return run_demo(args.out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="flexlink", description="Flexible-link robots as FMI 2.0 FMUs.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("build", help="export the FMU of a scene")
+    p.add_argument("scene")
+    p.add_argument("-o", "--output", required=True)
+    p.add_argument("--keep-sources", metavar="DIR", help="keep the build directory (generated C) in DIR")
+    p.set_defaults(func=_cmd_build)
+
+    p = sub.add_parser("modes", help="natural frequencies about an equilibrium")
+    p.add_argument("scene")
+    p.add_argument("--rate", type=float, default=0.0, help="steady rate of the first joint, rad/s")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=_cmd_modes)
+
+    p = sub.add_parser("simulate", help="build (cached) and simulate the FMU with fmpy")
+    p.add_argument("scene")
+    p.add_argument("--stop-time", type=float, required=True)
+    p.add_argument("--step", type=float, help="communication step, s")
+    p.add_argument("--input", help="CSV: time, then one column per input name")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE")
+    p.add_argument("--csv")
+    p.add_argument("--plot")
+    p.set_defaults(func=_cmd_simulate)
+
+    p = sub.add_parser("demo", help="the README's main job: build an example FMU, run it, plot")
+    p.add_argument("--out", default="out", help="output folder")
+    p.set_defaults(func=_cmd_demo)
+
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except FlexlinkError as e:
+        print(f"flexlink: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

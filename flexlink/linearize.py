@@ -1,0 +1,228 @@
+"""The scene's model linearised about an operating point, as a python-control ``StateSpace``.
+
+With x = (q, q̇) the free coordinates and their rates, the linearised equations
+``M δq̈ + C δq̇ + K δq = B δu`` (:func:`flexlink.analysis.linearise`) give
+
+    A = [[0, I], [−M⁻¹K, −M⁻¹C]],   B = [[0], [M⁻¹ B_u]]   (B_u = −∂r/∂u),
+
+and the outputs y(q, v, a(q, v, u), u) — with the acceleration a from the residual, which is affine in
+a — give C = ∂y/∂x and D = ∂y/∂u.  Outputs that depend on the acceleration (tip accelerations, the
+accelerometer's specific force) have D ≠ 0.  Everything is a deviation from the operating point
+(``x0``, ``u0``, ``y0`` of :class:`LinearPlant`).
+
+**Names.** States keep the model's coordinate names (``hub.theta``, ``arm.eta[1]``, …) and their rates
+are ``der(hub.theta)``, ``der(arm.eta[1])``, … (the FMI convention).  python-control 0.10 reserves "."
+in *input and output* names for ``system.signal`` references in ``interconnect``, so there the FMU's
+names are spelled with "_" (:func:`signal_name`: ``hub.tau`` → ``hub_tau``, ``arm.tip.v`` →
+``arm_tip_v``, ``arm.eta[1]`` → ``arm_eta[1]``, which python-control also reads as element 1 of the
+vector signal ``arm_eta``).  :class:`LinearPlant` keeps the FMU names beside them.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import casadi as ca
+import control as ct
+import numpy as np
+
+from flexlink.analysis import OperatingPoint, linearise, operating_point, static_deflection
+from flexlink.errors import FlexlinkError
+from flexlink.model import SymbolicModel, build_model
+from flexlink.scene import Scene, load_scene
+
+__all__ = ["LinearPlant", "linear_plant", "linearize", "operating_point_at", "signal_name", "state_names"]
+
+
+def signal_name(fmu_name: str) -> str:
+    """The python-control spelling of an FMU input/output name ("." is reserved there): "." → "_"."""
+    return fmu_name.replace(".", "_")
+
+
+def state_names(model: SymbolicModel) -> list[str]:
+    """``q`` names then ``der(q)`` names: the state x = (q, q̇)."""
+    return [*model.coordinates, *(f"der({c})" for c in model.coordinates)]
+
+
+@dataclass
+class LinearPlant:
+    """A linearised plant: python-control system plus the operating point and the FMU's names.
+
+    Attributes
+    ----------
+    sys : control.StateSpace
+        Continuous-time ``δẋ = A δx + B δu``, ``δy = C δx + D δu`` with named signals.
+    model : SymbolicModel
+    op : OperatingPoint
+        (q, v, u, p) of the model about which ``sys`` holds.
+    x0, u0, y0 : ndarray
+        State, inputs and (selected) outputs at the operating point.
+    inputs, outputs : list of str
+        FMU names of ``sys``'s inputs and outputs, in order (``sys`` spells them with "_").
+    """
+
+    sys: ct.StateSpace
+    model: SymbolicModel
+    op: OperatingPoint
+    x0: np.ndarray
+    u0: np.ndarray
+    y0: np.ndarray
+    inputs: list[str]
+    outputs: list[str]
+
+    @property
+    def states(self) -> list[str]:
+        return list(self.sys.state_labels)
+
+    def output_row(self, name: str) -> int:
+        """Index in ``sys``'s outputs of an output given by its FMU name (or python-control name)."""
+        for i, n in enumerate(self.outputs):
+            if name in (n, signal_name(n)):
+                return i
+        raise KeyError(f"{name!r} is not an output of this linearisation; outputs are {self.outputs}")
+
+    def state_index(self, name: str) -> int:
+        return self.states.index(name)
+
+    def parameter(self, name: str) -> float:
+        return float(self.op.p[self.model.parameter_index(name)])
+
+
+def _model_of(scene_or_model) -> SymbolicModel:
+    if isinstance(scene_or_model, SymbolicModel):
+        return scene_or_model
+    if isinstance(scene_or_model, Scene):
+        return build_model(scene_or_model)
+    if isinstance(scene_or_model, str | os.PathLike):
+        return build_model(load_scene(scene_or_model))
+    raise TypeError(f"expected a SymbolicModel, a Scene or a scene path, got {type(scene_or_model).__name__}")
+
+
+def _parameter_vector(model: SymbolicModel, parameters: Mapping[str, float] | None) -> np.ndarray:
+    p = model.p0.copy()
+    for name, value in (parameters or {}).items():
+        try:
+            p[model.parameter_index(name)] = float(value)
+        except KeyError:
+            known = [par.name for par in model.parameters]
+            raise FlexlinkError(f"{name}: not a tunable parameter of this model; its parameters are {known}") from None
+    return p
+
+
+def operating_point_at(model: SymbolicModel, *, angle: float | None = None, rate: float = 0.0,
+                       parameters: Mapping[str, float] | None = None) -> OperatingPoint:
+    """The operating point of ``flexlink modes`` (:func:`flexlink.analysis.operating_point`), optionally
+    with the first joint at ``angle`` (rad) instead of its initial angle and with parameters changed.
+
+    The elastic coordinates take their static (steady-state) deflection there and a torque-driven first
+    joint gets the torque that holds it.
+    """
+    p = _parameter_vector(model, parameters)
+    op = operating_point(model, rate, p)
+    if angle is None:
+        return op
+    first = model.scene.joints[0].name + ".theta"
+    if first not in model.coordinates:
+        raise FlexlinkError(f"the first joint is not a free coordinate (drive = "
+                            f'"{model.scene.joints[0].drive}"): its angle is set by its law')
+    i = model.coordinates.index(first)
+    q = op.q.copy()
+    q[i] = angle
+    elastic = [k for k, c in enumerate(model.coordinates) if not c.endswith(".theta")]
+    u = model.default_inputs(0.0)
+    q = static_deflection(model, q, op.v, u, p, elastic)
+    r = np.asarray(model.residual(q, op.v, np.zeros(model.n_q), u, p), dtype=float).ravel()
+    names = [s.name for s in model.inputs]
+    for k, c in enumerate(model.coordinates):
+        if c.endswith(".theta") and c.removesuffix(".theta") + ".tau" in names:
+            u[names.index(c.removesuffix(".theta") + ".tau")] += r[k]
+    return OperatingPoint(q, op.v.copy(), u, p)
+
+
+def _output_functions(model: SymbolicModel):
+    """(x, u, p) → (ẋ, y): the explicit first-order form, a from the residual (affine in a)."""
+    n = model.n_q
+    q, v, a = ca.MX.sym("q", n), ca.MX.sym("v", n), ca.MX.sym("a", n)
+    u = ca.MX.sym("u", model.residual.size1_in(3))
+    p = ca.MX.sym("p", model.residual.size1_in(4))
+    r = model.residual(q, v, a, u, p)
+    zero = ca.DM.zeros(n)
+    M = ca.substitute(ca.jacobian(r, a), a, zero)
+    acc = -ca.solve(M, ca.substitute(r, a, zero))
+    y = model.outputs_function(q, v, acc, u, p)
+    x = ca.vertcat(q, v)
+    f = ca.vertcat(v, acc)
+    return ca.Function("lin", [x, u, p], [ca.jacobian(f, x), ca.jacobian(f, u), y, ca.jacobian(y, x),
+                                          ca.jacobian(y, u)])
+
+
+def linear_plant(scene_or_model, *, rate: float = 0.0, angle: float | None = None,
+                 parameters: Mapping[str, float] | None = None, outputs: Sequence[str] | None = None,
+                 name: str | None = None) -> LinearPlant:
+    """Linearise a scene's model about an operating point.
+
+    Parameters
+    ----------
+    scene_or_model : SymbolicModel, Scene or path
+        The model (built from the scene if needed).
+    rate : float, optional
+        Steady rate of the first joint, rad/s (SCENE.md ``--rate``).
+    angle : float, optional
+        Angle of the first joint, rad (default: its initial angle).
+    parameters : dict, optional
+        Tunable parameters changed from the scene's values, by FMU name (``{"arm.payload.mass": 0.65}``).
+    outputs : list of str, optional
+        FMU output names to keep (default: all the model's outputs).
+    name : str, optional
+        python-control system name (default: the scene's model identifier).
+
+    Returns
+    -------
+    LinearPlant
+        ``.sys`` is the continuous-time ``control.StateSpace``.
+
+    See Also
+    --------
+    linearize : the ``StateSpace`` alone.
+    """
+    model = _model_of(scene_or_model)
+    op = operating_point_at(model, angle=angle, rate=rate, parameters=parameters)
+    lin = linearise(model, op)
+    n = model.n_q
+    Minv = np.linalg.inv(lin.M)
+    A = np.block([[np.zeros((n, n)), np.eye(n)], [-Minv @ lin.K, -Minv @ lin.C]])
+    B = np.vstack([np.zeros((n, lin.B.shape[1])), Minv @ lin.B])
+    x0 = np.concatenate([op.q, op.v])
+    _, _, y0, Cy, Dy = (np.asarray(m, dtype=float) for m in _output_functions(model)(x0, op.u, op.p))
+    all_outputs = [s.name for s in model.outputs]
+    if outputs is None:
+        outputs = all_outputs
+    unknown = [o for o in outputs if o not in all_outputs]
+    if unknown:
+        raise FlexlinkError(f"{unknown}: not outputs of the model; its outputs are {all_outputs}")
+    rows = [all_outputs.index(o) for o in outputs]
+    # inputs the host sets (built-in laws have no FMU input)
+    cols = [k for k, s in enumerate(model.inputs) if s.fmu_variable]
+    inputs = [model.inputs[k].name for k in cols]
+    ident = name or model.scene.model_identifier
+    sys = ct.ss(A, B[:, cols], Cy[rows], Dy[np.ix_(rows, cols)], name=ident, states=state_names(model),
+                inputs=[signal_name(s) for s in inputs], outputs=[signal_name(s) for s in outputs])
+    return LinearPlant(sys, model, op, x0, op.u[cols], y0.ravel()[rows], inputs, list(outputs))
+
+
+def linearize(scene_or_model, *, rate: float = 0.0, angle: float | None = None,
+              parameters: Mapping[str, float] | None = None, outputs: Sequence[str] | None = None) -> ct.StateSpace:
+    """The linearised model as a continuous-time ``control.StateSpace`` with named signals.
+
+    Same parameters as :func:`linear_plant`; the operating point is lost (use :func:`linear_plant`
+    to keep it).
+
+    Examples
+    --------
+    >>> sys = linearize("examples/rotating_link.toml", outputs=["hub.theta", "arm.tip.v"])  # doctest: +SKIP
+    >>> sys.input_labels, sys.output_labels                                               # doctest: +SKIP
+    (['hub_tau'], ['hub_theta', 'arm_tip_v'])
+    """
+    return linear_plant(scene_or_model, rate=rate, angle=angle, parameters=parameters, outputs=outputs).sys

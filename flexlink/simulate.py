@@ -1,0 +1,121 @@
+"""Running a flexlink FMU through fmpy: input files, start values, results as CSV and plots."""
+
+from __future__ import annotations
+
+import csv
+import os
+from pathlib import Path
+
+import numpy as np
+
+from flexlink.errors import FlexlinkError
+
+
+def read_input_csv(path: str | os.PathLike, input_names: list[str]) -> np.ndarray:
+    """A CSV with a header: first column time, then one column per FMU input name."""
+    path = Path(path)
+    try:
+        with path.open(newline="") as f:
+            rows = list(csv.reader(f))
+    except OSError as e:
+        raise FlexlinkError(f"{path}: cannot read the input file ({e.strerror})") from None
+    if len(rows) < 2:
+        raise FlexlinkError(f"{path}: expected a header line and at least one row of values")
+    header = [h.strip() for h in rows[0]]
+    unknown = [h for h in header[1:] if h not in input_names]
+    if unknown:
+        raise FlexlinkError(f"{path}: column(s) {unknown} are not inputs of the FMU; its inputs are {input_names}")
+    if len(set(header)) != len(header):
+        raise FlexlinkError(f"{path}: duplicate column names in the header")
+    dtype = [("time", np.float64)] + [(h, np.float64) for h in header[1:]]
+    data = []
+    for k, row in enumerate(rows[1:], start=2):
+        if not row:
+            continue
+        if len(row) != len(header):
+            raise FlexlinkError(f"{path}: line {k}: expected {len(header)} values, got {len(row)}")
+        try:
+            values = tuple(float(x) for x in row)
+        except ValueError:
+            raise FlexlinkError(f"{path}: line {k}: expected numbers, got {row}") from None
+        if not all(np.isfinite(values)):
+            raise FlexlinkError(f"{path}: line {k}: NaN or infinite value")
+        data.append(values)
+    arr = np.array(data, dtype=dtype)
+    if np.any(np.diff(arr["time"]) < 0):
+        raise FlexlinkError(f"{path}: the time column must not decrease")
+    return arr
+
+
+def parse_assignments(items: list[str]) -> dict[str, float]:
+    """``NAME=VALUE`` pairs from the command line."""
+    out = {}
+    for item in items or []:
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            raise FlexlinkError(f"--set {item!r}: expected NAME=VALUE")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise FlexlinkError(f"--set {item!r}: {value!r} is not a number") from None
+    return out
+
+
+def simulate(fmu: str | os.PathLike, stop_time: float, *, step: float | None = None, inputs: np.ndarray | None = None,
+             start_values: dict[str, float] | None = None, outputs: list[str] | None = None):
+    """Co-simulate the FMU with fmpy (communication step ``step``) and return fmpy's structured result."""
+    import fmpy
+    from fmpy.fmi1 import FMICallException
+
+    md = fmpy.read_model_description(str(fmu))
+    names = {v.name: v for v in md.modelVariables}
+    for name in start_values or {}:
+        if name not in names:
+            raise FlexlinkError(f"--set {name}: the FMU has no variable of that name")
+        if names[name].causality not in ("parameter", "input"):
+            raise FlexlinkError(f"--set {name}: only parameters and inputs can be set (it is an {names[name].causality})")
+    if not (np.isfinite(stop_time) and stop_time > 0):
+        raise FlexlinkError(f"--stop-time must be a positive number, got {stop_time}")
+    if step is not None and not (np.isfinite(step) and step > 0):
+        raise FlexlinkError(f"--step must be a positive number, got {step}")
+    messages: list[str] = []
+
+    def logger(component, instance, status, category, message):
+        messages.append(message.decode(errors="replace") if isinstance(message, bytes) else str(message))
+
+    try:
+        return fmpy.simulate_fmu(str(fmu), stop_time=stop_time, output_interval=step, fmi_type="CoSimulation",
+                                 start_values=start_values or {}, input=inputs, output=outputs,
+                                 logger=logger, debug_logging=False)
+    except FMICallException as e:
+        detail = messages[-1] if messages else str(e)
+        raise FlexlinkError(f"the FMU refused: {detail}") from None
+
+
+def write_csv(result: np.ndarray, path: str | os.PathLike) -> None:
+    names = result.dtype.names
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(names)
+        for row in result:
+            w.writerow([repr(float(row[n])) for n in names])
+
+
+def plot_result(result: np.ndarray, path: str | os.PathLike, names: list[str] | None = None, title: str = "") -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = names or [n for n in result.dtype.names if n != "time"][:6]
+    fig, axes = plt.subplots(len(names), 1, sharex=True, figsize=(8, 1.8 * len(names) + 0.6), squeeze=False)
+    for ax, n in zip(axes[:, 0], names, strict=True):
+        ax.plot(result["time"], result[n], lw=1.0)
+        ax.set_ylabel(n, rotation=0, ha="right", fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("time (s)")
+    if title:
+        axes[0, 0].set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,810 @@
+/* cosimulation.c -- see cosimulation.h. */
+#include <math.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <string.h>
+#include "cosimulation.h"
+#include "linalg.h"
+
+const char *const LOG_CATEGORY_NAMES[N_LOG_CATEGORIES] = {
+    "logEvents", "logStatusWarning", "logStatusDiscard", "logStatusError", "logAll"};
+
+#define STATIC_MAX_ITERATIONS 50
+#define SUBSTEP_MAX 8              /* a failed internal step is retried as 2, 4, ... SUBSTEP_MAX sub-steps */
+
+/* ====================================================================== logging */
+
+/* The logger's message is a printf format that may reference variables as #r12#: escape '%' and '#'. */
+static void escape_message(const char *in, char *out, size_t n) {
+    size_t j = 0;
+    for (size_t i = 0; in[i] != '\0' && j + 3 < n; i++) {
+        if (in[i] == '%' || in[i] == '#') out[j++] = in[i];
+        out[j++] = in[i];
+    }
+    out[j] = '\0';
+}
+
+static const char *status_category(fmi2Status status, LogCategory category) {
+    switch (status) {
+    case fmi2Warning: return LOG_CATEGORY_NAMES[LOG_STATUS_WARNING];
+    case fmi2Discard: return LOG_CATEGORY_NAMES[LOG_STATUS_DISCARD];
+    case fmi2Error:
+    case fmi2Fatal: return LOG_CATEGORY_NAMES[LOG_STATUS_ERROR];
+    default: return LOG_CATEGORY_NAMES[category];
+    }
+}
+
+static void vlog_to(const fmi2CallbackFunctions *cb, const char *name, fmi2Status status, LogCategory category,
+                    char *buf, size_t nbuf, char *escaped, size_t nescaped, const char *format, va_list ap) {
+    if (cb == NULL || cb->logger == NULL) return;
+    vsnprintf(buf, nbuf, format, ap);
+    escape_message(buf, escaped, nescaped);
+    cb->logger(cb->componentEnvironment, name != NULL ? name : "?", status, status_category(status, category),
+               escaped);
+}
+
+/* Before an instance exists (fmi2Instantiate refusing to create one). */
+static void log_callbacks(const fmi2CallbackFunctions *cb, const char *name, fmi2Status status,
+                          const char *format, ...) {
+    char buf[1024], escaped[2048];
+    va_list ap;
+    va_start(ap, format);
+    vlog_to(cb, name, status, LOG_STATUS_ERROR, buf, sizeof(buf), escaped, sizeof(escaped), format, ap);
+    va_end(ap);
+}
+
+int fmu_logs(const Instance *inst, LogCategory category) {
+    return inst->logging_on && (inst->category_on[category] || inst->category_on[LOG_ALL]);
+}
+
+void fmu_log(Instance *inst, fmi2Status status, LogCategory category, const char *format, ...) {
+    va_list ap;
+    if (status < fmi2Warning && !fmu_logs(inst, category)) return;
+    va_start(ap, format);
+    vlog_to(&inst->cb, inst->name, status, category, inst->message, sizeof(inst->message), inst->escaped,
+            sizeof(inst->escaped), format, ap);
+    va_end(ap);
+}
+
+fmi2Status fmu_set_debug_logging(Instance *inst, fmi2Boolean on, size_t n, const fmi2String categories[]) {
+    int wanted[N_LOG_CATEGORIES] = {0};
+    if (n > 0 && categories == NULL) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2SetDebugLogging: categories is NULL with nCategories = %zu", n);
+        return fmi2Error;
+    }
+    for (size_t i = 0; i < n; i++) {
+        int found = 0;
+        if (categories[i] == NULL) {
+            fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2SetDebugLogging: category %zu is NULL", i);
+            return fmi2Error;
+        }
+        for (int k = 0; k < N_LOG_CATEGORIES; k++) {
+            if (strcmp(categories[i], LOG_CATEGORY_NAMES[k]) == 0) { wanted[k] = 1; found = 1; }
+        }
+        if (!found) {
+            fmu_log(inst, fmi2Error, LOG_STATUS_ERROR,
+                    "fmi2SetDebugLogging: unknown log category \"%s\" (known: logEvents, logStatusWarning, "
+                    "logStatusDiscard, logStatusError, logAll)", categories[i]);
+            return fmi2Error;
+        }
+    }
+    inst->logging_on = on ? 1 : 0;
+    for (int k = 0; k < N_LOG_CATEGORIES; k++) {
+        if (n == 0 || wanted[k]) inst->category_on[k] = on ? 1 : 0;
+    }
+    return fmi2OK;
+}
+
+/* ==================================================================== variables */
+
+static double *slot(FmuData *d, const VarInfo *v) {
+    switch (v->kind) {
+    case VAR_PARAMETER: return &d->p[v->index];
+    case VAR_START_Q: return &d->q_start[v->index];
+    case VAR_START_V: return &d->v_start[v->index];
+    case VAR_SOLVER: return &d->solver[v->index];
+    case VAR_INPUT: return &d->u[v->index];
+    case VAR_OUTPUT: return &d->y[v->index];
+    }
+    return NULL;
+}
+
+/* The generated table is trusted, but one wrong index would write out of bounds: check it once. */
+static int check_model_table(const char **bad) {
+    for (int vr = 0; vr < N_VARS; vr++) {
+        const VarInfo *v = &MODEL_VARS[vr];
+        int size = 0;
+        switch (v->kind) {
+        case VAR_PARAMETER: size = N_P; break;
+        case VAR_START_Q:
+        case VAR_START_V: size = N_Q; break;
+        case VAR_SOLVER: size = N_SOLVER_SETTINGS; break;
+        case VAR_INPUT: size = N_U; break;
+        case VAR_OUTPUT: size = N_Y; break;
+        }
+        if (v->index < 0 || v->index >= size) { *bad = v->name; return 0; }
+    }
+#if N_LAWS > 0
+    for (int k = 0; k < N_LAWS; k++) {
+        if (MODEL_LAWS[k].u_offset < 0 || MODEL_LAWS[k].u_offset + 3 > N_U) { *bad = "a kinematic law"; return 0; }
+    }
+#endif
+#if N_STATIC > 0
+    for (int i = 0; i < N_STATIC; i++) {
+        if (MODEL_STATIC_COORDS[i] < 0 || MODEL_STATIC_COORDS[i] >= N_Q) { *bad = "a static coordinate"; return 0; }
+    }
+#endif
+    return 1;
+}
+
+static const char *solver_name(int setting) {
+    static const char *const fallback[N_SOLVER_SETTINGS] = {
+        "solver.step", "solver.theta1", "solver.theta2", "solver.tolerance"};
+    for (int vr = 0; vr < N_VARS; vr++) {
+        if (MODEL_VARS[vr].kind == VAR_SOLVER && MODEL_VARS[vr].index == setting) return MODEL_VARS[vr].name;
+    }
+    return fallback[setting];
+}
+
+static void set_start_values(FmuData *d) {
+    memset(d, 0, sizeof(*d));
+    d->phase = PHASE_INSTANTIATED;
+    d->solver[SOLVER_THETA1] = 0.5;
+    d->solver[SOLVER_THETA2] = 0.5;
+    d->solver[SOLVER_TOLERANCE] = 1e-10;
+#ifdef DEFAULT_STEP
+    d->solver[SOLVER_STEP] = DEFAULT_STEP;
+#endif
+    for (int vr = 0; vr < N_VARS; vr++) {
+        const VarInfo *v = &MODEL_VARS[vr];
+        *slot(d, v) = v->start;
+    }
+    memcpy(d->q, d->q_start, sizeof(d->q));
+    memcpy(d->v, d->v_start, sizeof(d->v));
+}
+
+/* ========================================================= inputs, kinematic laws */
+
+#if N_LAWS > 0
+/* Position, rate and acceleration of a built-in law at time t. */
+static void law_builtin(const KinematicLaw *law, double t, double *x) {
+    const LawSegment *s;
+    double x0 = 0.0, x1 = 0.0, x2 = 0.0;
+    x[0] = x[1] = x[2] = 0.0;
+    if (law->n_segments <= 0) return;
+    s = &law->segments[law->n_segments - 1];
+    for (int k = 0; k < law->n_segments; k++) {
+        if (t < law->segments[k].until) { s = &law->segments[k]; break; }
+    }
+    for (int k = s->n_poly - 1; k >= 0; k--) {     /* Horner with the first two derivatives */
+        x2 = x2 * t + x1;
+        x1 = x1 * t + x0;
+        x0 = x0 * t + s->poly[k];
+    }
+    x[0] = x0;
+    x[1] = x1;
+    x[2] = 2.0 * x2;
+    for (int j = 0; j < s->n_cos; j++) {
+        const double amp = s->cos[3 * j], w = s->cos[3 * j + 1], phase = s->cos[3 * j + 2];
+        const double c = cos(w * t + phase), sn = sin(w * t + phase);
+        x[0] += amp * c;
+        x[1] -= amp * w * sn;
+        x[2] -= amp * w * w * c;
+    }
+}
+
+/* The host's (x, xd, xdd) of law k, given at d->law_time[k], extended to t. */
+static void law_extended(const FmuData *d, int k, double t, double *x) {
+    const int o = MODEL_LAWS[k].u_offset;
+    const double s = t - d->law_time[k];
+    x[0] = d->u[o] + s * (d->u[o + 1] + 0.5 * s * d->u[o + 2]);
+    x[1] = d->u[o + 1] + s * d->u[o + 2];
+    x[2] = d->u[o + 2];
+}
+#endif
+
+/* u_model(t): the host's inputs, with the kinematic-law slots filled in. */
+static void model_inputs(const FmuData *d, double t, double *u) {
+    memcpy(u, d->u, sizeof(d->u));
+#if N_LAWS > 0
+    for (int k = 0; k < N_LAWS; k++) {
+        const KinematicLaw *law = &MODEL_LAWS[k];
+        if (law->builtin) law_builtin(law, t, u + law->u_offset);
+        else law_extended(d, k, t, u + law->u_offset);
+    }
+#else
+    (void)t;
+#endif
+}
+
+/* Before the host sets one slot of a host-driven law at time != the law's time, carry the other two
+ * slots forward to now, so that (x, xd, xdd) always describe the law at law_time. */
+static void rebase_law(FmuData *d, int u_index) {
+#if N_LAWS > 0
+    for (int k = 0; k < N_LAWS; k++) {
+        const int o = MODEL_LAWS[k].u_offset;
+        if (!MODEL_LAWS[k].builtin && u_index >= o && u_index < o + 3 && d->law_time[k] != d->time) {
+            double x[3];
+            law_extended(d, k, d->time, x);
+            memcpy(d->u + o, x, sizeof(x));
+            d->law_time[k] = d->time;
+        }
+    }
+#else
+    (void)d;
+    (void)u_index;
+#endif
+}
+
+/* ========================================================== outputs, acceleration */
+
+static int all_finite(const double *x, int n) {
+    for (int i = 0; i < n; i++) if (!isfinite(x[i])) return 0;
+    return 1;
+}
+
+/* The consistent acceleration M(q) a = -r(q, v, 0, u, p) at d->time, then the outputs. */
+static fmi2Status update_outputs(Instance *inst, const char *function) {
+    FmuData *d = &inst->d;
+    fmi2Status status = fmi2OK;
+    if (d->outputs_valid) return fmi2OK;
+    model_inputs(d, d->time, inst->u0);
+    if (model_residual(d->q, d->v, inst->zero, inst->u0, d->p, inst->r, &inst->work) ||
+        model_newton_matrix(d->q, d->v, inst->zero, inst->u0, d->p, 1.0, 0.0, 0.0, inst->J, &inst->work)) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "%s: the model failed to evaluate at t = %.17g", function,
+                d->time);
+        return fmi2Error;
+    }
+    if (all_finite(inst->J, N_Q * N_Q) && lu_factor(inst->J, N_Q, inst->piv) == 0) {
+        for (int i = 0; i < N_Q; i++) d->acceleration[i] = -inst->r[i];
+        lu_solve(inst->J, N_Q, inst->piv, d->acceleration);
+        d->acceleration_ok = all_finite(d->acceleration, N_Q);
+    } else {
+        d->acceleration_ok = 0;
+    }
+    if (!d->acceleration_ok) {
+        memcpy(d->acceleration, d->alpha, sizeof(d->acceleration));
+        fmu_log(inst, fmi2Warning, LOG_STATUS_WARNING,
+                "%s: the mass matrix is singular at t = %.17g: outputs use the last step's mean acceleration",
+                function, d->time);
+        status = fmi2Warning;
+    }
+    if (model_outputs(d->q, d->v, d->acceleration, inst->u0, d->p, d->y, &inst->work)) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "%s: the model failed to evaluate its outputs at t = %.17g",
+                function, d->time);
+        return fmi2Error;
+    }
+    d->outputs_valid = 1;
+    return status;
+}
+
+/* ================================================================ get and set */
+
+fmi2Status fmu_get_real(Instance *inst, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]) {
+    int need_outputs = 0;
+    fmi2Status status = fmi2OK;
+    for (size_t i = 0; i < nvr; i++) {
+        if (vr[i] >= (fmi2ValueReference)N_VARS) {
+            fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2GetReal: unknown value reference %u", vr[i]);
+            return fmi2Error;
+        }
+        if (MODEL_VARS[vr[i]].kind == VAR_OUTPUT) need_outputs = 1;
+    }
+    if (need_outputs) {
+        status = update_outputs(inst, "fmi2GetReal");
+        if (status > fmi2Warning) return status;
+    }
+    for (size_t i = 0; i < nvr; i++) value[i] = *slot(&inst->d, &MODEL_VARS[vr[i]]);
+    return status;
+}
+
+/* Why value x cannot be given to variable v now, or NULL. */
+static const char *refuse_value(const Instance *inst, const VarInfo *v, double x, char *why, size_t n) {
+    const int phase = inst->d.phase;
+    const int fixed = v->kind == VAR_START_Q || v->kind == VAR_START_V || v->kind == VAR_SOLVER ||
+                      (v->kind == VAR_PARAMETER && !v->tunable);
+    if (v->kind == VAR_OUTPUT) {
+        snprintf(why, n, "%s is an output: it cannot be set", v->name);
+    } else if (fixed && !(phase & (PHASE_INSTANTIATED | PHASE_INITIALIZATION))) {
+        snprintf(why, n, "%s is fixed after initialization: it cannot be set in %s", v->name,
+                 fmu_phase_name(phase));
+    } else if (!isfinite(x)) {
+        snprintf(why, n, "%s = %g: NaN and infinite values are refused", v->name, x);
+    } else if (v->min_exclusive ? !(x > v->min) : !(x >= v->min)) {
+        snprintf(why, n, "%s = %.15g: must be %s %.15g", v->name, x, v->min_exclusive ? ">" : ">=", v->min);
+    } else if (!(x <= v->max)) {
+        snprintf(why, n, "%s = %.15g: must be <= %.15g", v->name, x, v->max);
+    } else {
+        return NULL;
+    }
+    return why;
+}
+
+fmi2Status fmu_set_real(Instance *inst, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) {
+    FmuData *d = &inst->d;
+    int invalidate = 0;
+    char why[512];
+    for (size_t i = 0; i < nvr; i++) {                 /* check everything before writing anything */
+        if (vr[i] >= (fmi2ValueReference)N_VARS) {
+            fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2SetReal: unknown value reference %u", vr[i]);
+            return fmi2Error;
+        }
+        if (refuse_value(inst, &MODEL_VARS[vr[i]], value[i], why, sizeof(why)) != NULL) {
+            fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2SetReal: %s", why);
+            return fmi2Error;
+        }
+    }
+    for (size_t i = 0; i < nvr; i++) {
+        const VarInfo *v = &MODEL_VARS[vr[i]];
+        if (v->kind == VAR_INPUT) rebase_law(d, v->index);
+        *slot(d, v) = value[i];
+        if (v->kind == VAR_START_Q) d->q[v->index] = value[i];       /* before initialization only */
+        if (v->kind == VAR_START_V) d->v[v->index] = value[i];
+        if (v->kind == VAR_PARAMETER && d->phase == PHASE_STEP) invalidate = 1;
+    }
+    if (invalidate) ss22_invalidate(&d->ss22);
+    if (nvr > 0) d->outputs_valid = 0;
+    return fmi2OK;
+}
+
+/* ================================================================== lifecycle */
+
+const char *fmu_phase_name(int phase) {
+    switch (phase) {
+    case PHASE_INSTANTIATED: return "instantiated";
+    case PHASE_INITIALIZATION: return "initialization mode";
+    case PHASE_STEP: return "step mode";
+    case PHASE_TERMINATED: return "terminated";
+    case PHASE_ERROR: return "error";
+    case PHASE_FATAL: return "fatal";
+    }
+    return "unknown";
+}
+
+Instance *fmu_instantiate(fmi2String name, fmi2Type type, fmi2String guid,
+                          const fmi2CallbackFunctions *functions, fmi2Boolean logging_on) {
+    Instance *inst;
+    const char *bad = NULL;
+    size_t len;
+    if (functions == NULL) return NULL;                /* no logger to tell */
+    if (functions->allocateMemory == NULL || functions->freeMemory == NULL) {
+        log_callbacks(functions, name, fmi2Error, "fmi2Instantiate: allocateMemory and freeMemory must not be NULL");
+        return NULL;
+    }
+    if (name == NULL) {
+        log_callbacks(functions, name, fmi2Error, "fmi2Instantiate: instanceName must not be NULL");
+        return NULL;
+    }
+    if (type == fmi2ModelExchange) {
+        log_callbacks(functions, name, fmi2Error, "fmi2Instantiate: Model Exchange is not supported yet "
+                      "(this FMU is Co-Simulation only)");
+        return NULL;
+    }
+    if (type != fmi2CoSimulation) {
+        log_callbacks(functions, name, fmi2Error, "fmi2Instantiate: unknown fmuType %d", (int)type);
+        return NULL;
+    }
+    if (guid == NULL || strcmp(guid, MODEL_GUID) != 0) {
+        log_callbacks(functions, name, fmi2Error, "fmi2Instantiate: GUID %s does not match this FMU's %s",
+                      guid != NULL ? guid : "(NULL)", MODEL_GUID);
+        return NULL;
+    }
+    if (!check_model_table(&bad)) {
+        log_callbacks(functions, name, fmi2Error, "fmi2Instantiate: the model's tables are inconsistent (%s)", bad);
+        return NULL;
+    }
+    inst = (Instance *)functions->allocateMemory(1, sizeof(Instance));
+    len = strlen(name);
+    if (inst == NULL) {
+        log_callbacks(functions, name, fmi2Error, "fmi2Instantiate: out of memory");
+        return NULL;
+    }
+    memset(inst, 0, sizeof(*inst));
+    inst->name = (char *)functions->allocateMemory(len + 1, 1);
+    if (inst->name == NULL) {
+        functions->freeMemory(inst);
+        log_callbacks(functions, name, fmi2Error, "fmi2Instantiate: out of memory");
+        return NULL;
+    }
+    memcpy(inst->name, name, len + 1);
+    inst->cb = *functions;
+    inst->logging_on = logging_on ? 1 : 0;
+    for (int k = 0; k < N_LOG_CATEGORIES; k++) inst->category_on[k] = inst->logging_on;
+    set_start_values(&inst->d);
+    inst->magic = INSTANCE_MAGIC;
+    return inst;
+}
+
+void fmu_free(Instance *inst) {
+    fmi2CallbackFreeMemory free_memory = inst->cb.freeMemory;
+    inst->magic = 0;
+    free_memory(inst->name);
+    free_memory(inst);
+}
+
+void fmu_reset(Instance *inst) {
+    set_start_values(&inst->d);
+}
+
+fmi2Status fmu_setup_experiment(Instance *inst, fmi2Boolean tolerance_defined, fmi2Real tolerance,
+                                fmi2Real start_time, fmi2Boolean stop_time_defined, fmi2Real stop_time) {
+    FmuData *d = &inst->d;
+    if (tolerance_defined && !(tolerance > 0.0 && isfinite(tolerance))) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2SetupExperiment: tolerance = %g: must be > 0", tolerance);
+        return fmi2Error;
+    }
+    if (!isfinite(start_time)) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2SetupExperiment: startTime = %g: must be finite", start_time);
+        return fmi2Error;
+    }
+    if (stop_time_defined && !(stop_time >= start_time && isfinite(stop_time))) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR,
+                "fmi2SetupExperiment: stopTime = %g: must be finite and >= startTime = %g", stop_time, start_time);
+        return fmi2Error;
+    }
+    d->experiment_tolerance_defined = tolerance_defined ? 1 : 0;
+    d->experiment_tolerance = tolerance_defined ? tolerance : 0.0;
+    d->start_time = start_time;
+    d->stop_time_defined = stop_time_defined ? 1 : 0;
+    d->stop_time = stop_time_defined ? stop_time : 0.0;
+    d->time = start_time;
+    d->last_successful_time = start_time;
+    for (int k = 0; k < N_LAWS; k++) d->law_time[k] = start_time;   /* inputs set so far hold at the start */
+    d->outputs_valid = 0;
+    return fmi2OK;
+}
+
+fmi2Status fmu_enter_initialization(Instance *inst) {
+    inst->d.phase = PHASE_INITIALIZATION;
+    inst->d.outputs_valid = 0;
+    return fmi2OK;
+}
+
+#if N_STATIC > 0
+/* Newton on r_S(q, v_start, a = 0, u with law accelerations 0) = 0 for the coordinates S. */
+static fmi2Status static_equilibrium(Instance *inst, double tolerance) {
+    FmuData *d = &inst->d;
+    const int S = N_STATIC;
+    model_inputs(d, d->time, inst->u0);
+#if N_LAWS > 0
+    for (int k = 0; k < N_LAWS; k++) inst->u0[MODEL_LAWS[k].u_offset + 2] = 0.0;
+#endif
+    for (int it = 1; it <= STATIC_MAX_ITERATIONS; it++) {
+        int converged = 1;
+        if (model_residual(d->q, d->v, inst->zero, inst->u0, d->p, inst->r, &inst->work) ||
+            model_newton_matrix(d->q, d->v, inst->zero, inst->u0, d->p, 0.0, 0.0, 1.0, inst->J, &inst->work)) {
+            fmu_log(inst, fmi2Error, LOG_STATUS_ERROR,
+                    "fmi2ExitInitializationMode: static equilibrium: the model failed to evaluate");
+            return fmi2Error;
+        }
+        for (int i = 0; i < S; i++) {
+            inst->dq[i] = -inst->r[MODEL_STATIC_COORDS[i]];
+            for (int j = 0; j < S; j++) inst->Js[i + j * S] = inst->J[MODEL_STATIC_COORDS[i] + MODEL_STATIC_COORDS[j] * N_Q];
+        }
+        if (!all_finite(inst->dq, S) || !all_finite(inst->Js, S * S)) {
+            fmu_log(inst, fmi2Error, LOG_STATUS_ERROR,
+                    "fmi2ExitInitializationMode: static equilibrium: NaN or infinite residual at iteration %d", it);
+            return fmi2Error;
+        }
+        if (lu_factor(inst->Js, S, inst->piv) != 0) {
+            fmu_log(inst, fmi2Error, LOG_STATUS_ERROR,
+                    "fmi2ExitInitializationMode: static equilibrium: the stiffness matrix of the static coordinates "
+                    "is singular (no stiffness holds them?)");
+            return fmi2Error;
+        }
+        lu_solve(inst->Js, S, inst->piv, inst->dq);
+        for (int i = 0; i < S; i++) {
+            const int c = MODEL_STATIC_COORDS[i];
+            d->q[c] += inst->dq[i];
+            if (!(fabs(inst->dq[i]) <= tolerance * MODEL_NOMINAL_Q[c])) converged = 0;
+        }
+        if (converged) {
+            fmu_log(inst, fmi2OK, LOG_EVENTS, "static equilibrium of %d coordinates found in %d Newton iterations",
+                    S, it);
+            return fmi2OK;
+        }
+    }
+    fmu_log(inst, fmi2Error, LOG_STATUS_ERROR,
+            "fmi2ExitInitializationMode: static equilibrium: Newton did not converge in %d iterations "
+            "(tolerance %g)", STATIC_MAX_ITERATIONS, tolerance);
+    return fmi2Error;
+}
+#endif
+
+fmi2Status fmu_exit_initialization(Instance *inst) {
+    FmuData *d = &inst->d;
+    const double step = d->solver[SOLVER_STEP], theta1 = d->solver[SOLVER_THETA1];
+    const double theta2 = d->solver[SOLVER_THETA2];
+    double tolerance = d->solver[SOLVER_TOLERANCE];
+    fmi2Status status;
+    if (!(step > 0.0 && isfinite(step))) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2ExitInitializationMode: %s = %g: must be > 0",
+                solver_name(SOLVER_STEP), step);
+        return fmi2Error;
+    }
+    if (!(theta1 >= 0.5 && theta2 >= theta1 && theta2 <= 1.0)) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR,
+                "fmi2ExitInitializationMode: SS22 needs 0.5 <= %s <= %s <= 1 (unconditional stability), "
+                "got %g and %g", solver_name(SOLVER_THETA1), solver_name(SOLVER_THETA2), theta1, theta2);
+        return fmi2Error;
+    }
+    if (!(tolerance > 0.0 && isfinite(tolerance))) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2ExitInitializationMode: %s = %g: must be > 0",
+                solver_name(SOLVER_TOLERANCE), tolerance);
+        return fmi2Error;
+    }
+    /* the host's experiment tolerance may tighten the Newton tolerance, never loosen it */
+    if (d->experiment_tolerance_defined && d->experiment_tolerance < tolerance) tolerance = d->experiment_tolerance;
+    memcpy(d->q, d->q_start, sizeof(d->q));
+    memcpy(d->v, d->v_start, sizeof(d->v));
+#if N_STATIC > 0
+    if (static_equilibrium(inst, tolerance) != fmi2OK) return fmi2Error;
+#endif
+    ss22_init(&d->ss22, theta1, theta2, tolerance);
+    memset(d->alpha, 0, sizeof(d->alpha));
+    d->outputs_valid = 0;
+    status = update_outputs(inst, "fmi2ExitInitializationMode");
+    if (status > fmi2Warning) return status;
+    memcpy(d->alpha, d->acceleration, sizeof(d->alpha));
+    d->last_successful_time = d->time;
+    d->phase = PHASE_STEP;
+    fmu_log(inst, fmi2OK, LOG_EVENTS, "initialized at t = %.17g (SS22: step %g, theta1 %g, theta2 %g, tolerance %g)",
+            d->time, step, theta1, theta2, tolerance);
+    return status;
+}
+
+/* ====================================================================== doStep */
+
+static SS22Status ss22_from(Instance *inst, double t0, double t1) {
+    FmuData *d = &inst->d;
+    model_inputs(d, t0, inst->u0);
+    model_inputs(d, t1, inst->u1);
+    return ss22_step(&d->ss22, t1 - t0, d->q, d->v, d->alpha, inst->u0, inst->u1, d->p, &inst->work);
+}
+
+/* One internal step [t0, t1]; if SS22 fails, again as 2, 4, ... SUBSTEP_MAX sub-steps. */
+static SS22Status internal_step(Instance *inst, double t0, double t1) {
+    FmuData *d = &inst->d;
+    SS22Status status = ss22_from(inst, t0, t1);       /* leaves q, v, alpha alone on failure */
+    if (status == SS22_OK) return status;
+    memcpy(inst->q_save, d->q, sizeof(d->q));
+    memcpy(inst->v_save, d->v, sizeof(d->v));
+    memcpy(inst->alpha_save, d->alpha, sizeof(d->alpha));
+    for (int n = 2; n <= SUBSTEP_MAX; n *= 2) {
+        const double dt = (t1 - t0) / n;
+        fmu_log(inst, fmi2OK, LOG_EVENTS, "step [%.17g, %.17g]: %s; retrying as %d sub-steps", t0, t1,
+                ss22_status_message(status), n);
+        for (int j = 1; j <= n; j++) {
+            const double a = t0 + (j - 1) * dt, b = j == n ? t1 : t0 + j * dt;
+            status = ss22_from(inst, a, b);
+            if (status != SS22_OK) break;
+        }
+        if (status == SS22_OK) return status;
+        memcpy(d->q, inst->q_save, sizeof(d->q));
+        memcpy(d->v, inst->v_save, sizeof(d->v));
+        memcpy(d->alpha, inst->alpha_save, sizeof(d->alpha));
+    }
+    return status;
+}
+
+fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h) {
+    FmuData *d = &inst->d;
+    const double step = d->solver[SOLVER_STEP];
+    double t, t_end;
+    if (!(h > 0.0 && isfinite(h))) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2DoStep: communicationStepSize = %g: must be > 0 and finite", h);
+        return fmi2Error;
+    }
+    if (!(fabs(tc - d->time) <= 1e-9 * fmax(1.0, fabs(d->time)))) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR,
+                "fmi2DoStep: currentCommunicationPoint = %.17g differs from the FMU's time %.17g", tc, d->time);
+        return fmi2Error;
+    }
+    t_end = tc + h;
+    if (d->stop_time_defined && t_end > d->stop_time + 1e-9 * fmax(1.0, fabs(d->stop_time))) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2DoStep: the step to t = %.17g goes beyond stopTime = %.17g",
+                t_end, d->stop_time);
+        return fmi2Error;
+    }
+    memcpy(&inst->backup, d, sizeof(*d));
+    t = d->time;
+    for (long i = 1; t < t_end; i++) {
+        /* internal steps of solver.step from the communication point, the last one shortened; a remainder
+         * below 1e-9 step is absorbed into the previous step, so the step never overshoots */
+        double t_next = inst->backup.time + (double)i * step;
+        SS22Status status;
+        if (t_end - t_next <= 1e-9 * step) t_next = t_end;
+        status = internal_step(inst, t, t_next);
+        if (status != SS22_OK) {
+            memcpy(d, &inst->backup, sizeof(*d));
+            fmu_log(inst, fmi2Discard, LOG_STATUS_DISCARD,
+                    "fmi2DoStep: the SS22 step at t = %.17g failed: %s (also as %d sub-steps); the step from "
+                    "%.17g to %.17g is discarded and the FMU is back at t = %.17g", t, ss22_status_message(status),
+                    SUBSTEP_MAX, tc, t_end, d->time);
+            return fmi2Discard;
+        }
+        t = t_next;
+    }
+    d->time = t_end;
+    d->last_successful_time = t_end;
+    d->outputs_valid = 0;
+    return fmi2OK;
+}
+
+/* ================================================================= FMU state */
+
+static int state_ok(const SavedState *s) {
+    return s != NULL && s->magic == STATE_MAGIC;
+}
+
+fmi2Status fmu_get_state(Instance *inst, fmi2FMUstate *state) {
+    SavedState *s = (SavedState *)*state;
+    if (s != NULL && !state_ok(s)) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2GetFMUstate: *FMUstate is neither NULL nor a state of "
+                "this FMU");
+        return fmi2Error;
+    }
+    if (s == NULL) {
+        s = (SavedState *)inst->cb.allocateMemory(1, sizeof(SavedState));
+        if (s == NULL) {
+            fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2GetFMUstate: out of memory");
+            return fmi2Error;
+        }
+        memset(s, 0, sizeof(*s));
+        s->magic = STATE_MAGIC;
+    }
+    memcpy(&s->d, &inst->d, sizeof(s->d));
+    *state = s;
+    return fmi2OK;
+}
+
+fmi2Status fmu_set_state(Instance *inst, fmi2FMUstate state) {
+    const SavedState *s = (const SavedState *)state;
+    if (!state_ok(s)) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2SetFMUstate: not a state of this FMU (NULL or freed)");
+        return fmi2Error;
+    }
+    memcpy(&inst->d, &s->d, sizeof(inst->d));
+    return fmi2OK;
+}
+
+fmi2Status fmu_free_state(Instance *inst, fmi2FMUstate *state) {
+    SavedState *s = (SavedState *)*state;
+    if (s == NULL) return fmi2OK;
+    if (!state_ok(s)) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2FreeFMUstate: not a state of this FMU (already freed?)");
+        return fmi2Error;
+    }
+    s->magic = 0;
+    inst->cb.freeMemory(s);
+    *state = NULL;
+    return fmi2OK;
+}
+
+/* Serialized layout: magic (8 bytes) | MODEL_GUID with its NUL | payload size (uint64) |
+ * FNV-1a checksum of the payload (uint64) | the FmuData bytes.  Same machine and build only. */
+static const char SERIAL_MAGIC[8] = {'F', 'L', 'X', 'S', 'T', 'A', 'T', '1'};
+#define GUID_BYTES sizeof(MODEL_GUID)
+#define HEADER_BYTES (sizeof(SERIAL_MAGIC) + GUID_BYTES + 2 * sizeof(uint64_t))
+
+static uint64_t checksum(const unsigned char *p, size_t n) {
+    uint64_t h = 14695981039346656037ULL;
+    for (size_t i = 0; i < n; i++) {
+        h ^= p[i];
+        h *= 1099511628211ULL;
+    }
+    return h;
+}
+
+size_t fmu_serialized_size(void) {
+    return HEADER_BYTES + sizeof(FmuData);
+}
+
+fmi2Status fmu_serialize(Instance *inst, fmi2FMUstate state, fmi2Byte buffer[], size_t size) {
+    const SavedState *s = (const SavedState *)state;
+    const uint64_t payload = sizeof(FmuData);
+    uint64_t sum;
+    unsigned char *b = (unsigned char *)buffer;
+    if (!state_ok(s)) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2SerializeFMUstate: not a state of this FMU");
+        return fmi2Error;
+    }
+    if (size < fmu_serialized_size()) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2SerializeFMUstate: buffer of %zu bytes, %zu needed", size,
+                fmu_serialized_size());
+        return fmi2Error;
+    }
+    sum = checksum((const unsigned char *)&s->d, sizeof(s->d));
+    memcpy(b, SERIAL_MAGIC, sizeof(SERIAL_MAGIC));
+    b += sizeof(SERIAL_MAGIC);
+    memcpy(b, MODEL_GUID, GUID_BYTES);
+    b += GUID_BYTES;
+    memcpy(b, &payload, sizeof(payload));
+    b += sizeof(payload);
+    memcpy(b, &sum, sizeof(sum));
+    b += sizeof(sum);
+    memcpy(b, &s->d, sizeof(s->d));
+    return fmi2OK;
+}
+
+/* Beyond the checksum: nothing in a state may lead to an out-of-bounds access. */
+static const char *invalid_data(const FmuData *d) {
+    const int phases[] = {PHASE_INSTANTIATED, PHASE_INITIALIZATION, PHASE_STEP, PHASE_TERMINATED, PHASE_ERROR,
+                          PHASE_FATAL};
+    int phase_ok = 0;
+    for (size_t k = 0; k < sizeof(phases) / sizeof(phases[0]); k++) phase_ok |= d->phase == phases[k];
+    if (!phase_ok) return "state machine";
+    if ((d->outputs_valid | d->acceleration_ok | d->stop_time_defined | d->experiment_tolerance_defined) & ~1)
+        return "flags";
+    if (d->ss22.max_iterations < 0 || d->ss22.max_iterations > 1000) return "solver settings";
+    for (int k = 0; k < SS22_CACHE; k++) {
+        const SS22Factor *f = &d->ss22.cache[k];
+        if (f->valid & ~1) return "solver cache";
+        for (int i = 0; i < N_Q && f->valid; i++) {
+            if (f->piv[i] < i || f->piv[i] >= N_Q) return "solver cache";
+        }
+    }
+    if (!isfinite(d->time) || !all_finite(d->q, N_Q) || !all_finite(d->v, N_Q)) return "time or state";
+    return NULL;
+}
+
+fmi2Status fmu_deserialize(Instance *inst, const fmi2Byte buffer[], size_t size, fmi2FMUstate *state) {
+    const unsigned char *b = (const unsigned char *)buffer;
+    uint64_t payload, sum;
+    SavedState *s, *target = (SavedState *)*state;
+    const char *bad;
+    if (target != NULL && !state_ok(target)) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2DeSerializeFMUstate: *FMUstate is neither NULL nor a state "
+                "of this FMU");
+        return fmi2Error;
+    }
+    if (size != fmu_serialized_size()) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR,
+                "fmi2DeSerializeFMUstate: %zu bytes, a state of this FMU has %zu", size, fmu_serialized_size());
+        return fmi2Error;
+    }
+    if (memcmp(b, SERIAL_MAGIC, sizeof(SERIAL_MAGIC)) != 0) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2DeSerializeFMUstate: not a serialized flexlink FMU state");
+        return fmi2Error;
+    }
+    b += sizeof(SERIAL_MAGIC);
+    if (memcmp(b, MODEL_GUID, GUID_BYTES) != 0) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2DeSerializeFMUstate: the state belongs to another FMU "
+                "(GUID differs from %s)", MODEL_GUID);
+        return fmi2Error;
+    }
+    b += GUID_BYTES;
+    memcpy(&payload, b, sizeof(payload));
+    b += sizeof(payload);
+    memcpy(&sum, b, sizeof(sum));
+    b += sizeof(sum);
+    if (payload != sizeof(FmuData)) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2DeSerializeFMUstate: the state was written by another build "
+                "of this FMU (payload size differs)");
+        return fmi2Error;
+    }
+    if (checksum(b, sizeof(FmuData)) != sum) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2DeSerializeFMUstate: the state is corrupted (checksum)");
+        return fmi2Error;
+    }
+    s = (SavedState *)inst->cb.allocateMemory(1, sizeof(SavedState));
+    if (s == NULL) {
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2DeSerializeFMUstate: out of memory");
+        return fmi2Error;
+    }
+    memset(s, 0, sizeof(*s));
+    memcpy(&s->d, b, sizeof(s->d));
+    if ((bad = invalid_data(&s->d)) != NULL) {
+        inst->cb.freeMemory(s);
+        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2DeSerializeFMUstate: the state is invalid (%s)", bad);
+        return fmi2Error;
+    }
+    if (target != NULL) {                              /* reuse the host's state, as fmi2GetFMUstate does */
+        memcpy(&target->d, &s->d, sizeof(target->d));
+        inst->cb.freeMemory(s);
+        return fmi2OK;
+    }
+    s->magic = STATE_MAGIC;
+    *state = s;
+    return fmi2OK;
+}

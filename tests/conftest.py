@@ -1,0 +1,57 @@
+"""Shared helpers for the single-link model tests (tests/test_model_*.py): a scene factory and a root
+bracketer for the transcendental frequency equations that the tests solve themselves."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.optimize import brentq
+
+from flexlink.scene import Scene, parse_scene
+
+# Seed 000 §3.4.3 link (examples/rotating_link.toml): E = 71 GPa, I_z = 1.32e-9 m^4, rho = 0.349 kg/m, L = 2.2 m.
+SEED000_LINK = {"length": 2.2, "linear_density": 0.349, "EI": 93.72}
+
+
+def make_link_scene(kind: str = "clamped-free", count: int = 3, kinematics: str = "second-order", *,
+                    drive: str = "position", hub_inertia: float = 0.0, hub_damping: float = 0.0,
+                    angle: float = 0.0, rate: float = 0.0, gravity=(0.0, 0.0, 0.0), payload: dict | None = None,
+                    kelvin_voigt: float = 0.0, length: float = SEED000_LINK["length"],
+                    linear_density: float = SEED000_LINK["linear_density"], EI: float = SEED000_LINK["EI"]) -> Scene:
+    """One joint (axis z) driving one in-plane link.
+
+    ``drive="position"``: the hub is held at ``angle`` by a built-in constant law (the steady rate of
+    ``natural_frequencies(model, rate=W)`` is then imposed by the analysis); otherwise the hub is a free
+    coordinate starting at ``angle`` with rate ``rate``.
+    """
+    joint = {"name": "hub", "axis": [0.0, 0.0, 1.0], "drive": drive, "inertia": hub_inertia, "damping": hub_damping}
+    if drive == "position":
+        joint["trajectory"] = {"segments": [{"until": math.inf, "poly": [angle]}]}
+    else:
+        joint["initial_angle"] = angle
+        joint["initial_rate"] = rate
+    link = {"name": "arm", "length": length, "linear_density": linear_density, "EI": EI, "deformation": ["v"],
+            "shapes": {"kind": kind, "count": count}, "kinematics": kinematics, "kelvin_voigt": kelvin_voigt}
+    if payload:
+        link["payload"] = dict(payload)
+    return parse_scene({"name": "single_link", "gravity": list(gravity), "joint": [joint], "link": [link]})
+
+
+def bracket_roots(f, lo: float, hi: float, samples: int = 4000) -> np.ndarray:
+    """All sign changes of f on [lo, hi] (sampled), each refined by brentq to full precision."""
+    xs = np.linspace(lo, hi, samples)
+    fs = np.array([f(x) for x in xs])
+    out = []
+    for i in range(samples - 1):
+        if fs[i] == 0.0:
+            out.append(xs[i])
+        elif fs[i] * fs[i + 1] < 0.0:
+            out.append(brentq(f, xs[i], xs[i + 1], xtol=1e-15, rtol=4 * np.finfo(float).eps))
+    return np.array(out)
+
+
+def clamped_free_lambdas(count: int) -> np.ndarray:
+    """Roots of 1 + cos λ cosh λ = 0, written as cos λ + 1/cosh λ = 0 (no overflow), one per (i−1/2)π ± π/2."""
+    return np.array([brentq(lambda lam: math.cos(lam) + 1.0 / math.cosh(lam), (i - 1) * math.pi, i * math.pi,
+                            xtol=1e-15) for i in range(1, count + 1)])
