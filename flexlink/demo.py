@@ -38,7 +38,8 @@ def run_demo(out: str | Path = "out") -> int:
                       dtype=[("time", float), ("hub.tau", float)])
     t0 = time.perf_counter()
     shown = ["hub.tau", "hub.theta", "hub.omega", "arm.tip.v", "arm.root.moment"]
-    res = simulate(rep.fmu, stop, step=0.01, inputs=torque, start_values={"solver.step": step}, outputs=shown)
+    res = simulate(rep.fmu, stop, step=0.01, inputs=torque, start_values={"solver.step": step},
+                   outputs=shown)
     wall = time.perf_counter() - t0
     times = res["time"]
     ref = simulate_reference(model, times, inputs=[(0.0, {"hub.tau": 0.2}), (1.0, {"hub.tau": -0.2}),
@@ -46,7 +47,8 @@ def run_demo(out: str | Path = "out") -> int:
     err_theta = np.max(np.abs(res["hub.theta"] - ref.output(model, "hub.theta")))
     err_tip = np.max(np.abs(res["arm.tip.v"] - ref.output(model, "arm.tip.v")))
     write_csv(res, out / "rotating_link.csv")
-    plot_result(res, out / "rotating_link.png", shown, title="seed-000 rotating link, bang-bang torque (FMU through fmpy)")
+    plot_result(res, out / "rotating_link.png", shown,
+                title="seed-000 rotating link, bang-bang torque (FMU through fmpy)")
     print(f"FMU run: {stop} s simulated in {wall:.3f} s wall (SS22 step {step} s, communication step 0.01 s)")
     print(f"final hub angle {res['hub.theta'][-1]:.6f} rad, max |tip deflection| "
           f"{np.max(np.abs(res['arm.tip.v'])) * 1e3:.3f} mm")

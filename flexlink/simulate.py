@@ -73,7 +73,8 @@ def simulate(fmu: str | os.PathLike, stop_time: float, *, step: float | None = N
         if name not in names:
             raise FlexlinkError(f"--set {name}: the FMU has no variable of that name")
         if names[name].causality not in ("parameter", "input"):
-            raise FlexlinkError(f"--set {name}: only parameters and inputs can be set (it is an {names[name].causality})")
+            raise FlexlinkError(f"--set {name}: only parameters and inputs can be set "
+                                f"(it is an {names[name].causality})")
     if not (np.isfinite(stop_time) and stop_time > 0):
         raise FlexlinkError(f"--stop-time must be a positive number, got {stop_time}")
     if step is not None and not (np.isfinite(step) and step > 0):
