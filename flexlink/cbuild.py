@@ -18,6 +18,12 @@ from pathlib import Path
 
 from flexlink.errors import BuildError
 
+#: The log categories of the C glue (``LOG_CATEGORY_NAMES`` in fmu_src/cosimulation.c), in its order:
+#: modelDescription.xml must list exactly these in ``<LogCategories>``.
+LOG_CATEGORIES: tuple[str, ...] = (
+    "logEvents", "logStatusWarning", "logStatusDiscard", "logStatusError", "logAll",
+)
+
 #: Flags of every FMU build (generated CasADi code included).
 CFLAGS: tuple[str, ...] = (
     "-shared", "-fPIC", "-O2", "-std=c99", "-Wall", "-Wextra", "-Werror", "-fvisibility=hidden",

@@ -28,12 +28,13 @@ import casadi as ca
 import control as ct
 import numpy as np
 
-from flexlink.analysis import OperatingPoint, linearise, operating_point, static_deflection
+from flexlink.analysis import Linearisation, OperatingPoint, linearise, operating_point, static_deflection
 from flexlink.errors import FlexlinkError
 from flexlink.model import SymbolicModel, build_model
 from flexlink.scene import Scene, load_scene
 
-__all__ = ["LinearPlant", "linear_plant", "linearize", "operating_point_at", "signal_name", "state_names"]
+__all__ = ["LinearPlant", "explicit_functions", "linear_plant", "linearize", "operating_point_at", "signal_name",
+           "state_names"]
 
 
 def signal_name(fmu_name: str) -> str:
@@ -61,6 +62,8 @@ class LinearPlant:
         State, inputs and (selected) outputs at the operating point.
     inputs, outputs : list of str
         FMU names of ``sys``'s inputs and outputs, in order (``sys`` spells them with "_").
+    mechanics : Linearisation
+        The second-order form ``M δq̈ + C δq̇ + K δq = B δu`` (all model inputs) behind ``sys``.
     """
 
     sys: ct.StateSpace
@@ -71,6 +74,7 @@ class LinearPlant:
     y0: np.ndarray
     inputs: list[str]
     outputs: list[str]
+    mechanics: Linearisation
 
     @property
     def states(self) -> list[str]:
@@ -141,8 +145,9 @@ def operating_point_at(model: SymbolicModel, *, angle: float | None = None, rate
     return OperatingPoint(q, op.v.copy(), u, p)
 
 
-def _output_functions(model: SymbolicModel):
-    """(x, u, p) → (ẋ, y): the explicit first-order form, a from the residual (affine in a)."""
+def explicit_functions(model: SymbolicModel) -> tuple[ca.Function, ca.Function]:
+    """``f(x, u, p) = ẋ`` and ``h(x, u, p) = y`` (all the model's outputs): the explicit first-order form,
+    the acceleration from the residual (affine in it).  ``u`` is the model's whole input vector."""
     n = model.n_q
     q, v, a = ca.MX.sym("q", n), ca.MX.sym("v", n), ca.MX.sym("a", n)
     u = ca.MX.sym("u", model.residual.size1_in(3))
@@ -151,10 +156,19 @@ def _output_functions(model: SymbolicModel):
     zero = ca.DM.zeros(n)
     M = ca.substitute(ca.jacobian(r, a), a, zero)
     acc = -ca.solve(M, ca.substitute(r, a, zero))
-    y = model.outputs_function(q, v, acc, u, p)
     x = ca.vertcat(q, v)
-    f = ca.vertcat(v, acc)
-    return ca.Function("lin", [x, u, p], [ca.jacobian(f, x), ca.jacobian(f, u), y, ca.jacobian(y, x),
+    return (ca.Function("f", [x, u, p], [ca.vertcat(v, acc)], ["x", "u", "p"], ["xdot"]),
+            ca.Function("h", [x, u, p], [model.outputs_function(q, v, acc, u, p)], ["x", "u", "p"], ["y"]))
+
+
+def _output_functions(model: SymbolicModel):
+    """(x, u, p) → (∂ẋ/∂x, ∂ẋ/∂u, y, ∂y/∂x, ∂y/∂u) of the explicit first-order form."""
+    f, h = explicit_functions(model)
+    x = ca.MX.sym("x", f.size1_in(0))
+    u = ca.MX.sym("u", f.size1_in(1))
+    p = ca.MX.sym("p", f.size1_in(2))
+    xd, y = f(x, u, p), h(x, u, p)
+    return ca.Function("lin", [x, u, p], [ca.jacobian(xd, x), ca.jacobian(xd, u), y, ca.jacobian(y, x),
                                           ca.jacobian(y, u)])
 
 
@@ -209,7 +223,7 @@ def linear_plant(scene_or_model, *, rate: float = 0.0, angle: float | None = Non
     ident = name or model.scene.model_identifier
     sys = ct.ss(A, B[:, cols], Cy[rows], Dy[np.ix_(rows, cols)], name=ident, states=state_names(model),
                 inputs=[signal_name(s) for s in inputs], outputs=[signal_name(s) for s in outputs])
-    return LinearPlant(sys, model, op, x0, op.u[cols], y0.ravel()[rows], inputs, list(outputs))
+    return LinearPlant(sys, model, op, x0, op.u[cols], y0.ravel()[rows], inputs, list(outputs), lin)
 
 
 def linearize(scene_or_model, *, rate: float = 0.0, angle: float | None = None,

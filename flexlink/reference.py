@@ -35,7 +35,7 @@ def _law_expression(trajectory, t: ca.MX, t_mid: float):
         if t_mid < s.until:
             seg = s
             break
-    theta = sum((c * t**k for k, c in enumerate(seg.poly)), ca.MX(0))
+    theta = sum((c * t**k for k, c in enumerate(seg.poly)), 0 * t)
     for amp, w, phase in seg.cos:
         theta += amp * ca.cos(w * t + phase)
     theta_d = ca.jacobian(theta, t)
@@ -58,11 +58,14 @@ def simulate_reference(model: SymbolicModel, times, *, inputs=None, p=None, q0=N
     pieces = sorted(inputs or [], key=lambda x: x[0])
 
     n = model.n_q
-    q, v, a = ca.MX.sym("q", n), ca.MX.sym("v", n), ca.MX.sym("a", n)
-    t = ca.MX.sym("t")
-    u_base = ca.MX.sym("u_base", len(names))
-    pp = ca.MX.sym("p", len(p))
-    r = model.residual(q, v, a, u_base, pp)
+    # scalar expressions for small models: CVODES calls them many times, and SX calls are cheap
+    sym = ca.SX if n <= 24 else ca.MX
+    residual = model.residual.expand() if sym is ca.SX else model.residual
+    q, v, a = sym.sym("q", n), sym.sym("v", n), sym.sym("a", n)
+    t = sym.sym("t")
+    u_base = sym.sym("u_base", len(names))
+    pp = sym.sym("p", len(p))
+    r = residual(q, v, a, u_base, pp)
     M = ca.jacobian(r, a)
     rhs_acc = -ca.solve(ca.substitute(M, a, ca.DM.zeros(n)), ca.substitute(r, a, ca.DM.zeros(n)))
     accel = ca.Function("accel", [q, v, u_base, pp], [rhs_acc])
@@ -88,12 +91,12 @@ def simulate_reference(model: SymbolicModel, times, *, inputs=None, p=None, q0=N
     for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
         mid = 0.5 * (lo + hi)
         ub = base_inputs(mid)
-        u_sym = ca.MX(ca.DM(ub))
+        u_sym = sym(ca.DM(ub))
         for law in model.laws:
             if law.trajectory is not None:
                 th = _law_expression(law.trajectory, t, mid)
                 u_sym = ca.vertcat(u_sym[:law.u_offset], *th, u_sym[law.u_offset + 3:])
-        xs = ca.MX.sym("x", 2 * n)
+        xs = sym.sym("x", 2 * n)
         ode = ca.vertcat(xs[n:], accel(xs[:n], xs[n:], u_sym, pp))
         grid = [tm for tm in times if lo < tm <= hi]
         if not grid or grid[-1] != hi:

@@ -120,3 +120,100 @@ def plot_result(result: np.ndarray, path: str | os.PathLike, names: list[str] | 
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def logging_callbacks(logger):
+    """fmi2CallbackFunctions whose logger calls ``logger(component, instance, status, category, message)``
+    (fmpy's proxy formats the FMU's printf-style message first).  Keep the returned object alive."""
+    from ctypes import byref
+
+    from fmpy import calloc, free
+    from fmpy.fmi2 import (
+        fmi2CallbackAllocateMemoryTYPE,
+        fmi2CallbackFreeMemoryTYPE,
+        fmi2CallbackFunctions,
+        fmi2CallbackLoggerTYPE,
+    )
+
+    callbacks = fmi2CallbackFunctions()
+    callbacks.logger = fmi2CallbackLoggerTYPE(logger)
+    callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+    callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+    try:
+        from fmpy.logging import addLoggerProxy
+
+        addLoggerProxy(byref(callbacks))
+    except ImportError:   # older fmpy: messages arrive unformatted
+        pass
+    return callbacks
+
+
+class SlaveRunner:
+    """A step-by-step co-simulation loop with fmpy's ``FMU2Slave``, instantiated once (reset between runs).
+
+    ``run(stop, comm_step, inputs=lambda t: {...}, start={...}, outputs=[...])`` sets the inputs at each
+    communication point from ``inputs(t)`` and records the outputs; it returns ``{name: array}`` with
+    ``"time"``.
+    """
+
+    def __init__(self, fmu: str | os.PathLike, instance_name: str = "flexlink", logging: bool = False):
+        import fmpy
+        from fmpy.fmi2 import FMU2Slave
+
+        self.model_description = fmpy.read_model_description(str(fmu))
+        self._unzipdir = fmpy.extract(str(fmu))
+        self.vr = {v.name: v.valueReference for v in self.model_description.modelVariables}
+        self.messages: list[str] = []
+
+        def logger(component, instance, status, category, message):
+            self.messages.append(message.decode(errors="replace") if isinstance(message, bytes) else str(message))
+
+        self.slave = FMU2Slave(guid=self.model_description.guid, unzipDirectory=self._unzipdir,
+                               modelIdentifier=self.model_description.coSimulation.modelIdentifier,
+                               instanceName=instance_name)
+        self.slave.instantiate(loggingOn=logging, callbacks=logging_callbacks(logger))
+        self._fresh = True
+
+    def run(self, stop: float, comm_step: float, *, inputs=None, start: dict[str, float] | None = None,
+            outputs: list[str] | None = None) -> dict[str, np.ndarray]:
+        s = self.slave
+        if not self._fresh:
+            s.reset()
+        self._fresh = False
+        for name, value in (start or {}).items():
+            s.setReal([self.vr[name]], [float(value)])
+        s.setupExperiment(startTime=0.0)
+        s.enterInitializationMode()
+        s.exitInitializationMode()
+        outputs = outputs or [v.name for v in self.model_description.modelVariables if v.causality == "output"]
+        out_vr = [self.vr[n] for n in outputs]
+        n = int(round(stop / comm_step))
+        rec = np.empty((n + 1, len(outputs)))
+        times = np.arange(n + 1) * comm_step
+        for k in range(n + 1):
+            if inputs is not None:
+                u = inputs(times[k])
+                if u:
+                    s.setReal([self.vr[name] for name in u], [float(x) for x in u.values()])
+            rec[k] = s.getReal(out_vr)
+            if k < n:
+                s.doStep(currentCommunicationPoint=times[k], communicationStepSize=comm_step)
+        result = {"time": times}
+        result.update({name: rec[:, i] for i, name in enumerate(outputs)})
+        return result
+
+    def close(self) -> None:
+        try:
+            self.slave.terminate()
+        except Exception:   # already terminated, or in error: freeing is what matters
+            pass
+        self.slave.freeInstance()
+        import shutil
+
+        shutil.rmtree(self._unzipdir, ignore_errors=True)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

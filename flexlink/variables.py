@@ -60,7 +60,7 @@ def fmu_variables(model: SymbolicModel, feedthrough: dict[int, tuple[int, ...]] 
         FmuVariable("solver.theta2", "VAR_SOLVER", 2, th2, "parameter", "fixed", "",
                     "SS22 Theta2 (>= Theta1 for unconditional stability)", min=0.5, max=1.0),
         FmuVariable("solver.tolerance", "VAR_SOLVER", 3, scene.fmu.tolerance, "parameter", "fixed", "",
-                    "Newton tolerance on the step's rate change, in nominal units", min=0.0,
+                    "Newton tolerance: a step's rate change against the coordinate's nominal scale", min=0.0,
                     min_exclusive=True),
     ]
     for i, sig in enumerate(model.inputs):

@@ -34,8 +34,9 @@ static const char *status_category(fmi2Status status, LogCategory category) {
     }
 }
 
-static void vlog_to(const fmi2CallbackFunctions *cb, const char *name, fmi2Status status, LogCategory category,
-                    char *buf, size_t nbuf, char *escaped, size_t nescaped, const char *format, va_list ap) {
+static void vlog_to(const fmi2CallbackFunctions *cb, const char *name, fmi2Status status,
+                    LogCategory category, char *buf, size_t nbuf, char *escaped, size_t nescaped,
+                    const char *format, va_list ap) {
     if (cb == NULL || cb->logger == NULL) return;
     vsnprintf(buf, nbuf, format, ap);
     escape_message(buf, escaped, nescaped);
@@ -66,26 +67,31 @@ void fmu_log(Instance *inst, fmi2Status status, LogCategory category, const char
     va_end(ap);
 }
 
+fmi2Status fmu_error(Instance *inst, const char *format, ...) {
+    va_list ap;
+    va_start(ap, format);
+    vlog_to(&inst->cb, inst->name, fmi2Error, LOG_STATUS_ERROR, inst->message, sizeof(inst->message),
+            inst->escaped, sizeof(inst->escaped), format, ap);
+    va_end(ap);
+    return fmi2Error;
+}
+
 fmi2Status fmu_set_debug_logging(Instance *inst, fmi2Boolean on, size_t n, const fmi2String categories[]) {
     int wanted[N_LOG_CATEGORIES] = {0};
     if (n > 0 && categories == NULL) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2SetDebugLogging: categories is NULL with nCategories = %zu", n);
-        return fmi2Error;
+        return fmu_error(inst, "fmi2SetDebugLogging: categories is NULL with nCategories = %zu", n);
     }
     for (size_t i = 0; i < n; i++) {
         int found = 0;
         if (categories[i] == NULL) {
-            fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2SetDebugLogging: category %zu is NULL", i);
-            return fmi2Error;
+            return fmu_error(inst, "fmi2SetDebugLogging: category %zu is NULL", i);
         }
         for (int k = 0; k < N_LOG_CATEGORIES; k++) {
             if (strcmp(categories[i], LOG_CATEGORY_NAMES[k]) == 0) { wanted[k] = 1; found = 1; }
         }
         if (!found) {
-            fmu_log(inst, fmi2Error, LOG_STATUS_ERROR,
-                    "fmi2SetDebugLogging: unknown log category \"%s\" (known: logEvents, logStatusWarning, "
-                    "logStatusDiscard, logStatusError, logAll)", categories[i]);
-            return fmi2Error;
+            return fmu_error(inst, "fmi2SetDebugLogging: unknown log category \"%s\" (known: logEvents, "
+                             "logStatusWarning, logStatusDiscard, logStatusError, logAll)", categories[i]);
         }
     }
     inst->logging_on = on ? 1 : 0;
@@ -126,12 +132,18 @@ static int check_model_table(const char **bad) {
     }
 #if N_LAWS > 0
     for (int k = 0; k < N_LAWS; k++) {
-        if (MODEL_LAWS[k].u_offset < 0 || MODEL_LAWS[k].u_offset + 3 > N_U) { *bad = "a kinematic law"; return 0; }
+        if (MODEL_LAWS[k].u_offset < 0 || MODEL_LAWS[k].u_offset + 3 > N_U) {
+            *bad = "a kinematic law";
+            return 0;
+        }
     }
 #endif
 #if N_STATIC > 0
     for (int i = 0; i < N_STATIC; i++) {
-        if (MODEL_STATIC_COORDS[i] < 0 || MODEL_STATIC_COORDS[i] >= N_Q) { *bad = "a static coordinate"; return 0; }
+        if (MODEL_STATIC_COORDS[i] < 0 || MODEL_STATIC_COORDS[i] >= N_Q) {
+            *bad = "a static coordinate";
+            return 0;
+        }
     }
 #endif
     return 1;
@@ -251,9 +263,7 @@ static fmi2Status update_outputs(Instance *inst, const char *function) {
     model_inputs(d, d->time, inst->u0);
     if (model_residual(d->q, d->v, inst->zero, inst->u0, d->p, inst->r, &inst->work) ||
         model_newton_matrix(d->q, d->v, inst->zero, inst->u0, d->p, 1.0, 0.0, 0.0, inst->J, &inst->work)) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "%s: the model failed to evaluate at t = %.17g", function,
-                d->time);
-        return fmi2Error;
+        return fmu_error(inst, "%s: the model failed to evaluate at t = %.17g", function, d->time);
     }
     if (all_finite(inst->J, N_Q * N_Q) && lu_factor(inst->J, N_Q, inst->piv) == 0) {
         for (int i = 0; i < N_Q; i++) d->acceleration[i] = -inst->r[i];
@@ -270,9 +280,8 @@ static fmi2Status update_outputs(Instance *inst, const char *function) {
         status = fmi2Warning;
     }
     if (model_outputs(d->q, d->v, d->acceleration, inst->u0, d->p, d->y, &inst->work)) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "%s: the model failed to evaluate its outputs at t = %.17g",
-                function, d->time);
-        return fmi2Error;
+        return fmu_error(inst, "%s: the model failed to evaluate its outputs at t = %.17g", function,
+                         d->time);
     }
     d->outputs_valid = 1;
     return status;
@@ -285,8 +294,7 @@ fmi2Status fmu_get_real(Instance *inst, const fmi2ValueReference vr[], size_t nv
     fmi2Status status = fmi2OK;
     for (size_t i = 0; i < nvr; i++) {
         if (vr[i] >= (fmi2ValueReference)N_VARS) {
-            fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2GetReal: unknown value reference %u", vr[i]);
-            return fmi2Error;
+            return fmu_error(inst, "fmi2GetReal: unknown value reference %u", vr[i]);
         }
         if (MODEL_VARS[vr[i]].kind == VAR_OUTPUT) need_outputs = 1;
     }
@@ -326,12 +334,10 @@ fmi2Status fmu_set_real(Instance *inst, const fmi2ValueReference vr[], size_t nv
     char why[512];
     for (size_t i = 0; i < nvr; i++) {                 /* check everything before writing anything */
         if (vr[i] >= (fmi2ValueReference)N_VARS) {
-            fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2SetReal: unknown value reference %u", vr[i]);
-            return fmi2Error;
+            return fmu_error(inst, "fmi2SetReal: unknown value reference %u", vr[i]);
         }
         if (refuse_value(inst, &MODEL_VARS[vr[i]], value[i], why, sizeof(why)) != NULL) {
-            fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2SetReal: %s", why);
-            return fmi2Error;
+            return fmu_error(inst, "fmi2SetReal: %s", why);
         }
     }
     for (size_t i = 0; i < nvr; i++) {
@@ -368,7 +374,8 @@ Instance *fmu_instantiate(fmi2String name, fmi2Type type, fmi2String guid,
     size_t len;
     if (functions == NULL) return NULL;                /* no logger to tell */
     if (functions->allocateMemory == NULL || functions->freeMemory == NULL) {
-        log_callbacks(functions, name, fmi2Error, "fmi2Instantiate: allocateMemory and freeMemory must not be NULL");
+        log_callbacks(functions, name, fmi2Error,
+                      "fmi2Instantiate: allocateMemory and freeMemory must not be NULL");
         return NULL;
     }
     if (name == NULL) {
@@ -390,7 +397,8 @@ Instance *fmu_instantiate(fmi2String name, fmi2Type type, fmi2String guid,
         return NULL;
     }
     if (!check_model_table(&bad)) {
-        log_callbacks(functions, name, fmi2Error, "fmi2Instantiate: the model's tables are inconsistent (%s)", bad);
+        log_callbacks(functions, name, fmi2Error, "fmi2Instantiate: the model's tables are inconsistent (%s)",
+                      bad);
         return NULL;
     }
     inst = (Instance *)functions->allocateMemory(1, sizeof(Instance));
@@ -430,17 +438,14 @@ fmi2Status fmu_setup_experiment(Instance *inst, fmi2Boolean tolerance_defined, f
                                 fmi2Real start_time, fmi2Boolean stop_time_defined, fmi2Real stop_time) {
     FmuData *d = &inst->d;
     if (tolerance_defined && !(tolerance > 0.0 && isfinite(tolerance))) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2SetupExperiment: tolerance = %g: must be > 0", tolerance);
-        return fmi2Error;
+        return fmu_error(inst, "fmi2SetupExperiment: tolerance = %g: must be > 0", tolerance);
     }
     if (!isfinite(start_time)) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2SetupExperiment: startTime = %g: must be finite", start_time);
-        return fmi2Error;
+        return fmu_error(inst, "fmi2SetupExperiment: startTime = %g: must be finite", start_time);
     }
     if (stop_time_defined && !(stop_time >= start_time && isfinite(stop_time))) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR,
-                "fmi2SetupExperiment: stopTime = %g: must be finite and >= startTime = %g", stop_time, start_time);
-        return fmi2Error;
+        return fmu_error(inst, "fmi2SetupExperiment: stopTime = %g: must be finite and >= startTime = %g",
+                         stop_time, start_time);
     }
     d->experiment_tolerance_defined = tolerance_defined ? 1 : 0;
     d->experiment_tolerance = tolerance_defined ? tolerance : 0.0;
@@ -472,25 +477,24 @@ static fmi2Status static_equilibrium(Instance *inst, double tolerance) {
     for (int it = 1; it <= STATIC_MAX_ITERATIONS; it++) {
         int converged = 1;
         if (model_residual(d->q, d->v, inst->zero, inst->u0, d->p, inst->r, &inst->work) ||
-            model_newton_matrix(d->q, d->v, inst->zero, inst->u0, d->p, 0.0, 0.0, 1.0, inst->J, &inst->work)) {
-            fmu_log(inst, fmi2Error, LOG_STATUS_ERROR,
-                    "fmi2ExitInitializationMode: static equilibrium: the model failed to evaluate");
-            return fmi2Error;
+            model_newton_matrix(d->q, d->v, inst->zero, inst->u0, d->p, 0.0, 0.0, 1.0, inst->J,
+                                &inst->work)) {
+            return fmu_error(inst, "fmi2ExitInitializationMode: static equilibrium: the model failed to "
+                             "evaluate");
         }
         for (int i = 0; i < S; i++) {
             inst->dq[i] = -inst->r[MODEL_STATIC_COORDS[i]];
-            for (int j = 0; j < S; j++) inst->Js[i + j * S] = inst->J[MODEL_STATIC_COORDS[i] + MODEL_STATIC_COORDS[j] * N_Q];
+            for (int j = 0; j < S; j++) {
+                inst->Js[i + j * S] = inst->J[MODEL_STATIC_COORDS[i] + MODEL_STATIC_COORDS[j] * N_Q];
+            }
         }
         if (!all_finite(inst->dq, S) || !all_finite(inst->Js, S * S)) {
-            fmu_log(inst, fmi2Error, LOG_STATUS_ERROR,
-                    "fmi2ExitInitializationMode: static equilibrium: NaN or infinite residual at iteration %d", it);
-            return fmi2Error;
+            return fmu_error(inst, "fmi2ExitInitializationMode: static equilibrium: NaN or infinite residual "
+                             "at iteration %d", it);
         }
         if (lu_factor(inst->Js, S, inst->piv) != 0) {
-            fmu_log(inst, fmi2Error, LOG_STATUS_ERROR,
-                    "fmi2ExitInitializationMode: static equilibrium: the stiffness matrix of the static coordinates "
-                    "is singular (no stiffness holds them?)");
-            return fmi2Error;
+            return fmu_error(inst, "fmi2ExitInitializationMode: static equilibrium: the stiffness matrix of "
+                             "the static coordinates is singular (no stiffness holds them?)");
         }
         lu_solve(inst->Js, S, inst->piv, inst->dq);
         for (int i = 0; i < S; i++) {
@@ -499,15 +503,13 @@ static fmi2Status static_equilibrium(Instance *inst, double tolerance) {
             if (!(fabs(inst->dq[i]) <= tolerance * MODEL_NOMINAL_Q[c])) converged = 0;
         }
         if (converged) {
-            fmu_log(inst, fmi2OK, LOG_EVENTS, "static equilibrium of %d coordinates found in %d Newton iterations",
-                    S, it);
+            fmu_log(inst, fmi2OK, LOG_EVENTS, "static equilibrium of %d coordinates found in %d Newton "
+                    "iterations", S, it);
             return fmi2OK;
         }
     }
-    fmu_log(inst, fmi2Error, LOG_STATUS_ERROR,
-            "fmi2ExitInitializationMode: static equilibrium: Newton did not converge in %d iterations "
-            "(tolerance %g)", STATIC_MAX_ITERATIONS, tolerance);
-    return fmi2Error;
+    return fmu_error(inst, "fmi2ExitInitializationMode: static equilibrium: Newton did not converge in %d "
+                     "iterations (tolerance %g)", STATIC_MAX_ITERATIONS, tolerance);
 }
 #endif
 
@@ -518,23 +520,22 @@ fmi2Status fmu_exit_initialization(Instance *inst) {
     double tolerance = d->solver[SOLVER_TOLERANCE];
     fmi2Status status;
     if (!(step > 0.0 && isfinite(step))) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2ExitInitializationMode: %s = %g: must be > 0",
-                solver_name(SOLVER_STEP), step);
-        return fmi2Error;
+        return fmu_error(inst, "fmi2ExitInitializationMode: %s = %g: must be > 0",
+                         solver_name(SOLVER_STEP), step);
     }
     if (!(theta1 >= 0.5 && theta2 >= theta1 && theta2 <= 1.0)) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR,
-                "fmi2ExitInitializationMode: SS22 needs 0.5 <= %s <= %s <= 1 (unconditional stability), "
-                "got %g and %g", solver_name(SOLVER_THETA1), solver_name(SOLVER_THETA2), theta1, theta2);
-        return fmi2Error;
+        return fmu_error(inst, "fmi2ExitInitializationMode: SS22 needs 0.5 <= %s <= %s <= 1 (unconditional "
+                         "stability), got %g and %g", solver_name(SOLVER_THETA1), solver_name(SOLVER_THETA2),
+                         theta1, theta2);
     }
     if (!(tolerance > 0.0 && isfinite(tolerance))) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2ExitInitializationMode: %s = %g: must be > 0",
-                solver_name(SOLVER_TOLERANCE), tolerance);
-        return fmi2Error;
+        return fmu_error(inst, "fmi2ExitInitializationMode: %s = %g: must be > 0",
+                         solver_name(SOLVER_TOLERANCE), tolerance);
     }
     /* the host's experiment tolerance may tighten the Newton tolerance, never loosen it */
-    if (d->experiment_tolerance_defined && d->experiment_tolerance < tolerance) tolerance = d->experiment_tolerance;
+    if (d->experiment_tolerance_defined && d->experiment_tolerance < tolerance) {
+        tolerance = d->experiment_tolerance;
+    }
     memcpy(d->q, d->q_start, sizeof(d->q));
     memcpy(d->v, d->v_start, sizeof(d->v));
 #if N_STATIC > 0
@@ -548,7 +549,8 @@ fmi2Status fmu_exit_initialization(Instance *inst) {
     memcpy(d->alpha, d->acceleration, sizeof(d->alpha));
     d->last_successful_time = d->time;
     d->phase = PHASE_STEP;
-    fmu_log(inst, fmi2OK, LOG_EVENTS, "initialized at t = %.17g (SS22: step %g, theta1 %g, theta2 %g, tolerance %g)",
+    fmu_log(inst, fmi2OK, LOG_EVENTS, "initialized at t = %.17g (SS22: step %g, theta1 %g, theta2 %g, "
+            "tolerance %g)",
             d->time, step, theta1, theta2, tolerance);
     return status;
 }
@@ -592,19 +594,16 @@ fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h) {
     const double step = d->solver[SOLVER_STEP];
     double t, t_end;
     if (!(h > 0.0 && isfinite(h))) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2DoStep: communicationStepSize = %g: must be > 0 and finite", h);
-        return fmi2Error;
+        return fmu_error(inst, "fmi2DoStep: communicationStepSize = %g: must be > 0 and finite", h);
     }
     if (!(fabs(tc - d->time) <= 1e-9 * fmax(1.0, fabs(d->time)))) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR,
-                "fmi2DoStep: currentCommunicationPoint = %.17g differs from the FMU's time %.17g", tc, d->time);
-        return fmi2Error;
+        return fmu_error(inst, "fmi2DoStep: currentCommunicationPoint = %.17g differs from the FMU's time "
+                         "%.17g", tc, d->time);
     }
     t_end = tc + h;
     if (d->stop_time_defined && t_end > d->stop_time + 1e-9 * fmax(1.0, fabs(d->stop_time))) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2DoStep: the step to t = %.17g goes beyond stopTime = %.17g",
-                t_end, d->stop_time);
-        return fmi2Error;
+        return fmu_error(inst, "fmi2DoStep: the step to t = %.17g goes beyond stopTime = %.17g",
+                         t_end, d->stop_time);
     }
     memcpy(&inst->backup, d, sizeof(*d));
     t = d->time;
@@ -619,8 +618,8 @@ fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h) {
             memcpy(d, &inst->backup, sizeof(*d));
             fmu_log(inst, fmi2Discard, LOG_STATUS_DISCARD,
                     "fmi2DoStep: the SS22 step at t = %.17g failed: %s (also as %d sub-steps); the step from "
-                    "%.17g to %.17g is discarded and the FMU is back at t = %.17g", t, ss22_status_message(status),
-                    SUBSTEP_MAX, tc, t_end, d->time);
+                    "%.17g to %.17g is discarded and the FMU is back at t = %.17g", t,
+                    ss22_status_message(status), SUBSTEP_MAX, tc, t_end, d->time);
             return fmi2Discard;
         }
         t = t_next;
@@ -640,15 +639,12 @@ static int state_ok(const SavedState *s) {
 fmi2Status fmu_get_state(Instance *inst, fmi2FMUstate *state) {
     SavedState *s = (SavedState *)*state;
     if (s != NULL && !state_ok(s)) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2GetFMUstate: *FMUstate is neither NULL nor a state of "
-                "this FMU");
-        return fmi2Error;
+        return fmu_error(inst, "fmi2GetFMUstate: *FMUstate is neither NULL nor a state of this FMU");
     }
     if (s == NULL) {
         s = (SavedState *)inst->cb.allocateMemory(1, sizeof(SavedState));
         if (s == NULL) {
-            fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2GetFMUstate: out of memory");
-            return fmi2Error;
+            return fmu_error(inst, "fmi2GetFMUstate: out of memory");
         }
         memset(s, 0, sizeof(*s));
         s->magic = STATE_MAGIC;
@@ -661,8 +657,7 @@ fmi2Status fmu_get_state(Instance *inst, fmi2FMUstate *state) {
 fmi2Status fmu_set_state(Instance *inst, fmi2FMUstate state) {
     const SavedState *s = (const SavedState *)state;
     if (!state_ok(s)) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2SetFMUstate: not a state of this FMU (NULL or freed)");
-        return fmi2Error;
+        return fmu_error(inst, "fmi2SetFMUstate: not a state of this FMU (NULL or freed)");
     }
     memcpy(&inst->d, &s->d, sizeof(inst->d));
     return fmi2OK;
@@ -672,8 +667,7 @@ fmi2Status fmu_free_state(Instance *inst, fmi2FMUstate *state) {
     SavedState *s = (SavedState *)*state;
     if (s == NULL) return fmi2OK;
     if (!state_ok(s)) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2FreeFMUstate: not a state of this FMU (already freed?)");
-        return fmi2Error;
+        return fmu_error(inst, "fmi2FreeFMUstate: not a state of this FMU (already freed?)");
     }
     s->magic = 0;
     inst->cb.freeMemory(s);
@@ -706,13 +700,11 @@ fmi2Status fmu_serialize(Instance *inst, fmi2FMUstate state, fmi2Byte buffer[], 
     uint64_t sum;
     unsigned char *b = (unsigned char *)buffer;
     if (!state_ok(s)) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2SerializeFMUstate: not a state of this FMU");
-        return fmi2Error;
+        return fmu_error(inst, "fmi2SerializeFMUstate: not a state of this FMU");
     }
     if (size < fmu_serialized_size()) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2SerializeFMUstate: buffer of %zu bytes, %zu needed", size,
-                fmu_serialized_size());
-        return fmi2Error;
+        return fmu_error(inst, "fmi2SerializeFMUstate: buffer of %zu bytes, %zu needed", size,
+                         fmu_serialized_size());
     }
     sum = checksum((const unsigned char *)&s->d, sizeof(s->d));
     memcpy(b, SERIAL_MAGIC, sizeof(SERIAL_MAGIC));
@@ -754,24 +746,20 @@ fmi2Status fmu_deserialize(Instance *inst, const fmi2Byte buffer[], size_t size,
     SavedState *s, *target = (SavedState *)*state;
     const char *bad;
     if (target != NULL && !state_ok(target)) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2DeSerializeFMUstate: *FMUstate is neither NULL nor a state "
-                "of this FMU");
-        return fmi2Error;
+        return fmu_error(inst, "fmi2DeSerializeFMUstate: *FMUstate is neither NULL nor a state of "
+                         "this FMU");
     }
     if (size != fmu_serialized_size()) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR,
-                "fmi2DeSerializeFMUstate: %zu bytes, a state of this FMU has %zu", size, fmu_serialized_size());
-        return fmi2Error;
+        return fmu_error(inst, "fmi2DeSerializeFMUstate: %zu bytes, a state of this FMU has %zu", size,
+                         fmu_serialized_size());
     }
     if (memcmp(b, SERIAL_MAGIC, sizeof(SERIAL_MAGIC)) != 0) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2DeSerializeFMUstate: not a serialized flexlink FMU state");
-        return fmi2Error;
+        return fmu_error(inst, "fmi2DeSerializeFMUstate: not a serialized flexlink FMU state");
     }
     b += sizeof(SERIAL_MAGIC);
     if (memcmp(b, MODEL_GUID, GUID_BYTES) != 0) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2DeSerializeFMUstate: the state belongs to another FMU "
-                "(GUID differs from %s)", MODEL_GUID);
-        return fmi2Error;
+        return fmu_error(inst, "fmi2DeSerializeFMUstate: the state belongs to another FMU "
+                         "(GUID differs from %s)", MODEL_GUID);
     }
     b += GUID_BYTES;
     memcpy(&payload, b, sizeof(payload));
@@ -779,25 +767,21 @@ fmi2Status fmu_deserialize(Instance *inst, const fmi2Byte buffer[], size_t size,
     memcpy(&sum, b, sizeof(sum));
     b += sizeof(sum);
     if (payload != sizeof(FmuData)) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2DeSerializeFMUstate: the state was written by another build "
-                "of this FMU (payload size differs)");
-        return fmi2Error;
+        return fmu_error(inst, "fmi2DeSerializeFMUstate: the state was written by another build "
+                         "of this FMU (payload size differs)");
     }
     if (checksum(b, sizeof(FmuData)) != sum) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2DeSerializeFMUstate: the state is corrupted (checksum)");
-        return fmi2Error;
+        return fmu_error(inst, "fmi2DeSerializeFMUstate: the state is corrupted (checksum)");
     }
     s = (SavedState *)inst->cb.allocateMemory(1, sizeof(SavedState));
     if (s == NULL) {
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2DeSerializeFMUstate: out of memory");
-        return fmi2Error;
+        return fmu_error(inst, "fmi2DeSerializeFMUstate: out of memory");
     }
     memset(s, 0, sizeof(*s));
     memcpy(&s->d, b, sizeof(s->d));
     if ((bad = invalid_data(&s->d)) != NULL) {
         inst->cb.freeMemory(s);
-        fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "fmi2DeSerializeFMUstate: the state is invalid (%s)", bad);
-        return fmi2Error;
+        return fmu_error(inst, "fmi2DeSerializeFMUstate: the state is invalid (%s)", bad);
     }
     if (target != NULL) {                              /* reuse the host's state, as fmi2GetFMUstate does */
         memcpy(&target->d, &s->d, sizeof(target->d));

@@ -110,6 +110,11 @@ const char *fmu_phase_name(int phase);
 __attribute__((format(printf, 4, 5)))
 #endif
 void fmu_log(Instance *inst, fmi2Status status, LogCategory category, const char *format, ...);
+/* Logs an error (always reported) and returns fmi2Error. */
+#ifdef __GNUC__
+__attribute__((format(printf, 2, 3)))
+#endif
+fmi2Status fmu_error(Instance *inst, const char *format, ...);
 int fmu_logs(const Instance *inst, LogCategory category);
 fmi2Status fmu_set_debug_logging(Instance *inst, fmi2Boolean on, size_t n, const fmi2String categories[]);
 

@@ -27,7 +27,7 @@ static fmi2Status finish(Instance *inst, fmi2Status status) {
 }
 
 static fmi2Status fail(Instance *inst, const char *function, const char *message) {
-    fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "%s: %s", function, message);
+    fmu_error(inst, "%s: %s", function, message);
     return finish(inst, fmi2Error);
 }
 
@@ -42,8 +42,8 @@ static int allowed(Instance *inst, const char *function, int phases) {
             strcat(list, fmu_phase_name(all[k]));
         }
     }
-    fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "%s: not allowed in state %s (allowed in: %s)", function,
-            fmu_phase_name(inst->d.phase), list);
+    fmu_error(inst, "%s: not allowed in state %s (allowed in: %s)", function, fmu_phase_name(inst->d.phase),
+              list);
     finish(inst, fmi2Error);
     return 0;
 }
@@ -89,7 +89,9 @@ void fmi2FreeInstance(fmi2Component c) {
 fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fmi2Real tolerance,
                                fmi2Real startTime, fmi2Boolean stopTimeDefined, fmi2Real stopTime) {
     BEGIN("fmi2SetupExperiment", PHASE_INSTANTIATED);
-    return finish(inst, fmu_setup_experiment(inst, toleranceDefined, tolerance, startTime, stopTimeDefined, stopTime));
+    const fmi2Status status =
+        fmu_setup_experiment(inst, toleranceDefined, tolerance, startTime, stopTimeDefined, stopTime);
+    return finish(inst, status);
 }
 
 fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
@@ -129,12 +131,11 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
 }
 
 /* The model has Real variables only. */
-static fmi2Status no_variables(Instance *inst, const char *function, const fmi2ValueReference vr[], size_t nvr,
-                               const void *value) {
+static fmi2Status no_variables(Instance *inst, const char *function, const fmi2ValueReference vr[],
+                               size_t nvr, const void *value) {
     if (nvr == 0) return fmi2OK;
     if (vr == NULL || value == NULL) return fail(inst, function, "vr or value is NULL");
-    fmu_log(inst, fmi2Error, LOG_STATUS_ERROR, "%s: unknown value reference %u (this FMU has Real variables only)",
-            function, vr[0]);
+    fmu_error(inst, "%s: unknown value reference %u (this FMU has Real variables only)", function, vr[0]);
     return finish(inst, fmi2Error);
 }
 
@@ -153,17 +154,20 @@ fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
     return no_variables(inst, "fmi2GetString", vr, nvr, value);
 }
 
-fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[]) {
+fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                          const fmi2Integer value[]) {
     BEGIN("fmi2SetInteger", SETTABLE);
     return no_variables(inst, "fmi2SetInteger", vr, nvr, value);
 }
 
-fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Boolean value[]) {
+fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                          const fmi2Boolean value[]) {
     BEGIN("fmi2SetBoolean", SETTABLE);
     return no_variables(inst, "fmi2SetBoolean", vr, nvr, value);
 }
 
-fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[]) {
+fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                         const fmi2String value[]) {
     BEGIN("fmi2SetString", SETTABLE);
     return no_variables(inst, "fmi2SetString", vr, nvr, value);
 }
@@ -190,13 +194,14 @@ fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size) {
     BEGIN("fmi2SerializedFMUstateSize", PHASE_ANY);
     REQUIRE(size != NULL, "fmi2SerializedFMUstateSize", "size is NULL");
-    REQUIRE(FMUstate != NULL && ((const SavedState *)FMUstate)->magic == STATE_MAGIC, "fmi2SerializedFMUstateSize",
-            "not a state of this FMU");
+    REQUIRE(FMUstate != NULL && ((const SavedState *)FMUstate)->magic == STATE_MAGIC,
+            "fmi2SerializedFMUstateSize", "not a state of this FMU");
     *size = fmu_serialized_size();
     return fmi2OK;
 }
 
-fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byte serializedState[], size_t size) {
+fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byte serializedState[],
+                                 size_t size) {
     BEGIN("fmi2SerializeFMUstate", PHASE_ANY);
     REQUIRE(serializedState != NULL, "fmi2SerializeFMUstate", "serializedState is NULL");
     return finish(inst, fmu_serialize(inst, FMUstate, serializedState, size));
@@ -219,11 +224,12 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
 
 #define ME_ONLY "not supported yet: this FMU is Co-Simulation only (no Model Exchange)"
 
-fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[], size_t nUnknown,
-                                        const fmi2ValueReference vKnown_ref[], size_t nKnown,
+fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[],
+                                        size_t nUnknown, const fmi2ValueReference vKnown_ref[], size_t nKnown,
                                         const fmi2Real dvKnown[], fmi2Real dvUnknown[]) {
     (void)vUnknown_ref; (void)nUnknown; (void)vKnown_ref; (void)nKnown; (void)dvKnown; (void)dvUnknown;
-    NOT_SUPPORTED("fmi2GetDirectionalDerivative", "not supported yet (providesDirectionalDerivative is false)");
+    NOT_SUPPORTED("fmi2GetDirectionalDerivative",
+                  "not supported yet (providesDirectionalDerivative is false)");
 }
 
 fmi2Status fmi2EnterEventMode(fmi2Component c) {

@@ -124,6 +124,7 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
             }
             for (int i = 0; i < N_Q; i++) delta[i] = -s->r[i];
             lu_solve(f->LU, N_Q, f->piv, delta);
+            /* the increment's effect on the end-of-step rate, against the coordinate's nominal scale */
             double err = 0.0;
             for (int i = 0; i < N_Q; i++) {
                 a[i] += delta[i];
@@ -133,10 +134,17 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
             s->newton_iterations++;
             if (!isfinite(err)) return SS22_NOT_FINITE;
             if (err <= s->tolerance) { converged = 1; break; }
-            /* simplified Newton: keep the matrix while it contracts by at least 2 per iteration */
-            if (err > 0.5 * previous) {
-                if (fresh && err >= previous) return SS22_NOT_CONVERGED;   /* diverging with a fresh matrix */
-                f = NULL;
+            const double rate = err / previous;
+            /* linear convergence at rate < 1: what is left is about rate/(1-rate) times this increment */
+            if (rate < 0.5 && rate / (1.0 - rate) * err <= s->tolerance) { converged = 1; break; }
+            if (rate > 0.5) {
+                if (fresh && rate >= 0.9) {
+                    /* a fresh matrix no longer contracts: either rounding stops us just above the
+                     * tolerance (accept), or the iteration diverges (fail) */
+                    if (err <= SS22_ROUNDING_FACTOR * s->tolerance) { converged = 1; break; }
+                    return SS22_NOT_CONVERGED;
+                }
+                f = NULL;   /* simplified Newton: refresh the matrix when it contracts poorly */
             } else {
                 fresh = 0;
             }

@@ -16,6 +16,10 @@
 
 #include "model.h"
 
+/* A Newton iteration that stalls (a fresh matrix no longer contracts) within this factor of the tolerance
+ * has reached the rounding floor of the residual and is accepted. */
+#define SS22_ROUNDING_FACTOR 100.0
+
 #define SS22_CACHE 2     /* factorisations kept: the regular step and a shortened last one */
 
 typedef enum {

@@ -4,11 +4,14 @@ bracketer for the transcendental frequency equations that the tests solve themse
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 from scipy.optimize import brentq
 
 from flexlink.scene import Scene, parse_scene
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 # Seed 000 §3.4.3 link (examples/rotating_link.toml): E = 71 GPa, I_z = 1.32e-9 m^4, rho = 0.349 kg/m, L = 2.2 m.
 SEED000_LINK = {"length": 2.2, "linear_density": 0.349, "EI": 93.72}

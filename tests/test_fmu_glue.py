@@ -6,6 +6,7 @@ here we also compare its 2-DOF trajectory with the thesis's SS22 table."""
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 from concurrent.futures import ThreadPoolExecutor
@@ -157,6 +158,15 @@ def test_missing_compiler_is_a_build_error(tmp_path: Path, monkeypatch: pytest.M
     monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
     with pytest.raises(BuildError, match="cannot run the C compiler"):
         cbuild.compile_shared_library([tmp_path / "x.c"], [], tmp_path / "x.so")
+
+
+def test_log_categories_match_the_c_glue() -> None:
+    source = (cbuild.fmu_src_dir() / "cosimulation.c").read_text()
+    table = source.split("LOG_CATEGORY_NAMES[N_LOG_CATEGORIES] = {", 1)[1].split("};", 1)[0]
+    assert tuple(re.findall(r'"([^"]+)"', table)) == cbuild.LOG_CATEGORIES
+    from flexlink import fmu  # the modelDescription.xml writer lists the same categories
+
+    assert tuple(fmu.LOG_CATEGORIES) == cbuild.LOG_CATEGORIES
 
 
 def test_sources_and_headers_are_found() -> None:

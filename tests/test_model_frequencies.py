@@ -14,6 +14,7 @@ import math
 import numpy as np
 import pytest
 import scipy.linalg
+from conftest import EXAMPLES, SEED000_LINK, bracket_roots, clamped_free_lambdas, make_link_scene
 from numpy.polynomial.legendre import leggauss
 from scipy.integrate import quad
 from scipy.optimize import brentq
@@ -21,8 +22,6 @@ from scipy.optimize import brentq
 from flexlink.analysis import natural_frequencies
 from flexlink.model import build_model
 from flexlink.scene import load_scene
-
-from conftest import SEED000_LINK, bracket_roots, clamped_free_lambdas, make_link_scene
 
 L, RHO, EI = SEED000_LINK["length"], SEED000_LINK["linear_density"], SEED000_LINK["EI"]
 OMEGA_SCALE = math.sqrt(EI / (RHO * L**4))          # ω = λ² · OMEGA_SCALE
@@ -237,18 +236,20 @@ def test_tip_payload_fe_converges_to_exact(mass, inertia):
 def test_rotating_link_payload_example_hub_locked():
     """examples/rotating_link_payload.toml header: hub locked f1 = 0.990 Hz, f2 = 8.90 Hz (a colleague's
     numbers): confirm them with the exact equation, and the model's 3 eigenfunctions with the hub held."""
-    scene = load_scene("examples/rotating_link_payload.toml")
+    scene = load_scene(EXAMPLES / "rotating_link_payload.toml")
     pay = scene.links[0].payload
     mu, j = pay.mass / (RHO * L), pay.inertia / (RHO * L**3)
-    exact_hz = bracket_roots(lambda lam: tip_mass_determinant(lam, mu, j), 0.2, 6.0)[:2] ** 2 * OMEGA_SCALE / (2 * np.pi)
+    exact_lam = bracket_roots(lambda lam: tip_mass_determinant(lam, mu, j), 0.2, 6.0)[:2]
+    exact_hz = exact_lam**2 * OMEGA_SCALE / (2 * np.pi)
     assert abs(exact_hz[0] - 0.990) < 5e-4 and abs(exact_hz[1] - 8.90) < 5e-3
     fe = make_link_scene("fe", 16, "second-order", payload={"mass": pay.mass, "inertia": pay.inertia})
     np.testing.assert_allclose(omegas(build_model(fe))[:2] / (2 * np.pi), exact_hz, rtol=1e-5)   # FE h⁴ error
     # Eigenfunctions of the bare cantilever violate the payload's natural boundary conditions: the Ritz
     # error decays only algebraically with the mode count (still from above).
     errs = []
+    payload = {"mass": pay.mass, "inertia": pay.inertia}
     for count in (3, 6, 12):
-        held = make_link_scene("clamped-free", count, "second-order", payload={"mass": pay.mass, "inertia": pay.inertia})
+        held = make_link_scene("clamped-free", count, "second-order", payload=payload)
         errs.append(omegas(build_model(held))[:2] / (2 * np.pi) / exact_hz - 1.0)
     errs = np.array(errs)
     print(f"\nrotating_link_payload, hub held: exact f1, f2 = {exact_hz} Hz; eigenfunctions 3/6/12 rel. errors "
@@ -284,7 +285,7 @@ def test_free_hub_limits():
 
 def test_rotating_link_example_hub_free():
     """examples/rotating_link.toml (hub 0.1 kg m², 3 eigenfunctions): header f1 = 5.760, f2 = 13.88 Hz."""
-    scene = load_scene("examples/rotating_link.toml")
+    scene = load_scene(EXAMPLES / "rotating_link.toml")
     iota = scene.joints[0].inertia / (RHO * L**3)
     exact_hz = hub_lambdas(iota)[:3] ** 2 * OMEGA_SCALE / (2 * np.pi)
     assert abs(exact_hz[0] - 5.760) < 5e-4 and abs(exact_hz[1] - 13.88) < 5e-3

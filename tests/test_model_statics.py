@@ -14,6 +14,7 @@ import math
 import numpy as np
 import pytest
 import scipy.linalg
+from conftest import EXAMPLES, make_link_scene
 from numpy.polynomial.legendre import leggauss
 
 from flexlink.analysis import natural_frequencies, operating_point, static_deflection
@@ -21,15 +22,13 @@ from flexlink.model import build_model
 from flexlink.scene import load_scene
 from flexlink.shapes import make_basis
 
-from conftest import make_link_scene
-
 G = 9.81
 KINEMATICS = ("linear", "first-order", "second-order")
 
 
 def _steel_beam(kind: str, count: int, kinematics: str):
     """examples/steel_beam_gravity.toml (seed 001 §4.8, held horizontal, gravity −y) with another basis."""
-    scene = load_scene("examples/steel_beam_gravity.toml")
+    scene = load_scene(EXAMPLES / "steel_beam_gravity.toml")
     link = scene.links[0]
     link = dataclasses.replace(link, shapes=dataclasses.replace(link.shapes, kind=kind, count=count),
                                kinematics=kinematics)
@@ -70,7 +69,7 @@ def test_steel_beam_sag_fe_is_nodally_exact(kinematics, count):
 
 def test_steel_beam_example_as_given():
     """The example file itself (5 elements, second order): 1.3118e-4 m downwards (seed §4.10: 0.13113e-3)."""
-    scene = load_scene("examples/steel_beam_gravity.toml")
+    scene = load_scene(EXAMPLES / "steel_beam_gravity.toml")
     link = scene.links[0]
     model = build_model(scene)
     _, y = _static(model)
@@ -114,9 +113,12 @@ STRIP = {"length": 0.835, "linear_density": 7800.0 * 0.15e-4, "EI": 0.315}
 TIP_MASS = 0.031
 
 
-def own_hanging_frequencies(n_el: int, length: float, rho: float, ei: float, g: float, tip_mass: float) -> np.ndarray:
-    """Our own Hermite FE of a cantilever hanging from a clamp: K = ∫EIφ''φ''ᵀ + ∫N φ'φ'ᵀ with the tension
-    N(x) = ρg(L − x) + m_tip g, M = ∫ρφφᵀ + m_tip φ(L)φ(L)ᵀ; ω (rad/s), ascending."""
+def own_hanging_frequencies(n_el: int, length: float, rho: float, ei: float, g: float, tip_mass: float,
+                            pinned: bool = False) -> np.ndarray:
+    """Our own Hermite FE of a link hanging from a clamp (or a frictionless pin of zero inertia,
+    ``pinned``): K = ∫EIφ''φ''ᵀ + ∫N φ'φ'ᵀ with the tension N(x) = ρg(L − x) + m_tip g, M = ∫ρφφᵀ +
+    m_tip φ(L)φ(L)ᵀ; ω (rad/s), ascending. For the pin, φ is the absolute displacement (w(0) = 0 only) and
+    ½∫N w'² is the weight's potential to second order (each section rises by ½∫₀ˣ w'² dξ)."""
     h = length / n_el
     t, w = leggauss(5)
     s, w = 0.5 * (t + 1.0), 0.5 * w * h
@@ -132,7 +134,9 @@ def own_hanging_frequencies(n_el: int, length: float, rho: float, ei: float, g: 
         K[sl, sl] += (n2.T * (ei * w)) @ n2 + (n1.T * (w * tension)) @ n1
         M[sl, sl] += (n0.T * (rho * w)) @ n0
     M[-2, -2] += tip_mass
-    return np.sqrt(scipy.linalg.eigh(K[2:, 2:], M[2:, 2:], eigvals_only=True))
+    first = 1 if pinned else 2
+    w2 = scipy.linalg.eigh(K[first:, first:], M[first:, first:], eigvals_only=True)
+    return np.sqrt(np.abs(w2))
 
 
 def _hanging_model(kind, count, kinematics, gravity=True):
@@ -187,3 +191,24 @@ def test_hanging_without_foreshortening_has_no_gravity_stiffness(kinematics):
     gravity: linear and first-order kinematics give the gravity-free frequencies (DESIGN.md §2)."""
     np.testing.assert_allclose(_omegas(_hanging_model("fe", 6, kinematics)),
                                _omegas(_hanging_model("fe", 6, kinematics, gravity=False)), rtol=1e-12)
+
+
+def test_flexible_pendulum_example_free_pivot():
+    """examples/flexible_pendulum.toml (free pivot, hanging, second order, 8 elements) against our pinned FE:
+    pendulum and first flexible frequency with gravity (header: 0.6106 Hz and 4.788 Hz), and the first
+    flexible frequency of the pinned-free strip with tip mass without gravity (header: 4.446 Hz, the seed's
+    0.224 s period)."""
+    scene = load_scene(EXAMPLES / "flexible_pendulum.toml")
+    link = scene.links[0]
+    strip = {"length": link.length, "rho": link.linear_density, "ei": link.EI, "tip_mass": link.payload.mass}
+    ref_g = own_hanging_frequencies(48, g=G, pinned=True, **strip)[:2]
+    ref_0 = own_hanging_frequencies(48, g=0.0, pinned=True, **strip)[1:2]     # [0] is the rigid rotation
+    ours_g = _omegas(build_model(scene))[:2]
+    ours_0 = _omegas(build_model(dataclasses.replace(scene, gravity=(0.0, 0.0, 0.0))))[:1]
+    print(f"\nflexible pendulum, free pivot: gravity f = {ours_g / (2 * np.pi)} Hz (own FE {ref_g / (2 * np.pi)}); "
+          f"no gravity {ours_0 / (2 * np.pi)} Hz (own FE {ref_0 / (2 * np.pi)})")
+    err = np.abs(ours_g / ref_g - 1.0)
+    assert err[0] < 1e-6 and err[1] < 5e-5, err
+    np.testing.assert_allclose(ours_0, ref_0, rtol=5e-5)                     # 8 elements: h⁴ error
+    assert abs(ref_g[0] / (2 * np.pi) - 0.6106) < 1e-4 and abs(ref_g[1] / (2 * np.pi) - 4.788) < 1e-3
+    assert abs(ref_0[0] / (2 * np.pi) - 4.446) < 1e-3

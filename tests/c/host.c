@@ -190,8 +190,8 @@ static void side_by_side(Trajectory a) {
         run(x, 0.5 * (i - 1), 0.5, 1, b, i);
         run(y, 0.5 * (i - 1), 0.5, 1, c2, i);
     }
-    CHECK(same(b[1], a[1], 4 * (N_POINTS - 1)), "two instances side by side: the first differs from one alone");
-    CHECK(same(c2[1], alone[1], 4 * (N_POINTS - 1)), "two instances side by side: the second differs from one alone");
+    CHECK(same(b[1], a[1], 4 * (N_POINTS - 1)), "side by side: the first differs from alone");
+    CHECK(same(c2[1], alone[1], 4 * (N_POINTS - 1)), "side by side: the second differs from alone");
     F.FreeInstance(x);
     F.FreeInstance(y);
 }
@@ -212,7 +212,7 @@ static void fmu_states(Trajectory a) {
     OK(F.GetReal(c, QV, 4, now));
     CHECK(same(now, a[10], 4), "after fmi2SetFMUstate the outputs differ from t = 5");
     run(c, 5.0, 0.5, 10, r2, 11);
-    CHECK(same(r1[11], r2[11], 40) && same(r2[11], a[11], 40), "get state, step, set state, step: not bit-equal");
+    CHECK(same(r1[11], r2[11], 40) && same(r2[11], a[11], 40), "get state, step, set state, step: differ");
 
     again = s;                                       /* a state handed back is reused */
     OK(F.GetFMUstate(c, &again));
@@ -282,7 +282,7 @@ static void communication_steps(Trajectory a) {
     double t = NAN, x[4], y[4];
     initialize(c, 0.0);
     for (int i = 1; i <= 15; i++) run(c, 1.0 * (i - 1), 1.0, 1, r, 2 * i);   /* 2 internal steps each */
-    for (int i = 1; i <= 15; i++) CHECK(same(r[2 * i], a[2 * i], 4), "step 1.0 differs from 2 x 0.5 at t = %d", i);
+    for (int i = 1; i <= 15; i++) CHECK(same(r[2 * i], a[2 * i], 4), "1.0 and 2 x 0.5 differ at t = %d", i);
     OK(F.Reset(c));
     initialize(c, 0.0);
     OK(F.DoStep(c, 0.0, 0.25, fmi2True));            /* shortened internal steps, variable comm. steps */
@@ -306,7 +306,7 @@ static void communication_steps(Trajectory a) {
     OK(F.DoStep(c, 0.1, 0.1, fmi2True));
     OK(F.DoStep(c, 0.2, 0.1, fmi2True));
     OK(F.GetReal(c, QV, 4, y));
-    for (int i = 0; i < 4; i++) CHECK(fabs(x[i] - y[i]) < 1e-14, "3 x 0.1 in one doStep differs from three doSteps");
+    for (int i = 0; i < 4; i++) CHECK(fabs(x[i] - y[i]) < 1e-14, "3 x 0.1 in one doStep and in three differ");
     F.FreeInstance(c);
 }
 
@@ -328,8 +328,8 @@ static void tunable_parameter(void) {
     run(d, 5.0, 0.5, 10, s, 11);
     for (int i = 11; i <= 20; i++) {
         for (int k = 0; k < 4; k++) {
-            CHECK(fabs(r[i][k] - s[i][k]) <= 1e-13, "stiffness changed at t = 5: t = %g differs by %g", 0.5 * i,
-                  r[i][k] - s[i][k]);
+            CHECK(fabs(r[i][k] - s[i][k]) <= 1e-13, "stiffness changed at t = 5: t = %g differs by %g",
+                  0.5 * i, r[i][k] - s[i][k]);
         }
     }
     F.FreeInstance(c);
@@ -656,7 +656,7 @@ static void nonlinear(void) {
     CHECK(d0 < -0.01, "static deflection %g", d0);
     CHECK(get(c, OQ1) == 0.05, "q1 moved during initialization");
     CHECK(fabs(get(c, OA0)) < 1e-6, "acceleration at static equilibrium %g", get(c, OA0));
-    CHECK(fabs(get(c, OA1) + 100.0 * 0.05) < 1e-12, "consistent acceleration a1 = %g, expected -5", get(c, OA1));
+    CHECK(fabs(get(c, OA1) + 100.0 * 0.05) < 1e-12, "consistent acceleration a1 = %g, not -5", get(c, OA1));
 
     /* built-in law 0, and law 1 extended by the FMU from what the host gives at each communication point */
     for (int i = 0; i < 12; i++) {
@@ -674,14 +674,16 @@ static void nonlinear(void) {
         t += h;
         law0(t, expected);
         OK(F.GetReal(c, law0_vr, 3, got));
-        for (int j = 0; j < 3; j++) CHECK(fabs(got[j] - expected[j]) < 1e-12, "law 0 at t = %g: %g, expected %g", t,
-                                          got[j], expected[j]);
+        for (int j = 0; j < 3; j++) {
+            CHECK(fabs(got[j] - expected[j]) < 1e-12, "law 0 at t = %g: %g, not %g", t, got[j], expected[j]);
+        }
         expected[0] = given[0] + h * given[1] + 0.5 * h * h * given[2];
         expected[1] = given[1] + h * given[2];
         expected[2] = given[2];
         OK(F.GetReal(c, law1_vr, 3, got));
-        for (int j = 0; j < 3; j++) CHECK(fabs(got[j] - expected[j]) < 1e-14, "law 1 at t = %g: %g, expected %g", t,
-                                          got[j], expected[j]);
+        for (int j = 0; j < 3; j++) {
+            CHECK(fabs(got[j] - expected[j]) < 1e-14, "law 1 at t = %g: %g, not %g", t, got[j], expected[j]);
+        }
     }
     OK(F.GetReal(c, STATE, 4, x));
     CHECK(isfinite(x[0]) && isfinite(x[1]), "nonlinear run");
@@ -701,7 +703,8 @@ static void nonlinear(void) {
 
     /* a step that cannot be computed: |d0| crosses `limit` inside the communication step */
     {
-        fmi2Component probe = instantiate("probe"), failing = instantiate("failing"), plain = instantiate("plain");
+        fmi2Component probe = instantiate("probe"), failing = instantiate("failing");
+        fmi2Component plain = instantiate("plain");
         double start = 0.0, worst = 0.0, before[4], after[4], last = NAN;
         initialize(probe, 0.0);
         start = fabs(get(probe, OQ0) - get(probe, L0X));
@@ -712,7 +715,7 @@ static void nonlinear(void) {
         }
         CHECK(worst > 1.01 * start, "the support does not stretch the spring (%g, %g)", start, worst);
         initialize(failing, 0.0);
-        set(failing, LIMIT, 0.5 * (start + worst));   /* after the static equilibrium, whose Newton overshoots */
+        set(failing, LIMIT, 0.5 * (start + worst));   /* after the static Newton, which overshoots */
         initialize(plain, 0.0);
         OK(F.GetReal(failing, STATE, 4, before));
         {
@@ -720,8 +723,8 @@ static void nonlinear(void) {
             OK(F.SetDebugLogging(failing, fmi2True, 0, NULL));
             LOG.retries = 0;
             EXPECT(F.DoStep(failing, 0.0, 1.0, fmi2True), fmi2Discard, "discarded");
-            CHECK(LOG.count > discards && strcmp(LOG.category, "logStatusDiscard") == 0, "discard category %s",
-                  LOG.category);
+            CHECK(LOG.count > discards && strcmp(LOG.category, "logStatusDiscard") == 0,
+                  "discard category %s", LOG.category);
             CHECK(LOG.retries == 3, "%d sub-step retries logged, expected 3 (2, 4, 8)", LOG.retries);
             OK(F.SetDebugLogging(failing, fmi2False, 0, NULL));
         }
@@ -755,7 +758,7 @@ static void nonlinear(void) {
         OK(F.DoStep(fine, 0.0, 0.5, fmi2True));
         OK(F.GetReal(split, STATE, 4, x));
         OK(F.GetReal(fine, STATE, 4, y));
-        for (int i = 0; i < 4; i++) CHECK(fabs(x[i] - y[i]) < 1e-12, "sub-steps differ from half steps: %g", x[i] - y[i]);
+        for (int i = 0; i < 4; i++) CHECK(fabs(x[i] - y[i]) < 1e-12, "sub-steps: %g", x[i] - y[i]);
         set(split, MAX_CV, 1e-5);                     /* not even 8 sub-steps help */
         EXPECT(F.DoStep(split, 0.5, 0.5, fmi2True), fmi2Discard, "model failed");
         OK(F.GetReal(split, STATE, 4, y));
@@ -791,7 +794,10 @@ int main(int argc, char **argv) {
     setvbuf(stdout, NULL, _IOLBF, 0);
 
     if (strcmp(argv[1], "twodof") == 0) twodof();
-    else if (strcmp(argv[1], "nonlinear") == 0) { GUID = "{5d1b7f3e-0c2a-4e8b-9a61-2f4c8e7d0b01}"; nonlinear(); }
+    else if (strcmp(argv[1], "nonlinear") == 0) {
+        GUID = "{5d1b7f3e-0c2a-4e8b-9a61-2f4c8e7d0b01}";
+        nonlinear();
+    }
     else { fprintf(stderr, "unknown model %s\n", argv[1]); return 2; }
 
     CHECK(ALLOCATIONS == 0, "%ld blocks allocated by the FMU were not freed", ALLOCATIONS);

@@ -1,0 +1,79 @@
+"""Independent FMI importers from PyPI, run against our FMUs (FMI-NOTES.md).
+
+* libcosimpy (Open Simulation Platform's libcosim, on the Modelica Association's FMI Library): it
+  aborts or crashes when an FMU returns an error, so it runs in a child process, and any
+  ``[error]``/``[warning]`` line it prints counts as a failure.
+* fmu-manipulation-toolbox's ``fmutool -check`` (schema and semantic checks; exit 7 on errors).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from dataclasses import dataclass, field
+
+_LIBCOSIM_CHILD = r'''
+import json, sys
+from libcosimpy.CosimExecution import CosimExecution
+from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+from libcosimpy.CosimObserver import CosimObserver
+from libcosimpy.CosimSlave import CosimLocalSlave
+
+log_output_level(CosimLogLevel.WARNING)
+fmu, stop, step, start, outputs = sys.argv[1], float(sys.argv[2]), float(sys.argv[3]), json.loads(sys.argv[4]), \
+    json.loads(sys.argv[5])
+ex = CosimExecution.from_step_size(step_size=int(round(step * 1e9)))
+idx = ex.add_local_slave(CosimLocalSlave(fmu_path=fmu, instance_name="flexlink"))
+obs = CosimObserver.create_last_value()
+ex.add_observer(obs)
+refs = {v.name.decode(): v.reference for v in ex.slave_variables(idx)}
+for name, value in start.items():
+    ex.real_initial_value(idx, refs[name], value)
+ok = ex.simulate_until(target_time=int(round(stop * 1e9)))
+values = obs.last_real_values(idx, [refs[n] for n in outputs])
+print("RESULT " + json.dumps({"ok": bool(ok), "values": dict(zip(outputs, values))}))
+'''
+
+
+@dataclass
+class ImporterRun:
+    ok: bool
+    values: dict[str, float] = field(default_factory=dict)
+    log: str = ""
+
+
+def libcosim_available() -> bool:
+    try:
+        import libcosimpy  # noqa: F401
+    except Exception:
+        return False
+    return True
+
+
+def run_libcosim(fmu: str | os.PathLike, stop_time: float, step: float, outputs: list[str],
+                 start_values: dict[str, float] | None = None, timeout: float = 120) -> ImporterRun:
+    """Co-simulate the FMU alone in libcosim and return the outputs' last values."""
+    cmd = [sys.executable, "-c", _LIBCOSIM_CHILD, os.fspath(fmu), repr(stop_time), repr(step),
+           json.dumps(start_values or {}), json.dumps(outputs)]
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+    log = p.stdout + p.stderr
+    bad = [line for line in log.splitlines() if "[error]" in line.lower() or "[warning]" in line.lower()]
+    result = [line for line in p.stdout.splitlines() if line.startswith("RESULT ")]
+    if p.returncode != 0 or bad or not result:
+        return ImporterRun(False, {}, log)
+    data = json.loads(result[-1][len("RESULT "):])
+    return ImporterRun(bool(data["ok"]), data["values"], log)
+
+
+def fmutool_check(fmu: str | os.PathLike, timeout: float = 120) -> ImporterRun:
+    """fmu-manipulation-toolbox's conformity and semantic checks."""
+    exe = shutil.which("fmutool") or os.path.join(os.path.dirname(sys.executable), "fmutool")
+    if not os.path.exists(exe):
+        return ImporterRun(False, {}, "fmutool is not installed (pip install fmu-manipulation-toolbox)")
+    p = subprocess.run([exe, "-input", os.fspath(fmu), "-check"], capture_output=True, text=True, timeout=timeout)
+    log = p.stdout + p.stderr
+    ok = p.returncode == 0 and "error" not in log.lower().replace("no semantic error", "")
+    return ImporterRun(ok, {}, log)
