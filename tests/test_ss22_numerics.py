@@ -1,0 +1,101 @@
+"""SS22's numerical properties, measured on real FMUs against SS22's own analysis (DESIGN.md §3).
+
+For one undamped mode ü + ω²u = 0 the SS22 step is a linear map x_{n+1} = A x_n of (u, u̇), with A
+derived here from the algorithm's formulas (α = −ω²(u + Θ₁Δt u̇)/(1 + Θ₂Δt²ω²/2), u₁ = u + Δt u̇ + Δt²/2 α,
+u̇₁ = u̇ + Δt α).  Any sequence it produces obeys u_{n+2} − tr(A) u_{n+1} + det(A) u_n = 0, so the FMU's
+own sequence tells tr(A) and det(A) (= ρ², the square of the amplitude ratio per step) by least squares.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from flexlink.analysis import linearise, natural_frequencies, operating_point
+from flexlink.fmu import build_fmu
+from flexlink.model import build_model
+from flexlink.scene import load_scene, parse_scene
+from flexlink.simulate import SlaveRunner
+
+
+def ss22_amplification(omega: float, dt: float, theta1: float, theta2: float) -> np.ndarray:
+    w2 = omega**2
+    d = 1.0 + theta2 * dt**2 * w2 / 2
+    # α = c_u u + c_v u̇
+    c_u, c_v = -w2 / d, -w2 * theta1 * dt / d
+    return np.array([[1 + dt**2 / 2 * c_u, dt + dt**2 / 2 * c_v], [dt * c_u, 1 + dt * c_v]])
+
+
+def _modal_scene():
+    """Seed-000 link, linear kinematics, hub position-driven by a bump then held: afterwards every
+    mass-normalised eigenmode is an independent undamped oscillator."""
+    return parse_scene({
+        "name": "modal",
+        "joint": [{"name": "hub", "drive": "position", "trajectory": {"segments": [
+            {"until": 0.3, "poly": [0.05], "cos": [[-0.05, 2 * np.pi / 0.3, 0.0]]},
+            {"until": float("inf"), "poly": [0.0]}]}}],
+        "link": [{"name": "arm", "length": 2.2, "linear_density": 0.349, "EI": 93.72,
+                  "shapes": {"kind": "clamped-free", "count": 3}, "kinematics": "linear"}],
+    })
+
+
+@pytest.fixture(scope="module")
+def modal_fmu(tmp_path_factory):
+    scene = _modal_scene()
+    model = build_model(scene)
+    fmu = build_fmu(scene, tmp_path_factory.mktemp("ss22") / "modal.fmu", model=model).fmu
+    return model, fmu
+
+
+@pytest.mark.parametrize("theta", [(0.5, 0.5), (0.5, 0.8), (0.6, 0.6), (0.8, 0.8), (1.0, 1.0)])
+def test_numerical_damping_and_frequency_follow_the_ss22_amplification_matrix(modal_fmu, theta):
+    model, fmu = modal_fmu
+    omega1 = 2 * np.pi * natural_frequencies(model).frequencies_hz[0]
+    dt = 0.02                                     # ω₁Δt ≈ 0.24: a visibly damped mode for Θ > ½
+    with SlaveRunner(fmu) as runner:
+        res = runner.run(3.0, dt, start={"solver.step": dt, "solver.theta1": theta[0], "solver.theta2": theta[1]},
+                         outputs=["arm.eta[1]"])
+    u = res["arm.eta[1]"][res["time"] > 0.3 + 1e-9]
+    X = np.column_stack([u[1:-1], -u[:-2]])
+    (tr, det), *_ = np.linalg.lstsq(X, u[2:], rcond=None)
+    A = ss22_amplification(omega1, dt, *theta)
+    assert tr == pytest.approx(np.trace(A), abs=1e-9)
+    assert det == pytest.approx(np.linalg.det(A), abs=1e-9)
+    if theta == (0.5, 0.5):
+        assert det == pytest.approx(1.0, abs=1e-9)          # Θ = ½: no numerical damping at all
+
+
+def test_numerical_damping_grows_with_theta():
+    rho = [max(abs(np.linalg.eigvals(ss22_amplification(1.0, 0.5, t, t)))) for t in (0.5, 0.6, 0.7, 0.8, 0.9, 1.0)]
+    assert rho[0] == pytest.approx(1.0)
+    assert all(a > b for a, b in zip(rho[:-1], rho[1:], strict=True))
+
+
+@pytest.mark.parametrize("theta", [(0.5, 0.5), (0.5, 0.75), (0.8, 0.8), (1.0, 1.0)])
+def test_bounded_with_step_ten_times_the_highest_period(tmp_path, theta):
+    """Seed 001 §4.9 raise of the FE steel beam with Δt = 10 periods of its highest mode (23 kHz): SS22
+    stays bounded for Θ₂ ≥ Θ₁ ≥ ½ and follows the slow motion, where an explicit method explodes.
+
+    (With Θ₁ = ½ < Θ₂ unresolved modes are only marginally stable: alternating step sizes — a regular
+    step then a short remainder in every communication step — made this case diverge until the FMU
+    split communication steps into equal internal steps.)"""
+    scene = load_scene("examples/steel_beam_raise.toml")
+    model = build_model(scene)
+    lin = linearise(model, operating_point(model))
+    w2 = np.real(np.linalg.eigvals(np.linalg.solve(lin.M, lin.K)))
+    t_min = 2 * np.pi / np.sqrt(w2.max())
+    dt = 10 * t_min
+    # central differences are stable only for ω Δt ≤ 2
+    assert np.sqrt(w2.max()) * dt > 2 * 30
+    fmu = build_fmu(scene, tmp_path / "raise.fmu", model=model).fmu
+    with SlaveRunner(fmu) as runner:
+        fine = runner.run(1.5, 0.01, start={"solver.step": t_min / 10}, outputs=["beam.tip.v"])
+        coarse = runner.run(1.5, 0.01, start={"solver.step": dt, "solver.theta1": theta[0],
+                                              "solver.theta2": theta[1]}, outputs=["beam.tip.v"])
+    peak = np.max(np.abs(fine["beam.tip.v"]))
+    assert np.all(np.isfinite(coarse["beam.tip.v"]))
+    assert np.max(np.abs(coarse["beam.tip.v"])) < 1.5 * peak
+    # the quasi-static motion is still there: once the law holds (t > 1 s) both oscillate about the same
+    # mean deflection (Θ > ½ filters the 54 Hz oscillation out, Θ = ½ keeps it)
+    late = fine["time"] > 1.0
+    assert np.mean(coarse["beam.tip.v"][late]) == pytest.approx(np.mean(fine["beam.tip.v"][late]), abs=0.05 * peak)
