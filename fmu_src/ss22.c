@@ -53,18 +53,26 @@ static int all_finite(const double *x, int n) {
 /* The factorised step matrix for (dt, theta): from the cache when the model's Newton matrix is
  * constant, else evaluated at the current iterate. */
 static SS22Status step_matrix(SS22 *s, double dt, const double *alpha, const double *p, ModelWork *work,
-                              SS22Factor **out) {
+                              int reuse, SS22Factor **out) {
     const double cv = s->theta1 * dt, cq = s->theta2 * 0.5 * dt * dt;
     SS22Factor *f = NULL;
-#if MODEL_JACOBIAN_CONSTANT
+#if !MODEL_JACOBIAN_CONSTANT
+    if (!reuse) goto evaluate;
+#else
+    (void)reuse;
+#endif
+    /* a constant matrix, or (simplified Newton) the latest one of this step size */
     for (int k = 0; k < SS22_CACHE; k++) {
         SS22Factor *c = &s->cache[k];
-        if (c->valid && c->dt == dt && c->theta1 == s->theta1 && c->theta2 == s->theta2) {
+        /* dt comes from differences of absolute times: equal steps may differ in the last bits */
+        if (c->valid && fabs(c->dt - dt) <= 1e-12 * dt && c->theta1 == s->theta1 && c->theta2 == s->theta2) {
             c->stamp = ++s->clock;
             *out = c;
             return SS22_OK;
         }
     }
+#if !MODEL_JACOBIAN_CONSTANT
+evaluate:
 #endif
     f = &s->cache[0];                                   /* replace the least recently used */
     for (int k = 1; k < SS22_CACHE; k++) if (s->cache[k].stamp < f->stamp) f = &s->cache[k];
@@ -104,13 +112,14 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
     weighted_state(s, dt, q, v, a);
     if (model_residual(s->q_bar, s->v_bar, a, s->u_bar, p, s->r, work)) return SS22_MODEL_FAILED;
     s->residual_evaluations++;
-    if ((st = step_matrix(s, dt, a, p, work, &f)) != SS22_OK) return st;
+    if ((st = step_matrix(s, dt, a, p, work, MODEL_JACOBIAN_CONSTANT, &f)) != SS22_OK) return st;
     for (int i = 0; i < N_Q; i++) a[i] = -s->r[i];
     lu_solve(f->LU, N_Q, f->piv, a);
     if (!all_finite(a, N_Q)) return SS22_NOT_FINITE;
 #else
     {
         double delta[N_Q];
+        const unsigned long used = s->factorisations;
         int converged = 0, fresh = 0;
         double previous = INFINITY;
         for (int it = 0; it < s->max_iterations; it++) {
@@ -119,8 +128,9 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
             s->residual_evaluations++;
             if (!all_finite(s->r, N_Q)) return SS22_NOT_FINITE;
             if (f == NULL) {
-                if ((st = step_matrix(s, dt, a, p, work, &f)) != SS22_OK) return st;
-                fresh = 1;
+                /* first iteration: the matrix of an earlier step (simplified Newton across steps) */
+                if ((st = step_matrix(s, dt, a, p, work, it == 0, &f)) != SS22_OK) return st;
+                fresh = it > 0 || s->factorisations != used;
             }
             for (int i = 0; i < N_Q; i++) delta[i] = -s->r[i];
             lu_solve(f->LU, N_Q, f->piv, delta);
@@ -136,7 +146,7 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
             if (err <= s->tolerance) { converged = 1; break; }
             const double rate = err / previous;
             /* linear convergence at rate < 1: what is left is about rate/(1-rate) times this increment */
-            if (rate < 0.5 && rate / (1.0 - rate) * err <= s->tolerance) { converged = 1; break; }
+            if (it > 0 && rate < 0.5 && rate / (1.0 - rate) * err <= s->tolerance) { converged = 1; break; }
             if (rate > 0.5) {
                 if (fresh && rate >= 0.9) {
                     /* a fresh matrix no longer contracts: either rounding stops us just above the
