@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import itertools
 import os
 from pathlib import Path
 
@@ -91,6 +92,8 @@ def simulate(fmu: str | os.PathLike, stop_time: float, *, step: float | None = N
     except FMICallException as e:
         detail = messages[-1] if messages else str(e)
         raise FlexlinkError(f"the FMU refused: {detail}") from None
+    finally:
+        _install_router()
 
 
 def write_csv(result: np.ndarray, path: str | os.PathLike) -> None:
@@ -122,30 +125,67 @@ def plot_result(result: np.ndarray, path: str | os.PathLike, names: list[str] | 
     plt.close(fig)
 
 
-def logging_callbacks(logger):
-    """fmi2CallbackFunctions whose logger calls ``logger(component, instance, status, category, message)``
-    (fmpy's proxy formats the FMU's printf-style message first).  Keep the returned object alive."""
+_ROUTES: dict[int, object] = {}     # componentEnvironment key → the Python logger of one instance
+_ROUTE_KEYS = itertools.count(1)
+_ROUTER = None                        # the one ctypes logger fmpy's native proxy ever calls
+
+
+def _route(environment, instance, status, category, message):
+    logger = _ROUTES.get(environment or 0)
+    if logger is not None:
+        logger(environment, instance, status, category, message)
+
+
+def _install_router() -> None:
+    """Point fmpy's process-wide logger proxy back at our router (fmpy.simulate_fmu replaces it with a
+    logger that dies with the call; a message after that would call freed memory)."""
+    global _ROUTER
     from ctypes import byref
 
-    from fmpy import calloc, free
-    from fmpy.fmi2 import (
-        fmi2CallbackAllocateMemoryTYPE,
-        fmi2CallbackFreeMemoryTYPE,
-        fmi2CallbackFunctions,
-        fmi2CallbackLoggerTYPE,
-    )
+    from fmpy.fmi2 import fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 
+    if _ROUTER is None:
+        _ROUTER = fmi2CallbackLoggerTYPE(_route)
+    try:
+        from fmpy.logging import addLoggerProxy
+    except ImportError:   # older fmpy: no proxy, messages arrive unformatted
+        return
+    holder = fmi2CallbackFunctions()
+    holder.logger = _ROUTER
+    addLoggerProxy(byref(holder))
+
+
+def logging_callbacks(logger):
+    """fmi2CallbackFunctions whose messages reach ``logger(component, instance, status, category, message)``.
+
+    fmpy's native proxy (which formats the FMU's printf-style messages) keeps a single, process-wide Python
+    logger, so every instance is registered with one router that dispatches on ``componentEnvironment``.
+    Keep the returned object alive while the instance lives; ``release_logging_callbacks`` ends the route."""
+    from ctypes import byref, c_void_p
+
+    from fmpy import calloc, free
+    from fmpy.fmi2 import fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions
+
+    _install_router()
+    key = next(_ROUTE_KEYS)
+    _ROUTES[key] = logger
     callbacks = fmi2CallbackFunctions()
-    callbacks.logger = fmi2CallbackLoggerTYPE(logger)
+    callbacks.logger = _ROUTER
     callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
     callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+    callbacks.componentEnvironment = c_void_p(key)
     try:
         from fmpy.logging import addLoggerProxy
 
         addLoggerProxy(byref(callbacks))
-    except ImportError:   # older fmpy: messages arrive unformatted
+    except ImportError:
         pass
+    callbacks.route_key = key
     return callbacks
+
+
+def release_logging_callbacks(callbacks) -> None:
+    _ROUTES.pop(getattr(callbacks, "route_key", None), None)
 
 
 class SlaveRunner:
@@ -171,7 +211,8 @@ class SlaveRunner:
         self.slave = FMU2Slave(guid=self.model_description.guid, unzipDirectory=self._unzipdir,
                                modelIdentifier=self.model_description.coSimulation.modelIdentifier,
                                instanceName=instance_name)
-        self.slave.instantiate(loggingOn=logging, callbacks=logging_callbacks(logger))
+        self._callbacks = logging_callbacks(logger)
+        self.slave.instantiate(loggingOn=logging, callbacks=self._callbacks)
         self._fresh = True
 
     def run(self, stop: float, comm_step: float, *, inputs=None, start: dict[str, float] | None = None,
@@ -208,6 +249,7 @@ class SlaveRunner:
         except Exception:   # already terminated, or in error: freeing is what matters
             pass
         self.slave.freeInstance()
+        release_logging_callbacks(self._callbacks)
         import shutil
 
         shutil.rmtree(self._unzipdir, ignore_errors=True)

@@ -1,0 +1,228 @@
+"""The commands of SCENE.md as a user runs them: subprocesses from the repository root, exit status, stdout,
+stderr (one line on bad input, never a traceback), the files written.
+
+``flexlink simulate`` caches its FMU under $XDG_CACHE_HOME: every run here gets a private cache directory.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from flexlink.analysis import natural_frequencies
+from flexlink.model import build_model
+from flexlink.scene import load_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = "examples/rotating_link.toml"
+FLEXLINK = [str(Path(sys.executable).with_name("flexlink"))]
+if not Path(FLEXLINK[0]).exists():                      # not installed as a script: the module does the same
+    FLEXLINK = [sys.executable, "-m", "flexlink.cli"]
+
+
+def run(args: list[str], cache: Path, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "XDG_CACHE_HOME": str(cache), "MPLBACKEND": "Agg"}
+    return subprocess.run(args, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout, check=False)
+
+
+def flexlink(*args: str, cache: Path) -> subprocess.CompletedProcess[str]:
+    return run([*FLEXLINK, *args], cache)
+
+
+def ok(result: subprocess.CompletedProcess[str]) -> subprocess.CompletedProcess[str]:
+    assert result.returncode == 0, f"exit {result.returncode}\n{result.stdout}\n{result.stderr}"
+    assert "Traceback" not in result.stderr, result.stderr
+    return result
+
+
+def read_csv(path: Path) -> dict[str, np.ndarray]:
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    return {name: np.array([float(r[i]) for r in rows[1:]]) for i, name in enumerate(rows[0])}
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("xdg-cache")
+
+
+# ------------------------------------------------------------------------------------------------ build
+
+
+def test_build_commands_write_valid_fmus(tmp_path, cache):
+    from fmpy.validation import validate_fmu
+
+    outputs = {"flexlink": tmp_path / "a" / "cli.fmu", "build_fmu.py": tmp_path / "b" / "script.fmu"}
+    commands = {"flexlink": [*FLEXLINK, "build", SCENE, "-o", str(outputs["flexlink"])],
+                "build_fmu.py": [sys.executable, "build_fmu.py", SCENE, "-o", str(outputs["build_fmu.py"])]}
+    with ThreadPoolExecutor(2) as pool:
+        results = dict(zip(commands, pool.map(lambda c: run(c, cache), commands.values()), strict=True))
+    for name, result in results.items():
+        ok(result)
+        assert outputs[name].is_file(), name
+        assert validate_fmu(str(outputs[name])) == [], name
+        assert str(outputs[name]) in result.stdout, result.stdout
+
+
+# ------------------------------------------------------------------------------------------------ modes
+
+
+def _first_order_copy(tmp_path: Path) -> Path:
+    text = (ROOT / SCENE).read_text()
+    assert 'kinematics = "second-order"' in text
+    path = tmp_path / "rotating_link_first_order.toml"
+    path.write_text(text.replace('kinematics = "second-order"', 'kinematics = "first-order"'))
+    return path
+
+
+def test_modes_json(tmp_path, cache):
+    """--json: SCENE.md's object, frequencies ascending, the first one what the library computes.
+
+    First-order kinematics keeps the centrifugal softening −W² ∫ρφ² but not the stiffening: the link
+    diverges once the rate exceeds its clamped-free first bending frequency, λ₁² √(EI/(ρL⁴)) = 11.90 rad/s
+    (λ₁ = 1.8751; the 3-shape model is a little stiffer).  Below it (0.8×) all modes are oscillatory, above
+    it (1.25×) one mode is unstable; the second-order scene stays stable at the same rate."""
+    critical = 1.875104068711961**2 * math.sqrt(93.72 / (0.349 * 2.2**4))
+    first_order = _first_order_copy(tmp_path)
+    jobs = {"default": ("modes", SCENE, "--json"),
+            "slow": ("modes", str(first_order), "--rate", repr(0.8 * critical), "--json"),
+            "fast": ("modes", str(first_order), "--rate", repr(1.25 * critical), "--json"),
+            "second-order": ("modes", SCENE, "--rate", repr(1.25 * critical), "--json")}
+    with ThreadPoolExecutor(2) as pool:
+        results = dict(zip(jobs, pool.map(lambda a: flexlink(*a, cache=cache), jobs.values()), strict=True))
+    out = {name: json.loads(ok(r).stdout) for name, r in results.items()}
+
+    default = out["default"]
+    assert set(default) >= {"rate", "frequencies_hz", "unstable"}
+    assert default["rate"] == 0.0 and default["unstable"] == []
+    f = default["frequencies_hz"]
+    assert len(f) >= 2 and f == sorted(f) and all(x > 0 for x in f)
+    expected = natural_frequencies(build_model(load_scene(ROOT / SCENE))).frequencies_hz
+    assert f[0] == pytest.approx(expected[0], rel=1e-12)
+    assert f[0] == pytest.approx(5.760, rel=1e-3)              # the scene file's reference value
+
+    assert out["slow"]["unstable"] == []
+    assert out["slow"]["frequencies_hz"][0] < f[0]             # softening
+    assert len(out["fast"]["unstable"]) >= 1 and all(x > 0 for x in out["fast"]["unstable"])
+    assert out["fast"]["rate"] == pytest.approx(1.25 * critical)
+    assert out["second-order"]["unstable"] == []
+    assert out["second-order"]["frequencies_hz"][0] > f[0]     # stiffening
+    for o in out.values():
+        assert o["frequencies_hz"] == sorted(o["frequencies_hz"])
+
+
+# ------------------------------------------------------------------------------------------------ simulate
+
+
+@pytest.fixture(scope="module")
+def simulations(tmp_path_factory, cache):
+    """Three runs of 1 s at 0.01 s: with a constant 0.2 N m torque from a CSV (also plotted), without input,
+    and with the torque and hub.inertia = 0.2."""
+    d = tmp_path_factory.mktemp("simulate")
+    (d / "in.csv").write_text("time,hub.tau\n0,0.2\n2,0.2\n")
+    common = ["simulate", SCENE, "--stop-time", "1", "--step", "0.01"]
+    ok(flexlink(*common, "--input", str(d / "in.csv"), "--csv", str(d / "torque.csv"), "--plot",
+                str(d / "torque.png"), cache=cache))            # builds the cached FMU once
+    jobs = [[*common, "--csv", str(d / "free.csv")],
+            [*common, "--input", str(d / "in.csv"), "--set", "hub.inertia=0.2", "--csv", str(d / "heavy.csv")]]
+    with ThreadPoolExecutor(2) as pool:
+        for result in pool.map(lambda a: flexlink(*a, cache=cache), jobs):
+            ok(result)
+    return d
+
+
+def test_simulate_writes_csv_and_plot(simulations, fmu_outputs):
+    d = simulations
+    res = read_csv(d / "torque.csv")
+    assert list(res)[0] == "time"
+    assert set(fmu_outputs) <= set(res)
+    assert res["time"][0] == 0.0 and res["time"][-1] == pytest.approx(1.0) and len(res["time"]) == 101
+    assert all(np.all(np.isfinite(v)) for v in res.values())
+    png = (d / "torque.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5000
+
+
+@pytest.fixture(scope="module")
+def fmu_outputs(simulations, cache) -> list[str]:
+    import fmpy
+
+    (fmu,) = (cache / "flexlink").glob("rotating_link-*.fmu")
+    return [v.name for v in fmpy.read_model_description(str(fmu)).modelVariables if v.causality == "output"]
+
+
+def test_simulate_input_and_set_take_effect(simulations):
+    """0.2 N m on the hub: the arm turns about like a rigid body, θ(1 s) ≈ τ t²/(2 J), J = J_hub + ρL³/3;
+    without input it stays at rest; hub.inertia = 0.2 slows it in the ratio of the inertias."""
+    torque, free, heavy = (read_csv(simulations / f"{n}.csv") for n in ("torque", "free", "heavy"))
+    assert np.all(free["hub.theta"] == 0.0) and np.all(free["arm.tip.v"] == 0.0)
+    rho, length = 0.349, 2.2
+    j_arm = rho * length**3 / 3
+    for res, j_hub in ((torque, 0.1), (heavy, 0.2)):
+        assert res["hub.theta"][-1] == pytest.approx(0.2 / (2 * (j_hub + j_arm)), rel=0.03)
+        assert np.max(np.abs(res["arm.tip.v"])) > 1e-4           # the arm bends
+    assert heavy["hub.theta"][-1] / torque["hub.theta"][-1] == pytest.approx((0.1 + j_arm) / (0.2 + j_arm), rel=0.02)
+
+
+# ------------------------------------------------------------------------------------------------ bad input
+
+BAD = {
+    "missing-scene": (["simulate", "examples/no_such_scene.toml", "--stop-time", "1"], ["no_such_scene.toml"]),
+    "missing-scene-build": (["build", "examples/no_such_scene.toml", "-o", "{tmp}/x.fmu"], ["no_such_scene.toml"]),
+    "negative-length": (["simulate", "{negative}", "--stop-time", "1"], ["length", "-2.2"]),
+    "negative-length-modes": (["modes", "{negative}"], ["length"]),
+    "negative-length-build": (["build", "{negative}", "-o", "{tmp}/x.fmu"], ["length"]),
+    "unknown-set-name": ([*"simulate {scene} --stop-time 1 --set arm.stiffness=3".split()], ["arm.stiffness"]),
+    "set-an-output": ([*"simulate {scene} --stop-time 1 --set tip.x=1".split()], ["tip.x", "output"]),
+    "set-not-a-number": ([*"simulate {scene} --stop-time 1 --set hub.inertia=abc".split()], ["hub.inertia", "abc"]),
+    "set-without-value": ([*"simulate {scene} --stop-time 1 --set hub.inertia".split()], ["hub.inertia"]),
+    "input-unknown-column": ([*"simulate {scene} --stop-time 1 --input {tmp}/unknown.csv".split()], ["hub.torque"]),
+    "input-nan": ([*"simulate {scene} --stop-time 1 --input {tmp}/nan.csv".split()], ["nan.csv", "NaN"]),
+    "input-decreasing-time": ([*"simulate {scene} --stop-time 1 --input {tmp}/decreasing.csv".split()],
+                              ["decreasing.csv", "time"]),
+    "input-missing-file": ([*"simulate {scene} --stop-time 1 --input {tmp}/none.csv".split()], ["none.csv"]),
+    "negative-stop-time": ([*"simulate {scene} --stop-time -1".split()], ["--stop-time"]),
+    "nan-stop-time": ([*"simulate {scene} --stop-time nan".split()], ["--stop-time"]),
+    "negative-step": ([*"simulate {scene} --stop-time 1 --step -0.01".split()], ["--step"]),
+    "negative-EI": ([*"simulate {scene} --stop-time 1 --set arm.EI=-1".split()], ["arm.EI"]),
+    "zero-solver-step": ([*"simulate {scene} --stop-time 1 --set solver.step=0".split()], ["solver.step"]),
+}
+
+
+@pytest.fixture(scope="module")
+def bad_runs(tmp_path_factory, cache) -> dict[str, subprocess.CompletedProcess[str]]:
+    """All bad-input commands, two at a time (after one good run has filled the FMU cache)."""
+    tmp = tmp_path_factory.mktemp("bad")
+    (tmp / "unknown.csv").write_text("time,hub.torque\n0,1\n1,1\n")
+    (tmp / "nan.csv").write_text("time,hub.tau\n0,0.1\n0.5,nan\n1,0\n")
+    (tmp / "decreasing.csv").write_text("time,hub.tau\n0,0.1\n0.6,0.2\n0.4,0.3\n")
+    negative = tmp / "negative.toml"
+    text = (ROOT / SCENE).read_text()
+    assert "length = 2.2 " in text
+    negative.write_text(text.replace("length = 2.2 ", "length = -2.2 "))
+    ok(flexlink("simulate", SCENE, "--stop-time", "0.01", cache=cache))
+
+    def go(args):
+        return flexlink(*(a.format(tmp=tmp, scene=SCENE, negative=negative) for a in args), cache=cache)
+
+    with ThreadPoolExecutor(2) as pool:
+        return dict(zip(BAD, pool.map(go, [args for args, _ in BAD.values()]), strict=True))
+
+
+@pytest.mark.parametrize("case", list(BAD))
+def test_bad_input_gives_one_line_and_no_traceback(bad_runs, case):
+    result = bad_runs[case]
+    words = BAD[case][1]
+    assert result.returncode != 0
+    assert "Traceback" not in result.stderr and "Traceback" not in result.stdout
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert all(w in lines[0] for w in words), (words, lines[0])
