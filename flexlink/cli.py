@@ -70,9 +70,14 @@ def _cmd_simulate(args) -> int:
 
 
 def _cmd_demo(args) -> int:
-    from flexlink.demo import run_demo
+    if args.open_loop:
+        from flexlink.demo import run_demo
 
-    return run_demo(args.out)
+        return run_demo(args.out)
+    from controllers.demo import run_control_demo
+
+    run_control_demo(args.out)
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -101,9 +106,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--plot")
     p.set_defaults(func=_cmd_simulate)
 
-    p = sub.add_parser("demo", help="the README's main job: build an example FMU, run it, plot")
+    p = sub.add_parser("demo", help="the README's main job: build an example FMU, run it in closed loop, plot")
     p.add_argument("--out", default="out", help="output folder")
+    p.add_argument("--open-loop", action="store_true", help="the open-loop bang-bang run against the reference")
     p.set_defaults(func=_cmd_demo)
+
+    from controllers.cli import add_control_parsers
+
+    add_control_parsers(sub)
 
     args = parser.parse_args(argv)
     try:

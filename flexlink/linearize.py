@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import casadi as ca
 import control as ct
@@ -64,6 +64,8 @@ class LinearPlant:
         FMU names of ``sys``'s inputs and outputs, in order (``sys`` spells them with "_").
     mechanics : Linearisation
         The second-order form ``M δq̈ + C δq̇ + K δq = B δu`` (all model inputs) behind ``sys``.
+    cache : dict
+        Room for functions derived from the model by users of the plant (built once per plant).
     """
 
     sys: ct.StateSpace
@@ -75,6 +77,7 @@ class LinearPlant:
     inputs: list[str]
     outputs: list[str]
     mechanics: Linearisation
+    cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def states(self) -> list[str]:
@@ -221,7 +224,9 @@ def linear_plant(scene_or_model, *, rate: float = 0.0, angle: float | None = Non
     cols = [k for k, s in enumerate(model.inputs) if s.fmu_variable]
     inputs = [model.inputs[k].name for k in cols]
     ident = name or model.scene.model_identifier
-    sys = ct.ss(A, B[:, cols], Cy[rows], Dy[np.ix_(rows, cols)], name=ident, states=state_names(model),
+    Bu = B[:, cols].reshape(2 * n, len(cols))
+    Du = Dy[np.ix_(rows, cols)].reshape(len(rows), len(cols))
+    sys = ct.ss(A, Bu, Cy[rows], Du, name=ident, states=state_names(model),
                 inputs=[signal_name(s) for s in inputs], outputs=[signal_name(s) for s in outputs])
     return LinearPlant(sys, model, op, x0, op.u[cols], y0.ravel()[rows], inputs, list(outputs), lin)
 

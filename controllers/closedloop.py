@@ -1,0 +1,131 @@
+"""Linear closed-loop prediction with python-control: what the FMU-in-the-loop run should give.
+
+* :func:`sampled_plant` — the plant as a sampled-data master sees it through FMI: zero-order hold on
+  the torque, outputs read at t_k while u_{k−1} is still applied (``y_k = C x_k + D u_{k−1}``).
+* :func:`closed_loop` — that plant and a law's :meth:`~controllers.laws.SampledLaw.statespace`,
+  connected by ``control.interconnect``; inputs ``xref[i]``, ``uff``; outputs the plant's outputs and the
+  torque.
+* :func:`predict` — ``control.forced_response`` of the closed loop to a reference: named time series.
+* :func:`loop_transfer` — the loop broken at the torque input, ``L(z) = −C_y(z) P(z)``, for Bode plots and
+  ``control.stability_margins``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import control as ct
+import numpy as np
+
+from controllers.laws import SampledLaw, reference_names
+from controllers.trajectory import Reference
+from flexlink.linearize import LinearPlant, signal_name
+
+__all__ = ["closed_loop", "loop_transfer", "margins", "predict", "sampled_plant"]
+
+
+def sampled_plant(plant: LinearPlant, dt: float, outputs: Sequence[str] | None = None) -> ct.StateSpace:
+    """ZOH-sampled plant whose outputs at t_k see the torque held over the previous sample.
+
+    With D ≠ 0 on the chosen outputs the state is augmented with ``u_prev`` (named ``<input>_prev``).
+    """
+    rows = list(range(len(plant.outputs))) if outputs is None else [plant.output_row(o) for o in outputs]
+    names = [plant.outputs[r] for r in rows]
+    sd = ct.sample_system(plant.sys, dt, method="zoh")
+    A, B = np.asarray(sd.A), np.asarray(sd.B)
+    C, D = np.asarray(sd.C)[rows], np.asarray(sd.D)[rows]
+    states = list(plant.sys.state_labels)
+    if np.any(D != 0):
+        n, m = A.shape[0], B.shape[1]
+        A = np.block([[A, np.zeros((n, m))], [np.zeros((m, n + m))]])
+        B = np.vstack([B, np.eye(m)])
+        C = np.hstack([C, D])
+        D = np.zeros_like(D)
+        states += [signal_name(i) + "_prev" for i in plant.inputs]
+    return ct.ss(A, B, C, D, dt, inputs=[signal_name(i) for i in plant.inputs],
+                 outputs=[signal_name(o) for o in names], states=states, name="plant")
+
+
+def closed_loop(plant: LinearPlant, law: SampledLaw, outputs: Sequence[str] | None = None) -> ct.StateSpace:
+    """Discrete closed loop (unsaturated law): inputs ``xref[i]``, ``uff``; outputs the plant's ``outputs``
+    (FMU names, default all of the plant's) then the torque."""
+    outputs = list(plant.outputs if outputs is None else outputs)
+    needed = list(dict.fromkeys([*outputs, *law.sensors]))
+    P = sampled_plant(plant, law.dt, needed)
+    K = law.statespace()
+    u_name = signal_name(law.input)
+    refs = reference_names(law.n)
+    return ct.interconnect([P, K], inplist=refs, inputs=refs,
+                           outlist=[f"plant.{signal_name(o)}" for o in outputs] + [f"plant.{u_name}"],
+                           outputs=[signal_name(o) for o in outputs] + [u_name], name="closed_loop",
+                           check_unused=False)
+
+
+def predict(plant: LinearPlant, law: SampledLaw, reference: Reference, outputs: Sequence[str]) -> dict:
+    """Closed-loop response to ``reference`` (python-control ``forced_response``): a dict of named time
+    series, absolute values (operating point added), ``time`` and the torque under the input's name."""
+    cl = closed_loop(plant, law, outputs)
+    U = np.vstack([reference.x.T, reference.u_ff[None, :]])
+    resp = ct.forced_response(cl, T=reference.time, U=U)
+    y = np.atleast_2d(resp.outputs)
+    out = {"time": reference.time.copy()}
+    for i, name in enumerate(outputs):
+        out[name] = y[i] + plant.y0[plant.output_row(name)]
+    out[law.input] = y[len(outputs)] + law.u0
+    return out
+
+
+def loop_transfer(plant: LinearPlant, law: SampledLaw) -> ct.StateSpace:
+    """The loop broken at the torque input: ``L = −C_y P`` (negative-feedback convention of
+    ``control.stability_margins``), C_y the law from the measurements to the torque."""
+    P = sampled_plant(plant, law.dt, law.sensors)
+    K = law.statespace()
+    Ky = K[:, : len(law.sensors)]
+    return ct.series(P, -Ky)
+
+
+def margins(plant: LinearPlant, law: SampledLaw, n_points: int = 20000) -> dict:
+    """Classical margins of the loop broken at the torque input, from its frequency response on a dense
+    logarithmic grid up to the Nyquist frequency, and closed-loop stability from the poles.
+
+    Returns a dict: ``gain_margin_db`` (smallest gain increase that destabilises, dB, ``inf`` if none),
+    ``gain_reduction_margin_db`` (largest gain decrease tolerated, negative dB, ``-inf`` if none — with a
+    rigid-body joint the loop is conditionally stable), ``phase_margin_deg`` (smallest over all gain
+    crossovers), the crossover frequencies in Hz, ``stability_margin`` (min |1 + L|, the distance of the
+    Nyquist curve to −1) and ``stable`` (closed-loop poles inside the unit circle, python-control).
+    """
+    L = loop_transfer(plant, law)
+    w = np.logspace(-3, np.log10(np.pi / law.dt), n_points)[:-1]
+    Lw = np.asarray(L.frequency_response(w).complex).ravel()
+    mag = np.abs(Lw)
+    to_hz = 1 / (2 * np.pi)
+    # gain crossovers: |L| = 1
+    pms, wgcs = [], []
+    for i in np.flatnonzero(np.diff(np.sign(np.log(mag))) != 0):
+        f = np.log(mag[i]) / (np.log(mag[i]) - np.log(mag[i + 1]))
+        z = Lw[i] + f * (Lw[i + 1] - Lw[i])
+        pms.append(np.degrees(np.angle(-z)))        # angle of L from −1
+        wgcs.append(w[i] + f * (w[i + 1] - w[i]))
+    # phase crossovers: L on the negative real axis
+    gms, wpcs = [], []
+    for i in np.flatnonzero((np.diff(np.sign(Lw.imag)) != 0) & (Lw.real[:-1] < 0)):
+        f = Lw.imag[i] / (Lw.imag[i] - Lw.imag[i + 1])
+        re = Lw.real[i] + f * (Lw.real[i + 1] - Lw.real[i])
+        gms.append(1.0 / abs(re))
+        wpcs.append(w[i] + f * (w[i + 1] - w[i]))
+    pms, gms = np.abs(np.array(pms)), np.array(gms)
+    k_pm = int(np.argmin(pms)) if len(pms) else None
+    up = [k for k in range(len(gms)) if gms[k] > 1]
+    down = [k for k in range(len(gms)) if gms[k] < 1]
+    k_up = min(up, key=lambda k: gms[k]) if up else None
+    k_dn = max(down, key=lambda k: gms[k]) if down else None
+    cl = closed_loop(plant, law, [law.sensors[0]])
+    return {
+        "gain_margin_db": float(20 * np.log10(gms[k_up])) if k_up is not None else float("inf"),
+        "gain_reduction_margin_db": float(20 * np.log10(gms[k_dn])) if k_dn is not None else float("-inf"),
+        "phase_margin_deg": float(pms[k_pm]) if k_pm is not None else float("inf"),
+        "gain_crossover_hz": float(wgcs[k_pm] * to_hz) if k_pm is not None else float("nan"),
+        "phase_crossover_hz": float(wpcs[k_up] * to_hz) if k_up is not None else float("nan"),
+        "stability_margin": float(np.min(np.abs(1 + Lw))),
+        "stable": bool(np.all(np.abs(cl.poles()) < 1.0)),
+    }

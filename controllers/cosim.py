@@ -1,0 +1,244 @@
+"""Closed-loop co-simulation: a sampled control law drives the FMU through fmpy's low-level ``FMU2Slave``.
+
+One :class:`FmuLoop` extracts and instantiates the FMU once; each :meth:`FmuLoop.run` resets it
+(``fmi2Reset``) when it has run before, sets the parameters, initialises, then at every sample::
+
+    y_k = getReal(sensors)                 (outputs at t_k, the torque u_{k−1} still applied)
+    u_k = law.step(y_k, x_ref[k], u_ff[k]) (saturated)
+    setReal(<joint>.tau, u_k); doStep(t_k, dt)
+
+and returns the recorded outputs as named time series (:class:`LoopResult`).  The value arrays for
+``fmi2GetReal``/``fmi2SetReal`` are allocated once (fmpy's convenience wrappers allocate per call).
+Errors the FMU reports reach the caller as :class:`FmuLoopError` with the FMU's own log messages.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import shutil
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from controllers.laws import SampledLaw
+from controllers.trajectory import Reference
+from flexlink.errors import FlexlinkError
+
+__all__ = ["FmuLoop", "FmuLoopError", "LoopResult"]
+
+
+class FmuLoopError(FlexlinkError):
+    """The FMU refused a call during a closed-loop run (message: the call and the FMU's log)."""
+
+
+@dataclass
+class LoopResult:
+    """Named time series of one closed-loop run (``series["time"]``, outputs by FMU name, the torque under
+    the input's name), plus the wall-clock time of the run (instantiation and FMU build excluded)."""
+
+    series: dict[str, np.ndarray]
+    wall_time: float
+    parameters: dict[str, float] = field(default_factory=dict)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.series[name]
+
+    @property
+    def time(self) -> np.ndarray:
+        return self.series["time"]
+
+    @property
+    def realtime_factor(self) -> float:
+        """Simulated seconds per wall-clock second."""
+        return float(self.time[-1] - self.time[0]) / self.wall_time if self.wall_time > 0 else float("inf")
+
+
+class FmuLoop:
+    """An FMU instantiated once for repeated closed-loop runs.
+
+    Parameters
+    ----------
+    fmu : path
+        A Co-Simulation FMU (FMI 2.0).
+    record : list of str, optional
+        Outputs to record besides the law's sensors (FMU names).
+    instance_name : str, optional
+
+    Examples
+    --------
+    >>> with FmuLoop("rotating_link.fmu", record=["arm.tip.v"]) as loop:   # doctest: +SKIP
+    ...     res = loop.run(law, reference)
+    ...     res2 = loop.run(law, reference, parameters={"arm.payload.mass": 0.65})
+    """
+
+    def __init__(self, fmu: str | os.PathLike, record: Sequence[str] = (), instance_name: str = "flexlink_loop"):
+        import fmpy
+        from fmpy.fmi2 import (
+            FMU2Slave,
+            fmi2CallbackAllocateMemoryTYPE,
+            fmi2CallbackFreeMemoryTYPE,
+            fmi2CallbackFunctions,
+            fmi2CallbackLoggerTYPE,
+        )
+
+        self.path = os.fspath(fmu)
+        self.md = fmpy.read_model_description(self.path)
+        if self.md.coSimulation is None:
+            raise FlexlinkError(f"{self.path}: not a Co-Simulation FMU")
+        self.variables = {v.name: v for v in self.md.modelVariables}
+        self.record = list(record)
+        self.messages: list[str] = []
+        self._unzipdir = fmpy.extract(self.path)
+        self.slave = FMU2Slave(guid=self.md.guid, unzipDirectory=self._unzipdir,
+                               modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=instance_name)
+
+        def logger(env, instance, status, category, message):
+            text = message.decode(errors="replace") if isinstance(message, bytes) else str(message)
+            self.messages.append(text.replace("%%", "%"))   # FMI messages are printf formats
+
+        from fmpy import calloc, free
+
+        cb = fmi2CallbackFunctions()
+        cb.logger = fmi2CallbackLoggerTYPE(logger)
+        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        self._callbacks = cb
+        self._logger = logger
+        self._fresh = True
+        self._call("instantiate", lambda: self.slave.instantiate(callbacks=cb, loggingOn=False))
+
+    # -------------------------------------------------------------------------------------- helpers
+    def _call(self, what: str, f):
+        from fmpy.fmi1 import FMICallException
+
+        n = len(self.messages)
+        try:
+            return f()
+        except FMICallException as e:
+            detail = "; ".join(self.messages[n:]) or "no message from the FMU"
+            raise FmuLoopError(f"{os.path.basename(self.path)}: {what} failed ({e}): {detail}") from None
+        except Exception as e:  # fmpy raises a bare Exception when fmi2Instantiate returns NULL
+            detail = "; ".join(self.messages[n:]) or str(e)
+            raise FmuLoopError(f"{os.path.basename(self.path)}: {what} failed: {detail}") from None
+
+    def vr(self, name: str) -> int:
+        try:
+            return self.variables[name].valueReference
+        except KeyError:
+            raise FlexlinkError(f"{os.path.basename(self.path)} has no variable {name!r}") from None
+
+    def close(self) -> None:
+        if self.slave is not None:
+            try:
+                self.slave.terminate()
+            except Exception:  # noqa: BLE001 (already terminated or in error: free anyway)
+                pass
+            self.slave.freeInstance()
+            self.slave.freeLibrary()
+            self.slave = None
+        shutil.rmtree(self._unzipdir, ignore_errors=True)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # -------------------------------------------------------------------------------------- a run
+    def run(self, law: SampledLaw, reference: Reference, parameters: Mapping[str, float] | None = None,
+            solver_step: float | None = None, noise: Mapping[str, float] | None = None,
+            seed: int = 0) -> LoopResult:
+        """Run ``law`` against the FMU along ``reference`` (its time grid, its sample time).
+
+        Parameters
+        ----------
+        law : SampledLaw
+            Reset before the run.
+        reference : Reference
+            ``x_ref`` and ``u_ff`` per sample; the run lasts ``reference.time[-1]``.
+        parameters : dict, optional
+            FMU parameters to set before initialisation (e.g. ``{"arm.payload.mass": 0.65}``).
+        solver_step : float, optional
+            ``solver.step`` (internal SS22 step); default: the FMU's own.
+        noise : dict, optional
+            Sensor name → standard deviation of white Gaussian noise added to what the law reads (the
+            recorded outputs stay noise-free), e.g. :data:`controllers.design.SENSOR_NOISE` levels.
+        seed : int
+            Seed of the noise generator.
+        """
+        s = self.slave
+        dt = reference.dt
+        if abs(law.dt - dt) > 1e-12:
+            raise ValueError(f"the law samples at {law.dt} s but the reference at {dt} s")
+        params = dict(parameters or {})
+        if solver_step is not None:
+            params["solver.step"] = solver_step
+        for name in params:
+            v = self.variables.get(name)
+            if v is None or v.causality != "parameter":
+                raise FlexlinkError(f"{name}: not a parameter of {os.path.basename(self.path)}")
+        sensors = list(law.sensors)
+        names = list(dict.fromkeys([*sensors, *self.record]))
+        n_out = len(names)
+        vr_out = (ctypes.c_uint * n_out)(*[self.vr(n) for n in names])
+        val_out = (ctypes.c_double * n_out)()
+        vr_in = (ctypes.c_uint * 1)(self.vr(law.input))
+        val_in = (ctypes.c_double * 1)()
+        sensor_idx = [names.index(n) for n in sensors]
+        n_steps = len(reference.time) - 1
+        sigma = np.array([float((noise or {}).get(n, 0.0)) for n in sensors])
+        unknown = set(noise or {}) - set(sensors)
+        if unknown:
+            raise FlexlinkError(f"noise on {sorted(unknown)}: not sensors of the law ({sensors})")
+        E = np.random.default_rng(seed).standard_normal((n_steps + 1, len(sensors))) * sigma if noise else None
+        Y = np.empty((n_steps + 1, n_out))
+        U = np.empty(n_steps + 1)
+        x_ref, u_ff = reference.x, reference.u_ff
+        law.reset()
+
+        t0 = time.perf_counter()
+        if not self._fresh:
+            self._call("fmi2Reset", s.reset)
+        self._fresh = False
+        self._call("fmi2SetupExperiment", lambda: s.setupExperiment(startTime=0.0))
+        if params:
+            pvr = list(params)
+            self._call("fmi2SetReal (parameters)", lambda: s.setReal([self.vr(n) for n in pvr],
+                                                                     [float(params[n]) for n in pvr]))
+        self._call("fmi2EnterInitializationMode", s.enterInitializationMode)
+        self._call("fmi2ExitInitializationMode", s.exitInitializationMode)
+        comp = s.component
+        get_real, set_real, do_step = s.fmi2GetReal, s.fmi2SetReal, s.fmi2DoStep
+        k = 0
+        try:
+            for k in range(n_steps + 1):
+                get_real(comp, vr_out, n_out, val_out)
+                y = np.frombuffer(val_out, dtype=np.float64)
+                Y[k] = y
+                ys = y[sensor_idx] if E is None else y[sensor_idx] + E[k]
+                u = law.step(ys, x_ref[k], u_ff[k])
+                U[k] = u
+                if k == n_steps:
+                    break
+                val_in[0] = u
+                set_real(comp, vr_in, 1, val_in)
+                do_step(comp, k * dt, dt, 1)
+        except Exception as e:  # noqa: BLE001
+            from fmpy.fmi1 import FMICallException
+
+            if not isinstance(e, FMICallException):
+                raise
+            detail = "; ".join(self.messages[-3:]) or "no message from the FMU"
+            raise FmuLoopError(f"{os.path.basename(self.path)}: step {k} (t = {k * dt:.6g} s) failed ({e}): "
+                               f"{detail}") from None
+        finally:
+            wall = time.perf_counter() - t0
+        self._call("fmi2Terminate", s.terminate)
+        series = {"time": reference.time.copy()}
+        for i, name in enumerate(names):
+            series[name] = Y[:, i].copy()
+        series[law.input] = U
+        return LoopResult(series, wall, params)

@@ -1,0 +1,248 @@
+"""Sampled control laws, run step by step against the FMU and as python-control systems.
+
+Every law has the same shape, at each sample k (t_k = k·dt)::
+
+    x̂_k = state estimate from the measurements y_k (deviations from the operating point)
+    u_k = sat(u₀ + u_ff[k] − K (x̂_k − x_ref[k]))      (sat: ± torque limit)
+
+* :class:`LQGLaw` — x̂_k from the steady-state Kalman filter (``dlqe``), in its "current estimator" form:
+  predict with the sampled model and the torque actually applied (after saturation: no wind-up),
+  correct with y_k before computing u_k; K from ``dlqr``.
+* :class:`PDLaw` — x̂_k has only the joint angle and rate, measured (encoder and rate sensor).
+
+A measured output with feedthrough (the accelerometer: D ≠ 0) is sampled at t_k while the previous
+torque u_{k−1} is still applied — that is what a co-simulation master reads after ``doStep`` — so the
+estimator predicts it with ``D u_{k−1}``.
+
+**Outputs linearised along the reference.** The plant is linearised at rest, but an output such as the
+tip accelerometer is far from linear over a large manoeuvre: seen in the deflected tip frame, the
+tangential and centripetal accelerations leak into ``tip.sy`` in proportion to the tip slope, and its
+sensitivity to the torque (D) changes several-fold (on the payload scene: −0.047 at rest, −0.24 at
+0.26 m of deflection).  Predicting the measurement with the rest-pose C, D then closes a fast loop
+u_{k−1} → y_k → u_k that destabilises the LQG.  :meth:`SampledLaw.follow` therefore gives the estimator a
+measurement model linearised along the reference — ``ŷ_k = h(x_ref,k, u_ff,k−1) + C_k (x̂ − x_ref,k) +
+D_k (u_{k−1} − u_ff,k−1)`` — which is the rest-pose model for outputs linear in the state (encoder, strain
+gauge) and for any small manoeuvre.
+
+:meth:`SampledLaw.statespace` returns the unsaturated law as a discrete ``control.StateSpace`` from
+(measurements, x_ref, u_ff) to u, the very matrices that :meth:`SampledLaw.step` uses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import control as ct
+import numpy as np
+
+from controllers.design import KalmanDesign, LQRDesign, PDDesign
+from controllers.trajectory import Reference
+from flexlink.linearize import LinearPlant, signal_name
+
+__all__ = ["LQGLaw", "MeasurementSchedule", "PDLaw", "SampledLaw", "measurement_schedule", "reference_names"]
+
+
+def reference_names(n: int) -> list[str]:
+    """python-control names of the reference inputs: ``xref[0..n-1]`` and ``uff``."""
+    return [f"xref[{i}]" for i in range(n)] + ["uff"]
+
+
+@dataclass
+class MeasurementSchedule:
+    """The sensors' outputs linearised along a reference, per sample k: ``y_ref[k] = h(x₀ + x_ref[k],
+    u₀ + u_ff[k−1])`` (absolute), ``C[k] = ∂h/∂x``, ``D[k] = ∂h/∂u`` there."""
+
+    y_ref: np.ndarray   # (N, p)
+    C: np.ndarray       # (N, p, n)
+    D: np.ndarray       # (N, p)
+    u_ff_prev: np.ndarray  # (N,) deviation torque held while y_k is sampled, along the reference
+
+
+def _sensor_function(plant: LinearPlant, sensors: list[str]) -> ca.Function | None:
+    """(x, u, p) → (y, ∂y/∂x, ∂y/∂u) of the sensors as a scalar (SX) function, or None when the sensors
+    are affine in (x, u) (the rest-pose model is then exact).  Cached on the plant."""
+    key = ("sensor_function", tuple(sensors))
+    if key in plant.cache:
+        return plant.cache[key]
+    model = plant.model
+    names = [s.name for s in model.outputs]
+    rows = [names.index(s) for s in sensors]
+    n = model.n_q
+    res, out = model.residual.expand(), model.outputs_function.expand()
+    q, v, a = ca.SX.sym("q", n), ca.SX.sym("v", n), ca.SX.sym("a", n)
+    u = ca.SX.sym("u", res.size1_in(3))
+    p = ca.SX.sym("p", res.size1_in(4))
+    r = res(q, v, a, u, p)
+    zero = ca.SX.zeros(n)
+    M = ca.substitute(ca.jacobian(r, a), a, zero)
+    acc = -ca.solve(M, ca.substitute(r, a, zero))
+    y = out(q, v, acc, u, p)[rows]
+    x = ca.vertcat(q, v)
+    cols = [k for k, s in enumerate(model.inputs) if s.fmu_variable]
+    Cx, Du = ca.jacobian(y, x), ca.jacobian(y, u)[:, cols[0]]
+    xu = ca.vertcat(x, u)
+    f = None
+    if ca.depends_on(ca.vertcat(ca.vec(Cx), Du), xu):
+        f = ca.Function("sensors", [x, u, p], [y, Cx, Du])
+    plant.cache[key] = f
+    return f
+
+
+def measurement_schedule(plant: LinearPlant, sensors: list[str], reference: Reference) -> MeasurementSchedule | None:
+    """Linearise the sensors' outputs about every sample of ``reference``; None when they are affine in
+    the state and input (encoder, strain gauge): the rest-pose model is then the same."""
+    f = _sensor_function(plant, sensors)
+    if f is None:
+        return None
+    model = plant.model
+    cols = [k for k, s in enumerate(model.inputs) if s.fmu_variable]
+    N = len(reference.time)
+    u_prev = np.concatenate([[0.0], reference.u_ff[:-1]])
+    X = plant.x0[None, :] + reference.x
+    U = np.tile(plant.op.u, (N, 1))
+    U[:, cols[0]] = plant.u0[0] + u_prev
+    Y, Cs, Ds = f.map(N)(X.T, U.T, plant.op.p)
+    p_ = len(sensors)
+    n = plant.sys.nstates
+    Cs = np.asarray(Cs, dtype=float).reshape(p_, N, n).transpose(1, 0, 2)   # columns k·n + j → [k, :, j]
+    return MeasurementSchedule(np.asarray(Y, dtype=float).T, Cs, np.asarray(Ds, dtype=float).T, u_prev)
+
+
+class SampledLaw:
+    """Common part: sensors, operating point, gain, saturation."""
+
+    kind = "law"
+
+    def __init__(self, plant: LinearPlant, dt: float, K: np.ndarray, sensors: list[str], torque_limit: float):
+        self.plant = plant
+        self.dt = float(dt)
+        self.K = np.atleast_2d(np.asarray(K, dtype=float))
+        self.sensors = list(sensors)
+        self.torque_limit = float(torque_limit)
+        rows = [plant.output_row(s) for s in self.sensors]
+        self.y0 = plant.y0[rows]
+        self.u0 = float(plant.u0[0])
+        self.input = plant.inputs[0]
+        self.n = plant.sys.nstates
+        self.k = 0
+
+    def reset(self) -> None:
+        """Back to rest at the operating point, sample counter to 0 (call before each run)."""
+        self.k = 0
+
+    def follow(self, reference: Reference | None) -> None:
+        """Use the measurement model linearised along ``reference`` in the next runs (None: the rest-pose
+        model).  Only the LQG's estimator uses it."""
+
+    def estimate(self, y: np.ndarray, x_ref: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def step(self, y, x_ref: np.ndarray, u_ff: float) -> float:
+        """One sample: measurements y_k (FMU values, in ``sensors`` order) → applied torque u_k."""
+        xh = self.estimate(np.asarray(y, dtype=float), x_ref)
+        self.k += 1
+        du = u_ff - float(self.K[0] @ (xh - x_ref))
+        u = min(max(self.u0 + du, -self.torque_limit), self.torque_limit)
+        self.applied(u - self.u0)
+        return u
+
+    def applied(self, du: float) -> None:
+        """Told the deviation torque actually applied (after saturation)."""
+
+    def statespace(self) -> ct.StateSpace:
+        raise NotImplementedError
+
+    def _names(self):
+        return [signal_name(s) for s in self.sensors] + reference_names(self.n), [signal_name(self.input)]
+
+
+class LQGLaw(SampledLaw):
+    """LQR state feedback on the Kalman filter's estimate (separation principle)."""
+
+    kind = "lqr"
+
+    def __init__(self, lqr: LQRDesign, kalman: KalmanDesign, torque_limit: float | None = None):
+        super().__init__(lqr.plant, lqr.dt, lqr.Kd, kalman.sensors,
+                         lqr.torque_limit if torque_limit is None else torque_limit)
+        if abs(kalman.dt - lqr.dt) > 1e-15:
+            raise ValueError("the LQR and the Kalman filter must share the sample time")
+        self.lqr, self.kalman = lqr, kalman
+        self.Ad, self.Bd = np.asarray(lqr.plant_d.A), np.asarray(lqr.plant_d.B)[:, 0]
+        self.C, self.D = kalman.C, kalman.D[:, 0]
+        self.M = kalman.Md
+        self.has_feedthrough = bool(np.any(self.D != 0))
+        self.schedule: MeasurementSchedule | None = None
+        self.reset()
+
+    def reset(self) -> None:
+        super().reset()
+        self.z = np.zeros(self.n)       # prior estimate x̂_k|k−1
+        self.u_prev = 0.0               # deviation torque held while y_k was sampled
+        self.xh = np.zeros(self.n)
+
+    def follow(self, reference: Reference | None) -> None:
+        self.schedule = None if reference is None else measurement_schedule(self.plant, self.sensors, reference)
+
+    def estimate(self, y: np.ndarray, x_ref: np.ndarray) -> np.ndarray:
+        sc, k = self.schedule, self.k
+        if sc is None or k >= len(sc.y_ref):
+            y_hat = self.y0 + self.C @ self.z + self.D * self.u_prev
+        else:
+            y_hat = sc.y_ref[k] + sc.C[k] @ (self.z - x_ref) + sc.D[k] * (self.u_prev - sc.u_ff_prev[k])
+        self.xh = self.z + self.M @ (y - y_hat)
+        return self.xh
+
+    def applied(self, du: float) -> None:
+        self.z = self.Ad @ self.xh + self.Bd * du
+        self.u_prev = du
+
+    def statespace(self) -> ct.StateSpace:
+        """Unsaturated law: states (x̂_k|k−1[, u_{k−1}]), inputs (y − y0, x_ref, u_ff), output u − u0."""
+        n = self.n
+        K, M, C = self.K, self.M, self.C
+        D = self.D.reshape(-1, 1)
+        IMC = np.eye(n) - M @ C
+        # x̂ = (I − MC) z − M D u_prev + M y ;  u = u_ff − K x̂ + K x_ref
+        Fz, Fp, Fy = IMC, -M @ D, M
+        Uz, Up, Uy, Ur, Uf = -K @ Fz, -K @ Fp, -K @ Fy, K, np.ones((1, 1))
+        Ad, Bd = self.Ad, self.Bd.reshape(-1, 1)
+        # z⁺ = Ad x̂ + Bd u
+        Az = np.hstack([Ad @ Fz + Bd @ Uz, Ad @ Fp + Bd @ Up])
+        Bz = np.hstack([Ad @ Fy + Bd @ Uy, Bd @ Ur, Bd @ Uf])
+        Au = np.hstack([Uz, Up])
+        Bu = np.hstack([Uy, Ur, Uf])
+        Cc, Dc = np.hstack([Uz, Up]), np.hstack([Uy, Ur, Uf])
+        states = [f"xhat[{i}]" for i in range(n)]
+        if self.has_feedthrough:
+            A = np.vstack([Az, Au])
+            B = np.vstack([Bz, Bu])
+            states.append("u_prev")
+        else:
+            A, B, Cc = Az[:, :n], Bz, Cc[:, :n]
+        inputs, outputs = self._names()
+        return ct.ss(A, B, Cc, Dc, self.dt, inputs=inputs, outputs=outputs, states=states, name="lqg")
+
+
+class PDLaw(SampledLaw):
+    """Joint PD on the measured joint angle and rate."""
+
+    kind = "pd"
+
+    def __init__(self, pd: PDDesign, plant: LinearPlant, dt: float, torque_limit: float):
+        joint = pd.joint
+        super().__init__(plant, dt, pd.gain_matrix(plant), [f"{joint}.theta", f"{joint}.omega"], torque_limit)
+        self.pd = pd
+        self.S = np.zeros((self.n, 2))
+        self.S[plant.state_index(f"{joint}.theta"), 0] = 1.0
+        self.S[plant.state_index(f"der({joint}.theta)"), 1] = 1.0
+
+    def estimate(self, y: np.ndarray, x_ref: np.ndarray) -> np.ndarray:
+        return self.S @ (y - self.y0)
+
+    def statespace(self) -> ct.StateSpace:
+        """Static law u − u0 = u_ff − K (S (y − y0) − x_ref), as a state-less discrete system."""
+        inputs, outputs = self._names()
+        Dc = np.hstack([-self.K @ self.S, self.K, np.ones((1, 1))])
+        return ct.ss([], np.zeros((0, Dc.shape[1])), np.zeros((1, 0)), Dc, self.dt, inputs=inputs, outputs=outputs,
+                     name="pd")

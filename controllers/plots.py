@@ -1,0 +1,123 @@
+"""Plots of a closed-loop manoeuvre: time responses, closed-loop poles, loop Bode with margins."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+
+import numpy as np
+
+from controllers.closedloop import closed_loop, loop_transfer, margins
+
+__all__ = ["plot_loop_bode", "plot_manoeuvre", "plot_poles", "plot_time_responses"]
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_time_responses(axes, results: Sequence, design, predictions: Sequence[dict | None] = ()) -> None:
+    """Hub angle (and reference), tip deflection and torque of one or more :class:`ManoeuvreResult`;
+    dashed: the linear closed-loop predictions, when given."""
+    joint, link, tau = design.joint, design.link, design.plant.inputs[0]
+    preds = list(predictions) + [None] * (len(results) - len(predictions))
+    for k, (res, pred) in enumerate(zip(results, preds, strict=True)):
+        c = f"C{k}"
+        t = res["time"]
+        label = f"{res.controller.upper()}"
+        axes[0].plot(t, np.degrees(res[f"{joint}.theta"]), c, lw=1.2, label=label)
+        axes[0].plot(t, np.degrees(res[f"{joint}.theta_ref"]), c, lw=0.8, ls=":", label=f"{label} reference")
+        axes[1].plot(t, 1e3 * res[f"{link}.tip.v"], c, lw=1.2, label=label)
+        axes[2].plot(t, res[tau], c, lw=1.0, label=label)
+        if pred is not None:
+            axes[0].plot(pred["time"], np.degrees(pred[f"{joint}.theta"]), c, lw=0.8, ls="--",
+                         label=f"{label} linear prediction")
+            axes[1].plot(pred["time"], 1e3 * pred[f"{link}.tip.v"], c, lw=0.8, ls="--")
+    lim = design.torque_limit
+    axes[2].axhline(lim, color="k", lw=0.6, ls="--")
+    axes[2].axhline(-lim, color="k", lw=0.6, ls="--")
+    for ax in axes:
+        ax.axvline(results[0].duration, color="0.6", lw=0.6)
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel(f"{joint}.theta (deg)")
+    axes[1].set_ylabel(f"{link}.tip.v (mm)")
+    axes[2].set_ylabel(f"{tau} (N m)")
+    axes[2].set_xlabel("time (s)")
+    axes[0].legend(fontsize=7, loc="lower right")
+    axes[1].legend(fontsize=7, loc="upper right")
+
+
+def plot_poles(ax, design, controllers: Sequence[str] = ("lqr", "pd")) -> None:
+    """Closed-loop poles (python-control) mapped to the s-plane, s = ln(z)/dt, rad/s."""
+    markers = {"lqr": "x", "pd": "o"}
+    for k, name in enumerate(controllers):
+        cl = closed_loop(design.plant, design.law(name), [f"{design.joint}.theta"])
+        z = cl.poles()
+        z = z[np.abs(z) > 1e-12]
+        s = np.log(z.astype(complex)) / design.dt
+        ax.plot(s.real, s.imag, markers.get(name, "+"), color=f"C{k}", mfc="none", label=f"{name.upper()} closed loop")
+    ol = design.plant.sys.poles()
+    ax.plot(ol.real, ol.imag, "k+", ms=5, label="open loop")
+    ax.set_xscale("symlog", linthresh=1.0)
+    ax.set_xlabel("Re s (1/s)")
+    ax.set_ylabel("Im s (rad/s)")
+    ax.axvline(0, color="k", lw=0.5)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    ax.set_title("closed-loop poles, s = ln(z)/dt", fontsize=9)
+
+
+def plot_loop_bode(ax_mag, ax_phase, design, controllers: Sequence[str] = ("lqr", "pd")) -> dict:
+    """Loop transfer at the torque input, L = −C_y P, with its margins; returns the margins by controller."""
+    out = {}
+    w = np.logspace(-1, np.log10(np.pi / design.dt), 3000)[:-1]
+    for k, name in enumerate(controllers):
+        law = design.law(name)
+        L = loop_transfer(design.plant, law)
+        Lw = np.asarray(L.frequency_response(w).complex).ravel()
+        m = margins(design.plant, law)
+        out[name] = m
+        hz = w / (2 * np.pi)
+        ax_mag.semilogx(hz, 20 * np.log10(np.abs(Lw)), f"C{k}", lw=1.0,
+                        label=f"{name.upper()}: GM {m['gain_margin_db']:.1f} dB, PM {m['phase_margin_deg']:.0f}°")
+        phase = np.degrees(np.angle(Lw))
+        ax_phase.semilogx(hz, np.where(phase > 0, phase - 360, phase), f"C{k}", lw=1.0)
+        if np.isfinite(m["gain_crossover_hz"]):
+            ax_mag.axvline(m["gain_crossover_hz"], color=f"C{k}", lw=0.5, ls=":")
+    ax_mag.axhline(0, color="k", lw=0.5)
+    ax_phase.axhline(-180, color="k", lw=0.5)
+    ax_mag.set_ylabel("|L| (dB)")
+    ax_phase.set_ylabel("arg L (deg, in (−360, 0])")
+    ax_phase.set_yticks([-360, -270, -180, -90, 0])
+    ax_phase.set_xlabel("frequency (Hz)")
+    ax_mag.legend(fontsize=7)
+    ax_mag.set_title("loop broken at the torque input", fontsize=9)
+    for ax in (ax_mag, ax_phase):
+        ax.grid(alpha=0.3, which="both")
+    return out
+
+
+def plot_manoeuvre(path: str | os.PathLike, results: Sequence, design, predictions: Sequence[dict | None] = (),
+                   title: str = "") -> None:
+    """One figure: time responses (left), closed-loop poles and loop Bode (right)."""
+    plt = _pyplot()
+    fig = plt.figure(figsize=(13, 8.5))
+    gs = fig.add_gridspec(3, 2, width_ratios=[1.3, 1.0])
+    left = [fig.add_subplot(gs[0, 0])]
+    left += [fig.add_subplot(gs[i, 0], sharex=left[0]) for i in (1, 2)]
+    plot_time_responses(left, results, design, predictions)
+    names = list(dict.fromkeys(r.controller for r in results))
+    others = [c for c in ("lqr", "pd") if c not in names]
+    shown = names + others
+    plot_poles(fig.add_subplot(gs[0, 1]), design, shown)
+    plot_loop_bode(fig.add_subplot(gs[1, 1]), fig.add_subplot(gs[2, 1]), design, shown)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
