@@ -69,6 +69,21 @@ def _cmd_simulate(args) -> int:
     return 0
 
 
+def _cmd_bench(args) -> int:
+    from flexlink.bench import plot_bench, report_markdown, run_bench
+
+    rows, info = run_bench(args.scene, quick=args.quick, repeats=args.repeats)
+    if args.plot:
+        plot_bench(rows, info, args.plot)
+    if args.report:
+        Path(args.report).write_text(report_markdown(rows, info))
+    if args.json:
+        print(json.dumps([r.as_dict() for r in rows]))
+    else:
+        print(report_markdown(rows, info))
+    return 0
+
+
 def _cmd_demo(args) -> int:
     if args.open_loop:
         from flexlink.demo import run_demo
@@ -105,6 +120,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--csv")
     p.add_argument("--plot")
     p.set_defaults(func=_cmd_simulate)
+
+    p = sub.add_parser("bench", help="speed against error: SS22 against CVODES, IDAS and SciPy on the same equations")
+    p.add_argument("scene")
+    p.add_argument("--json", action="store_true", help="print the rows as JSON")
+    p.add_argument("--plot", metavar="OUT.png")
+    p.add_argument("--report", metavar="OUT.md")
+    p.add_argument("--quick", action="store_true", help="fewer settings and a shorter run (CI size)")
+    p.add_argument("--repeats", type=int, help="timed runs per setting (median; default 5, quick 2)")
+    p.set_defaults(func=_cmd_bench)
 
     p = sub.add_parser("demo", help="the README's main job: build an example FMU, run it in closed loop, plot")
     p.add_argument("--out", default="out", help="output folder")

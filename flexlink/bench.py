@@ -1,0 +1,294 @@
+"""Speed against error (``flexlink bench``): SS22 in the FMU against the integrators a user would pick.
+
+Every method integrates the same equations (the scene's symbolic model) over the same manoeuvre: for a
+torque-driven first joint +τ for 1 s, −τ for 1 s, then free (issue 6's scene), for a position-driven one
+its built-in law.  The error of a run is the largest, over the named outputs, of its RMS deviation from
+the reference at 10 ms samples divided by the output's RMS.  The reference is CVODES at rtol 1e-12; its
+own accuracy is stated (the same at rtol 1e-13) so that no method is judged below it.  Times are CPU
+seconds per simulated second of the integration alone (integrator construction and, for the FMU, the
+Python loop are not charged: the FMU is timed with one fmi2DoStep per input switch), medians of
+``repeats`` runs.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from flexlink.errors import FlexlinkError
+from flexlink.model import SymbolicModel
+from flexlink.reference import simulate_reference
+
+
+@dataclass
+class BenchCase:
+    model: SymbolicModel
+    stop: float
+    times: np.ndarray
+    pieces: list                      # [(t, {input: value})], piecewise-constant inputs
+    outputs: list[str]
+    switches: list[float] = field(default_factory=list)
+
+    def inputs_at(self, t: float) -> dict[str, float]:
+        out: dict[str, float] = {}
+        for ts, values in self.pieces:
+            if ts <= t + 1e-12:
+                out.update(values)
+        return out
+
+
+@dataclass
+class BenchRow:
+    method: str
+    setting: str
+    cpu_s_per_simulated_s: float
+    error: float
+
+    def as_dict(self) -> dict:
+        return {"method": self.method, "setting": self.setting,
+                "cpu_s_per_simulated_s": self.cpu_s_per_simulated_s, "error": self.error}
+
+
+def default_case(model: SymbolicModel, stop: float = 5.0, torque: float = 0.2, sample: float = 0.01) -> BenchCase:
+    scene = model.scene
+    joint = scene.joints[0].name
+    link = scene.links[-1].name
+    names = [s.name for s in model.inputs]
+    outputs = [f"{joint}.theta", f"{link}.tip.v"]
+    pieces: list = []
+    if f"{joint}.tau" in names:
+        pieces = [(0.0, {f"{joint}.tau": torque}), (1.0, {f"{joint}.tau": -torque}), (2.0, {f"{joint}.tau": 0.0})]
+    elif model.laws and model.laws[0].trajectory is not None:
+        outputs = [f"{link}.tip.v", f"{joint}.tau"]
+    else:
+        raise FlexlinkError("flexlink bench needs a torque-driven first joint or a built-in trajectory")
+    times = np.round(np.arange(int(round(stop / sample)) + 1) * sample, 12)
+    switches = sorted({ts for ts, _ in pieces if 0 < ts < stop})
+    return BenchCase(model, stop, times, pieces, outputs, switches)
+
+
+def relative_error(case: BenchCase, y: dict[str, np.ndarray], ref: dict[str, np.ndarray]) -> float:
+    return max(float(np.sqrt(np.mean((y[n] - ref[n]) ** 2)) / max(np.sqrt(np.mean(ref[n] ** 2)), 1e-300))
+               for n in case.outputs)
+
+
+def reference_outputs(case: BenchCase, rtol: float = 1e-12) -> dict[str, np.ndarray]:
+    res = simulate_reference(case.model, case.times, inputs=case.pieces, rtol=rtol, atol=rtol * 1e-3)
+    return {n: res.output(case.model, n) for n in case.outputs}
+
+
+# ------------------------------------------------------------------------------------------- the FMU
+
+def bench_ss22(case: BenchCase, fmu, steps, thetas, ref, repeats: int = 5) -> list[BenchRow]:
+    import fmpy
+    from fmpy.fmi2 import FMU2Slave
+
+    from flexlink.simulate import SlaveRunner
+
+    rows = []
+    md = fmpy.read_model_description(str(fmu))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    unzipdir = fmpy.extract(str(fmu))
+    timer = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName="bench")
+    timer.instantiate()
+    bounds = [0.0, *case.switches, case.stop]
+    try:
+        with SlaveRunner(fmu) as runner:
+            for theta in thetas:
+                for h in steps:
+                    start = {"solver.step": h, "solver.theta1": theta[0], "solver.theta2": theta[1]}
+                    res = runner.run(case.stop, float(case.times[1] - case.times[0]), inputs=case.inputs_at,
+                                     start=start, outputs=case.outputs)
+                    err = relative_error(case, res, ref)
+                    cpu = []
+                    for _ in range(repeats):
+                        timer.reset()
+                        for name, value in start.items():
+                            timer.setReal([vr[name]], [value])
+                        timer.setupExperiment(startTime=0.0)
+                        timer.enterInitializationMode()
+                        timer.exitInitializationMode()
+                        t0 = time.process_time()
+                        for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+                            u = case.inputs_at(lo)
+                            if u:
+                                timer.setReal([vr[k] for k in u], list(u.values()))
+                            timer.doStep(lo, hi - lo)
+                        cpu.append(time.process_time() - t0)
+                    setting = f"step={h:g}" + ("" if theta == (0.5, 0.5) else f", theta={theta[0]:g}/{theta[1]:g}")
+                    rows.append(BenchRow("ss22 (FMU)", setting, statistics.median(cpu) / case.stop, err))
+    finally:
+        timer.terminate()
+        timer.freeInstance()
+    return rows
+
+
+# ------------------------------------------------------------------------------- the same equations
+
+def _ode(model: SymbolicModel):
+    """x' = (v, a(q, v, u, p)) as SX, with the inputs' values and the parameters as the integrator's p."""
+    n = model.n_q
+    f = model.residual.expand()
+    x = ca.SX.sym("x", 2 * n)
+    u = ca.SX.sym("u", f.size1_in(3))
+    p = ca.SX.sym("p", f.size1_in(4))
+    a = ca.SX.sym("a", n)
+    r = f(x[:n], x[n:], a, u, p)
+    M = ca.substitute(ca.jacobian(r, a), a, ca.DM.zeros(n))
+    acc = -ca.solve(M, ca.substitute(r, a, ca.DM.zeros(n)))
+    return x, u, p, ca.vertcat(x[n:], acc)
+
+
+def _segments(case: BenchCase):
+    bounds = [0.0, *case.switches, case.stop]
+    for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+        grid = [t for t in case.times if lo < t <= hi + 1e-12]
+        yield lo, hi, grid
+
+
+def _model_inputs(case: BenchCase, t: float) -> np.ndarray:
+    u = case.model.default_inputs(t)
+    names = [s.name for s in case.model.inputs]
+    for k, val in case.inputs_at(t).items():
+        u[names.index(k)] = val
+    return u
+
+
+def _outputs(case: BenchCase, X: np.ndarray) -> dict[str, np.ndarray]:
+    model, n = case.model, case.model.n_q
+    mass = model.mass_matrix_function()
+    rows = []
+    for k, t in enumerate(case.times):
+        q, v = X[k, :n], X[k, n:]
+        u = _model_inputs(case, float(t))
+        M = np.asarray(mass(q, u, model.p0))
+        a = -np.linalg.solve(M, np.asarray(model.residual(q, v, np.zeros(n), u, model.p0)).ravel())
+        rows.append(np.asarray(model.outputs_function(q, v, a, u, model.p0)).ravel())
+    Y = np.array(rows)
+    return {name: Y[:, model.output_index(name)] for name in case.outputs}
+
+
+def bench_casadi(case: BenchCase, plugin: str, tolerances, ref, repeats: int = 5) -> list[BenchRow]:
+    """CasADi's SUNDIALS integrators (CVODES, IDAS), restarted at every input switch."""
+    if case.model.laws:
+        raise FlexlinkError("the CasADi comparison needs constant inputs between switches (no built-in law)")
+    x, u, p, ode = _ode(case.model)
+    x0 = np.concatenate(case.model.start_state())
+    rows = []
+    for tol in tolerances:
+        integrators = [ca.integrator("F", plugin, {"x": x, "p": ca.vertcat(u, p), "ode": ode}, lo, grid,
+                                     {"abstol": tol * 1e-3, "reltol": tol, "max_num_steps": 10**7})
+                       for lo, hi, grid in _segments(case)]
+        cpu = []
+        for _ in range(repeats):
+            xs = [x0]
+            xk = x0
+            t0 = time.process_time()
+            for F, (lo, _hi, _grid) in zip(integrators, _segments(case), strict=True):
+                res = np.asarray(F(x0=xk, p=np.concatenate([_model_inputs(case, lo), case.model.p0]))["xf"])
+                xs.extend(res.T)
+                xk = res[:, -1]
+            cpu.append(time.process_time() - t0)
+        y = _outputs(case, np.array(xs))
+        rows.append(BenchRow(plugin, f"rtol={tol:g}", statistics.median(cpu) / case.stop, relative_error(case, y, ref)))
+    return rows
+
+
+def bench_scipy(case: BenchCase, method: str, tolerances, ref, repeats: int = 3) -> list[BenchRow]:
+    """SciPy's solve_ivp on the same equations (right-hand side and Jacobian from CasADi)."""
+    from scipy.integrate import solve_ivp
+
+    if case.model.laws:
+        raise FlexlinkError("the SciPy comparison needs constant inputs between switches (no built-in law)")
+    x, u, p, ode = _ode(case.model)
+    f = ca.Function("f", [x, u, p], [ode])
+    jac = ca.Function("ode_jacobian", [x, u, p], [ca.jacobian(ode, x)])
+    x0 = np.concatenate(case.model.start_state())
+    rows = []
+    for tol in tolerances:
+        cpu = []
+        for _ in range(repeats):
+            xs = [x0]
+            xk = x0
+            t0 = time.process_time()
+            for lo, hi, grid in _segments(case):
+                uk = _model_inputs(case, lo)
+                pk = case.model.p0
+                kwargs = {}
+                if method in ("Radau", "BDF", "LSODA"):
+                    kwargs["jac"] = lambda t, y, uk=uk, pk=pk: np.asarray(jac(y, uk, pk))
+                sol = solve_ivp(lambda t, y, uk=uk, pk=pk: np.asarray(f(y, uk, pk)).ravel(), (lo, hi), xk,
+                                method=method, t_eval=grid, rtol=tol, atol=tol * 1e-3, **kwargs)
+                xs.extend(sol.y.T)
+                xk = sol.y[:, -1]
+            cpu.append(time.process_time() - t0)
+        y = _outputs(case, np.array(xs))
+        rows.append(BenchRow(f"scipy {method}", f"rtol={tol:g}", statistics.median(cpu) / case.stop,
+                             relative_error(case, y, ref)))
+    return rows
+
+
+def run_bench(scene_path, *, quick: bool = False, repeats: int | None = None) -> tuple[list[BenchRow], dict]:
+    """The work–precision study of a scene; ``quick`` for CI-sized runs."""
+    import tempfile
+    from pathlib import Path
+
+    from flexlink.fmu import build_fmu
+    from flexlink.model import build_model
+    from flexlink.scene import load_scene
+
+    scene = load_scene(scene_path)
+    model = build_model(scene)
+    case = default_case(model, stop=2.5 if quick else 5.0)
+    repeats = repeats or (2 if quick else 5)
+    ref = reference_outputs(case, 1e-12)
+    ref_check = reference_outputs(case, 1e-13)
+    info = {"scene": str(scene_path), "outputs": case.outputs, "stop_time": case.stop,
+            "reference": "CVODES rtol 1e-12", "reference_error": relative_error(case, ref, ref_check)}
+    steps = [4e-3, 2e-3, 1e-3, 5e-4] if quick else [8e-3, 4e-3, 2e-3, 1e-3, 5e-4, 2.5e-4, 1.25e-4]
+    thetas = [(0.5, 0.5)] if quick else [(0.5, 0.5), (0.6, 0.6)]
+    tols = [1e-4, 1e-6] if quick else [1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9]
+    with tempfile.TemporaryDirectory() as tmp:
+        fmu = build_fmu(scene, Path(tmp) / "bench.fmu", model=model).fmu
+        rows = bench_ss22(case, fmu, steps, thetas, ref, repeats)
+    if not model.laws:
+        rows += bench_casadi(case, "cvodes", tols, ref, repeats)
+        rows += bench_casadi(case, "idas", tols, ref, repeats)
+        for method in (["Radau"] if quick else ["Radau", "LSODA", "DOP853"]):
+            rows += bench_scipy(case, method, tols[:2] if quick else tols[:5], ref, max(1, repeats // 2))
+    return rows, info
+
+
+def plot_bench(rows: list[BenchRow], info: dict, path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 5))
+    for method in dict.fromkeys(r.method for r in rows):
+        pts = sorted((r.error, r.cpu_s_per_simulated_s) for r in rows if r.method == method)
+        ax.loglog([p[0] for p in pts], [p[1] for p in pts], "o-", label=method)
+    ax.axvline(info["reference_error"], color="gray", ls=":", lw=1, label="reference accuracy")
+    ax.set_xlabel("relative RMS error (" + ", ".join(info["outputs"]) + ")")
+    ax.set_ylabel("CPU s per simulated s")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    ax.set_title(f"work-precision: {info['scene']}", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def report_markdown(rows: list[BenchRow], info: dict) -> str:
+    lines = [f"# Speed against error: {info['scene']}", "",
+             f"Outputs {', '.join(info['outputs'])} over {info['stop_time']} s; reference {info['reference']} "
+             f"(its own error, against rtol 1e-13: {info['reference_error']:.1e}).", "",
+             "| method | setting | CPU s / simulated s | relative error |", "| --- | --- | --- | --- |"]
+    lines += [f"| {r.method} | {r.setting} | {r.cpu_s_per_simulated_s:.3g} | {r.error:.2e} |" for r in rows]
+    return "\n".join(lines) + "\n"
