@@ -37,9 +37,16 @@ class Linearisation:
 
 
 def _elastic_and_joint_indices(model: SymbolicModel):
-    joints = [i for i, c in enumerate(model.coordinates) if c.endswith(".theta")]
-    elastic = [i for i in range(model.n_q) if i not in joints]
+    """Driven joint coordinates (torque or free; a motor for an elastic joint) and the others (elastic
+    coordinates and the link side of elastic joints), which take their static value."""
+    kinds = model.coordinate_kinds
+    joints = [i for i, k in enumerate(kinds) if k == "joint"]
+    elastic = [i for i, k in enumerate(kinds) if k != "joint"]
     return joints, elastic
+
+
+def _joint_name(coordinate: str) -> str:
+    return coordinate.removesuffix(".motor_theta").removesuffix(".theta")
 
 
 def _call(f, *args) -> np.ndarray:
@@ -87,15 +94,16 @@ def operating_point(model: SymbolicModel, rate: float = 0.0, p: np.ndarray | Non
     else:
         for law in model.laws:
             u[law.u_offset + 1:law.u_offset + 3] = 0.0
-        if joints:
-            v[:] = 0.0
-            v[joints[0]] = rate
+        v[:] = 0.0
+        for i, c in enumerate(model.coordinates):
+            if c in (f"{first.name}.theta", f"{first.name}.motor_theta"):
+                v[i] = rate
     q = static_deflection(model, q, v, u, p, elastic)
     # torque-driven joints: the constant torque that holds them; free joints: must be at rest already
     r = _call(model.residual, q, v, np.zeros(model.n_q), u, p).ravel()
     names = [s.name for s in model.inputs]
     for i in joints:
-        name = model.coordinates[i].removesuffix(".theta")
+        name = _joint_name(model.coordinates[i])
         tau_name = f"{name}.tau"
         if tau_name in names:
             u[names.index(tau_name)] += r[i]   # r = … − τ: adding r cancels the joint's residual

@@ -1,14 +1,17 @@
 """Positions and velocities of the sections of a flexible link, to first or second order.
 
-A link lies along +x of its joint frame; in-plane bending v is along ``axis × x``; the section at
-abscissa x sits at ``s(x) = (x + u(x), v(x), w(x))`` in the link's basis ``(e_x, e_v, e_axis)``.
-First-order kinematics keep ``u = 0``; second-order kinematics add the foreshortening
-``u = −½∫₀ˣ v'² dξ`` (seed 000 §2.5, eq. 3.32), which is what brings the geometric stiffening.
+A link lies along +x of its joint frame; in-plane bending v is along ``axis × x``, out-of-plane bending
+w along ``axis``, torsion α about x.  The section at abscissa x sits at ``s(x) = (x + u(x), v(x), w(x))``
+in the link's basis ``(e_x, e_v, e_axis)``.  First-order kinematics keep ``u = 0``; second-order
+kinematics add the foreshortening ``u = −½∫₀ˣ (v'² + w'²) dξ`` (seed 000 §2.5, eq. 3.32), which is what
+brings the geometric stiffening.  The tip frame is the link frame turned by the tip rotation
+ψ = (α(L), −w'(L), v'(L)) (seed 000 §2.4).
 
 Everything the kinetic and gravitational energies need from the distributed mass is a handful of
-*inertia invariants*, polynomials in η with the constant shape integrals as coefficients (seed 000
-§3.4.2).  They are built here as matrix operations on constant ``DM`` blocks so that the symbolic
-expressions stay small whatever the number of shape functions.
+*inertia invariants* — ∫ρs, ∫ρssᵀ, ∫ρ s×ṡ, ∫ρ|ṡ|² — polynomials in η with the constant shape integrals
+as coefficients (seed 000 §3.4.2), built as matrix operations on constant ``DM`` blocks so that the
+symbolic expressions stay small whatever the number of shape functions.  Terms of order three and more
+in η are left out: no model keeps them (DESIGN.md §2).
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import casadi as ca
 import numpy as np
 
 from flexlink.shapes import ShapeIntegrals
+from flexlink.shapes.torsion import TorsionIntegrals
 
 
 def link_basis(axis) -> np.ndarray:
@@ -29,74 +33,129 @@ def link_basis(axis) -> np.ndarray:
     return np.column_stack([ex, np.cross(a, ex), a])
 
 
-def rot_z(angle) -> ca.MX:
-    """Rotation by ``angle`` about the third basis vector (the joint axis in the link basis)."""
-    c, s = ca.cos(angle), ca.sin(angle)
-    return ca.vertcat(ca.horzcat(c, -s, 0), ca.horzcat(s, c, 0), ca.horzcat(0, 0, 1))
+def skew(w) -> ca.SX | ca.MX:
+    return ca.vertcat(ca.horzcat(0, -w[2], w[1]), ca.horzcat(w[2], 0, -w[0]), ca.horzcat(-w[1], w[0], 0))
 
 
-@dataclass
-class BeamInvariants:
-    """Inertia invariants of a uniform link per unit linear density, in the link basis.
-
-    ``first_moment`` = ∫ s dx (3), ``planar_inertia`` = ∫ (s_x² + s_v²) dx,
-    ``angular_momentum_z`` = ∫ (s_x ṡ_v − s_v ṡ_x) dx, ``relative_kinetic`` = ∫ |ṡ|² dx.
-    Terms of order three and more in η are left out: no model keeps them (DESIGN.md §2).
-    """
-
-    first_moment: ca.MX
-    planar_inertia: ca.MX
-    angular_momentum_z: ca.MX
-    relative_kinetic: ca.MX
+def rotation(axis, angle):
+    """Rotation by ``angle`` about the unit vector ``axis`` (Rodrigues)."""
+    a = ca.DM(np.asarray(axis, dtype=float) / np.linalg.norm(axis))
+    K = skew(a)
+    return ca.DM.eye(3) + ca.sin(angle) * K + (1 - ca.cos(angle)) * ca.mtimes(K, K)
 
 
-@dataclass
-class TipKinematics:
-    """Tip point s(L), its rate, and the tip slope angle ψ = v'(L) in the link basis."""
-
-    position: ca.MX
-    velocity: ca.MX
-    slope: ca.MX
-    slope_rate: ca.MX
+def small_rotation(psi, second_order: bool):
+    """The tip rotation by the small rotation vector ψ: I + [ψ×] (first order), + ½[ψ×]² (second)."""
+    K = skew(psi)
+    R = ca.DM.eye(3) + K
+    return R + 0.5 * ca.mtimes(K, K) if second_order else R
 
 
 def _dm(a) -> ca.DM:
     return ca.DM(np.asarray(a, dtype=float))
 
 
-def _quad(eta: ca.MX, matrix: np.ndarray, other: ca.MX | None = None) -> ca.MX:
-    other = eta if other is None else other
-    return ca.dot(eta, ca.mtimes(_dm(matrix), other))
+def _quad(x, matrix: np.ndarray, y=None):
+    y = x if y is None else y
+    return ca.dot(x, ca.mtimes(_dm(matrix), y))
 
 
-def beam_invariants(integrals: ShapeIntegrals, length: float, eta: ca.MX, eta_dot: ca.MX,
-                    second_order: bool) -> BeamInvariants:
-    """Invariants of the v-bending link, with first- or second-order kinematics."""
+@dataclass
+class LinkDeformation:
+    """The elastic coordinates of one link split by field (any of them may be empty)."""
+
+    v: ca.MX | None
+    w: ca.MX | None
+    alpha: ca.MX | None
+    v_dot: ca.MX | None
+    w_dot: ca.MX | None
+    alpha_dot: ca.MX | None
+
+
+@dataclass
+class Invariants:
+    """Inertia invariants of a link per unit linear density, in the link basis."""
+
+    first_moment: ca.MX           # ∫ s dx                 (3)
+    second_moment: ca.MX          # ∫ s sᵀ dx              (3×3)
+    angular_momentum: ca.MX       # ∫ s × ṡ dx             (3)
+    relative_kinetic: ca.MX       # ∫ |ṡ|² dx
+
+    def inertia(self):
+        """∫ (|s|² I − s sᵀ) dx, the inertia tensor about the link frame's origin."""
+        S = self.second_moment
+        return ca.trace(S) * ca.DM.eye(3) - S
+
+
+def beam_invariants(g: ShapeIntegrals, length: float, d: LinkDeformation, second_order: bool) -> Invariants:
+    """Invariants of a link bending in v and/or w (the same shape family in both planes)."""
     L = float(length)
-    g = integrals
-    v_moment = ca.dot(_dm(g.phi), eta)
-    x_moment = L**2 / 2
-    planar = L**3 / 3 + _quad(eta, g.phi_phi)
+    zero = 0.0
+    v1 = ca.dot(_dm(g.phi), d.v) if d.v is not None else zero
+    w1 = ca.dot(_dm(g.phi), d.w) if d.w is not None else zero
+    xx, xv, xw = L**3 / 3 + zero, zero, zero
+    vv, ww, vw = zero, zero, zero
+    x_moment = L**2 / 2 + zero
+    if d.v is not None:
+        xv = ca.dot(_dm(g.x_phi), d.v)
+        vv = _quad(d.v, g.phi_phi)
+    if d.w is not None:
+        xw = ca.dot(_dm(g.x_phi), d.w)
+        ww = _quad(d.w, g.phi_phi)
+    if d.v is not None and d.w is not None:
+        vw = _quad(d.v, g.phi_phi, d.w)
     if second_order:
         # ∫ u dx = −½ ηᵀ fs η,  ∫ 2 x u dx = −ηᵀ fs_x η  (∫ u² is of order four)
-        x_moment = x_moment - 0.5 * _quad(eta, g.fs)
-        planar = planar - _quad(eta, g.fs_x)
-    first_moment = ca.vertcat(x_moment, v_moment, 0)
-    # ∫ (x + u) v̇ − v u̇: the u-terms are of order three
-    angular = ca.dot(_dm(g.x_phi), eta_dot)
-    relative = _quad(eta_dot, g.phi_phi)
-    return BeamInvariants(first_moment, planar, angular, relative)
+        for eta in (d.v, d.w):
+            if eta is not None:
+                x_moment = x_moment - 0.5 * _quad(eta, g.fs)
+                xx = xx - _quad(eta, g.fs_x)
+    first = ca.vertcat(x_moment, v1, w1)
+    second = ca.vertcat(ca.horzcat(xx, xv, xw), ca.horzcat(xv, vv, vw), ca.horzcat(xw, vw, ww))
+    # ∫ s × ṡ = (v ẇ − w v̇, w u̇ − (x+u) ẇ, (x+u) v̇ − v u̇): u-terms are of order three
+    hx, hy, hz = zero, zero, zero
+    if d.v is not None:
+        hz = ca.dot(_dm(g.x_phi), d.v_dot)
+    if d.w is not None:
+        hy = -ca.dot(_dm(g.x_phi), d.w_dot)
+    if d.v is not None and d.w is not None:
+        hx = _quad(d.v, g.phi_phi, d.w_dot) - _quad(d.w, g.phi_phi, d.v_dot)
+    relative = zero
+    for rate in (d.v_dot, d.w_dot):
+        if rate is not None:
+            relative = relative + _quad(rate, g.phi_phi)
+    return Invariants(first, second, ca.vertcat(hx, hy, hz), relative)
 
 
-def tip_kinematics(integrals: ShapeIntegrals, length: float, eta: ca.MX, eta_dot: ca.MX,
+def torsion_kinetic(t: TorsionIntegrals, length: float, d: LinkDeformation, omega_x):
+    """∫ (ω_x + α̇)² dx per unit polar mass moment (rotary inertia of sections in bending neglected)."""
+    return (float(length) * omega_x**2 + 2 * omega_x * ca.dot(_dm(t.phi), d.alpha_dot)
+            + _quad(d.alpha_dot, t.phi_phi))
+
+
+@dataclass
+class TipKinematics:
+    """Tip point s(L) and tip rotation vector ψ = (α(L), −w'(L), v'(L)) in the link basis."""
+
+    position: ca.MX
+    rotation_vector: ca.MX
+
+
+def tip_kinematics(g: ShapeIntegrals, t: TorsionIntegrals | None, length: float, d: LinkDeformation,
                    second_order: bool) -> TipKinematics:
-    """The tip point and slope, to the order of the kinematic model (for payloads and outputs)."""
-    g = integrals
-    v_tip = ca.dot(_dm(g.tip), eta)
     x_tip = float(length)
+    v_tip = w_tip = 0
+    slope_v = slope_w = twist = 0
+    if d.v is not None:
+        v_tip = ca.dot(_dm(g.tip), d.v)
+        slope_v = ca.dot(_dm(g.tip_slope), d.v)
+    if d.w is not None:
+        w_tip = ca.dot(_dm(g.tip), d.w)
+        slope_w = ca.dot(_dm(g.tip_slope), d.w)
+    if d.alpha is not None:
+        twist = ca.dot(_dm(t.tip), d.alpha)
     if second_order:
-        x_tip = x_tip - 0.5 * _quad(eta, g.fs_tip)
-    position = ca.vertcat(x_tip, v_tip, 0)
-    velocity = ca.jtimes(position, eta, eta_dot)
-    slope = ca.dot(_dm(g.tip_slope), eta)
-    return TipKinematics(position, velocity, slope, ca.dot(_dm(g.tip_slope), eta_dot))
+        for eta in (d.v, d.w):
+            if eta is not None:
+                x_tip = x_tip - 0.5 * _quad(eta, g.fs_tip)
+    return TipKinematics(ca.vertcat(x_tip, v_tip, w_tip), ca.vertcat(twist, -slope_w, slope_v))

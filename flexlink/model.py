@@ -28,9 +28,18 @@ import casadi as ca
 import numpy as np
 
 from flexlink.errors import FlexlinkError
-from flexlink.kinematics import beam_invariants, link_basis, rot_z, tip_kinematics
+from flexlink.kinematics import (
+    LinkDeformation,
+    beam_invariants,
+    link_basis,
+    rotation,
+    small_rotation,
+    tip_kinematics,
+    torsion_kinetic,
+)
 from flexlink.scene import Scene, Trajectory
 from flexlink.shapes import make_basis
+from flexlink.shapes.torsion import make_torsion_basis
 
 
 @dataclass(frozen=True)
@@ -96,6 +105,7 @@ class SymbolicModel:
     linear_in_state: bool
     jacobian_constant: bool
     terms: list[str] = field(default_factory=list)   # what the model contains and why (explain)
+    coordinate_kinds: list[str] = field(default_factory=list)   # "joint" | "link_angle" | "elastic"
 
     @property
     def n_q(self) -> int:
@@ -161,134 +171,294 @@ class SymbolicModel:
 
 def _unsupported(scene: Scene, what: str) -> FlexlinkError:
     where = scene.path or scene.name
-    return FlexlinkError(f"{where}: {what} is not supported yet (chains and spatial links come with "
-                         "the chains issue); this version models one planar link (deformation = [\"v\"])")
+    return FlexlinkError(f"{where}: {what} is not supported yet")
 
 
 def _check_supported(scene: Scene) -> None:
-    if len(scene.links) != 1:
-        raise _unsupported(scene, f"a chain of {len(scene.links)} links")
-    link, joint = scene.links[0], scene.joints[0]
-    if tuple(link.deformation) != ("v",):
-        raise _unsupported(scene, f'link "{link.name}": deformation {list(link.deformation)}')
-    if joint.stiffness > 0:
-        raise _unsupported(scene, f'joint "{joint.name}": an elastic joint (stiffness > 0)')
-    if not isinstance(link.payload.inertia, int | float):
-        raise _unsupported(scene, f'link "{link.name}": a 3-axis payload inertia')
-    if any(x != 0 for x in link.payload.offset):
-        raise _unsupported(scene, f'link "{link.name}": a payload offset')
-    if scene.fmu.tip_load_inputs:
-        raise _unsupported(scene, "tip load inputs (tip.fx … tip.mz)")
+    kinds = {link.kinematics for link in scene.links}
+    if len(kinds) > 1:
+        raise _unsupported(scene, f"a chain mixing kinematic models {sorted(kinds)} (use one for every link)")
+    for link in scene.links:
+        if not link.deformation:
+            raise _unsupported(scene, f'link "{link.name}": a rigid link (deformation = [])')
+        if link.shapes.kind not in ("clamped-free", "polynomial", "fe"):
+            raise _unsupported(scene, f'link "{link.name}": shapes kind {link.shapes.kind!r}')
 
 
 class _Params:
-    """Collects the tunable parameters as they are met, then hands out their symbols."""
+    """Collects the tunable parameters as they are met; ``sym`` then gives their symbols."""
 
     def __init__(self):
         self.items: list[Parameter] = []
+        self.p: ca.MX | None = None
 
     def add(self, *args, **kwargs) -> int:
         self.items.append(Parameter(*args, **kwargs))
         return len(self.items) - 1
 
+    def __call__(self, i):
+        return 0 if i is None else self.p[i]
+
+
+@dataclass
+class _LinkParts:
+    """Per-link bookkeeping while the chain is assembled."""
+
+    eta: list[int]                 # indices of the link's elastic coordinates in the full vector
+    fields: dict[str, list[int]]   # "v", "w", "alpha" → indices
+    bending: object | None         # ShapeBasis for v and w
+    torsion: object | None         # TorsionBasis
+    i_rho: int = 0
+    i_EI: int | None = None
+    i_EIo: int | None = None
+    i_GJ: int | None = None
+    i_mu: int | None = None
+    i_kv: int | None = None
+    i_pm: int | None = None
+    i_pj: int | None = None
+
+
+def _vee_skew(A):
+    """The vector of the skew-symmetric part of a 3×3 matrix (ω from Rᵀ Ṙ)."""
+    return 0.5 * ca.vertcat(A[2, 1] - A[1, 2], A[0, 2] - A[2, 0], A[1, 0] - A[0, 1])
+
 
 def build_model(scene: Scene) -> SymbolicModel:
-    """Build the symbolic model of a one-link scene (a joint on a fixed base driving one link)."""
+    """Build the symbolic model of a serial chain: joint i on the tip frame of link i−1 drives link i."""
     _check_supported(scene)
-    link, joint = scene.links[0], scene.joints[0]
     tunable = set(scene.fmu.tunable)
     terms: list[str] = []
-
-    basis = make_basis(link.shapes.kind, link.shapes.count, link.length, link.linear_density)
-    shp = basis.integrals
-    n_eta = basis.n
-    second = link.kinematics == "second-order"
-    terms.append(f'link "{link.name}": {n_eta} {link.shapes.kind} shape coordinates for v, '
-                 f'{link.kinematics} kinematics')
-
-    # ---- parameters
+    kinematics = scene.links[0].kinematics
+    second = kinematics == "second-order"
     P = _Params()
-    i_rho = P.add(f"{link.name}.linear_density", link.linear_density, "kg/m", "mass per unit length", 0.0, True)
-    i_EI = P.add(f"{link.name}.EI", link.EI, "N.m2", "bending stiffness in the joint's plane", 0.0, True)
-    i_kv = None
-    if link.kelvin_voigt > 0 or f"{link.name}.kelvin_voigt" in tunable:
-        i_kv = P.add(f"{link.name}.kelvin_voigt", link.kelvin_voigt, "s", "Kelvin-Voigt damping coefficient", 0.0)
-        terms.append("Kelvin-Voigt structural damping (kelvin_voigt > 0 or tunable)")
-    pay = link.payload
-    has_payload = pay.is_present or {f"{link.name}.payload.mass", f"{link.name}.payload.inertia"} & tunable
-    i_pm = i_pj = None
-    if has_payload:
-        i_pm = P.add(f"{link.name}.payload.mass", pay.mass, "kg", "tip payload mass", 0.0)
-        i_pj = P.add(f"{link.name}.payload.inertia", float(pay.inertia), "kg.m2",
-                     "tip payload inertia about the joint axis", 0.0)
-        terms.append("tip payload (mass or inertia non-zero, or tunable)")
-    i_Ih = P.add(f"{joint.name}.inertia", joint.inertia, "kg.m2", "rotor / hub inertia about the axis", 0.0)
-    i_mu = None
-    if joint.damping > 0 or f"{joint.name}.damping" in tunable:
-        i_mu = P.add(f"{joint.name}.damping", joint.damping, "N.m.s/rad", "viscous joint damping", 0.0)
-        terms.append("viscous joint damping (damping > 0 or tunable)")
+
+    # ---- coordinates: per joint its angle (and motor angle if elastic), then its link's η (v, w, α)
+    coordinates: list[str] = []
+    kinds: list[str] = []
+    nominal: list[float] = []
+    joint_coord: list[int] = []        # link-side angle of joint i
+    motor_coord: list[int | None] = []
+    parts: list[_LinkParts] = []
+    for joint, link in zip(scene.joints, scene.links, strict=True):
+        if joint.stiffness > 0:
+            motor_coord.append(len(coordinates))
+            coordinates.append(f"{joint.name}.motor_theta")
+            kinds.append("joint")
+            nominal.append(1.0)
+            joint_coord.append(len(coordinates))
+            coordinates.append(f"{joint.name}.theta")
+            kinds.append("link_angle")
+            nominal.append(1.0)
+        else:
+            motor_coord.append(None)
+            joint_coord.append(len(coordinates))
+            coordinates.append(f"{joint.name}.theta")
+            kinds.append("joint")
+            nominal.append(1.0)
+        bending = torsion = None
+        fields: dict[str, list[int]] = {}
+        eta: list[int] = []
+        if "v" in link.deformation or "w" in link.deformation:
+            bending = make_basis(link.shapes.kind, link.shapes.count, link.length, link.linear_density)
+            xs = np.linspace(0.0, link.length, 401)
+            scale = np.maximum(np.max(np.abs(bending.evaluate(xs)), axis=0),
+                               link.length * np.max(np.abs(bending.evaluate(xs, 1)), axis=0))
+        if "alpha" in link.deformation:
+            torsion = make_torsion_basis(link.shapes.kind, link.shapes.count, link.length, link.polar_inertia or 0.0)
+        for name in ("v", "w", "alpha"):
+            if name not in link.deformation:
+                continue
+            basis = torsion if name == "alpha" else bending
+            idx = list(range(len(coordinates), len(coordinates) + basis.n))
+            fields[name] = idx
+            for k in range(basis.n):
+                coordinates.append(f"{link.name}.eta[{len(eta) + k + 1}]")
+                kinds.append("elastic")
+            if name == "alpha":
+                nominal.extend(1.0 / np.max(np.abs(torsion.evaluate(np.linspace(0, link.length, 401))), axis=0))
+            else:
+                nominal.extend(1.0 / scale)
+            eta += idx
+        parts.append(_LinkParts(eta, fields, bending, torsion))
+        terms.append(f'link "{link.name}": ' + ", ".join(f"{len(fields[f])} {link.shapes.kind} coordinates for {f}"
+                                                         for f in fields) + f", {kinematics} kinematics")
+
+    # ---- parameters (a term is in the model only if the scene needs it, or [fmu] tunable asks)
+    for link, part in zip(scene.links, parts, strict=True):
+        part.i_rho = P.add(f"{link.name}.linear_density", link.linear_density, "kg/m", "mass per unit length",
+                           0.0, True)
+        if "v" in link.deformation:
+            part.i_EI = P.add(f"{link.name}.EI", link.EI, "N.m2", "bending stiffness in the joint's plane", 0.0, True)
+        if "w" in link.deformation:
+            part.i_EIo = P.add(f"{link.name}.EI_out", link.EI_out, "N.m2", "out-of-plane bending stiffness",
+                               0.0, True)
+        if "alpha" in link.deformation:
+            part.i_GJ = P.add(f"{link.name}.GJ", link.GJ, "N.m2", "torsional stiffness", 0.0, True)
+            part.i_mu = P.add(f"{link.name}.polar_inertia", link.polar_inertia, "kg.m",
+                              "polar mass moment of the section per unit length", 0.0)
+        if link.kelvin_voigt > 0 or f"{link.name}.kelvin_voigt" in tunable:
+            part.i_kv = P.add(f"{link.name}.kelvin_voigt", link.kelvin_voigt, "s", "Kelvin-Voigt damping coefficient",
+                              0.0)
+            terms.append(f'link "{link.name}": Kelvin-Voigt structural damping')
+        pay = link.payload
+        if pay.is_present or {f"{link.name}.payload.mass", f"{link.name}.payload.inertia"} & tunable:
+            part.i_pm = P.add(f"{link.name}.payload.mass", pay.mass, "kg", "tip payload mass", 0.0)
+            if isinstance(pay.inertia, int | float):
+                part.i_pj = P.add(f"{link.name}.payload.inertia", float(pay.inertia), "kg.m2",
+                                  "tip payload inertia about the joint axis", 0.0)
+            else:
+                part.i_pj = [P.add(f"{link.name}.payload.inertia[{k + 1}]", float(pay.inertia[k]), "kg.m2",
+                                   f"tip payload inertia J{'xyz'[k]}{'xyz'[k]}, tip frame", 0.0) for k in range(3)]
+            terms.append(f'link "{link.name}": tip payload')
+    i_Ih = [P.add(f"{j.name}.inertia", j.inertia, "kg.m2", "rotor / hub inertia about the axis", 0.0)
+            for j in scene.joints]
+    i_damp = [P.add(f"{j.name}.damping", j.damping, "N.m.s/rad", "viscous joint damping", 0.0)
+              if (j.damping > 0 or f"{j.name}.damping" in tunable) else None for j in scene.joints]
+    i_k = [P.add(f"{j.name}.stiffness", j.stiffness, "N.m/rad", "joint stiffness (motor to link)", 0.0, True)
+           if j.stiffness > 0 else None for j in scene.joints]
     i_g = None
     if scene.has_gravity or "gravity" in tunable:
         i_g = [P.add(f"gravity[{k + 1}]", scene.gravity[k], "m/s2", "gravity, inertial frame") for k in range(3)]
         terms.append("gravity (non-zero in the scene or tunable)")
     params = P.items
-    p = ca.MX.sym("p", len(params))
+    P.p = p = ca.MX.sym("p", len(params))
+    g_vec = ca.vertcat(*[p[i] for i in i_g]) if i_g is not None else ca.DM.zeros(3)
 
-    def par(i):
-        return 0 if i is None else p[i]
-
-    rho, EI = p[i_rho], p[i_EI]
-    m_p, J_p = par(i_pm), par(i_pj)
-
-    # ---- all coordinates: joint angle, then the elastic coordinates
-    theta, theta_d, theta_dd = ca.MX.sym("theta"), ca.MX.sym("theta_d"), ca.MX.sym("theta_dd")
-    eta, eta_d, eta_dd = ca.MX.sym("eta", n_eta), ca.MX.sym("eta_d", n_eta), ca.MX.sym("eta_dd", n_eta)
-    qa, va, aa = ca.vertcat(theta, eta), ca.vertcat(theta_d, eta_d), ca.vertcat(theta_dd, eta_dd)
-
-    # ---- inputs
+    # ---- inputs: torques, prescribed laws, tip loads
     inputs: list[Signal] = []
     laws: list[Law] = []
-    if joint.drive == "torque":
-        inputs.append(Signal(f"{joint.name}.tau", "N.m", "joint torque"))
-    elif joint.drive == "position":
-        builtin = joint.trajectory is not None
-        laws.append(Law(joint.name, len(inputs), joint.trajectory))
-        for suffix, unit, what in (("theta_ref", "rad", "angle"), ("omega_ref", "rad/s", "rate"),
-                                   ("alpha_ref", "rad/s2", "acceleration")):
-            inputs.append(Signal(f"{joint.name}.{suffix}", unit, f"prescribed joint {what}",
-                                 fmu_variable=not builtin))
+    tau_input: dict[int, int] = {}
+    prescribed: dict[int, int] = {}      # coordinate → u offset of its law
+    for i, joint in enumerate(scene.joints):
+        driven = motor_coord[i] if motor_coord[i] is not None else joint_coord[i]
+        if joint.drive == "torque":
+            tau_input[driven] = len(inputs)
+            inputs.append(Signal(f"{joint.name}.tau", "N.m", "joint torque (motor side)"))
+        elif joint.drive == "position":
+            builtin = joint.trajectory is not None
+            prescribed[driven] = len(inputs)
+            laws.append(Law(joint.name, len(inputs), joint.trajectory))
+            for suffix, unit, what in (("theta_ref", "rad", "angle"), ("omega_ref", "rad/s", "rate"),
+                                       ("alpha_ref", "rad/s2", "acceleration")):
+                inputs.append(Signal(f"{joint.name}.{suffix}", unit, f"prescribed joint {what}",
+                                     fmu_variable=not builtin))
+    tip_load = None
+    if scene.fmu.tip_load_inputs:
+        tip_load = len(inputs)
+        for c, unit, what in (("fx", "N", "force"), ("fy", "N", "force"), ("fz", "N", "force"),
+                              ("mx", "N.m", "moment"), ("my", "N.m", "moment"), ("mz", "N.m", "moment")):
+            inputs.append(Signal(f"tip.{c}", unit, f"external {what} on the tip, inertial frame"))
+        terms.append("tip force and moment inputs ([fmu] tip_load_inputs)")
     u = ca.MX.sym("u", len(inputs))
 
-    # ---- energies (seed 000 eqs. 3.5-3.10 and 3.32-3.36)
-    def kinetic_and_gravity(second_order: bool):
-        inv = beam_invariants(shp, link.length, eta, eta_d, second_order)
-        T = 0.5 * rho * (theta_d**2 * inv.planar_inertia + 2 * theta_d * inv.angular_momentum_z
-                         + inv.relative_kinetic)
-        T += 0.5 * par(i_Ih) * theta_d**2
-        tip = tip_kinematics(shp, link.length, eta, eta_d, second_order)
-        if has_payload:
-            s, sd = tip.position, tip.velocity
-            T += 0.5 * m_p * (theta_d**2 * (s[0]**2 + s[1]**2) + 2 * theta_d * (s[0] * sd[1] - s[1] * sd[0])
-                              + ca.dot(sd, sd))
-            T += 0.5 * J_p * (theta_d + tip.slope_rate)**2
-        Vg = 0
-        rotation = ca.mtimes(ca.DM(link_basis(joint.axis)), rot_z(theta))
-        if i_g is not None:
-            g = ca.vertcat(*[p[i] for i in i_g])
-            Vg = -ca.dot(g, ca.mtimes(rotation, rho * inv.first_moment + m_p * tip.position))
-        return T, Vg, tip, rotation
+    n_all = len(coordinates)
+    qa, va, aa = ca.MX.sym("qa", n_all), ca.MX.sym("va", n_all), ca.MX.sym("aa", n_all)
 
-    T, Vg, tip, rotation = kinetic_and_gravity(second)
-    if link.kinematics == "linear":
-        T = ca.substitute(T, eta, ca.DM.zeros(n_eta))
-    curv = ca.DM(shp.curv)
-    Ve = 0.5 * EI * ca.dot(eta, ca.mtimes(curv, eta))
-    R = 0.5 * par(i_mu) * theta_d**2
-    if i_kv is not None:
-        R += 0.5 * p[i_kv] * EI * ca.dot(eta_d, ca.mtimes(curv, eta_d))
-    Q = ca.MX.zeros(1 + n_eta)
-    if joint.drive == "torque":
-        Q[0] = u[0]
+    def deformation(part: _LinkParts, q, v) -> LinkDeformation:
+        f = part.fields
+
+        def pick(x, name):
+            return ca.vertcat(*[x[i] for i in f[name]]) if name in f else None
+
+        return LinkDeformation(pick(q, "v"), pick(q, "w"), pick(q, "alpha"),
+                               pick(v, "v"), pick(v, "w"), pick(v, "alpha"))
+
+    # ---- energies along the chain (seed 000 ch. 2–3, generalised)
+    def energies(second_order: bool):
+        T = 0
+        Vg = 0
+        Pp, Rp, wp = ca.DM.zeros(3), ca.DM.eye(3), ca.DM.zeros(3)       # parent frame: origin, rotation, ω
+        frames = []
+        for i, (joint, link, part) in enumerate(zip(scene.joints, scene.links, parts, strict=True)):
+            a = np.asarray(joint.axis, float)
+            B = ca.DM(link_basis(a))
+            th, thd = qa[joint_coord[i]], va[joint_coord[i]]
+            Rj = rotation(a, th)
+            RL = ca.mtimes(ca.mtimes(Rp, Rj), B)
+            wL = ca.mtimes(B.T, ca.mtimes(Rj.T, wp) + ca.DM(a) * thd)
+            motor_rate = va[motor_coord[i]] if motor_coord[i] is not None else thd
+            T += 0.5 * P(i_Ih[i]) * (ca.dot(ca.DM(a), wp) + motor_rate) ** 2
+            rho = p[part.i_rho]
+            d = deformation(part, qa, va)
+            VL = ca.jtimes(Pp, qa, va) if i > 0 else ca.DM.zeros(3)
+            if part.bending is not None:
+                inv = beam_invariants(part.bending.integrals, link.length, d, second_order)
+                S1 = inv.first_moment
+                S1d = ca.jtimes(S1, qa, va)
+                T += 0.5 * rho * (link.length * ca.dot(VL, VL)
+                                  + 2 * ca.dot(ca.mtimes(RL.T, VL), ca.cross(wL, S1) + S1d)
+                                  + ca.dot(wL, ca.mtimes(inv.inertia(), wL)) + 2 * ca.dot(wL, inv.angular_momentum)
+                                  + inv.relative_kinetic)
+            else:                                   # torsion only: the link's axis stays straight
+                S1 = ca.vertcat(link.length**2 / 2, 0, 0)
+                J = ca.diag(ca.vertcat(0, link.length**3 / 3, link.length**3 / 3))
+                T += 0.5 * rho * (link.length * ca.dot(VL, VL) + 2 * ca.dot(ca.mtimes(RL.T, VL), ca.cross(wL, S1))
+                                  + ca.dot(wL, ca.mtimes(J, wL)))
+            if part.torsion is not None:
+                T += 0.5 * p[part.i_mu] * torsion_kinetic(part.torsion.integrals, link.length, d, wL[0])
+            if i_g is not None:
+                Vg += -ca.dot(g_vec, rho * link.length * Pp + ca.mtimes(RL, rho * S1))
+            tip = tip_kinematics(part.bending.integrals if part.bending else None,
+                                 part.torsion.integrals if part.torsion else None, link.length, d, second_order)
+            Rdef = small_rotation(tip.rotation_vector, second_order)
+            Pt = Pp + ca.mtimes(RL, tip.position)
+            Rt = ca.mtimes(RL, Rdef)
+            Rdef_dot = ca.reshape(ca.jtimes(ca.vec(Rdef), qa, va), 3, 3)
+            wt = ca.mtimes(Rdef.T, wL) + _vee_skew(ca.mtimes(Rdef.T, Rdef_dot))
+            if part.i_pm is not None:
+                # the payload's velocity in the link basis: base velocity + ω × s_p + ṡ_p (no world
+                # rotation in it, so that a linear model stays structurally linear)
+                offset = ca.DM(np.asarray(link.payload.offset, float))
+                sp = tip.position + ca.mtimes(Rdef, offset)
+                Vp = ca.mtimes(RL.T, VL) + ca.cross(wL, sp) + ca.jtimes(sp, qa, va)
+                rp = Pp + ca.mtimes(RL, sp)
+                T += 0.5 * p[part.i_pm] * ca.dot(Vp, Vp)
+                if isinstance(part.i_pj, list):
+                    Jp = ca.diag(ca.vertcat(*[p[k] for k in part.i_pj]))
+                else:
+                    Jp = ca.diag(ca.vertcat(0, 0, p[part.i_pj]))
+                T += 0.5 * ca.dot(wt, ca.mtimes(Jp, wt))
+                if i_g is not None:
+                    Vg += -p[part.i_pm] * ca.dot(g_vec, rp)
+            frames.append((Pp, RL, wL, Pt, Rt, wt, tip))
+            Pp, Rp, wp = Pt, Rt, wt
+        return T, Vg, frames
+
+    T, Vg, frames = energies(second)
+    eta_all = [k for part in parts for k in part.eta]
+    if kinematics == "linear":
+        # T at η = 0, the rates kept (seed 000 eq. 3.7)
+        mask = ca.DM([0.0 if k in set(eta_all) else 1.0 for k in range(len(coordinates))])
+        T = ca.Function("T", [qa, va, p], [T])(qa * mask, va, p)
+    Ve = 0
+    R = 0
+    for i, (joint, part) in enumerate(zip(scene.joints, parts, strict=True)):
+        q_d = deformation(part, qa, va)
+        for name, stiff_i in (("v", part.i_EI), ("w", part.i_EIo), ("alpha", part.i_GJ)):
+            if name not in part.fields:
+                continue
+            K = ca.DM(part.torsion.integrals.stiff if name == "alpha" else part.bending.integrals.curv)
+            x = getattr(q_d, name)
+            xd = getattr(q_d, f"{name}_dot")
+            Ve += 0.5 * p[stiff_i] * ca.dot(x, ca.mtimes(K, x))
+            if part.i_kv is not None:
+                R += 0.5 * p[part.i_kv] * p[stiff_i] * ca.dot(xd, ca.mtimes(K, xd))
+        driven = motor_coord[i] if motor_coord[i] is not None else joint_coord[i]
+        if i_damp[i] is not None:
+            R += 0.5 * p[i_damp[i]] * va[driven] ** 2
+        if i_k[i] is not None:
+            Ve += 0.5 * p[i_k[i]] * (qa[motor_coord[i]] - qa[joint_coord[i]]) ** 2
+            terms.append(f'joint "{joint.name}": elastic (stiffness > 0), motor and link angles')
+
+    # generalized forces: joint torques and the tip load's power F·ṙ_tip + M·ω_tip
+    Q = ca.MX.zeros(n_all)
+    for k, j in tau_input.items():
+        Q[k] = u[j]
+    Pt_last, Rt_last, wt_last = frames[-1][3], frames[-1][4], frames[-1][5]
+    if tip_load is not None:
+        power = (ca.dot(u[tip_load:tip_load + 3], ca.jtimes(Pt_last, qa, va))
+                 + ca.dot(u[tip_load + 3:tip_load + 6], ca.mtimes(Rt_last, wt_last)))
+        Q += ca.gradient(power, va)
 
     # ---- Lagrange's equations by automatic differentiation
     Lag = T - Ve - Vg
@@ -299,7 +469,7 @@ def build_model(scene: Scene) -> SymbolicModel:
     if second:
         # keep the equations exact to first order in (η, η̇, η̈) (seed 000 §3.4.3)
         eps = ca.MX.sym("eps")
-        scale = ca.vertcat(1, eps * ca.DM.ones(n_eta))
+        scale = ca.vertcat(*[eps if k in set(eta_all) else 1 for k in range(n_all)])
         r_eps = r_all_f(qa * scale, va * scale, aa * scale, u, p)
         both = ca.Function("trunc", [eps, qa, va, aa, u, p], [r_eps, ca.jtimes(r_eps, eps, ca.DM(1))])
         r0, r1 = both(0, qa, va, aa, u, p)
@@ -307,79 +477,91 @@ def build_model(scene: Scene) -> SymbolicModel:
         terms.append("second-order kinematics: foreshortening, equations kept to first order in η")
 
     # ---- free and prescribed coordinates
-    prescribed = joint.drive == "position"
-    n_free = n_eta + (0 if prescribed else 1)
+    free = [k for k in range(n_all) if k not in prescribed]
+    n_free = len(free)
     q, v, a = ca.MX.sym("q", n_free), ca.MX.sym("v", n_free), ca.MX.sym("a", n_free)
-    if prescribed:
-        o = laws[0].u_offset
-        qa_e, va_e, aa_e = (ca.vertcat(u[o + k], x) for k, x in enumerate((q, v, a)))
-        free_rows = list(range(1, 1 + n_eta))
-    else:
-        qa_e, va_e, aa_e = q, v, a
-        free_rows = list(range(1 + n_eta))
-    r_full = r_all_f(qa_e, va_e, aa_e, u, p)
-    residual = ca.Function("residual", [q, v, a, u, p], [r_full[free_rows]],
-                           ["q", "v", "a", "u", "p"], ["r"])
 
-    coordinates = ([] if prescribed else [f"{joint.name}.theta"]) + [f"{link.name}.eta[{k + 1}]"
-                                                                      for k in range(n_eta)]
-    xs = np.linspace(0.0, link.length, 401)
-    phi_max = np.max(np.abs(basis.evaluate(xs)), axis=0)
-    slope_max = link.length * np.max(np.abs(basis.evaluate(xs, 1)), axis=0)
-    nominal_eta = 1.0 / np.maximum(phi_max, slope_max)
-    nominal_q = np.concatenate([[] if prescribed else [1.0], nominal_eta])
+    def assemble(x, slot):
+        parts_ = []
+        for k in range(n_all):
+            parts_.append(u[prescribed[k] + slot] if k in prescribed else x[free.index(k)])
+        return ca.vertcat(*parts_)
+
+    qa_e, va_e, aa_e = assemble(q, 0), assemble(v, 1), assemble(a, 2)
+    r_full = r_all_f(qa_e, va_e, aa_e, u, p)
+    residual = ca.Function("residual", [q, v, a, u, p], [r_full[free]], ["q", "v", "a", "u", "p"], ["r"])
 
     # ---- outputs
     out: list[tuple[Signal, ca.MX]] = []
-    out.append((Signal(f"{joint.name}.theta", "rad", "joint angle"), theta))
-    out.append((Signal(f"{joint.name}.omega", "rad/s", "joint rate"), theta_d))
-    if prescribed:
-        out.append((Signal(f"{joint.name}.tau", "N.m", "joint torque the prescribed law needs",
-                           feedthrough=True), r_all_f(qa, va, aa, u, p)[0]))
-    out.append((Signal(f"{link.name}.tip.v", "m", "in-plane tip deflection v(L)"), tip.position[1]))
-    out.append((Signal(f"{link.name}.root.moment", "N.m", "bending moment at the root EI v''(0)"),
-                EI * ca.dot(ca.DM(shp.root_curvature), eta)))
-    for k in range(n_eta):
-        out.append((Signal(f"{link.name}.eta[{k + 1}]", "", f"elastic coordinate {k + 1}"), eta[k]))
-    r_tip = ca.mtimes(rotation, tip.position)
-    v_tip = ca.jtimes(r_tip, qa, va)
+    r_prescribed = r_all_f(qa, va, aa, u, p)
+    for i, (joint, link, part) in enumerate(zip(scene.joints, scene.links, parts, strict=True)):
+        out.append((Signal(f"{joint.name}.theta", "rad", "joint angle (link side)"), qa[joint_coord[i]]))
+        out.append((Signal(f"{joint.name}.omega", "rad/s", "joint rate (link side)"), va[joint_coord[i]]))
+        if motor_coord[i] is not None:
+            out.append((Signal(f"{joint.name}.motor_theta", "rad", "motor angle of the elastic joint"),
+                        qa[motor_coord[i]]))
+        driven = motor_coord[i] if motor_coord[i] is not None else joint_coord[i]
+        if driven in prescribed:
+            out.append((Signal(f"{joint.name}.tau", "N.m", "joint torque the prescribed law needs",
+                               feedthrough=True), r_prescribed[driven]))
+        tip = frames[i][6]
+        if "v" in part.fields:
+            out.append((Signal(f"{link.name}.tip.v", "m", "in-plane tip deflection v(L)"), tip.position[1]))
+        if "w" in part.fields:
+            out.append((Signal(f"{link.name}.tip.w", "m", "out-of-plane tip deflection w(L)"), tip.position[2]))
+        if "alpha" in part.fields:
+            out.append((Signal(f"{link.name}.tip.twist", "rad", "tip twist alpha(L)"), tip.rotation_vector[0]))
+        if "v" in part.fields:
+            curv0 = ca.DM(part.bending.evaluate([0.0], 2)[0])
+            ev = ca.vertcat(*[qa[k] for k in part.fields["v"]])
+            out.append((Signal(f"{link.name}.root.moment", "N.m", "bending moment at the root EI v''(0)"),
+                        p[part.i_EI] * ca.dot(curv0, ev)))
+        for n_k, k in enumerate(part.eta):
+            out.append((Signal(f"{link.name}.eta[{n_k + 1}]", "", f"elastic coordinate {n_k + 1}"), qa[k]))
+    v_tip = ca.jtimes(Pt_last, qa, va)
     a_tip = ca.jtimes(v_tip, qa, va) + ca.jtimes(v_tip, va, aa)
     for k, c in enumerate("xyz"):
-        out.append((Signal(f"tip.{c}", "m", f"end-effector position {c}, inertial frame"), r_tip[k]))
+        out.append((Signal(f"tip.{c}", "m", f"end-effector position {c}, inertial frame"), Pt_last[k]))
     for k, c in enumerate("xyz"):
         out.append((Signal(f"tip.a{c}", "m/s2", f"end-effector absolute acceleration {c}", feedthrough=True),
                     a_tip[k]))
-    g_vec = ca.vertcat(*[p[i] for i in i_g]) if i_g is not None else ca.DM.zeros(3)
-    tip_frame = ca.mtimes(rotation, rot_z(tip.slope))
-    specific = ca.mtimes(tip_frame.T, a_tip - g_vec)
+    specific = ca.mtimes(Rt_last.T, a_tip - g_vec)
     for k, c in enumerate("xyz"):
         out.append((Signal(f"tip.s{c}", "m/s2", f"tip accelerometer specific force {c}, tip frame",
                            feedthrough=True), specific[k]))
     out.append((Signal("energy.kinetic", "J", "kinetic energy"), T))
     out.append((Signal("energy.potential", "J", "elastic and gravitational potential energy"), Ve + Vg))
-    y_all = ca.vertcat(*[e for _, e in out])
-    y_f = ca.Function("y_all", [qa, va, aa, u, p], [y_all])
+    y_f = ca.Function("y_all", [qa, va, aa, u, p], [ca.vertcat(*[e for _, e in out])])
     outputs_function = ca.Function("outputs", [q, v, a, u, p], [y_f(qa_e, va_e, aa_e, u, p)],
                                    ["q", "v", "a", "u", "p"], ["y"])
 
     # ---- start values and initial deformation
     start_values: list[StartValue] = []
-    if not prescribed:
-        start_values.append(StartValue(f"{joint.name}.initial_angle", 0, False, joint.initial_angle, "rad",
-                                       "initial joint angle"))
-        start_values.append(StartValue(f"{joint.name}.initial_rate", 0, True, joint.initial_rate, "rad/s",
-                                       "initial joint rate"))
-    first_eta = 0 if prescribed else 1
-    static = list(range(first_eta, n_free)) if link.initial_deformation == "static" else []
+    static: list[int] = []
+    for i, (joint, link, part) in enumerate(zip(scene.joints, scene.links, parts, strict=True)):
+        for k in (motor_coord[i], joint_coord[i]):
+            if k is None or k in prescribed:
+                continue
+            suffix = "motor_" if k == motor_coord[i] else ""
+            angle = joint.initial_angle
+            if joint.trajectory is not None:          # a position-driven elastic joint: start unstretched
+                angle = joint.trajectory.evaluate(0.0)[0]
+            start_values.append(StartValue(f"{joint.name}.{suffix}initial_angle", free.index(k), False, angle,
+                                           "rad", f"initial {suffix.replace('_', ' ')}angle"))
+            start_values.append(StartValue(f"{joint.name}.{suffix}initial_rate", free.index(k), True,
+                                           joint.initial_rate, "rad/s", f"initial {suffix.replace('_', ' ')}rate"))
+        if link.initial_deformation == "static":
+            static += [free.index(k) for k in part.eta]
+            if motor_coord[i] is not None and joint_coord[i] not in prescribed:
+                static.append(free.index(joint_coord[i]))
 
-    # ---- structure: which equations are linear (CasADi tells)
     linear, constant = _structure(residual)
-
     return SymbolicModel(
-        scene=scene, coordinates=coordinates, nominal_q=nominal_q, parameters=params, inputs=inputs,
-        laws=laws, outputs=[s for s, _ in out], start_values=start_values, static_coordinates=static,
-        residual=residual, outputs_function=outputs_function, linear_in_state=linear,
-        jacobian_constant=constant, terms=terms)
+        scene=scene, coordinates=[coordinates[k] for k in free], nominal_q=np.array([nominal[k] for k in free]),
+        parameters=params, inputs=inputs, laws=laws, outputs=[s for s, _ in out], start_values=start_values,
+        static_coordinates=sorted(static), residual=residual, outputs_function=outputs_function,
+        linear_in_state=linear, jacobian_constant=constant, terms=terms,
+        coordinate_kinds=[kinds[k] for k in free])
 
 
 def _structure(residual: ca.Function) -> tuple[bool, bool]:
