@@ -364,11 +364,16 @@ def build_model(scene: Scene) -> SymbolicModel:
                                pick(v, "v"), pick(v, "w"), pick(v, "alpha"))
 
     # ---- energies along the chain (seed 000 ch. 2–3, generalised)
+    chain_bodies: list[dict] = []      # per body: mass, ∫ρr, ∫ρṙ, ∫ρ r×ṙ (world, about the world origin)
+    joint_frames: list[tuple] = []     # per joint: origin, rotation of the joint frame (world)
+
     def energies(second_order: bool):
         T = 0
         Vg = 0
         Pp, Rp, wp = ca.DM.zeros(3), ca.DM.eye(3), ca.DM.zeros(3)       # parent frame: origin, rotation, ω
         frames = []
+        chain_bodies.clear()
+        joint_frames.clear()
         for i, (joint, link, part) in enumerate(zip(scene.joints, scene.links, parts, strict=True)):
             a = np.asarray(joint.axis, float)
             B = ca.DM(link_basis(a))
@@ -378,6 +383,10 @@ def build_model(scene: Scene) -> SymbolicModel:
             wL = ca.mtimes(B.T, ca.mtimes(Rj.T, wp) + ca.DM(a) * thd)
             motor_rate = va[motor_coord[i]] if motor_coord[i] is not None else thd
             T += 0.5 * P(i_Ih[i]) * (ca.dot(ca.DM(a), wp) + motor_rate) ** 2
+            joint_frame = ca.mtimes(Rp, Rj)
+            # the rotor spins about the joint axis with the shaft: angular momentum only (it sits at the joint)
+            bodies = [dict(joint=i, mass=0, moment=ca.DM.zeros(3), momentum=ca.DM.zeros(3),
+                           spin=P(i_Ih[i]) * (ca.dot(ca.DM(a), wp) + motor_rate) * ca.mtimes(Rp, ca.DM(a)))]
             rho = p[part.i_rho]
             d = deformation(part, qa, va)
             VL = ca.jtimes(Pp, qa, va) if i > 0 else ca.DM.zeros(3)
@@ -394,8 +403,19 @@ def build_model(scene: Scene) -> SymbolicModel:
                 J = ca.diag(ca.vertcat(0, link.length**3 / 3, link.length**3 / 3))
                 T += 0.5 * rho * (link.length * ca.dot(VL, VL) + 2 * ca.dot(ca.mtimes(RL.T, VL), ca.cross(wL, S1))
                                   + ca.dot(wL, ca.mtimes(J, wL)))
+            J_link = inv.inertia() if part.bending is not None else J
+            H_link = inv.angular_momentum if part.bending is not None else ca.DM.zeros(3)
+            S1d_link = S1d if part.bending is not None else ca.DM.zeros(3)
+            # ∫ρ ṙ = ρ(L V + R(ω×S1 + Ṡ1));  ∫ρ (r × ṙ) = P × ∫ρṙ + R ρ(S1 × (RᵀV) + J ω + H)
+            momentum = rho * (link.length * VL + ca.mtimes(RL, ca.cross(wL, S1) + S1d_link))
+            spin = ca.mtimes(RL, rho * (ca.cross(S1, ca.mtimes(RL.T, VL)) + ca.mtimes(J_link, wL) + H_link))
             if part.torsion is not None:
                 T += 0.5 * p[part.i_mu] * torsion_kinetic(part.torsion.integrals, link.length, d, wL[0])
+                tor = part.torsion.integrals
+                spin += ca.mtimes(RL, ca.vertcat(p[part.i_mu] * (link.length * wL[0]
+                                                                 + ca.dot(ca.DM(tor.phi), d.alpha_dot)), 0, 0))
+            bodies.append(dict(joint=i, mass=rho * link.length, moment=rho * link.length * Pp + ca.mtimes(RL, rho * S1),
+                               momentum=momentum, spin=spin + ca.cross(Pp, momentum)))
             if i_g is not None:
                 Vg += -ca.dot(g_vec, rho * link.length * Pp + ca.mtimes(RL, rho * S1))
             tip = tip_kinematics(part.bending.integrals if part.bending else None,
@@ -420,6 +440,11 @@ def build_model(scene: Scene) -> SymbolicModel:
                 T += 0.5 * ca.dot(wt, ca.mtimes(Jp, wt))
                 if i_g is not None:
                     Vg += -p[part.i_pm] * ca.dot(g_vec, rp)
+                mom_p = p[part.i_pm] * ca.mtimes(RL, Vp)
+                bodies.append(dict(joint=i, mass=p[part.i_pm], moment=p[part.i_pm] * rp, momentum=mom_p,
+                                   spin=ca.cross(rp, mom_p) + ca.mtimes(Rt, ca.mtimes(Jp, wt))))
+            chain_bodies.extend(bodies)
+            joint_frames.append((Pp, joint_frame))
             frames.append((Pp, RL, wL, Pt, Rt, wt, tip))
             Pp, Rp, wp = Pt, Rt, wt
         return T, Vg, frames
@@ -518,6 +543,33 @@ def build_model(scene: Scene) -> SymbolicModel:
                         p[part.i_EI] * ca.dot(curv0, ev)))
         for n_k, k in enumerate(part.eta):
             out.append((Signal(f"{link.name}.eta[{n_k + 1}]", "", f"elastic coordinate {n_k + 1}"), qa[k]))
+    # joint reactions (seed 001 §2.10): the force and moment the parent exerts on everything beyond joint i,
+    # from Newton–Euler on that subtree: F = d/dt Σ∫ṙ − Σ m g − F_tip,
+    # M_O = d/dt Σ∫(r−O)×ṙ + Ȯ × Σ∫ṙ − Σ (∫r − m O) × g − (P_tip − O) × F_tip − M_tip, in the joint frame
+    def rate(x):
+        return ca.jtimes(x, qa, va) + ca.jtimes(x, va, aa)
+
+    for i, joint in enumerate(scene.joints):
+        sub = [b for b in chain_bodies if b["joint"] >= i]
+        O, Rjf = joint_frames[i]
+        mass = sum(b["mass"] for b in sub)
+        moment = sum(b["moment"] for b in sub)
+        momentum = sum(b["momentum"] for b in sub)
+        spin = sum(b["spin"] for b in sub)
+        force = rate(momentum) - mass * g_vec
+        O_dot = ca.jtimes(O, qa, va) if i > 0 else ca.DM.zeros(3)
+        torque = rate(spin - ca.cross(O, momentum)) + ca.cross(O_dot, momentum) - ca.cross(moment - mass * O, g_vec)
+        if tip_load is not None:
+            force -= u[tip_load:tip_load + 3]
+            torque -= ca.cross(Pt_last - O, u[tip_load:tip_load + 3]) + u[tip_load + 3:tip_load + 6]
+        f_local, m_local = ca.mtimes(Rjf.T, force), ca.mtimes(Rjf.T, torque)
+        for k, c in enumerate("xyz"):
+            out.append((Signal(f"{joint.name}.reaction.f{c}", "N", f"force transmitted by the joint, joint frame {c}",
+                               feedthrough=True), f_local[k]))
+        for k, c in enumerate("xyz"):
+            out.append((Signal(f"{joint.name}.reaction.m{c}", "N.m",
+                               f"moment transmitted by the joint about its origin, joint frame {c}",
+                               feedthrough=True), m_local[k]))
     v_tip = ca.jtimes(Pt_last, qa, va)
     a_tip = ca.jtimes(v_tip, qa, va) + ca.jtimes(v_tip, va, aa)
     for k, c in enumerate("xyz"):
