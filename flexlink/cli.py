@@ -69,6 +69,14 @@ def _cmd_simulate(args) -> int:
     return 0
 
 
+def _cmd_explain(args) -> int:
+    from flexlink.explain import explain, format_explanation
+
+    info = explain(args.scene)
+    print(json.dumps(info) if args.json else format_explanation(info))
+    return 0
+
+
 def _cmd_bench(args) -> int:
     from flexlink.bench import plot_bench, report_markdown, run_bench
 
@@ -120,6 +128,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--csv")
     p.add_argument("--plot")
     p.set_defaults(func=_cmd_simulate)
+
+    p = sub.add_parser("explain", help="coordinates, terms and why, frequencies, recommended SS22 step")
+    p.add_argument("scene")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=_cmd_explain)
 
     p = sub.add_parser("bench", help="speed against error: SS22 against CVODES, IDAS and SciPy on the same equations")
     p.add_argument("scene")

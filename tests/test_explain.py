@@ -1,0 +1,61 @@
+"""``flexlink explain`` and "only what the scene needs": terms appear exactly when the scene asks for them."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from flexlink.analysis import natural_frequencies
+from flexlink.explain import STEPS_PER_PERIOD, explain
+from flexlink.model import build_model
+from flexlink.scene import parse_scene
+
+BASE = tomllib.loads(Path("examples/rotating_link.toml").read_text())
+
+
+def _scene(**changes):
+    data = json.loads(json.dumps(BASE))
+    for key, value in changes.items():
+        section, _, name = key.partition("__")
+        if section == "fmu":
+            data.setdefault("fmu", {})[name] = value
+        elif section in ("link", "joint"):
+            data[section][0][name] = value
+        else:
+            data[key] = value
+    return parse_scene(data)
+
+
+@pytest.mark.parametrize(("changes", "present", "absent"), [
+    ({}, [], ["gravity[1]", "arm.kelvin_voigt", "arm.payload.mass", "hub.damping"]),
+    ({"gravity": [0, -9.81, 0]}, ["gravity[2]"], ["arm.kelvin_voigt"]),
+    ({"fmu__tunable": ["gravity", "arm.kelvin_voigt", "hub.damping"]}, ["gravity[1]", "arm.kelvin_voigt",
+                                                                        "hub.damping"], ["arm.payload.mass"]),
+    ({"link__kelvin_voigt": 1e-3, "joint__damping": 0.01}, ["arm.kelvin_voigt", "hub.damping"], ["gravity[1]"]),
+    ({"link__payload": {"mass": 0.5}}, ["arm.payload.mass"], ["gravity[1]"]),
+])
+def test_only_the_terms_the_scene_needs(changes, present, absent):
+    names = [p.name for p in build_model(_scene(**changes)).parameters]
+    assert all(n in names for n in present), names
+    assert not any(n in names for n in absent), names
+
+
+def test_recommended_step_resolves_the_highest_mode():
+    info = explain("examples/rotating_link.toml")
+    f = natural_frequencies(build_model(_scene())).frequencies_hz
+    assert info["frequencies_hz"] == pytest.approx(f)
+    assert info["recommended_step"] == pytest.approx(1 / (STEPS_PER_PERIOD * max(f)))
+    assert info["coordinates"] == ["hub.theta", "arm.eta[1]", "arm.eta[2]", "arm.eta[3]"]
+
+
+def test_cli_explain_prints_coordinates_terms_and_step():
+    out = subprocess.run([sys.executable, "-m", "flexlink.cli", "explain", "examples/steel_beam_raise.toml"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    for words in ("coordinates", "gravity", "second-order", "recommended SS22 step", "prescribed"):
+        assert words in out.stdout
