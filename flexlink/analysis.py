@@ -135,9 +135,12 @@ class Modes:
 
 
 def natural_frequencies(model: SymbolicModel, rate: float = 0.0, p: np.ndarray | None = None,
-                        rigid_tol: float = 1e-9) -> Modes:
+                        rigid_tol: float = 1e-12) -> Modes:
     """Undamped natural frequencies about the operating point: ascending, rigid-body zeros left out;
-    modes with ω² < 0 (divergence) listed apart, as |ω| in Hz."""
+    modes with ω² < 0 (divergence) listed apart, as |ω| in Hz.
+
+    A mode is rigid when |ω²| is at rounding level against the largest (``rigid_tol`` × max|ω²|, about
+    5e3 ε): stiff joints and fine meshes span 1e10 in ω², so a looser test would drop physical modes."""
     lin = linearise(model, operating_point(model, rate, p))
     M, C, K = lin.M, lin.C, lin.K
     G = 0.5 * (C - C.T)                      # gyroscopic part; dissipation is left out

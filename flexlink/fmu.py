@@ -30,6 +30,7 @@ UNITS = {
     "kg": {"kg": 1}, "kg/m": {"kg": 1, "m": -1}, "kg.m2": {"kg": 1, "m": 2},
     "N": {"kg": 1, "m": 1, "s": -2}, "N.m": {"kg": 1, "m": 2, "s": -2}, "J": {"kg": 1, "m": 2, "s": -2},
     "N.m2": {"kg": 1, "m": 3, "s": -2}, "N.m.s/rad": {"kg": 1, "m": 2, "s": -1, "rad": -1},
+    "kg.m": {"kg": 1, "m": 1}, "N.m/rad": {"kg": 1, "m": 2, "s": -2, "rad": -1},
 }
 LOG_CATEGORIES = {
     "logEvents": "initialisation, steps and FMU state events",
