@@ -152,6 +152,10 @@ def main(argv: list[str] | None = None) -> int:
 
     add_control_parsers(sub)
 
+    from flexlink.sweep import add_sweep_parser
+
+    add_sweep_parser(sub)
+
     args = parser.parse_args(argv)
     try:
         return args.func(args)
