@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flexlink.analysis import operating_point
+from flexlink.analysis import operating_point, static_deflection
 from flexlink.model import build_model
 from flexlink.reference import simulate_reference
 from flexlink.scene import load_scene, parse_scene
@@ -66,3 +66,25 @@ def test_reaction_force_is_the_rate_of_momentum():
     f_world = np.column_stack([c * f[:, 0] - s * f[:, 1], s * f[:, 0] + c * f[:, 1]])
     beam_mass = 1e-4 * 2.2
     assert f_world == pytest.approx(2.0 * a_tip, abs=5 * beam_mass * np.max(np.abs(a_tip)) + 1e-9)
+
+
+def test_tip_load_inputs_bend_the_link_and_load_the_joint():
+    """[fmu] tip_load_inputs: a static tip force F across the link (hub held) deflects the tip by FL³/3EI
+    (FE: nodally exact) and the joint reacts with −F and the moment F·L; a tip moment M bends it by ML²/2EI."""
+    data = {"name": "tip_load", "fmu": {"tip_load_inputs": True},
+            "joint": [{"name": "hub", "drive": "position",
+                       "trajectory": {"segments": [{"until": float("inf"), "poly": [0.0]}]}}],
+            "link": [{"name": "arm", "length": 1.5, "linear_density": 2.0, "EI": 300.0,
+                      "shapes": {"kind": "fe", "count": 4}, "kinematics": "first-order"}]}
+    model = build_model(parse_scene(data))
+    names = [s.name for s in model.inputs]
+    for load, expected in (("tip.fy", 2.0 * 1.5**3 / (3 * 300.0)), ("tip.mz", 2.0 * 1.5**2 / (2 * 300.0))):
+        op = operating_point(model)
+        u = op.u.copy()
+        u[names.index(load)] = 2.0
+        q = static_deflection(model, op.q, op.v, u, op.p, list(range(model.n_q)))
+        y = np.asarray(model.outputs_function(q, op.v, np.zeros(model.n_q), u, op.p)).ravel()
+        assert y[model.output_index("arm.tip.v")] == pytest.approx(expected, rel=1e-9)
+        if load == "tip.fy":
+            assert y[model.output_index("hub.reaction.fy")] == pytest.approx(-2.0, rel=1e-6)
+            assert y[model.output_index("hub.reaction.mz")] == pytest.approx(-2.0 * 1.5, rel=1e-3)
