@@ -148,6 +148,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--open-loop", action="store_true", help="the open-loop bang-bang run against the reference")
     p.set_defaults(func=_cmd_demo)
 
+    from flexlink.check import add_parser as add_check_parser
+
+    add_check_parser(sub)
+
     from controllers.cli import add_control_parsers
 
     add_control_parsers(sub)

@@ -33,8 +33,8 @@ from flexlink.errors import FlexlinkError
 from flexlink.model import SymbolicModel, build_model
 from flexlink.scene import Scene, load_scene
 
-__all__ = ["LinearPlant", "explicit_functions", "linear_plant", "linearize", "operating_point_at", "signal_name",
-           "state_names"]
+__all__ = ["LinearPlant", "explicit_functions", "fmu_state_space", "linear_plant", "linearize", "operating_point_at",
+           "signal_name", "state_names"]
 
 
 def signal_name(fmu_name: str) -> str:
@@ -245,3 +245,84 @@ def linearize(scene_or_model, *, rate: float = 0.0, angle: float | None = None,
     (['hub_tau'], ['hub_theta', 'arm_tip_v'])
     """
     return linear_plant(scene_or_model, rate=rate, angle=angle, parameters=parameters, outputs=outputs).sys
+
+
+def fmu_state_space(fmu: str | os.PathLike, *, outputs: Sequence[str] | None = None,
+                    start_values: Mapping[str, float] | None = None, name: str | None = None) -> ct.StateSpace:
+    """The linearisation of an FMU about its initial state, from the FMU alone.
+
+    The FMU is instantiated for Model Exchange with fmpy and initialised (``start_values`` set before
+    initialization: parameters, inputs); then ``fmi2GetDirectionalDerivative`` gives, one known at a
+    time, ``A = ∂ẋ/∂x``, ``B = ∂ẋ/∂u``, ``C = ∂y/∂x``, ``D = ∂y/∂u`` with x the continuous states (the
+    state derivatives and their states as ``<ModelStructure><Derivatives>`` lists them) and u the inputs.
+
+    Parameters
+    ----------
+    fmu : path
+        An FMI 2.0 FMU with Model Exchange and ``providesDirectionalDerivative="true"``.
+    outputs : list of str, optional
+        FMU output names to keep (default: all outputs).
+    start_values : dict, optional
+        Values set before initialization, by FMU name.
+    name : str, optional
+        python-control system name (default: the model name).
+
+    Returns
+    -------
+    control.StateSpace
+        Named like :func:`linear_plant`'s: flexlink FMUs' states ``q.hub.theta``/``v.hub.theta`` become
+        ``hub.theta``/``der(hub.theta)``; inputs and outputs with "." spelled "_".
+
+    See Also
+    --------
+    linear_plant : the same from the CasADi model.
+    """
+    import tempfile
+
+    import fmpy
+    from fmpy.fmi2 import FMU2Model
+
+    md = fmpy.read_model_description(os.fspath(fmu))
+    if md.modelExchange is None or not md.modelExchange.providesDirectionalDerivative:
+        raise FlexlinkError(f"{fmu}: needs Model Exchange with directional derivatives")
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    all_outputs = [v.name for v in md.modelVariables if v.causality == "output"]
+    outputs = list(all_outputs if outputs is None else outputs)
+    unknown = [o for o in outputs if o not in all_outputs]
+    if unknown:
+        raise FlexlinkError(f"{unknown}: not outputs of the FMU; its outputs are {all_outputs}")
+    inputs = [v.name for v in md.modelVariables if v.causality == "input"]
+    ders = [u.variable.name for u in md.derivatives]
+    states = [u.variable.derivative.name for u in md.derivatives]
+    with tempfile.TemporaryDirectory(prefix="flexlink-lin-") as d:
+        fmpy.extract(os.fspath(fmu), d)
+        inst = FMU2Model(guid=md.guid, unzipDirectory=d, modelIdentifier=md.modelExchange.modelIdentifier,
+                         instanceName="linearize")
+        inst.instantiate()
+        try:
+            for k, value in (start_values or {}).items():
+                inst.setReal([vr[k]], [float(value)])
+            inst.setupExperiment(startTime=0.0)
+            inst.enterInitializationMode()
+            inst.exitInitializationMode()
+            inst.newDiscreteStates()
+            inst.enterContinuousTimeMode()
+            unknowns = [vr[n] for n in ders + outputs]
+            cols = [np.asarray(inst.getDirectionalDerivative(unknowns, [vr[k]], [1.0]), dtype=float)
+                    for k in states + inputs]
+            inst.terminate()
+        finally:
+            inst.freeInstance()
+    J = np.array(cols).T.reshape(len(ders) + len(outputs), len(states) + len(inputs))
+    nx = len(states)
+    A, B, C, D = J[:nx, :nx], J[:nx, nx:], J[nx:, :nx], J[nx:, nx:]
+
+    def state_label(s: str) -> str:
+        if s.startswith("q."):
+            return s[2:]
+        if s.startswith("v."):
+            return f"der({s[2:]})"
+        return s
+
+    return ct.ss(A, B, C, D, name=name or md.modelName, states=[state_label(s) for s in states],
+                 inputs=[signal_name(s) for s in inputs], outputs=[signal_name(s) for s in outputs])

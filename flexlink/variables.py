@@ -18,9 +18,10 @@ BIG = 1e300   # "no bound" in the C tables (finite, so the glue can compare)
 class FmuVariable:
     name: str
     kind: str                 # VAR_PARAMETER | VAR_START_Q | VAR_START_V | VAR_SOLVER | VAR_INPUT | VAR_OUTPUT
+    #                           | VAR_STATE_Q | VAR_STATE_V | VAR_DER_Q | VAR_DER_V (Model Exchange)
     index: int                # into p, q/v, solver settings, u or y
     start: float
-    causality: str            # parameter | input | output
+    causality: str            # parameter | input | output | local
     variability: str          # tunable | fixed | continuous
     unit: str = ""
     description: str = ""
@@ -28,6 +29,7 @@ class FmuVariable:
     max: float = BIG
     min_exclusive: bool = False
     feedthrough: tuple[int, ...] = ()   # for outputs: indices into u of the inputs it depends on directly
+    derivative: int | None = None       # for der(...) variables: the value reference of the state
 
     @property
     def tunable(self) -> bool:
@@ -70,8 +72,34 @@ def fmu_variables(model: SymbolicModel, feedthrough: dict[int, tuple[int, ...]] 
     for i, sig in enumerate(model.outputs):
         out.append(FmuVariable(sig.name, "VAR_OUTPUT", i, 0.0, "output", "continuous", sig.unit,
                                sig.description, feedthrough=feedthrough.get(i, ())))
+    # the Model Exchange state x = (q, v) and its derivative (v, a), after everything else so that the
+    # value references above do not depend on the interface
+    n = model.n_q
+    first = len(out)
+    for i, c in enumerate(model.coordinates):
+        out.append(FmuVariable(f"q.{c}", "VAR_STATE_Q", i, 0.0, "local", "continuous", _unit(model, i, 0),
+                               f"continuous state: {c}"))
+    for i, c in enumerate(model.coordinates):
+        out.append(FmuVariable(f"v.{c}", "VAR_STATE_V", i, 0.0, "local", "continuous", _unit(model, i, 1),
+                               f"continuous state: rate of {c}"))
+    for i, c in enumerate(model.coordinates):
+        out.append(FmuVariable(f"der(q.{c})", "VAR_DER_Q", i, 0.0, "local", "continuous", _unit(model, i, 1),
+                               f"rate of {c}", derivative=first + i))
+    for i, c in enumerate(model.coordinates):
+        out.append(FmuVariable(f"der(v.{c})", "VAR_DER_V", i, 0.0, "local", "continuous", _unit(model, i, 2),
+                               f"acceleration of {c}", derivative=first + n + i))
     names = [v.name for v in out]
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
         raise ValueError(f"duplicate FMU variable names: {dup}")
     return out
+
+
+def _unit(model: SymbolicModel, i: int, order: int) -> str:
+    """Unit of coordinate i's order-th time derivative: that of the output of the same name (rad for a
+    joint angle, m for nodal FE displacements, none for modal amplitudes), per s, per s²."""
+    c = model.coordinates[i]
+    base = next((s.unit for s in model.outputs if s.name == c), "rad" if c.endswith(".theta") else "")
+    if base not in ("m", "rad"):
+        return ""
+    return base + ("", "/s", "/s2")[order]

@@ -111,6 +111,10 @@ static double *slot(FmuData *d, const VarInfo *v) {
     case VAR_SOLVER: return &d->solver[v->index];
     case VAR_INPUT: return &d->u[v->index];
     case VAR_OUTPUT: return &d->y[v->index];
+    case VAR_STATE_Q: return &d->q[v->index];
+    case VAR_STATE_V: return &d->v[v->index];
+    case VAR_DER_Q: return &d->v[v->index];
+    case VAR_DER_V: return &d->acceleration[v->index];
     }
     return NULL;
 }
@@ -127,6 +131,10 @@ static int check_model_table(const char **bad) {
         case VAR_SOLVER: size = N_SOLVER_SETTINGS; break;
         case VAR_INPUT: size = N_U; break;
         case VAR_OUTPUT: size = N_Y; break;
+        case VAR_STATE_Q:
+        case VAR_STATE_V:
+        case VAR_DER_Q:
+        case VAR_DER_V: size = N_Q; break;
         }
         if (v->index < 0 || v->index >= size) { *bad = v->name; return 0; }
     }
@@ -296,7 +304,7 @@ fmi2Status fmu_get_real(Instance *inst, const fmi2ValueReference vr[], size_t nv
         if (vr[i] >= (fmi2ValueReference)N_VARS) {
             return fmu_error(inst, "fmi2GetReal: unknown value reference %u", vr[i]);
         }
-        if (MODEL_VARS[vr[i]].kind == VAR_OUTPUT) need_outputs = 1;
+        if (MODEL_VARS[vr[i]].kind == VAR_OUTPUT || MODEL_VARS[vr[i]].kind == VAR_DER_V) need_outputs = 1;
     }
     if (need_outputs) {
         status = update_outputs(inst, "fmi2GetReal");
@@ -313,6 +321,12 @@ static const char *refuse_value(const Instance *inst, const VarInfo *v, double x
                       (v->kind == VAR_PARAMETER && !v->tunable);
     if (v->kind == VAR_OUTPUT) {
         snprintf(why, n, "%s is an output: it cannot be set", v->name);
+    } else if (v->kind == VAR_STATE_Q || v->kind == VAR_STATE_V || v->kind == VAR_DER_Q || v->kind == VAR_DER_V) {
+        snprintf(why, n, "%s is a continuous state or a derivative: it cannot be set with fmi2SetReal "
+                 "(Model Exchange: fmi2SetContinuousStates)", v->name);
+    } else if (v->kind == VAR_PARAMETER && phase == PHASE_CONTINUOUS) {
+        snprintf(why, n, "%s is a tunable parameter: it can be set in event mode, not in %s", v->name,
+                 fmu_phase_name(phase));
     } else if (fixed && !(phase & (PHASE_INSTANTIATED | PHASE_INITIALIZATION))) {
         snprintf(why, n, "%s is fixed after initialization: it cannot be set in %s", v->name,
                  fmu_phase_name(phase));
@@ -363,6 +377,8 @@ const char *fmu_phase_name(int phase) {
     case PHASE_TERMINATED: return "terminated";
     case PHASE_ERROR: return "error";
     case PHASE_FATAL: return "fatal";
+    case PHASE_EVENT: return "event mode";
+    case PHASE_CONTINUOUS: return "continuous-time mode";
     }
     return "unknown";
 }
@@ -382,12 +398,7 @@ Instance *fmu_instantiate(fmi2String name, fmi2Type type, fmi2String guid,
         log_callbacks(functions, name, fmi2Error, "fmi2Instantiate: instanceName must not be NULL");
         return NULL;
     }
-    if (type == fmi2ModelExchange) {
-        log_callbacks(functions, name, fmi2Error, "fmi2Instantiate: Model Exchange is not supported yet "
-                      "(this FMU is Co-Simulation only)");
-        return NULL;
-    }
-    if (type != fmi2CoSimulation) {
+    if (type != fmi2CoSimulation && type != fmi2ModelExchange) {
         log_callbacks(functions, name, fmi2Error, "fmi2Instantiate: unknown fmuType %d", (int)type);
         return NULL;
     }
@@ -419,6 +430,7 @@ Instance *fmu_instantiate(fmi2String name, fmi2Type type, fmi2String guid,
     inst->logging_on = logging_on ? 1 : 0;
     for (int k = 0; k < N_LOG_CATEGORIES; k++) inst->category_on[k] = inst->logging_on;
     set_start_values(&inst->d);
+    inst->d.model_exchange = type == fmi2ModelExchange;
     inst->magic = INSTANCE_MAGIC;
     return inst;
 }
@@ -431,7 +443,9 @@ void fmu_free(Instance *inst) {
 }
 
 void fmu_reset(Instance *inst) {
+    const int model_exchange = inst->d.model_exchange;
     set_start_values(&inst->d);
+    inst->d.model_exchange = model_exchange;
 }
 
 fmi2Status fmu_setup_experiment(Instance *inst, fmi2Boolean tolerance_defined, fmi2Real tolerance,
@@ -548,7 +562,7 @@ fmi2Status fmu_exit_initialization(Instance *inst) {
     if (status > fmi2Warning) return status;
     memcpy(d->alpha, d->acceleration, sizeof(d->alpha));
     d->last_successful_time = d->time;
-    d->phase = PHASE_STEP;
+    d->phase = d->model_exchange ? PHASE_EVENT : PHASE_STEP;
     fmu_log(inst, fmi2OK, LOG_EVENTS, "initialized at t = %.17g (SS22: step %g, theta1 %g, theta2 %g, "
             "tolerance %g)",
             d->time, step, theta1, theta2, tolerance);
@@ -633,6 +647,184 @@ fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h) {
     d->last_successful_time = t_end;
     d->outputs_valid = 0;
     return fmi2OK;
+}
+
+/* ============================================================= Model Exchange */
+
+fmi2Status fmu_set_time(Instance *inst, fmi2Real time) {
+    if (!isfinite(time)) return fmu_error(inst, "fmi2SetTime: time = %g: must be finite", time);
+    inst->d.time = time;
+    inst->d.outputs_valid = 0;
+    return fmi2OK;
+}
+
+static fmi2Status check_nx(Instance *inst, const char *function, size_t nx) {
+    if (nx != (size_t)N_STATES) {
+        return fmu_error(inst, "%s: nx = %zu, this FMU has %d continuous states", function, nx, N_STATES);
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmu_set_states(Instance *inst, const fmi2Real x[], size_t nx) {
+    if (check_nx(inst, "fmi2SetContinuousStates", nx) != fmi2OK) return fmi2Error;
+    for (int i = 0; i < N_STATES; i++) {
+        if (!isfinite(x[i])) {
+            return fmu_error(inst, "fmi2SetContinuousStates: x[%d] = %g: NaN and infinite values are refused",
+                             i, x[i]);
+        }
+    }
+    memcpy(inst->d.q, x, sizeof(inst->d.q));
+    memcpy(inst->d.v, x + N_Q, sizeof(inst->d.v));
+    inst->d.outputs_valid = 0;
+    return fmi2OK;
+}
+
+fmi2Status fmu_get_states(Instance *inst, fmi2Real x[], size_t nx) {
+    if (check_nx(inst, "fmi2GetContinuousStates", nx) != fmi2OK) return fmi2Error;
+    memcpy(x, inst->d.q, sizeof(inst->d.q));
+    memcpy(x + N_Q, inst->d.v, sizeof(inst->d.v));
+    return fmi2OK;
+}
+
+/* dx/dt = (v, a) with M(q) a = -r(q, v, 0, u(t), p): the consistent acceleration of the outputs. */
+fmi2Status fmu_get_derivatives(Instance *inst, fmi2Real dx[], size_t nx) {
+    fmi2Status status;
+    if (check_nx(inst, "fmi2GetDerivatives", nx) != fmi2OK) return fmi2Error;
+    status = update_outputs(inst, "fmi2GetDerivatives");
+    if (status > fmi2Warning) return status;
+    if (!inst->d.acceleration_ok) {
+        fmu_log(inst, fmi2Discard, LOG_STATUS_DISCARD, "fmi2GetDerivatives: no acceleration at t = %.17g "
+                "(singular mass matrix or NaN): try other states", inst->d.time);
+        return fmi2Discard;
+    }
+    memcpy(dx, inst->d.v, sizeof(inst->d.v));
+    memcpy(dx + N_Q, inst->d.acceleration, sizeof(inst->d.acceleration));
+    return fmi2OK;
+}
+
+/* Positions: the model's nominal magnitudes; rates: the same per second. */
+fmi2Status fmu_get_nominals(Instance *inst, fmi2Real x_nominal[], size_t nx) {
+    if (check_nx(inst, "fmi2GetNominalsOfContinuousStates", nx) != fmi2OK) return fmi2Error;
+    for (int i = 0; i < N_Q; i++) x_nominal[i] = x_nominal[N_Q + i] = MODEL_NOMINAL_Q[i];
+    return fmi2OK;
+}
+
+/* No discrete states and no state events; the only events are the time events at the segment
+ * boundaries of the built-in kinematic laws (where a law's acceleration may jump). */
+fmi2Status fmu_new_discrete_states(Instance *inst, fmi2EventInfo *info) {
+    double next = INFINITY;
+#if N_LAWS > 0
+    for (int k = 0; k < N_LAWS; k++) {
+        const KinematicLaw *law = &MODEL_LAWS[k];
+        if (!law->builtin) continue;
+        for (int j = 0; j < law->n_segments; j++) {
+            const double until = law->segments[j].until;
+            if (until > inst->d.time && until < 1e299 && until < next) next = until;
+        }
+    }
+#endif
+    info->newDiscreteStatesNeeded = fmi2False;
+    info->terminateSimulation = fmi2False;
+    info->nominalsOfContinuousStatesChanged = fmi2False;
+    info->valuesOfContinuousStatesChanged = fmi2False;
+    info->nextEventTimeDefined = isfinite(next) ? fmi2True : fmi2False;
+    info->nextEventTime = isfinite(next) ? next : 0.0;
+    if (isfinite(next)) fmu_log(inst, fmi2OK, LOG_EVENTS, "next time event at t = %.17g", next);
+    return fmi2OK;
+}
+
+/* ==================================================== directional derivatives */
+
+fmi2Status fmu_directional_derivative(Instance *inst, const fmi2ValueReference unknown[], size_t n_unknown,
+                                      const fmi2ValueReference known[], size_t n_known, const fmi2Real dv_known[],
+                                      fmi2Real dv_unknown[]) {
+    static const char *const F = "fmi2GetDirectionalDerivative";
+    FmuData *d = &inst->d;
+    fmi2Status status;
+    int need_y = 0;
+    memset(inst->dd_q, 0, sizeof(inst->dd_q));
+    memset(inst->dd_v, 0, sizeof(inst->dd_v));
+    memset(inst->dd_u, 0, sizeof(inst->dd_u));
+    memset(inst->dd_p, 0, sizeof(inst->dd_p));
+    for (size_t i = 0; i < n_known; i++) {
+        const VarInfo *v;
+        if (known[i] >= (fmi2ValueReference)N_VARS) return fmu_error(inst, "%s: unknown value reference %u", F,
+                                                                     known[i]);
+        v = &MODEL_VARS[known[i]];
+        if (!isfinite(dv_known[i])) return fmu_error(inst, "%s: dvKnown[%zu] = %g: must be finite", F, i,
+                                                     dv_known[i]);
+        switch (v->kind) {
+        case VAR_STATE_Q: inst->dd_q[v->index] += dv_known[i]; break;
+        case VAR_STATE_V: inst->dd_v[v->index] += dv_known[i]; break;
+        case VAR_INPUT: inst->dd_u[v->index] += dv_known[i]; break;
+        case VAR_PARAMETER: inst->dd_p[v->index] += dv_known[i]; break;
+        default:
+            return fmu_error(inst, "%s: %s (value reference %u) is not a known: knowns are the continuous "
+                             "states, the inputs and the tunable parameters", F, v->name, known[i]);
+        }
+    }
+    for (size_t i = 0; i < n_unknown; i++) {
+        int kind;
+        if (unknown[i] >= (fmi2ValueReference)N_VARS) return fmu_error(inst, "%s: unknown value reference %u",
+                                                                       F, unknown[i]);
+        kind = MODEL_VARS[unknown[i]].kind;
+        if (kind == VAR_OUTPUT) need_y = 1;
+        if (kind != VAR_OUTPUT && kind != VAR_DER_Q && kind != VAR_DER_V && kind != VAR_STATE_Q &&
+            kind != VAR_STATE_V) {
+            return fmu_error(inst, "%s: %s (value reference %u) is not an unknown: unknowns are the outputs, "
+                             "the state derivatives and the states", F, MODEL_VARS[unknown[i]].name, unknown[i]);
+        }
+    }
+    /* the inputs as the model sees them: a host-driven law is extended from its time to now */
+    memcpy(inst->dd_um, inst->dd_u, sizeof(inst->dd_u));
+#if N_LAWS > 0
+    for (int k = 0; k < N_LAWS; k++) {
+        const int o = MODEL_LAWS[k].u_offset;
+        const double s = d->time - d->law_time[k];
+        if (MODEL_LAWS[k].builtin) {
+            inst->dd_um[o] = inst->dd_um[o + 1] = inst->dd_um[o + 2] = 0.0;
+        } else {
+            inst->dd_um[o] = inst->dd_u[o] + s * (inst->dd_u[o + 1] + 0.5 * s * inst->dd_u[o + 2]);
+            inst->dd_um[o + 1] = inst->dd_u[o + 1] + s * inst->dd_u[o + 2];
+        }
+    }
+#endif
+    status = update_outputs(inst, F);
+    if (status > fmi2Warning) return status;
+    if (!d->acceleration_ok) {
+        return fmu_error(inst, "%s: no consistent acceleration at t = %.17g (singular mass matrix)", F, d->time);
+    }
+    memset(inst->dd_a, 0, sizeof(inst->dd_a));
+    model_inputs(d, d->time, inst->u0);
+    if (model_residual_forward(d->q, d->v, d->acceleration, inst->u0, d->p, inst->dd_q, inst->dd_v, inst->dd_a,
+                               inst->dd_um, inst->dd_p, inst->dd_r, &inst->work) ||
+        model_newton_matrix(d->q, d->v, d->acceleration, inst->u0, d->p, 1.0, 0.0, 0.0, inst->J, &inst->work)) {
+        return fmu_error(inst, "%s: the model failed to evaluate at t = %.17g", F, d->time);
+    }
+    if (lu_factor(inst->J, N_Q, inst->piv) != 0) {
+        return fmu_error(inst, "%s: singular mass matrix at t = %.17g", F, d->time);
+    }
+    for (int i = 0; i < N_Q; i++) inst->dd_a[i] = -inst->dd_r[i];
+    lu_solve(inst->J, N_Q, inst->piv, inst->dd_a);
+    if (need_y && model_outputs_forward(d->q, d->v, d->acceleration, inst->u0, d->p, inst->dd_q, inst->dd_v,
+                                        inst->dd_a, inst->dd_um, inst->dd_p, inst->dd_y, &inst->work)) {
+        return fmu_error(inst, "%s: the model failed to evaluate its outputs at t = %.17g", F, d->time);
+    }
+    for (size_t i = 0; i < n_unknown; i++) {
+        const VarInfo *v = &MODEL_VARS[unknown[i]];
+        switch (v->kind) {
+        case VAR_OUTPUT: dv_unknown[i] = inst->dd_y[v->index]; break;
+        case VAR_DER_Q:
+        case VAR_STATE_V: dv_unknown[i] = inst->dd_v[v->index]; break;
+        case VAR_DER_V: dv_unknown[i] = inst->dd_a[v->index]; break;
+        case VAR_STATE_Q: dv_unknown[i] = inst->dd_q[v->index]; break;
+        default: dv_unknown[i] = 0.0; break;
+        }
+    }
+    if (!all_finite(dv_unknown, (int)n_unknown)) {
+        return fmu_error(inst, "%s: NaN or infinite derivative at t = %.17g", F, d->time);
+    }
+    return status;
 }
 
 /* ================================================================= FMU state */
@@ -727,11 +919,12 @@ fmi2Status fmu_serialize(Instance *inst, fmi2FMUstate state, fmi2Byte buffer[], 
 /* Beyond the checksum: nothing in a state may lead to an out-of-bounds access. */
 static const char *invalid_data(const FmuData *d) {
     const int phases[] = {PHASE_INSTANTIATED, PHASE_INITIALIZATION, PHASE_STEP, PHASE_TERMINATED, PHASE_ERROR,
-                          PHASE_FATAL};
+                          PHASE_FATAL, PHASE_EVENT, PHASE_CONTINUOUS};
     int phase_ok = 0;
     for (size_t k = 0; k < sizeof(phases) / sizeof(phases[0]); k++) phase_ok |= d->phase == phases[k];
     if (!phase_ok) return "state machine";
-    if ((d->outputs_valid | d->acceleration_ok | d->stop_time_defined | d->experiment_tolerance_defined) & ~1)
+    if ((d->outputs_valid | d->acceleration_ok | d->stop_time_defined | d->experiment_tolerance_defined |
+         d->model_exchange) & ~1)
         return "flags";
     if (d->ss22.max_iterations < 0 || d->ss22.max_iterations > 1000) return "solver settings";
     for (int k = 0; k < SS22_CACHE; k++) {

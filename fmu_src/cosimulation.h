@@ -17,19 +17,25 @@
 #include "model.h"
 #include "ss22.h"
 
-/* The FMI 2.0 Co-Simulation states, one bit each so that every FMI function can name the set of
- * states it is allowed in (fmi2Functions.c).  A doStep that returns fmi2Discard has undone itself:
- * the FMU stays in step mode at the communication point, so no separate "step failed" state. */
+/* The FMI 2.0 states of both interfaces, one bit each so that every FMI function can name the set of
+ * states it is allowed in (fmi2Functions.c).  Co-Simulation: instantiated -> initialization -> step
+ * mode; a doStep that returns fmi2Discard has undone itself: the FMU stays in step mode at the
+ * communication point, so no separate "step failed" state.  Model Exchange: instantiated ->
+ * initialization -> event mode <-> continuous-time mode (FMI 2.0 section 3.2.3). */
 typedef enum {
     PHASE_INSTANTIATED = 1 << 0,
     PHASE_INITIALIZATION = 1 << 1,   /* initialization mode                                */
-    PHASE_STEP = 1 << 2,             /* step mode (stepComplete)                           */
+    PHASE_STEP = 1 << 2,             /* Co-Simulation step mode (stepComplete)             */
     PHASE_TERMINATED = 1 << 3,
     PHASE_ERROR = 1 << 4,            /* a function returned fmi2Error: reset or set a state */
-    PHASE_FATAL = 1 << 5
+    PHASE_FATAL = 1 << 5,
+    PHASE_EVENT = 1 << 6,            /* Model Exchange event mode                          */
+    PHASE_CONTINUOUS = 1 << 7        /* Model Exchange continuous-time mode                */
 } Phase;
 
-#define PHASE_ANY (PHASE_INSTANTIATED | PHASE_INITIALIZATION | PHASE_STEP | PHASE_TERMINATED | PHASE_ERROR)
+#define PHASE_ANY (PHASE_INSTANTIATED | PHASE_INITIALIZATION | PHASE_STEP | PHASE_TERMINATED | PHASE_ERROR | \
+                   PHASE_EVENT | PHASE_CONTINUOUS)
+#define N_STATES (2 * N_Q)           /* Model Exchange: x = (q, v)                          */
 
 /* Log categories (modelDescription.xml <LogCategories> lists the same names, in this order). */
 typedef enum {
@@ -48,6 +54,7 @@ extern const char *const LOG_CATEGORY_NAMES[N_LOG_CATEGORIES];
 /* Everything numeric: an FMU state is a copy of this struct. */
 typedef struct {
     int phase;                        /* Phase                                                  */
+    int model_exchange;               /* 1: instantiated as Model Exchange, 0: Co-Simulation    */
     int outputs_valid;                /* y and acceleration are up to date                      */
     int acceleration_ok;              /* acceleration is the consistent one (M(q) non-singular) */
     int stop_time_defined;
@@ -84,6 +91,9 @@ typedef struct {
     double zero[N_Q];                 /* always 0: the acceleration argument of statics        */
     double q_save[N_Q], v_save[N_Q], alpha_save[N_Q];   /* an internal step being retried */
     int piv[N_Q];
+    /* directional derivatives: seeds and results */
+    double dd_q[N_Q], dd_v[N_Q], dd_a[N_Q], dd_r[N_Q];
+    double dd_u[FMU_SZ(N_U)], dd_um[FMU_SZ(N_U)], dd_p[FMU_SZ(N_P)], dd_y[FMU_SZ(N_Y)];
     char message[1024], escaped[2048];
 } Instance;
 
@@ -128,6 +138,22 @@ fmi2Status fmu_setup_experiment(Instance *inst, fmi2Boolean tolerance_defined, f
 fmi2Status fmu_enter_initialization(Instance *inst);
 fmi2Status fmu_exit_initialization(Instance *inst);
 fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h);
+
+/* ----------------------------------------------------------- Model Exchange */
+fmi2Status fmu_set_time(Instance *inst, fmi2Real time);
+fmi2Status fmu_set_states(Instance *inst, const fmi2Real x[], size_t nx);
+fmi2Status fmu_get_states(Instance *inst, fmi2Real x[], size_t nx);
+fmi2Status fmu_get_derivatives(Instance *inst, fmi2Real dx[], size_t nx);
+fmi2Status fmu_get_nominals(Instance *inst, fmi2Real x_nominal[], size_t nx);
+fmi2Status fmu_new_discrete_states(Instance *inst, fmi2EventInfo *info);
+
+/* ------------------------------------------------------ directional derivatives */
+/* dvUnknown = d(unknowns)/d(knowns) dvKnown at the current point.  Knowns: states (q.*, v.*), inputs,
+ * tunable parameters; unknowns: outputs, state derivatives (der(...)) and states.  The acceleration is
+ * eliminated from M(q) da = -(dr/dq dq + dr/dv dv + dr/du du + dr/dp dp). */
+fmi2Status fmu_directional_derivative(Instance *inst, const fmi2ValueReference unknown[], size_t n_unknown,
+                                      const fmi2ValueReference known[], size_t n_known, const fmi2Real dv_known[],
+                                      fmi2Real dv_unknown[]);
 
 /* ------------------------------------------------------------------ FMU state */
 fmi2Status fmu_get_state(Instance *inst, fmi2FMUstate *state);

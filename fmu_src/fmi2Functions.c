@@ -5,13 +5,18 @@
  * FMI 2.0 section 4.2.4).  A call out of sequence, a bad argument or any other error returns
  * fmi2Error with a message through the logger and puts the instance in the error state, from which
  * fmi2Reset or fmi2SetFMUstate bring it back.  fmi2Discard (a communication step that could not be
- * computed) leaves the instance in step mode at the communication point.  A NULL instance gives
+ * computed) leaves the instance in step mode at the communication point.  Model Exchange functions
+ * called on a Co-Simulation instance (and fmi2DoStep on a Model Exchange one, which never reaches step
+ * mode) are refused.  A NULL instance gives
  * fmi2Error and nothing else (there is no logger to tell). */
 #include <string.h>
 #include "cosimulation.h"
 
-#define SETTABLE (PHASE_INSTANTIATED | PHASE_INITIALIZATION | PHASE_STEP)
-#define READABLE (PHASE_INITIALIZATION | PHASE_STEP | PHASE_TERMINATED | PHASE_ERROR)
+#define SETTABLE (PHASE_INSTANTIATED | PHASE_INITIALIZATION | PHASE_STEP | PHASE_EVENT | PHASE_CONTINUOUS)
+#define READABLE (PHASE_INITIALIZATION | PHASE_STEP | PHASE_TERMINATED | PHASE_ERROR | PHASE_EVENT | \
+                  PHASE_CONTINUOUS)
+#define ME_READABLE (PHASE_EVENT | PHASE_CONTINUOUS | PHASE_TERMINATED | PHASE_ERROR)
+#define DERIVATIVES (PHASE_INITIALIZATION | PHASE_STEP | PHASE_EVENT | PHASE_CONTINUOUS | PHASE_TERMINATED)
 #define STATUS_QUERY (PHASE_STEP | PHASE_TERMINATED)
 
 static Instance *instance_of(fmi2Component c) {
@@ -32,8 +37,8 @@ static fmi2Status fail(Instance *inst, const char *function, const char *message
 }
 
 static int allowed(Instance *inst, const char *function, int phases) {
-    static const int all[] = {PHASE_INSTANTIATED, PHASE_INITIALIZATION, PHASE_STEP, PHASE_TERMINATED,
-                              PHASE_ERROR};
+    static const int all[] = {PHASE_INSTANTIATED, PHASE_INITIALIZATION, PHASE_STEP, PHASE_EVENT,
+                              PHASE_CONTINUOUS, PHASE_TERMINATED, PHASE_ERROR};
     char list[200] = "";
     if (inst->d.phase & phases) return 1;
     for (size_t k = 0; k < sizeof(all) / sizeof(all[0]); k++) {
@@ -105,7 +110,7 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
 }
 
 fmi2Status fmi2Terminate(fmi2Component c) {
-    BEGIN("fmi2Terminate", PHASE_STEP);
+    BEGIN("fmi2Terminate", PHASE_STEP | PHASE_EVENT | PHASE_CONTINUOUS);
     inst->d.phase = PHASE_TERMINATED;
     return fmi2OK;
 }
@@ -215,71 +220,99 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
     return finish(inst, fmu_deserialize(inst, serializedState, size, FMUstate));
 }
 
-/* ======================================================= not supported (yet) */
+/* ==================================================== directional derivatives */
+
+fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[],
+                                        size_t nUnknown, const fmi2ValueReference vKnown_ref[], size_t nKnown,
+                                        const fmi2Real dvKnown[], fmi2Real dvUnknown[]) {
+    BEGIN("fmi2GetDirectionalDerivative", DERIVATIVES);
+    REQUIRE((nUnknown == 0 || (vUnknown_ref != NULL && dvUnknown != NULL)) &&
+            (nKnown == 0 || (vKnown_ref != NULL && dvKnown != NULL)), "fmi2GetDirectionalDerivative",
+            "a value reference or value array is NULL");
+    return finish(inst, fmu_directional_derivative(inst, vUnknown_ref, nUnknown, vKnown_ref, nKnown, dvKnown,
+                                                   dvUnknown));
+}
+
+/* ============================================================= Model Exchange */
+
+#define ME_BEGIN(function, phases)                                                          \
+    BEGIN(function, phases);                                                                \
+    if (!inst->d.model_exchange) {                                                          \
+        return fail(inst, function, "a Model Exchange function, but this instance is Co-Simulation"); \
+    }
+
+fmi2Status fmi2EnterEventMode(fmi2Component c) {
+    ME_BEGIN("fmi2EnterEventMode", PHASE_EVENT | PHASE_CONTINUOUS);
+    inst->d.phase = PHASE_EVENT;
+    return fmi2OK;
+}
+
+fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *fmi2eventInfo) {
+    ME_BEGIN("fmi2NewDiscreteStates", PHASE_EVENT);
+    REQUIRE(fmi2eventInfo != NULL, "fmi2NewDiscreteStates", "fmi2eventInfo is NULL");
+    return finish(inst, fmu_new_discrete_states(inst, fmi2eventInfo));
+}
+
+fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) {
+    ME_BEGIN("fmi2EnterContinuousTimeMode", PHASE_EVENT);
+    inst->d.phase = PHASE_CONTINUOUS;
+    return fmi2OK;
+}
+
+/* No state events and no step events: the integrator never has to stop here. */
+fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStatePriorToCurrentPoint,
+                                       fmi2Boolean *enterEventMode, fmi2Boolean *terminateSimulation) {
+    (void)noSetFMUStatePriorToCurrentPoint;
+    ME_BEGIN("fmi2CompletedIntegratorStep", PHASE_CONTINUOUS);
+    REQUIRE(enterEventMode != NULL && terminateSimulation != NULL, "fmi2CompletedIntegratorStep",
+            "enterEventMode or terminateSimulation is NULL");
+    *enterEventMode = fmi2False;
+    *terminateSimulation = fmi2False;
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetTime(fmi2Component c, fmi2Real time) {
+    ME_BEGIN("fmi2SetTime", PHASE_EVENT | PHASE_CONTINUOUS);
+    return finish(inst, fmu_set_time(inst, time));
+}
+
+fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t nx) {
+    ME_BEGIN("fmi2SetContinuousStates", PHASE_CONTINUOUS);
+    REQUIRE(x != NULL, "fmi2SetContinuousStates", "x is NULL");
+    return finish(inst, fmu_set_states(inst, x, nx));
+}
+
+fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real derivatives[], size_t nx) {
+    ME_BEGIN("fmi2GetDerivatives", ME_READABLE);
+    REQUIRE(derivatives != NULL, "fmi2GetDerivatives", "derivatives is NULL");
+    return finish(inst, fmu_get_derivatives(inst, derivatives, nx));
+}
+
+fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real eventIndicators[], size_t ni) {
+    (void)eventIndicators;
+    ME_BEGIN("fmi2GetEventIndicators", ME_READABLE);
+    REQUIRE(ni == 0, "fmi2GetEventIndicators", "this FMU has no event indicators (ni must be 0)");
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {
+    ME_BEGIN("fmi2GetContinuousStates", ME_READABLE);
+    REQUIRE(x != NULL, "fmi2GetContinuousStates", "x is NULL");
+    return finish(inst, fmu_get_states(inst, x, nx));
+}
+
+fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x_nominal[], size_t nx) {
+    ME_BEGIN("fmi2GetNominalsOfContinuousStates", PHASE_INSTANTIATED | ME_READABLE);
+    REQUIRE(x_nominal != NULL, "fmi2GetNominalsOfContinuousStates", "x_nominal is NULL");
+    return finish(inst, fmu_get_nominals(inst, x_nominal, nx));
+}
+
+/* ======================================================= not supported */
 
 #define NOT_SUPPORTED(function, why)                \
     Instance *inst = instance_of(c);                \
     if (inst == NULL) return fmi2Error;             \
     return fail(inst, function, why)
-
-#define ME_ONLY "not supported yet: this FMU is Co-Simulation only (no Model Exchange)"
-
-fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[],
-                                        size_t nUnknown, const fmi2ValueReference vKnown_ref[], size_t nKnown,
-                                        const fmi2Real dvKnown[], fmi2Real dvUnknown[]) {
-    (void)vUnknown_ref; (void)nUnknown; (void)vKnown_ref; (void)nKnown; (void)dvKnown; (void)dvUnknown;
-    NOT_SUPPORTED("fmi2GetDirectionalDerivative",
-                  "not supported yet (providesDirectionalDerivative is false)");
-}
-
-fmi2Status fmi2EnterEventMode(fmi2Component c) {
-    NOT_SUPPORTED("fmi2EnterEventMode", ME_ONLY);
-}
-
-fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *fmi2eventInfo) {
-    (void)fmi2eventInfo;
-    NOT_SUPPORTED("fmi2NewDiscreteStates", ME_ONLY);
-}
-
-fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) {
-    NOT_SUPPORTED("fmi2EnterContinuousTimeMode", ME_ONLY);
-}
-
-fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStatePriorToCurrentPoint,
-                                       fmi2Boolean *enterEventMode, fmi2Boolean *terminateSimulation) {
-    (void)noSetFMUStatePriorToCurrentPoint; (void)enterEventMode; (void)terminateSimulation;
-    NOT_SUPPORTED("fmi2CompletedIntegratorStep", ME_ONLY);
-}
-
-fmi2Status fmi2SetTime(fmi2Component c, fmi2Real time) {
-    (void)time;
-    NOT_SUPPORTED("fmi2SetTime", ME_ONLY);
-}
-
-fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t nx) {
-    (void)x; (void)nx;
-    NOT_SUPPORTED("fmi2SetContinuousStates", ME_ONLY);
-}
-
-fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real derivatives[], size_t nx) {
-    (void)derivatives; (void)nx;
-    NOT_SUPPORTED("fmi2GetDerivatives", ME_ONLY);
-}
-
-fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real eventIndicators[], size_t ni) {
-    (void)eventIndicators; (void)ni;
-    NOT_SUPPORTED("fmi2GetEventIndicators", ME_ONLY);
-}
-
-fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {
-    (void)x; (void)nx;
-    NOT_SUPPORTED("fmi2GetContinuousStates", ME_ONLY);
-}
-
-fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x_nominal[], size_t nx) {
-    (void)x_nominal; (void)nx;
-    NOT_SUPPORTED("fmi2GetNominalsOfContinuousStates", ME_ONLY);
-}
 
 fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                        const fmi2Integer order[], const fmi2Real value[]) {

@@ -12,6 +12,11 @@
  * entries of u are "kinematic laws" (position-driven coordinates): three
  * consecutive entries (position, rate, acceleration) that the glue fills either
  * from a built-in law table or from the host's inputs.
+ *
+ * Model Exchange uses the same contract: the continuous state is x = (q, v), its
+ * derivative (v, a) with M(q) a = -r(q, v, 0, u, p); the variables VAR_STATE_* and
+ * VAR_DER_* expose them.  Directional derivatives need the two forward-derivative
+ * functions below (added for issue 7; hand-written models must provide them too).
  */
 #ifndef FLEXLINK_MODEL_H
 #define FLEXLINK_MODEL_H
@@ -27,7 +32,11 @@ typedef enum {
     VAR_START_V,     /* initial rate of free coordinate index (fixed parameter)       */
     VAR_SOLVER,      /* solver setting: index is a SolverSetting                       */
     VAR_INPUT,       /* input: u[index]                                              */
-    VAR_OUTPUT       /* output: y[index], computed by model_outputs                    */
+    VAR_OUTPUT,      /* output: y[index], computed by model_outputs                    */
+    VAR_STATE_Q,     /* continuous state: position q[index] (local; Model Exchange state)  */
+    VAR_STATE_V,     /* continuous state: rate v[index] (local)                            */
+    VAR_DER_Q,       /* derivative of the state q[index]: v[index]                          */
+    VAR_DER_V        /* derivative of the state v[index]: the acceleration a[index]         */
 } VarKind;
 
 typedef enum { SOLVER_STEP, SOLVER_THETA1, SOLVER_THETA2, SOLVER_TOLERANCE, N_SOLVER_SETTINGS } SolverSetting;
@@ -107,6 +116,19 @@ int model_newton_matrix(const double *q, const double *v, const double *a, const
 /* y = outputs(q, v, a, u, p)  (N_Y); a is the acceleration consistent with the state. */
 int model_outputs(const double *q, const double *v, const double *a, const double *u,
                   const double *p, double *y, ModelWork *work);
+
+/* Forward (directional) derivatives, for fmi2GetDirectionalDerivative: the derivative of r, resp. y,
+ * at (q, v, a, u, p) in the direction (dq, dv, da, du, dp):
+ *     dr = dr/dq dq + dr/dv dv + dr/da da + dr/du du + dr/dp dp    (N_Q)
+ *     dy = dy/dq dq + ... + dy/dp dp                                (N_Y)
+ * The glue eliminates the acceleration itself (M(q) da = -dr with da = 0 in the first call), so a
+ * model only provides these two partial derivatives (generated from CasADi's forward mode). */
+int model_residual_forward(const double *q, const double *v, const double *a, const double *u,
+                           const double *p, const double *dq, const double *dv, const double *da,
+                           const double *du, const double *dp, double *dr, ModelWork *work);
+int model_outputs_forward(const double *q, const double *v, const double *a, const double *u,
+                          const double *p, const double *dq, const double *dv, const double *da,
+                          const double *du, const double *dp, double *dy, ModelWork *work);
 
 /* MODEL_LINEAR_IN_STATE (config.h): 1 if r is affine in (q, v, a): one linear solve
  * per step, no Newton iteration.  MODEL_JACOBIAN_CONSTANT: 1 if moreover the Newton

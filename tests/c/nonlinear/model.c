@@ -88,3 +88,26 @@ int model_outputs(const double *q, const double *v, const double *a, const doubl
     for (int i = 0; i < 3; i++) { y[6 + i] = u[1 + i]; y[9 + i] = u[4 + i]; }
     return 0;
 }
+
+int model_residual_forward(const double *q, const double *v, const double *a, const double *u,
+                           const double *p, const double *dq, const double *dv, const double *da,
+                           const double *du, const double *dp, double *dr, ModelWork *work) {
+    const double d0 = q[0] - u[1], d1 = q[1] - u[4];
+    const double dd0 = dq[0] - du[1], dd1 = dq[1] - du[4];
+    (void)work;
+    dr[0] = p[M] * da[0] + p[C] * (dv[0] - du[2]) + (p[K] + 3.0 * p[K3] * d0 * d0) * dd0 - du[0] +
+            dp[M] * (a[0] + p[G]) + dp[C] * (v[0] - u[2]) + dp[K] * d0 + dp[K3] * d0 * d0 * d0 + p[M] * dp[G];
+    dr[1] = p[M] * da[1] + p[C] * (dv[1] - du[5]) + p[K] * dd1 +
+            dp[M] * a[1] + dp[C] * (v[1] - u[5]) + dp[K] * d1;
+    if (fabs(d0) > p[LIMIT]) dr[0] = NAN;
+    return 0;
+}
+
+int model_outputs_forward(const double *q, const double *v, const double *a, const double *u,
+                          const double *p, const double *dq, const double *dv, const double *da,
+                          const double *du, const double *dp, double *dy, ModelWork *work) {
+    (void)q; (void)v; (void)a; (void)u; (void)p; (void)dp; (void)work;
+    dy[0] = dq[0]; dy[1] = dq[1]; dy[2] = dv[0]; dy[3] = dv[1]; dy[4] = da[0]; dy[5] = da[1];
+    for (int i = 0; i < 3; i++) { dy[6 + i] = du[1 + i]; dy[9 + i] = du[4 + i]; }
+    return 0;
+}

@@ -49,3 +49,26 @@ int model_outputs(const double *q, const double *v, const double *a, const doubl
     y[0] = q[0]; y[1] = q[1]; y[2] = v[0]; y[3] = v[1];
     return 0;
 }
+
+/* dr = M da + p K (dv + dq) + dp K (v + q) - du */
+int model_residual_forward(const double *q, const double *v, const double *a, const double *u,
+                           const double *p, const double *dq, const double *dv, const double *da,
+                           const double *du, const double *dp, double *dr, ModelWork *work) {
+    (void)a; (void)u; (void)work;
+    for (int i = 0; i < 2; i++) {
+        dr[i] = -du[i];
+        for (int j = 0; j < 2; j++) {
+            dr[i] += M[i + 2 * j] * da[j] + p[0] * K[i + 2 * j] * (dv[j] + dq[j]) +
+                     dp[0] * K[i + 2 * j] * (v[j] + q[j]);
+        }
+    }
+    return 0;
+}
+
+int model_outputs_forward(const double *q, const double *v, const double *a, const double *u,
+                          const double *p, const double *dq, const double *dv, const double *da,
+                          const double *du, const double *dp, double *dy, ModelWork *work) {
+    (void)q; (void)v; (void)a; (void)u; (void)p; (void)da; (void)du; (void)dp; (void)work;
+    dy[0] = dq[0]; dy[1] = dq[1]; dy[2] = dv[0]; dy[3] = dv[1];
+    return 0;
+}

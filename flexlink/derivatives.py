@@ -1,0 +1,90 @@
+"""Derivatives for the FMU: forward-mode functions for ``fmi2GetDirectionalDerivative`` and the
+structural dependencies of ``<ModelStructure>`` (DESIGN.md §5), both from CasADi.
+
+The FMU's continuous state is x = (q, v) (free coordinates and their rates); the derivatives are
+ẋ = (v, a) with the acceleration a from ``M(q) a = −r(q, v, 0, u, p)``.  The generated C gets the two
+partial derivatives it cannot form itself — of the residual and of the outputs, in a direction
+(dq, dv, da, du, dp) — and eliminates the acceleration with the factorised mass matrix
+(``fmu_src/model.h``: ``model_residual_forward``, ``model_outputs_forward``).
+
+Dependencies are structural, from the sparsity of CasADi's Jacobians: a depends on whatever the
+residual rows coupled to it through M reads (the structural inverse of M: the transitive closure of
+its pattern), an output on what it reads directly and through a.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from flexlink.model import SymbolicModel
+
+__all__ = ["Structure", "forward_functions", "structure"]
+
+
+def _symbols(model: SymbolicModel):
+    f = model.residual
+    return [ca.MX.sym(n, *f.size_in(i)) for i, n in enumerate("qvaup")]
+
+
+def forward_functions(model: SymbolicModel) -> tuple[ca.Function, ca.Function]:
+    """``residual_forward(q, v, a, u, p, dq, dv, da, du, dp) → dr`` and
+    ``outputs_forward(q, v, a, u, p, dq, dv, da, du, dp) → dy``: Jacobian-times-seed of the residual and
+    of the outputs with respect to all their arguments."""
+    args = _symbols(model)
+    seeds = [ca.MX.sym("d" + n, a.sparsity()) for n, a in zip("qvaup", args, strict=True)]
+    x, dx = ca.vertcat(*args), ca.vertcat(*seeds)
+    r = model.residual(*args)
+    y = model.outputs_function(*args)
+    names = [*"qvaup", "dq", "dv", "da", "du", "dp"]
+    fr = ca.Function("residual_forward_all", [*args, *seeds], [ca.jtimes(r, x, dx)], names, ["dr"])
+    fy = ca.Function("outputs_forward", [*args, *seeds], [ca.jtimes(y, x, dx)], names, ["dy"])
+    return fr, fy
+
+
+def _pattern(expr: ca.MX, wrt: ca.MX) -> np.ndarray:
+    sp = ca.jacobian(expr, wrt).sparsity()
+    out = np.zeros((sp.size1(), sp.size2()), dtype=bool)
+    rows, cols = sp.get_triplet()
+    out[rows, cols] = True
+    return out
+
+
+@dataclass
+class Structure:
+    """Structural dependencies on z = (q, v, u, p) (model vectors, all their entries).
+
+    ``acceleration[i, k]``: a_i depends on z_k; ``outputs[j, k]``: y_j depends on z_k.
+    ``n_q``, ``n_u``, ``n_p`` give the block sizes of z.
+    """
+
+    acceleration: np.ndarray
+    outputs: np.ndarray
+    n_q: int
+    n_u: int
+    n_p: int
+
+    def block(self, which: str) -> slice:
+        n, nu = self.n_q, self.n_u
+        return {"q": slice(0, n), "v": slice(n, 2 * n), "u": slice(2 * n, 2 * n + nu),
+                "p": slice(2 * n + nu, 2 * n + nu + self.n_p)}[which]
+
+
+def structure(model: SymbolicModel) -> Structure:
+    """The structural dependencies of the acceleration and of the outputs on (q, v, u, p)."""
+    q, v, a, u, p = _symbols(model)
+    z = ca.vertcat(q, v, u, p)
+    r = model.residual(q, v, a, u, p)
+    y = model.outputs_function(q, v, a, u, p)
+    n = model.n_q
+    reach = _pattern(r, a) | np.eye(n, dtype=bool)          # a_i is coupled to r_j through M
+    while True:
+        nxt = reach | ((reach.astype(np.int64) @ reach.astype(np.int64)) > 0)
+        if (nxt == reach).all():
+            break
+        reach = nxt
+    acc = (reach.astype(np.int64) @ _pattern(r, z).astype(np.int64)) > 0
+    out = _pattern(y, z) | ((_pattern(y, a).astype(np.int64) @ acc.astype(np.int64)) > 0)
+    return Structure(acc, out, n, int(u.numel()), int(p.numel()))

@@ -1,0 +1,113 @@
+"""``flexlink check``: every example FMU passes at CI size, and deliberately broken FMUs are caught and
+reported (a wrong value reference in the XML, an output missing from ModelStructure, a doStep that
+returns NaN)."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from flexlink.cbuild import compile_shared_library
+from flexlink.check import check_fmu, write_report
+from flexlink.cli import main
+from flexlink.fmu import build_fmu
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+NAMES = sorted(p.stem for p in EXAMPLES.glob("*.toml"))
+
+
+@pytest.fixture(scope="module")
+def rotating(tmp_path_factory):
+    d = tmp_path_factory.mktemp("check")
+    return build_fmu(EXAMPLES / "rotating_link.toml", d / "rotating_link.fmu").fmu
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_every_example_passes_the_check(tmp_path, name):
+    fmu = build_fmu(EXAMPLES / f"{name}.toml", tmp_path / f"{name}.fmu").fmu
+    assert main(["check", str(fmu), "--report", str(tmp_path / "report"), "--fuzz", "40"]) == 0
+    data = json.loads((tmp_path / "report" / "report.json").read_text())
+    assert data["passed"]
+    names = [c["name"] for c in data["checks"]]
+    assert names[:5] == ["model-description", "me-vs-cs", "fuzz", "fmu-state", "directional-derivatives"]
+    md = (tmp_path / "report" / "report.md").read_text()
+    assert "| check | input | reference | result | status |" in md
+
+
+def _rewrite(src: Path, dst: Path, edit) -> Path:
+    """A copy of the FMU with some members edited: edit(name, bytes) -> bytes."""
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dst, "w", zipfile.ZIP_DEFLATED) as zout:
+        for item in zin.infolist():
+            zout.writestr(item, edit(item.filename, zin.read(item.filename)))
+    return dst
+
+
+def _status(results):
+    return {r.name: r for r in results}
+
+
+def test_wrong_value_reference_in_the_xml_is_caught(rotating, tmp_path):
+    def edit(name, data):
+        if name == "modelDescription.xml":
+            text = data.decode()
+            text = re.sub(r'(name="arm.tip.v" valueReference=")\d+"', r'\g<1>4000"', text)
+            return text.encode()
+        return data
+
+    bad = _rewrite(rotating, tmp_path / "bad_vr.fmu", edit)
+    res = _status(check_fmu(bad, fuzz=4, importers=False))
+    assert res["model-description"].status == "fail"
+    assert any("4000" in d and "arm.tip.v" in d for d in res["model-description"].details)
+    write_report(list(res.values()), tmp_path / "rep", str(bad))
+    assert "FAILED" in (tmp_path / "rep" / "report.md").read_text()
+
+
+def test_output_missing_from_model_structure_is_caught(rotating, tmp_path):
+    def edit(name, data):
+        if name == "modelDescription.xml":
+            text = data.decode()
+            outputs = text[text.index("<Outputs>"):text.index("</Outputs>")]
+            first = re.search(r"\s*<Unknown [^>]*/>", outputs).group(0)
+            return text.replace(outputs, outputs.replace(first, "", 1)).encode()
+        return data
+
+    bad = _rewrite(rotating, tmp_path / "bad_structure.fmu", edit)
+    res = _status(check_fmu(bad, fuzz=4, importers=False))
+    assert res["model-description"].status == "fail"
+    assert any("hub.theta" in d for d in res["model-description"].details)
+
+
+def test_do_step_returning_nan_is_caught(rotating, tmp_path):
+    """Rebuild the binary from the FMU's own sources with doStep poisoning the state."""
+    src = tmp_path / "src"
+    with zipfile.ZipFile(rotating) as z:
+        z.extractall(src)
+    c = src / "sources" / "cosimulation.c"
+    text = c.read_text()
+    anchor = "    d->time = t_end;\n    d->last_successful_time = t_end;"
+    assert anchor in text
+    c.write_text(text.replace(anchor, "    d->q[0] = NAN;\n" + anchor))
+    so = next((src / "binaries" / "linux64").glob("*.so"))
+    sources = [src / "sources" / n for n in ("fmi2Functions.c", "cosimulation.c", "ss22.c", "linalg.c", "model.c")]
+    compile_shared_library(sources, [src / "sources"], so)
+    bad = tmp_path / "nan_step.fmu"
+    with zipfile.ZipFile(bad, "w") as z:
+        for p in sorted(src.rglob("*")):
+            if p.is_file():
+                z.write(p, p.relative_to(src).as_posix())
+    shutil.rmtree(src)
+    results = check_fmu(bad, fuzz=4, importers=False)
+    res = _status(results)
+    assert res["me-vs-cs"].status == "fail"
+    assert any("NaN" in d for d in res["me-vs-cs"].details)
+    assert main(["check", str(bad), "--fuzz", "4", "--no-importers"]) == 1
+
+
+def test_check_of_a_missing_file_is_a_usage_error(tmp_path, capsys):
+    assert main(["check", str(tmp_path / "nope.fmu")]) == 2
+    assert "no such file" in capsys.readouterr().err

@@ -1,0 +1,54 @@
+"""fmi2GetDirectionalDerivative (both interfaces) against central finite differences, and a plant and an
+LQR designed from the FMU alone equal to those from the CasADi model."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import control as ct
+import numpy as np
+import pytest
+
+from flexlink.check import _Fmu, check_directional_derivatives
+from flexlink.fmu import build_fmu
+from flexlink.linearize import fmu_state_space, linear_plant
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+@pytest.fixture(scope="module")
+def fmus(tmp_path_factory):
+    d = tmp_path_factory.mktemp("dd_fmus")
+    names = ["rotating_link", "flexible_pendulum", "steel_beam_raise"]
+    return {n: build_fmu(EXAMPLES / f"{n}.toml", d / f"{n}.fmu").fmu for n in names}
+
+
+@pytest.mark.parametrize("name", ["rotating_link", "flexible_pendulum", "steel_beam_raise"])
+def test_directional_derivatives_match_central_differences(fmus, name):
+    f = _Fmu(fmus[name])
+    try:
+        r = check_directional_derivatives(f)
+    finally:
+        f.close()
+    assert r.status == "pass", r.details
+    assert float(r.result.split()[3]) < 1e-6
+
+
+@pytest.mark.parametrize("name", ["rotating_link", "rotating_link_linear", "rotating_link_payload"])
+def test_lqr_from_the_fmu_alone_equals_lqr_from_the_model(tmp_path, name):
+    fmu = build_fmu(EXAMPLES / f"{name}.toml", tmp_path / f"{name}.fmu").fmu
+    outputs = ["hub.theta", "arm.tip.v", "arm.root.moment", "tip.sy"]
+    plant = linear_plant(EXAMPLES / f"{name}.toml", outputs=outputs).sys
+    sys = fmu_state_space(fmu, outputs=outputs)
+    assert list(sys.state_labels) == list(plant.state_labels)
+    assert list(sys.input_labels) == list(plant.input_labels) == ["hub_tau"]
+    assert list(sys.output_labels) == list(plant.output_labels)
+    for a, b in [(sys.A, plant.A), (sys.B, plant.B), (sys.C, plant.C), (sys.D, plant.D)]:
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * max(1.0, np.abs(b).max()))
+    n = sys.nstates
+    Q = np.diag([1 / 0.01**2] + [1.0] * (n - 1))
+    R = np.array([[1 / 2.0**2]])
+    K_fmu, _, E_fmu = ct.lqr(sys, Q, R)
+    K_model, _, E_model = ct.lqr(plant, Q, R)
+    np.testing.assert_allclose(K_fmu, K_model, rtol=1e-7)
+    np.testing.assert_allclose(np.sort_complex(E_fmu), np.sort_complex(E_model), rtol=1e-7)
