@@ -233,6 +233,34 @@ def bench_scipy(case: BenchCase, method: str, tolerances, ref, repeats: int = 3)
     return rows
 
 
+def bench_model_exchange(case: BenchCase, fmu, tolerances, ref, repeats: int = 3) -> list[BenchRow]:
+    """The same FMU's Model Exchange interface under fmpy's CVODE (what an FMI host would run), restarted at
+    the input switches by fmpy's input handling; the time includes fmpy's Python loop around the FMU calls."""
+    import fmpy
+
+    names = [s.name for s in case.model.inputs if s.fmu_variable]
+    rows_in = []
+    for t in [0.0, *case.switches, case.stop]:
+        # a switch is two rows at the same time (fmpy's discontinuity), the value before and after
+        for side in ((t - 1e-6, t) if 0 < t < case.stop else (t,)):
+            u = case.inputs_at(side)
+            rows_in.append((t, *[u.get(n, 0.0) for n in names]))
+    inputs = np.array(rows_in, dtype=[("time", float), *[(n, float) for n in names]]) if names else None
+    rows = []
+    sample = float(case.times[1] - case.times[0])
+    for tol in tolerances:
+        cpu = []
+        for _ in range(repeats):
+            t0 = time.process_time()
+            res = fmpy.simulate_fmu(str(fmu), fmi_type="ModelExchange", solver="CVode", relative_tolerance=tol,
+                                    stop_time=case.stop, output_interval=sample, input=inputs, output=case.outputs)
+            cpu.append(time.process_time() - t0)
+        y = {n: np.interp(case.times, res["time"], res[n]) for n in case.outputs}
+        rows.append(BenchRow("fmpy CVODE (ME)", f"rtol={tol:g}", statistics.median(cpu) / case.stop,
+                             relative_error(case, y, ref)))
+    return rows
+
+
 def run_bench(scene_path, *, quick: bool = False, repeats: int | None = None) -> tuple[list[BenchRow], dict]:
     """The work–precision study of a scene; ``quick`` for CI-sized runs."""
     import tempfile
@@ -256,6 +284,7 @@ def run_bench(scene_path, *, quick: bool = False, repeats: int | None = None) ->
     with tempfile.TemporaryDirectory() as tmp:
         fmu = build_fmu(scene, Path(tmp) / "bench.fmu", model=model).fmu
         rows = bench_ss22(case, fmu, steps, thetas, ref, repeats)
+        rows += bench_model_exchange(case, fmu, tols[:2] if quick else tols[:5], ref, max(1, repeats // 2))
     if not model.laws:
         rows += bench_casadi(case, "cvodes", tols, ref, repeats)
         rows += bench_casadi(case, "idas", tols, ref, repeats)

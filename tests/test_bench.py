@@ -24,7 +24,7 @@ def quick_bench():
 def test_rows_and_reference(quick_bench):
     rows, info = quick_bench
     assert info["reference_error"] < 1e-8
-    assert {r.method for r in rows} >= {"ss22 (FMU)", "cvodes", "idas", "scipy Radau"}
+    assert {r.method for r in rows} >= {"ss22 (FMU)", "fmpy CVODE (ME)", "cvodes", "idas", "scipy Radau"}
     for r in rows:
         assert np.isfinite(r.error) and r.error > 10 * info["reference_error"]
         assert r.cpu_s_per_simulated_s > 0
