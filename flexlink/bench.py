@@ -83,7 +83,7 @@ def reference_outputs(case: BenchCase, rtol: float = 1e-12) -> dict[str, np.ndar
 
 # ------------------------------------------------------------------------------------------- the FMU
 
-def bench_ss22(case: BenchCase, fmu, steps, thetas, ref, repeats: int = 5) -> list[BenchRow]:
+def bench_ss22(case: BenchCase, fmu, steps, thetas, ref, repeats: int = 5, order: int = 2) -> list[BenchRow]:
     import fmpy
     from fmpy.fmi2 import FMU2Slave
 
@@ -101,7 +101,8 @@ def bench_ss22(case: BenchCase, fmu, steps, thetas, ref, repeats: int = 5) -> li
         with SlaveRunner(fmu) as runner:
             for theta in thetas:
                 for h in steps:
-                    start = {"solver.step": h, "solver.theta1": theta[0], "solver.theta2": theta[1]}
+                    start = {"solver.step": h, "solver.theta1": theta[0], "solver.theta2": theta[1],
+                             "solver.order": order}
                     res = runner.run(case.stop, float(case.times[1] - case.times[0]), inputs=case.inputs_at,
                                      start=start, outputs=case.outputs)
                     err = relative_error(case, res, ref)
@@ -121,7 +122,8 @@ def bench_ss22(case: BenchCase, fmu, steps, thetas, ref, repeats: int = 5) -> li
                             timer.doStep(lo, hi - lo)
                         cpu.append(time.process_time() - t0)
                     setting = f"step={h:g}" + ("" if theta == (0.5, 0.5) else f", theta={theta[0]:g}/{theta[1]:g}")
-                    rows.append(BenchRow("ss22 (FMU)", setting, statistics.median(cpu) / case.stop, err))
+                    method = "ss22 (FMU)" if order == 2 else "ss22 order 4 (FMU, Richardson)"
+                    rows.append(BenchRow(method, setting, statistics.median(cpu) / case.stop, err))
     finally:
         timer.terminate()
         timer.freeInstance()
@@ -284,6 +286,7 @@ def run_bench(scene_path, *, quick: bool = False, repeats: int | None = None) ->
     with tempfile.TemporaryDirectory() as tmp:
         fmu = build_fmu(scene, Path(tmp) / "bench.fmu", model=model).fmu
         rows = bench_ss22(case, fmu, steps, thetas, ref, repeats)
+        rows += bench_ss22(case, fmu, steps, [(0.5, 0.5)], ref, repeats, order=4)
         rows += bench_model_exchange(case, fmu, tols[:2] if quick else tols[:5], ref, max(1, repeats // 2))
     if not model.laws:
         rows += bench_casadi(case, "cvodes", tols, ref, repeats)

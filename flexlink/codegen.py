@@ -142,7 +142,7 @@ def generate(model: SymbolicModel, directory: Path) -> GeneratedModel:
 
     rows = []
     for v in variables:
-        index = ["SOLVER_STEP", "SOLVER_THETA1", "SOLVER_THETA2", "SOLVER_TOLERANCE"][v.index] \
+        index = ["SOLVER_STEP", "SOLVER_THETA1", "SOLVER_THETA2", "SOLVER_TOLERANCE", "SOLVER_ORDER"][v.index] \
             if v.kind == "VAR_SOLVER" else str(v.index)
         rows.append(f'    {{"{v.name}", {v.kind}, {index}, {_c(v.start)}, {_c(v.min)}, {_c(v.max)}, '
                     f"{int(v.min_exclusive)}, {int(v.variability == 'tunable' or v.causality == 'input')}}},")

@@ -36,7 +36,7 @@ class FmuVariable:
         return self.variability == "tunable" or self.causality == "input"
 
 
-SOLVER_SETTINGS = ("SOLVER_STEP", "SOLVER_THETA1", "SOLVER_THETA2", "SOLVER_TOLERANCE")
+SOLVER_SETTINGS = ("SOLVER_STEP", "SOLVER_THETA1", "SOLVER_THETA2", "SOLVER_TOLERANCE", "SOLVER_ORDER")
 
 
 def fmu_variables(model: SymbolicModel, feedthrough: dict[int, tuple[int, ...]] | None = None
@@ -64,6 +64,9 @@ def fmu_variables(model: SymbolicModel, feedthrough: dict[int, tuple[int, ...]] 
         FmuVariable("solver.tolerance", "VAR_SOLVER", 3, scene.fmu.tolerance, "parameter", "fixed", "",
                     "Newton tolerance: a step's rate change against the coordinate's nominal scale", min=0.0,
                     min_exclusive=True),
+        FmuVariable("solver.order", "VAR_SOLVER", 4, 2.0, "parameter", "fixed", "",
+                    "2: SS22; 4: SS22 (Theta = 1/2) with Richardson extrapolation, for resolved, non-stiff scenes",
+                    min=2.0, max=4.0),
     ]
     for i, sig in enumerate(model.inputs):
         if sig.fmu_variable:

@@ -159,7 +159,7 @@ static int check_model_table(const char **bad) {
 
 static const char *solver_name(int setting) {
     static const char *const fallback[N_SOLVER_SETTINGS] = {
-        "solver.step", "solver.theta1", "solver.theta2", "solver.tolerance"};
+        "solver.step", "solver.theta1", "solver.theta2", "solver.tolerance", "solver.order"};
     for (int vr = 0; vr < N_VARS; vr++) {
         if (MODEL_VARS[vr].kind == VAR_SOLVER && MODEL_VARS[vr].index == setting) return MODEL_VARS[vr].name;
     }
@@ -172,6 +172,7 @@ static void set_start_values(FmuData *d) {
     d->solver[SOLVER_THETA1] = 0.5;
     d->solver[SOLVER_THETA2] = 0.5;
     d->solver[SOLVER_TOLERANCE] = 1e-10;
+    d->solver[SOLVER_ORDER] = 2;
 #ifdef DEFAULT_STEP
     d->solver[SOLVER_STEP] = DEFAULT_STEP;
 #endif
@@ -546,6 +547,15 @@ fmi2Status fmu_exit_initialization(Instance *inst) {
         return fmu_error(inst, "fmi2ExitInitializationMode: %s = %g: must be > 0",
                          solver_name(SOLVER_TOLERANCE), tolerance);
     }
+    if (d->solver[SOLVER_ORDER] != 2 && d->solver[SOLVER_ORDER] != 4) {
+        return fmu_error(inst, "fmi2ExitInitializationMode: %s = %g: must be 2 (SS22) or 4 (SS22 with "
+                         "Richardson extrapolation)", solver_name(SOLVER_ORDER), d->solver[SOLVER_ORDER]);
+    }
+    if (d->solver[SOLVER_ORDER] == 4 && !(theta1 == 0.5 && theta2 == 0.5)) {
+        return fmu_error(inst, "fmi2ExitInitializationMode: %s = 4 extrapolates the symmetric SS22: it needs "
+                         "%s = %s = 0.5, got %g and %g", solver_name(SOLVER_ORDER), solver_name(SOLVER_THETA1),
+                         solver_name(SOLVER_THETA2), theta1, theta2);
+    }
     /* the host's experiment tolerance may tighten the Newton tolerance, never loosen it */
     if (d->experiment_tolerance_defined && d->experiment_tolerance < tolerance) {
         tolerance = d->experiment_tolerance;
@@ -579,9 +589,46 @@ static SS22Status ss22_from(Instance *inst, double t0, double t1) {
 }
 
 /* One internal step [t0, t1]; if SS22 fails, again as 2, 4, ... SUBSTEP_MAX sub-steps. */
+/* Order 4: the symmetric SS22 (Θ = ½) has an error expansion in even powers of Δt, so one step of Δt and
+ * two of Δt/2 combine into q = q_half + (q_half − q_full)/3, fourth-order accurate (Richardson). */
+static SS22Status richardson_step(Instance *inst, double t0, double t1) {
+    FmuData *d = &inst->d;
+    double q0[N_Q], v0[N_Q], a0[N_Q], q1[N_Q], v1[N_Q];
+    SS22Status status;
+    memcpy(q0, d->q, sizeof(q0));
+    memcpy(v0, d->v, sizeof(v0));
+    memcpy(a0, d->alpha, sizeof(a0));
+    status = ss22_from(inst, t0, t1);
+    if (status == SS22_OK) {
+        memcpy(q1, d->q, sizeof(q1));
+        memcpy(v1, d->v, sizeof(v1));
+        memcpy(d->q, q0, sizeof(q0));
+        memcpy(d->v, v0, sizeof(v0));
+        memcpy(d->alpha, a0, sizeof(a0));
+        const double tm = t0 + 0.5 * (t1 - t0);
+        status = ss22_from(inst, t0, tm);
+        if (status == SS22_OK) status = ss22_from(inst, tm, t1);
+    }
+    if (status != SS22_OK) {
+        memcpy(d->q, q0, sizeof(q0));
+        memcpy(d->v, v0, sizeof(v0));
+        memcpy(d->alpha, a0, sizeof(a0));
+        return status;
+    }
+    for (int i = 0; i < N_Q; i++) {
+        d->q[i] += (d->q[i] - q1[i]) / 3.0;
+        d->v[i] += (d->v[i] - v1[i]) / 3.0;
+    }
+    return SS22_OK;
+}
+
+static SS22Status one_step(Instance *inst, double t0, double t1) {
+    return inst->d.solver[SOLVER_ORDER] == 4 ? richardson_step(inst, t0, t1) : ss22_from(inst, t0, t1);
+}
+
 static SS22Status internal_step(Instance *inst, double t0, double t1) {
     FmuData *d = &inst->d;
-    SS22Status status = ss22_from(inst, t0, t1);       /* leaves q, v, alpha alone on failure */
+    SS22Status status = one_step(inst, t0, t1);        /* leaves q, v, alpha alone on failure */
     if (status == SS22_OK) return status;
     memcpy(inst->q_save, d->q, sizeof(d->q));
     memcpy(inst->v_save, d->v, sizeof(d->v));
@@ -592,7 +639,7 @@ static SS22Status internal_step(Instance *inst, double t0, double t1) {
                 ss22_status_message(status), n);
         for (int j = 1; j <= n; j++) {
             const double a = t0 + (j - 1) * dt, b = j == n ? t1 : t0 + j * dt;
-            status = ss22_from(inst, a, b);
+            status = one_step(inst, a, b);
             if (status != SS22_OK) break;
         }
         if (status == SS22_OK) return status;

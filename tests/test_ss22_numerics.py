@@ -99,3 +99,28 @@ def test_bounded_with_step_ten_times_the_highest_period(tmp_path, theta):
     # mean deflection (Θ > ½ filters the 54 Hz oscillation out, Θ = ½ keeps it)
     late = fine["time"] > 1.0
     assert np.mean(coarse["beam.tip.v"][late]) == pytest.approx(np.mean(fine["beam.tip.v"][late]), abs=0.05 * peak)
+
+
+def test_order_four_option_converges_at_order_four(tmp_path):
+    """solver.order = 4: SS22 with Θ = ½ plus one Richardson extrapolation per step (the symmetric method's
+    error expands in even powers of Δt).  Against the CVODES reference, halving the step divides the error by
+    16; the option refuses Θ ≠ ½, where the expansion has odd terms."""
+    from fmpy.fmi1 import FMICallException
+
+    from flexlink.bench import default_case, reference_outputs, relative_error
+
+    scene = load_scene("examples/rotating_link_linear.toml")
+    model = build_model(scene)
+    fmu = build_fmu(scene, tmp_path / "r4.fmu", model=model).fmu
+    case = default_case(model, stop=2.5)
+    ref = reference_outputs(case)
+    errors = []
+    with SlaveRunner(fmu) as runner:
+        for h in (2e-3, 1e-3, 5e-4):
+            res = runner.run(case.stop, 0.01, inputs=case.inputs_at, start={"solver.step": h, "solver.order": 4},
+                             outputs=case.outputs)
+            errors.append(relative_error(case, res, ref))
+        orders = [np.log2(a / b) for a, b in zip(errors[:-1], errors[1:], strict=True)]
+        assert all(abs(p - 4.0) < 0.5 for p in orders), (errors, orders)
+        with pytest.raises(FMICallException):
+            runner.run(0.1, 0.01, start={"solver.order": 4, "solver.theta1": 0.6, "solver.theta2": 0.6})
