@@ -240,7 +240,7 @@ def build_model(scene: Scene) -> SymbolicModel:
     motor_coord: list[int | None] = []
     parts: list[_LinkParts] = []
     for joint, link in zip(scene.joints, scene.links, strict=True):
-        if joint.stiffness > 0:
+        if joint.is_elastic:
             motor_coord.append(len(coordinates))
             coordinates.append(f"{joint.name}.motor_theta")
             kinds.append("joint")
@@ -315,7 +315,7 @@ def build_model(scene: Scene) -> SymbolicModel:
     i_damp = [P.add(f"{j.name}.damping", j.damping, "N.m.s/rad", "viscous joint damping", 0.0)
               if (j.damping > 0 or f"{j.name}.damping" in tunable) else None for j in scene.joints]
     i_k = [P.add(f"{j.name}.stiffness", j.stiffness, "N.m/rad", "joint stiffness (motor to link)", 0.0, True)
-           if j.stiffness > 0 else None for j in scene.joints]
+           if j.is_elastic else None for j in scene.joints]
     i_g = None
     if scene.has_gravity or "gravity" in tunable:
         i_g = [P.add(f"gravity[{k + 1}]", scene.gravity[k], "m/s2", "gravity, inertial frame") for k in range(3)]
