@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -70,10 +71,25 @@ def _cmd_simulate(args) -> int:
 
 
 def _cmd_explain(args) -> int:
-    from flexlink.explain import explain, format_explanation
+    from flexlink.explain import explain, fidelity, format_explanation, format_fidelity
 
+    target = None
+    if args.error_target is not None:
+        try:
+            target = float(args.error_target)
+        except ValueError:
+            target = None
+        if target is None or not (math.isfinite(target) and target > 0):
+            raise FlexlinkError(f"--error-target must be a positive number (a relative RMS error such as 1e-3), "
+                                f"got {args.error_target!r}")
     info = explain(args.scene)
-    print(json.dumps(info) if args.json else format_explanation(info))
+    if target is not None:
+        progress = (lambda m: print(m, file=sys.stderr, flush=True)) if sys.stderr.isatty() else None
+        info["fidelity"] = fidelity(args.scene, target, quick=args.quick, progress=progress)
+    if args.json:
+        print(json.dumps(info))
+    else:
+        print(format_explanation(info) + ("\n" + format_fidelity(info["fidelity"]) if target is not None else ""))
     return 0
 
 
@@ -132,6 +148,9 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("explain", help="coordinates, terms and why, frequencies, recommended SS22 step")
     p.add_argument("scene")
     p.add_argument("--json", action="store_true")
+    p.add_argument("--error-target", metavar="E", help="also measure the fidelity ladder (modes, kinematics, "
+                   "deformation) and recommend its cheapest level with relative RMS error below E")
+    p.add_argument("--quick", action="store_true", help="with --error-target: modes 1-3 and a shorter run (CI size)")
     p.set_defaults(func=_cmd_explain)
 
     p = sub.add_parser("bench", help="speed against error: SS22 against CVODES, IDAS and SciPy on the same equations")

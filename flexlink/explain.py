@@ -1,8 +1,10 @@
-"""``flexlink explain``: what a scene's model contains and why, its frequencies, and a step for SS22."""
+"""``flexlink explain``: what a scene's model contains and why, its frequencies, and a step for SS22; with
+``--error-target``, the cheapest model level that is accurate enough (``flexlink.fidelity``)."""
 
 from __future__ import annotations
 
 from flexlink.analysis import natural_frequencies
+from flexlink.fidelity import MAX_HALVINGS, recommend, run_ladder
 from flexlink.model import build_model
 from flexlink.scene import load_scene
 
@@ -59,4 +61,53 @@ def format_explanation(info: dict) -> str:
         if info["scene_step"] * freqs[-1] > 0.5:
             lines.append(f"  note: the scene's step leaves modes above {0.05 / info['scene_step']:.4g} Hz unresolved "
                          f"({sum(f * info['scene_step'] <= 0.05 for f in freqs)} of {len(freqs)} resolved)")
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------- --error-target (flexlink.fidelity)
+
+def fidelity(scene_path, error_target: float, *, quick: bool = False, progress=None) -> dict:
+    """The fidelity ladder of the scene and the cheapest level that meets ``error_target``."""
+    ladder = run_ladder(scene_path, target=error_target, quick=quick, progress=progress)
+    best = recommend(ladder, error_target)
+    return {"error_target": error_target, "outputs": ladder.outputs, "stop_time": ladder.stop_time,
+            "reference_error": ladder.reference_error, "ladder": [r.as_dict() for r in ladder.rungs],
+            "recommendation": best.as_dict() if best else None, "notes": ladder.notes}
+
+
+def format_fidelity(info: dict) -> str:
+    target = info["error_target"]
+    rows = info["ladder"]
+    best = info["recommendation"]
+    width = max(len(r["level"]) for r in rows)
+    lines = [f"fidelity ladder, cheapest first (relative RMS error of {', '.join(info['outputs'])} against the truth "
+             f"over {info['stop_time']:g} s of the bench manoeuvre; truth: the top level under CVODES, accurate to "
+             f"{info['reference_error']:.1e}):",
+             f"  {'level':{width}s}  coords  model err  SS22 step  integr. err      error  CPU s/sim s"]
+    for r in rows:
+        marks = (["<- recommended"] if best is not None and r["level"] == best["level"] else []) \
+            + (["truth"] if r["truth"] else []) + (["the scene's"] if r["scene_level"] else [])
+        lines.append(f"  {r['level']:{width}s}  {r['coordinates']:6d}  {r['model_error']:9.2e}  {r['step']:9.3g}  "
+                     f"{r['integration_error']:11.2e}  {r['error']:9.2e}  {r['cpu_s_per_simulated_s']:11.3g}"
+                     + (f"  ({', '.join(marks)})" if marks else ""))
+    lines += ["  model err: the level's equations against the truth's, both under CVODES (truncation alone);",
+              "  integr. err: its FMU at the SS22 step shown against its own equations; error: the FMU against the "
+              "truth. The step is explain's (20 per period of the level's highest mode), halved (at most "
+              f"{MAX_HALVINGS} times) while the model error meets the target and the error does not."]
+    lines += [f"  note: {n}" for n in info["notes"]]
+    if best is None:
+        closest = min(rows, key=lambda r: max(r["model_error"], r["error"]))
+        lines.append(f"no level meets the error target {target:g}: the closest is {closest['level']} "
+                     f"(model error {closest['model_error']:.2e}, error {closest['error']:.2e} at step "
+                     f"{closest['step']:.3g} s)")
+        return "\n".join(lines)
+    lines.append(f"recommended for an error target of {target:g}: {best['level']} ({best['coordinates']} "
+                 f"coordinates) at SS22 step {best['step']:.3g} s: error {best['error']:.2e} (model "
+                 f"{best['model_error']:.2e}), {best['cpu_s_per_simulated_s']:.3g} CPU s per simulated s")
+    if best["truth"]:
+        lines.append("  that is the truth itself: its own error against a finer model is not measured here")
+    own = next((r for r in rows if r["scene_level"]), None)
+    if own is not None and own["level"] != best["level"]:
+        lines.append(f"  the scene's own level ({own['level']}): error {own['error']:.2e} at step "
+                     f"{own['step']:.3g} s, {own['cpu_s_per_simulated_s']:.3g} CPU s per simulated s")
     return "\n".join(lines)

@@ -1,0 +1,310 @@
+"""The fidelity ladder (issue 6, "only what the scene needs"): the same arm at several model levels, the error
+each level leaves and what its FMU costs, so that ``flexlink explain --error-target`` can recommend the cheapest
+level that is accurate enough.
+
+A level changes the model, never the arm: the shape count (the same on every link), the kinematics, the
+deformation fields.  The truth is the top level (most shapes, second-order, the scene's deformation).  The model
+error compares a level's equations with the truth's, both under CVODES over the bench manoeuvre (+τ, −τ, free;
+or the scene's law): truncation alone.  A user runs the FMU at a step, though, and at the step ``flexlink
+explain`` recommends (20 per period of the highest mode) the well-resolved lowest mode still drifts in phase
+over many periods, so the FMU's own error against the truth is measured too and, with a target, the step halved
+until it meets it.  The cost is measured there, as ``flexlink bench`` times the FMU.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import statistics
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from flexlink.errors import FlexlinkError
+from flexlink.scene import Scene, load_scene
+
+COUNTS = (1, 2, 3, 4, 6)               # shapes per link (modes, polynomials or elements)
+QUICK_COUNTS = (1, 2, 3)
+KINEMATICS = ("linear", "first-order", "second-order")
+MAX_HALVINGS = 5                       # with a target: steps down to 1/32 of the recommended one
+REFERENCE_RTOL = 1e-10                 # CVODES: its own error is far below the model errors measured
+SHAPE_WORDS = {"clamped-free": "clamped-free mode", "polynomial": "polynomial", "fe": "element"}
+
+
+@dataclass(frozen=True)
+class Level:
+    count: int                          # shapes per link
+    kinematics: str
+    deformation: tuple[str, ...]        # fields kept (each link keeps those of its own it has)
+
+    def label(self, scene: Scene) -> str:
+        kinds = sorted({link.shapes.kind for link in scene.links})
+        word = SHAPE_WORDS.get(kinds[0], "shape") if len(kinds) == 1 else "shape"
+        plural = "" if self.count == 1 else "s"
+        per_link = " per link" if len(scene.links) > 1 else ""
+        return f"{self.count} {word}{plural}{per_link}, {self.kinematics}, {'+'.join(self.deformation)}"
+
+
+@dataclass
+class Rung:
+    """One level of the ladder, measured."""
+
+    level: Level
+    label: str
+    coordinates: int
+    highest_hz: float
+    step: float                         # SS22 step, s (explain's recommendation for this level)
+    model_error: float                  # CVODES(level) against CVODES(truth)
+    integration_error: float            # SS22 FMU at ``step`` against CVODES(level)
+    error: float                        # SS22 FMU at ``step`` against CVODES(truth): what a user sees
+    cpu_s_per_simulated_s: float
+    truth: bool = False
+    scene_level: bool = False           # the scene's own setting
+
+    def as_dict(self) -> dict:
+        return {"level": self.label, "count": self.level.count, "kinematics": self.level.kinematics,
+                "deformation": list(self.level.deformation), "coordinates": self.coordinates,
+                "highest_hz": self.highest_hz, "step": self.step, "model_error": self.model_error,
+                "integration_error": self.integration_error, "error": self.error,
+                "cpu_s_per_simulated_s": self.cpu_s_per_simulated_s, "truth": self.truth,
+                "scene_level": self.scene_level}
+
+
+@dataclass
+class Ladder:
+    scene: str
+    outputs: list[str]
+    stop_time: float
+    rungs: list[Rung]                   # cheapest first
+    reference_error: float              # the truth's CVODES run against one at 1/10 of its tolerance
+    target: float | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def truth(self) -> Rung:
+        return next(r for r in self.rungs if r.truth)
+
+
+# ------------------------------------------------------------------------------------------- the levels
+
+def deformation_levels(scene: Scene) -> list[tuple[str, ...]]:
+    """Planar, then (when the scene has torsion and out-of-plane bending) bending only, then the scene's set."""
+    union = tuple(f for f in ("v", "w", "alpha") if any(f in link.deformation for link in scene.links))
+    out = [("v",), ("v", "w"), union] if {"w", "alpha"} <= set(union) else [("v",), union]
+    out = [d for d in dict.fromkeys(out) if all(set(d) & set(link.deformation) for link in scene.links)]
+    return out
+
+
+def levels(scene: Scene, counts=None, kinematics=None, quick: bool = False) -> list[Level]:
+    """Counts × kinematics with the scene's deformation; the scene's own count is always one, the largest is the
+    truth's."""
+    counts = sorted(set(counts or (QUICK_COUNTS if quick else COUNTS)) | {scene.links[0].shapes.count})
+    if counts[0] < 1:
+        raise FlexlinkError(f"shape counts must be positive, got {counts}")
+    kinematics = list(kinematics or KINEMATICS)
+    if "second-order" not in kinematics:
+        kinematics.append("second-order")
+    return [Level(n, k, deformation_levels(scene)[-1]) for k in kinematics for n in counts]
+
+
+def variant(scene: Scene, level: Level) -> Scene:
+    """The scene's arm modelled at ``level`` (a distinct FMU identifier, so that variants can coexist)."""
+    links = tuple(dataclasses.replace(link, shapes=dataclasses.replace(link.shapes, count=level.count),
+                                      kinematics=level.kinematics,
+                                      deformation=tuple(f for f in link.deformation if f in level.deformation))
+                  for link in scene.links)
+    tag = f"{level.count}_{level.kinematics[0]}_{''.join(f[0] for f in level.deformation)}"
+    return dataclasses.replace(scene, links=links, model_identifier=f"{scene.model_identifier}_{tag}")
+
+
+# ---------------------------------------------------------------------------------------- measurements
+
+def variant_fmu(scene: Scene, model=None) -> Path:
+    """The variant's FMU from the flexlink cache, keyed on the scene's content (it has no file of its own)."""
+    from flexlink.fmu import cached_fmu
+
+    return cached_fmu(scene, model=model)
+
+
+def recommended_step(model) -> tuple[float, float]:
+    """(step, highest frequency in Hz) as ``flexlink explain`` gives them."""
+    from flexlink.analysis import natural_frequencies
+    from flexlink.explain import STEPS_PER_PERIOD
+
+    freqs = natural_frequencies(model).frequencies_hz
+    f_max = max(freqs) if freqs else 0.0
+    return (1.0 / (STEPS_PER_PERIOD * f_max) if f_max > 0 else model.scene.fmu.step), f_max
+
+
+class _Runs:
+    """One level's FMU: its outputs at the case's samples, and its cost (timed as in ``flexlink bench``: one
+    fmi2DoStep per input switch, median of ``repeats`` runs, CPU seconds per simulated second)."""
+
+    def __init__(self, case, fmu: Path):
+        from flexlink.simulate import SlaveRunner
+
+        self.case = case
+        self.runner = SlaveRunner(fmu, instance_name="fidelity")
+
+    def outputs(self, step: float) -> dict[str, np.ndarray]:
+        case = self.case
+        return self.runner.run(case.stop, float(case.times[1] - case.times[0]), inputs=case.inputs_at,
+                               start={"solver.step": step}, outputs=case.outputs)
+
+    def cost(self, step: float, repeats: int) -> float:
+        case, s, vr = self.case, self.runner.slave, self.runner.vr
+        bounds = [0.0, *case.switches, case.stop]
+        cpu = []
+        for _ in range(repeats):
+            s.reset()
+            s.setReal([vr["solver.step"]], [step])
+            s.setupExperiment(startTime=0.0)
+            s.enterInitializationMode()
+            s.exitInitializationMode()
+            t0 = time.process_time()
+            for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+                u = case.inputs_at(lo)
+                if u:
+                    s.setReal([vr[k] for k in u], list(u.values()))
+                s.doStep(lo, hi - lo)
+            cpu.append(time.process_time() - t0)
+        return statistics.median(cpu) / case.stop
+
+    def close(self) -> None:
+        self.runner.close()
+
+
+@dataclass
+class _Measured:
+    """A level after its CVODES run (phase 1); its FMU is run and timed in phase 2."""
+
+    level: Level
+    case: object                        # flexlink.bench.BenchCase, its model dropped
+    ref: dict
+    fmu: Path
+    n_q: int
+    step: float
+    f_max: float
+    model_error: float = 0.0
+
+
+def _measure(scene: Scene, level: Level, stop: float, progress) -> _Measured:
+    from flexlink.bench import default_case, reference_outputs
+    from flexlink.model import build_model
+
+    progress(f"fidelity: {level.label(scene)}")
+    sc = variant(scene, level)
+    model = build_model(sc)
+    case = default_case(model, stop=stop)
+    ref = reference_outputs(case, REFERENCE_RTOL)
+    step, f_max = recommended_step(model)
+    fmu = variant_fmu(sc, model)
+    return _Measured(level, dataclasses.replace(case, model=None), ref, fmu, model.n_q, step, f_max)
+
+
+def run_ladder(scene_path, *, target: float | None = None, quick: bool = False, counts=None, kinematics=None,
+               stop: float | None = None, repeats: int | None = None, progress=None) -> Ladder:
+    """Measure the scene's ladder (``quick``: counts 1–3 and the scene's, 2.5 s, one timing run, for CI).
+
+    Every count × kinematics with the scene's deformation; a smaller deformation set only at the truth's count
+    and kinematics (its best rung), and, when that meets ``target``, at every count × kinematics too.  With a
+    target, a rung whose model error meets it has its step halved (at most MAX_HALVINGS times, and not once
+    its cost would pass the cheapest rung already meeting the target) until its error meets it too."""
+    from flexlink.bench import relative_error
+
+    if target is not None:
+        check_target(target)
+    progress = progress or (lambda message: None)
+    scene = load_scene(scene_path) if not isinstance(scene_path, Scene) else scene_path
+    first = scene.joints[0]
+    if first.drive == "free" or (first.drive == "position" and first.trajectory is None):
+        raise FlexlinkError(f'the fidelity ladder needs a manoeuvre: joint "{first.name}" must be torque-driven '
+                            "(+tau, -tau, then free) or position-driven by a built-in trajectory")
+    stop = stop or (2.5 if quick else 5.0)
+    repeats = repeats or (1 if quick else 3)
+    deformations = deformation_levels(scene)
+    factorial = levels(scene, counts, kinematics, quick)
+    top = Level(max(lv.count for lv in factorial), "second-order", deformations[-1])
+
+    # phase 1: every level's equations under CVODES, against the truth's
+    truth = _measure(scene, top, stop, progress)
+    measured = {top: truth}
+    notes: list[str] = []
+
+    def add(lv: Level) -> None:
+        try:
+            m = _measure(scene, lv, stop, progress)
+        except (FlexlinkError, RuntimeError) as e:        # a level the model or CVODES cannot run: say so, go on
+            notes.append(f"{lv.label(scene)} left out: {str(e).splitlines()[0]}")
+            return
+        m.model_error = relative_error(truth.case, m.ref, truth.ref)
+        measured[lv] = m
+
+    for d in deformations[:-1]:
+        add(Level(top.count, top.kinematics, d))
+    for lv in dict.fromkeys(dataclasses.replace(lv, deformation=d) for d in deformations for lv in factorial):
+        best_of_d = measured.get(Level(top.count, top.kinematics, lv.deformation))
+        full = lv.deformation == deformations[-1]
+        if lv not in measured and (full or (target is not None and best_of_d and best_of_d.model_error < target)):
+            add(lv)
+
+    # phase 2: each level's FMU at its step, the cheaper (fewer coordinates, simpler kinematics) first
+    order = sorted(measured.values(), key=lambda m: (m.n_q, KINEMATICS.index(m.level.kinematics)))
+    best_cost = math.inf
+    rungs = []
+    own = Level(scene.links[0].shapes.count, scene.links[0].kinematics, deformations[-1])
+    for m in order:
+        progress(f"fidelity: SS22 FMU of {m.level.label(scene)}")
+        runs = _Runs(m.case, m.fmu)
+        try:
+            step = m.step
+            y = runs.outputs(step)
+            cost = runs.cost(step, repeats)
+            if target is not None and m.model_error < target:
+                for _ in range(MAX_HALVINGS):
+                    # halving the step at least doubles the steps; the cost per step falls at most by half (fewer
+                    # Newton iterations): past the cheapest rung meeting the target, this one cannot be recommended
+                    if relative_error(m.case, y, truth.ref) < target or cost * m.step / step > best_cost:
+                        break
+                    before = relative_error(m.case, y, m.ref)
+                    step /= 2
+                    y = runs.outputs(step)
+                    if relative_error(m.case, y, m.ref) > before / 1.5:     # not converging (order ≥ 1): stop
+                        break
+                if step != m.step:
+                    cost = runs.cost(step, repeats)
+        finally:
+            runs.close()
+        error = relative_error(m.case, y, truth.ref)
+        if target is not None and m.model_error < target and error < target:
+            best_cost = min(best_cost, cost)
+        rungs.append(Rung(m.level, m.level.label(scene), m.n_q, m.f_max, step, model_error=m.model_error,
+                          integration_error=relative_error(m.case, y, m.ref), error=error,
+                          cpu_s_per_simulated_s=cost, truth=m.level == top, scene_level=m.level == own))
+    rungs.sort(key=lambda r: r.cpu_s_per_simulated_s)
+    reference_error = relative_error(truth.case, truth.ref, _truth_check(scene, top, stop))
+    if all(np.sqrt(np.mean(truth.ref[n] ** 2)) == 0 for n in truth.ref):
+        notes.append("the manoeuvre leaves the outputs at zero: every level is exact for it")
+    return Ladder(scene.name, list(truth.case.outputs), stop, rungs, reference_error, target, notes)
+
+
+def _truth_check(scene: Scene, top: Level, stop: float) -> dict:
+    """The truth's CVODES run at 1/10 of the tolerance (as ``flexlink bench`` checks its reference)."""
+    from flexlink.bench import default_case, reference_outputs
+    from flexlink.model import build_model
+
+    return reference_outputs(default_case(build_model(variant(scene, top)), stop=stop), REFERENCE_RTOL / 10)
+
+
+def check_target(target: float) -> float:
+    if not (isinstance(target, int | float) and math.isfinite(target) and target > 0):
+        raise FlexlinkError(f"--error-target must be a positive number (a relative RMS error), got {target}")
+    return float(target)
+
+
+def recommend(ladder: Ladder, target: float) -> Rung | None:
+    """The cheapest rung that meets ``target`` by its model error and by its error at its step (None if none)."""
+    check_target(target)
+    return next((r for r in ladder.rungs if r.model_error < target and r.error < target), None)
