@@ -77,8 +77,19 @@ def relative_error(case: BenchCase, y: dict[str, np.ndarray], ref: dict[str, np.
 
 
 def reference_outputs(case: BenchCase, rtol: float = 1e-12) -> dict[str, np.ndarray]:
-    res = simulate_reference(case.model, case.times, inputs=case.pieces, rtol=rtol, atol=rtol * 1e-3)
-    return {n: res.output(case.model, n) for n in case.outputs}
+    """CVODES from the state the FMU starts from: a coordinate the scene starts in static equilibrium is solved
+    for as the FMU does it (laws at rest)."""
+    from flexlink.analysis import static_deflection
+
+    model = case.model
+    q0, v0 = model.start_state()
+    if model.static_coordinates:
+        u0 = model.default_inputs(0.0)
+        for law in model.laws:
+            u0[law.u_offset + 1:law.u_offset + 3] = 0.0
+        q0 = static_deflection(model, q0, v0, u0, model.p0, model.static_coordinates)
+    res = simulate_reference(model, case.times, inputs=case.pieces, q0=q0, v0=v0, rtol=rtol, atol=rtol * 1e-3)
+    return {n: res.output(model, n) for n in case.outputs}
 
 
 # ------------------------------------------------------------------------------------------- the FMU
@@ -175,29 +186,37 @@ def _outputs(case: BenchCase, X: np.ndarray) -> dict[str, np.ndarray]:
     return {name: Y[:, model.output_index(name)] for name in case.outputs}
 
 
-def bench_casadi(case: BenchCase, plugin: str, tolerances, ref, repeats: int = 5) -> list[BenchRow]:
-    """CasADi's SUNDIALS integrators (CVODES, IDAS), restarted at every input switch."""
+def casadi_states(case: BenchCase, plugin: str, tol: float, repeats: int = 5, ode=None) -> tuple[float, np.ndarray]:
+    """One of CasADi's SUNDIALS integrators (CVODES, IDAS) over ``case``, restarted at every input switch:
+    median CPU seconds per simulated second and the states (q, v) at ``case.times`` (rows)."""
     if case.model.laws:
         raise FlexlinkError("the CasADi comparison needs constant inputs between switches (no built-in law)")
-    x, u, p, ode = _ode(case.model)
+    x, u, p, rhs = ode or _ode(case.model)
     x0 = np.concatenate(case.model.start_state())
+    integrators = [ca.integrator("F", plugin, {"x": x, "p": ca.vertcat(u, p), "ode": rhs}, lo, grid,
+                                 {"abstol": tol * 1e-3, "reltol": tol, "max_num_steps": 10**7})
+                   for lo, hi, grid in _segments(case)]
+    cpu = []
+    for _ in range(repeats):
+        xs = [x0]
+        xk = x0
+        t0 = time.process_time()
+        for F, (lo, _hi, _grid) in zip(integrators, _segments(case), strict=True):
+            res = np.asarray(F(x0=xk, p=np.concatenate([_model_inputs(case, lo), case.model.p0]))["xf"])
+            xs.extend(res.T)
+            xk = res[:, -1]
+        cpu.append(time.process_time() - t0)
+    return statistics.median(cpu) / case.stop, np.array(xs)
+
+
+def bench_casadi(case: BenchCase, plugin: str, tolerances, ref, repeats: int = 5) -> list[BenchRow]:
+    """CasADi's SUNDIALS integrators (CVODES, IDAS), restarted at every input switch."""
+    ode = _ode(case.model)
     rows = []
     for tol in tolerances:
-        integrators = [ca.integrator("F", plugin, {"x": x, "p": ca.vertcat(u, p), "ode": ode}, lo, grid,
-                                     {"abstol": tol * 1e-3, "reltol": tol, "max_num_steps": 10**7})
-                       for lo, hi, grid in _segments(case)]
-        cpu = []
-        for _ in range(repeats):
-            xs = [x0]
-            xk = x0
-            t0 = time.process_time()
-            for F, (lo, _hi, _grid) in zip(integrators, _segments(case), strict=True):
-                res = np.asarray(F(x0=xk, p=np.concatenate([_model_inputs(case, lo), case.model.p0]))["xf"])
-                xs.extend(res.T)
-                xk = res[:, -1]
-            cpu.append(time.process_time() - t0)
-        y = _outputs(case, np.array(xs))
-        rows.append(BenchRow(plugin, f"rtol={tol:g}", statistics.median(cpu) / case.stop, relative_error(case, y, ref)))
+        cpu, X = casadi_states(case, plugin, tol, repeats, ode)
+        y = _outputs(case, X)
+        rows.append(BenchRow(plugin, f"rtol={tol:g}", cpu, relative_error(case, y, ref)))
     return rows
 
 

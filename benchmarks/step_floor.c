@@ -1,0 +1,201 @@
+/* step_floor.c -- cost of one SS22 internal step against its floor, in one process (issue 6).
+ *
+ * Compiled by benchmarks/step_floor.py together with the C sources of an FMU (its sources/ folder:
+ * the generated model and the generic fmu_src), so the FMU's own code is timed, not a copy of it.
+ *
+ *   floor  = one evaluation of the generated residual (forces, M a + h) and of the generated Newton
+ *            matrix (mass matrix plus step terms) and one dense LU of the same size, at a state of the run;
+ *   step   = the run through fmi2DoStep (one call per input segment, so no host loop is charged) divided
+ *            by the number of internal SS22 steps it took, from the integrator's own counters.
+ *
+ * usage: step_floor GUID REPEATS TOKENS...
+ *   set VR VALUE          fmi2SetReal before initialisation (solver.step, solver.order, ...)
+ *   seg UNTIL VR VALUE    hold input VR at VALUE until time UNTIL (segments in order, from t = 0)
+ * Prints one JSON object: medians over REPEATS of CPU seconds, counters of one run, and the parts of
+ * the floor timed separately.  Exit 0 on success. */
+#define _POSIX_C_SOURCE 199309L
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include "cosimulation.h"
+#include "linalg.h"
+
+#define MAX_TOKENS 64
+
+static void logger(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status, fmi2String category,
+                   fmi2String message, ...) {
+    (void)env; (void)name; (void)category;
+    if (status != fmi2OK) fprintf(stderr, "[status %d] %s\n", (int)status, message);
+}
+
+static double cpu_now(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static int cmp(const void *a, const void *b) {
+    const double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+static double median(double *x, int n) {
+    qsort(x, (size_t)n, sizeof(double), cmp);
+    return n % 2 ? x[n / 2] : 0.5 * (x[n / 2 - 1] + x[n / 2]);
+}
+
+typedef struct { int n_set, n_seg; unsigned set_vr[MAX_TOKENS]; double set_val[MAX_TOKENS];
+                 double until[MAX_TOKENS]; unsigned seg_vr[MAX_TOKENS]; double seg_val[MAX_TOKENS]; } Plan;
+
+typedef struct { unsigned long steps, newton_iterations, factorisations, residual_evaluations; } Counters;
+
+/* one run of the plan from a reset instance; returns CPU seconds of the doStep calls, fills counters */
+static double run(fmi2Component c, const Plan *plan, Counters *cnt) {
+    Instance *inst = (Instance *)c;
+    if (fmi2Reset(c) != fmi2OK) { fprintf(stderr, "reset failed\n"); exit(1); }
+    for (int k = 0; k < plan->n_set; k++) {
+        if (fmi2SetReal(c, &plan->set_vr[k], 1, &plan->set_val[k]) != fmi2OK) { fprintf(stderr, "set\n"); exit(1); }
+    }
+    if (fmi2SetupExperiment(c, fmi2False, 0.0, 0.0, fmi2False, 0.0) != fmi2OK ||
+        fmi2EnterInitializationMode(c) != fmi2OK || fmi2ExitInitializationMode(c) != fmi2OK) {
+        fprintf(stderr, "initialisation failed\n");
+        exit(1);
+    }
+    const SS22 before = inst->d.ss22;
+    double t = 0.0, cpu = 0.0;
+    for (int k = 0; k < plan->n_seg; k++) {
+        fmi2SetReal(c, &plan->seg_vr[k], 1, &plan->seg_val[k]);
+        const double t0 = cpu_now();
+        if (fmi2DoStep(c, t, plan->until[k] - t, fmi2True) != fmi2OK) { fprintf(stderr, "doStep failed\n"); exit(1); }
+        cpu += cpu_now() - t0;
+        t = plan->until[k];
+    }
+    const SS22 *s = &inst->d.ss22;
+    cnt->steps = s->steps - before.steps;
+    cnt->newton_iterations = s->newton_iterations - before.newton_iterations;
+    cnt->factorisations = s->factorisations - before.factorisations;
+    cnt->residual_evaluations = s->residual_evaluations - before.residual_evaluations;
+    return cpu;
+}
+
+/* the parts of the floor, at the instance's current state, with the SS22 weights of step dt */
+enum { PART_FLOOR, PART_RESIDUAL, PART_NEWTON_MATRIX, PART_LU, PART_SOLVE, PART_SS22_STEP, N_PARTS };
+static const char *PART_NAMES[N_PARTS] = {"floor", "residual", "newton_matrix", "lu_factor", "lu_solve",
+                                          "ss22_step_direct"};
+
+static volatile double sink;
+
+static double time_part(Instance *inst, int part, double dt, long iterations) {
+    FmuData *d = &inst->d;
+    const double th1 = d->ss22.theta1, th2 = d->ss22.theta2;
+    const double cv = th1 * dt, cq = th2 * 0.5 * dt * dt;
+    double qb[N_Q], vb[N_Q], a[N_Q], r[N_Q], J[N_Q * N_Q], LU[N_Q * N_Q], b[N_Q];
+    int piv[N_Q];
+    double u[FMU_SZ(N_U)];
+    memcpy(u, d->u, sizeof(u));
+    memcpy(a, d->alpha, sizeof(a));
+    for (int i = 0; i < N_Q; i++) { qb[i] = d->q[i] + cv * d->v[i] + cq * a[i]; vb[i] = d->v[i] + cv * a[i]; }
+    model_newton_matrix(qb, vb, a, u, d->p, 1.0, cv, cq, LU, &inst->work);
+    lu_factor(LU, N_Q, piv);
+    SS22 s = d->ss22;                     /* a private copy: the instance is not advanced */
+    double q[N_Q], v[N_Q], al[N_Q];
+    double t0 = cpu_now();
+    for (long it = 0; it < iterations; it++) {
+        switch (part) {
+        case PART_FLOOR:
+            model_residual(qb, vb, a, u, d->p, r, &inst->work);
+            model_newton_matrix(qb, vb, a, u, d->p, 1.0, cv, cq, J, &inst->work);
+            lu_factor(J, N_Q, piv);
+            sink += r[0] + J[0];
+            break;
+        case PART_RESIDUAL:
+            model_residual(qb, vb, a, u, d->p, r, &inst->work);
+            sink += r[0];
+            break;
+        case PART_NEWTON_MATRIX:
+            model_newton_matrix(qb, vb, a, u, d->p, 1.0, cv, cq, J, &inst->work);
+            sink += J[0];
+            break;
+        case PART_LU:
+            memcpy(J, LU, sizeof(J));      /* a factorisable matrix each time (the copy is charged: n^2 moves) */
+            lu_factor(J, N_Q, piv);
+            sink += J[0];
+            break;
+        case PART_SOLVE:
+            memcpy(b, r, sizeof(b));
+            lu_solve(LU, N_Q, piv, b);
+            sink += b[0];
+            break;
+        case PART_SS22_STEP:
+            memcpy(q, d->q, sizeof(q));
+            memcpy(v, d->v, sizeof(v));
+            memcpy(al, d->alpha, sizeof(al));
+            ss22_step(&s, dt, q, v, al, u, u, d->p, &inst->work);
+            sink += q[0];
+            break;
+        }
+    }
+    return (cpu_now() - t0) / (double)iterations;
+}
+
+int main(int argc, char **argv) {
+    if (argc < 3) {
+        fprintf(stderr, "usage: %s GUID REPEATS [set VR VALUE | seg UNTIL VR VALUE]...\n", argv[0]);
+        return 2;
+    }
+    const int repeats = atoi(argv[2]);
+    if (repeats < 1 || repeats > 1000) { fprintf(stderr, "REPEATS: 1..1000\n"); return 2; }
+    Plan plan = {0};
+    for (int k = 3; k < argc;) {
+        if (!strcmp(argv[k], "set") && k + 2 < argc && plan.n_set < MAX_TOKENS) {
+            plan.set_vr[plan.n_set] = (unsigned)atol(argv[k + 1]);
+            plan.set_val[plan.n_set++] = atof(argv[k + 2]);
+            k += 3;
+        } else if (!strcmp(argv[k], "seg") && k + 3 < argc && plan.n_seg < MAX_TOKENS) {
+            plan.until[plan.n_seg] = atof(argv[k + 1]);
+            plan.seg_vr[plan.n_seg] = (unsigned)atol(argv[k + 2]);
+            plan.seg_val[plan.n_seg++] = atof(argv[k + 3]);
+            k += 4;
+        } else {
+            fprintf(stderr, "bad argument %s\n", argv[k]);
+            return 2;
+        }
+    }
+    if (plan.n_seg == 0) { fprintf(stderr, "no segment\n"); return 2; }
+    fmi2CallbackFunctions cb = {logger, calloc, free, NULL, NULL};
+    fmi2Component c = fmi2Instantiate("floor", fmi2CoSimulation, argv[1], "", &cb, fmi2False, fmi2False);
+    if (!c) { fprintf(stderr, "instantiate failed\n"); return 1; }
+    Instance *inst = (Instance *)c;
+
+    Counters cnt;
+    double *runs = malloc((size_t)repeats * sizeof(double));
+    run(c, &plan, &cnt);                                   /* warm-up */
+    for (int k = 0; k < repeats; k++) runs[k] = run(c, &plan, &cnt);
+    const double run_cpu = median(runs, repeats);
+    const int order = (int)inst->d.solver[SOLVER_ORDER];
+    const double internal = order == 4 ? (double)cnt.steps / 3.0 : (double)cnt.steps;   /* 3 SS22 steps each */
+    const double dt = plan.until[plan.n_seg - 1] / (internal > 0 ? internal : 1.0);
+
+    /* the parts, at the end state of the last run; batches of about 5 ms, median over repeats */
+    double part_s[N_PARTS];
+    for (int p = 0; p < N_PARTS; p++) {
+        long iterations = 16;
+        while (time_part(inst, p, dt, iterations) * (double)iterations < 5e-3 && iterations < (1L << 26))
+            iterations *= 2;
+        for (int k = 0; k < repeats; k++) runs[k] = time_part(inst, p, dt, iterations);
+        part_s[p] = median(runs, repeats);
+    }
+    printf("{\"n_q\": %d, \"linear_in_state\": %d, \"jacobian_constant\": %d, \"order\": %d, \"repeats\": %d, "
+           "\"run_cpu_s\": %.9g, \"simulated_s\": %.9g, \"ss22_steps\": %lu, \"internal_steps\": %.9g, "
+           "\"newton_iterations\": %lu, \"factorisations\": %lu, \"residual_evaluations\": %lu, "
+           "\"step_s\": %.9g, \"ss22_step_s\": %.9g",
+           N_Q, MODEL_LINEAR_IN_STATE, MODEL_JACOBIAN_CONSTANT, order, repeats, run_cpu,
+           plan.until[plan.n_seg - 1], cnt.steps, internal, cnt.newton_iterations, cnt.factorisations,
+           cnt.residual_evaluations, run_cpu / internal, run_cpu / (double)(cnt.steps ? cnt.steps : 1));
+    for (int p = 0; p < N_PARTS; p++) printf(", \"%s_s\": %.9g", PART_NAMES[p], part_s[p]);
+    printf("}\n");
+    free(runs);
+    fmi2FreeInstance(c);
+    return 0;
+}
