@@ -7,6 +7,7 @@ that it can be rebuilt elsewhere.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import os
 import shutil
@@ -34,6 +35,7 @@ UNITS = {
     "N": {"kg": 1, "m": 1, "s": -2}, "N.m": {"kg": 1, "m": 2, "s": -2}, "J": {"kg": 1, "m": 2, "s": -2},
     "N.m2": {"kg": 1, "m": 3, "s": -2}, "N.m.s/rad": {"kg": 1, "m": 2, "s": -1, "rad": -1},
     "kg.m": {"kg": 1, "m": 1}, "N.m/rad": {"kg": 1, "m": 2, "s": -2, "rad": -1},
+    "kg/m3": {"kg": 1, "m": -3}, "Pa": {"kg": 1, "m": -1, "s": -2},
 }
 LOG_CATEGORIES = {
     "logEvents": "initialisation, steps and FMU state events",
@@ -240,17 +242,22 @@ def cache_dir() -> Path:
     return Path(base) / "flexlink"
 
 
-def cached_fmu(scene_path: str | os.PathLike) -> Path:
-    """The scene's FMU, rebuilt only when the scene, flexlink or the C sources change."""
-    scene = load_scene(scene_path)
-    h = hashlib.sha256(Path(scene_path).read_bytes())
+def cached_fmu(scene, model=None) -> Path:
+    """The FMU of a scene file (or of a Scene object, keyed on its content), rebuilt only when the scene,
+    flexlink or the C sources change."""
+    if isinstance(scene, Scene):
+        h = hashlib.sha256(repr(dataclasses.replace(scene, path=None)).encode())
+    else:
+        path = scene
+        scene = load_scene(path)              # first: a missing or bad file is a SceneError
+        h = hashlib.sha256(Path(path).read_bytes())
     h.update(flexlink.__version__.encode())
     for f in sorted(fmu_src_dir().iterdir()):
         if f.suffix in (".c", ".h"):
             h.update(f.read_bytes())
-    for f in sorted(Path(__file__).parent.glob("*.py")):
+    for f in sorted(Path(__file__).parent.rglob("*.py")):
         h.update(f.read_bytes())
     path = cache_dir() / f"{scene.model_identifier}-{h.hexdigest()[:16]}.fmu"
     if not path.exists():
-        build_fmu(scene, path)
+        build_fmu(scene, path, model=model)
     return path

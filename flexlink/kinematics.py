@@ -159,3 +159,23 @@ def tip_kinematics(g: ShapeIntegrals, t: TorsionIntegrals | None, length: float,
             if eta is not None:
                 x_tip = x_tip - 0.5 * _quad(eta, g.fs_tip)
     return TipKinematics(ca.vertcat(x_tip, v_tip, w_tip), ca.vertcat(twist, -slope_w, slope_v))
+
+
+def body_invariants(b, eta, eta_dot) -> Invariants:
+    """Invariants of a reduced finite-element link (flexlink.shapes.body.BodyIntegrals), per unit density:
+    s = X + Φη, first-order kinematics (the membrane strain of large deflections is not in the shell element)."""
+    first = _dm(b.first) + ca.mtimes(_dm(b.modal), eta)
+    lin = ca.vertcat(*[ca.horzcat(*[ca.dot(_dm(b.x_modal[a, c]), eta) for c in range(3)]) for a in range(3)])
+    quad = ca.vertcat(*[ca.horzcat(*[_quad(eta, b.pairs[a, c]) for c in range(3)]) for a in range(3)])
+    second = _dm(b.second) + lin + lin.T + quad
+
+    def cross(a, c):                        # ∫ s_a ṡ_c
+        return ca.dot(_dm(b.x_modal[a, c]), eta_dot) + _quad(eta, b.pairs[a, c], eta_dot)
+
+    angular = ca.vertcat(cross(1, 2) - cross(2, 1), cross(2, 0) - cross(0, 2), cross(0, 1) - cross(1, 0))
+    return Invariants(first, second, angular, _quad(eta_dot, b.mass_matrix))
+
+
+def body_tip_kinematics(b, eta) -> TipKinematics:
+    return TipKinematics(_dm(b.tip_point) + ca.mtimes(_dm(b.tip_translation), eta),
+                         ca.mtimes(_dm(b.tip_rotation), eta))

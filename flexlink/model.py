@@ -31,6 +31,8 @@ from flexlink.errors import FlexlinkError
 from flexlink.kinematics import (
     LinkDeformation,
     beam_invariants,
+    body_invariants,
+    body_tip_kinematics,
     link_basis,
     rotation,
     small_rotation,
@@ -39,6 +41,8 @@ from flexlink.kinematics import (
 )
 from flexlink.scene import Scene, Trajectory
 from flexlink.shapes import make_basis
+from flexlink.shapes.body import shell_body
+from flexlink.shapes.reduction import ModalBeamBasis, ModalTorsionBasis
 from flexlink.shapes.torsion import make_torsion_basis
 
 
@@ -181,7 +185,7 @@ def _check_supported(scene: Scene) -> None:
     for link in scene.links:
         if not link.deformation:
             raise _unsupported(scene, f'link "{link.name}": a rigid link (deformation = [])')
-        if link.shapes.kind not in ("clamped-free", "polynomial", "fe"):
+        if link.shapes.kind not in ("clamped-free", "polynomial", "fe", "shell"):
             raise _unsupported(scene, f'link "{link.name}": shapes kind {link.shapes.kind!r}')
 
 
@@ -208,6 +212,7 @@ class _LinkParts:
     fields: dict[str, list[int]]   # "v", "w", "alpha" → indices
     bending: object | None         # ShapeBasis for v and w
     torsion: object | None         # TorsionBasis
+    body: object | None = None     # BodyIntegrals of a shell link (its modes deform in every direction)
     i_rho: int = 0
     i_EI: int | None = None
     i_EIo: int | None = None
@@ -258,13 +263,31 @@ def build_model(scene: Scene) -> SymbolicModel:
         bending = torsion = None
         fields: dict[str, list[int]] = {}
         eta: list[int] = []
+        if link.is_shell:
+            try:
+                body = shell_body(link)
+            except ValueError as exc:
+                raise FlexlinkError(f'{scene.path or scene.name}: link "{link.name}": {exc}') from None
+            fields["modes"] = eta = list(range(len(coordinates), len(coordinates) + body.n))
+            coordinates += [f"{link.name}.eta[{k + 1}]" for k in range(body.n)]
+            kinds += ["elastic"] * body.n
+            nominal += [1.0] * body.n
+            parts.append(_LinkParts(eta, fields, None, None, body))
+            shape = link.shapes
+            terms.append(f'link "{link.name}": {body.n} modes of a {shape.section} of DKT + CST shell elements '
+                         f"(mesh {'x'.join(map(str, shape.mesh))}, joint held), {kinematics} kinematics")
+            continue
         if "v" in link.deformation or "w" in link.deformation:
             bending = make_basis(link.shapes.kind, link.shapes.count, link.length, link.linear_density)
+            if link.shapes.modes is not None:
+                bending = ModalBeamBasis(bending, link.shapes.modes)
             xs = np.linspace(0.0, link.length, 401)
             scale = np.maximum(np.max(np.abs(bending.evaluate(xs)), axis=0),
                                link.length * np.max(np.abs(bending.evaluate(xs, 1)), axis=0))
         if "alpha" in link.deformation:
             torsion = make_torsion_basis(link.shapes.kind, link.shapes.count, link.length, link.polar_inertia or 0.0)
+            if link.shapes.modes is not None:
+                torsion = ModalTorsionBasis(torsion, link.shapes.modes)
         for name in ("v", "w", "alpha"):
             if name not in link.deformation:
                 continue
@@ -280,19 +303,25 @@ def build_model(scene: Scene) -> SymbolicModel:
                 nominal.extend(1.0 / scale)
             eta += idx
         parts.append(_LinkParts(eta, fields, bending, torsion))
-        terms.append(f'link "{link.name}": ' + ", ".join(f"{len(fields[f])} {link.shapes.kind} coordinates for {f}"
+        kind = link.shapes.kind if link.shapes.modes is None else f"{link.shapes.kind} ({link.shapes.modes} modes)"
+        terms.append(f'link "{link.name}": ' + ", ".join(f"{len(fields[f])} {kind} coordinates for {f}"
                                                          for f in fields) + f", {kinematics} kinematics")
 
     # ---- parameters (a term is in the model only if the scene needs it, or [fmu] tunable asks)
     for link, part in zip(scene.links, parts, strict=True):
-        part.i_rho = P.add(f"{link.name}.linear_density", link.linear_density, "kg/m", "mass per unit length",
-                           0.0, True)
-        if "v" in link.deformation:
+        if link.is_shell:
+            part.i_rho = P.add(f"{link.name}.density", link.density, "kg/m3", "density of the shell", 0.0, True)
+            part.i_EI = P.add(f"{link.name}.E", link.E, "Pa", "Young's modulus of the shell (its modes are kept)",
+                              0.0, True)
+        else:
+            part.i_rho = P.add(f"{link.name}.linear_density", link.linear_density, "kg/m", "mass per unit length",
+                               0.0, True)
+        if "v" in part.fields:
             part.i_EI = P.add(f"{link.name}.EI", link.EI, "N.m2", "bending stiffness in the joint's plane", 0.0, True)
-        if "w" in link.deformation:
+        if "w" in part.fields:
             part.i_EIo = P.add(f"{link.name}.EI_out", link.EI_out, "N.m2", "out-of-plane bending stiffness",
                                0.0, True)
-        if "alpha" in link.deformation:
+        if "alpha" in part.fields:
             part.i_GJ = P.add(f"{link.name}.GJ", link.GJ, "N.m2", "torsional stiffness", 0.0, True)
             part.i_mu = P.add(f"{link.name}.polar_inertia", link.polar_inertia, "kg.m",
                               "polar mass moment of the section per unit length", 0.0)
@@ -390,11 +419,18 @@ def build_model(scene: Scene) -> SymbolicModel:
             rho = p[part.i_rho]
             d = deformation(part, qa, va)
             VL = ca.jtimes(Pp, qa, va) if i > 0 else ca.DM.zeros(3)
-            if part.bending is not None:
+            m_unit = link.length                    # mass per unit of the density parameter
+            inv = None
+            if part.body is not None:
+                eta_q = ca.vertcat(*[qa[k] for k in part.eta])
+                inv = body_invariants(part.body, eta_q, ca.vertcat(*[va[k] for k in part.eta]))
+                m_unit = part.body.volume
+            elif part.bending is not None:
                 inv = beam_invariants(part.bending.integrals, link.length, d, second_order)
+            if inv is not None:
                 S1 = inv.first_moment
                 S1d = ca.jtimes(S1, qa, va)
-                T += 0.5 * rho * (link.length * ca.dot(VL, VL)
+                T += 0.5 * rho * (m_unit * ca.dot(VL, VL)
                                   + 2 * ca.dot(ca.mtimes(RL.T, VL), ca.cross(wL, S1) + S1d)
                                   + ca.dot(wL, ca.mtimes(inv.inertia(), wL)) + 2 * ca.dot(wL, inv.angular_momentum)
                                   + inv.relative_kinetic)
@@ -403,23 +439,26 @@ def build_model(scene: Scene) -> SymbolicModel:
                 J = ca.diag(ca.vertcat(0, link.length**3 / 3, link.length**3 / 3))
                 T += 0.5 * rho * (link.length * ca.dot(VL, VL) + 2 * ca.dot(ca.mtimes(RL.T, VL), ca.cross(wL, S1))
                                   + ca.dot(wL, ca.mtimes(J, wL)))
-            J_link = inv.inertia() if part.bending is not None else J
-            H_link = inv.angular_momentum if part.bending is not None else ca.DM.zeros(3)
-            S1d_link = S1d if part.bending is not None else ca.DM.zeros(3)
+            J_link = inv.inertia() if inv is not None else J
+            H_link = inv.angular_momentum if inv is not None else ca.DM.zeros(3)
+            S1d_link = S1d if inv is not None else ca.DM.zeros(3)
             # ∫ρ ṙ = ρ(L V + R(ω×S1 + Ṡ1));  ∫ρ (r × ṙ) = P × ∫ρṙ + R ρ(S1 × (RᵀV) + J ω + H)
-            momentum = rho * (link.length * VL + ca.mtimes(RL, ca.cross(wL, S1) + S1d_link))
+            momentum = rho * (m_unit * VL + ca.mtimes(RL, ca.cross(wL, S1) + S1d_link))
             spin = ca.mtimes(RL, rho * (ca.cross(S1, ca.mtimes(RL.T, VL)) + ca.mtimes(J_link, wL) + H_link))
             if part.torsion is not None:
                 T += 0.5 * p[part.i_mu] * torsion_kinetic(part.torsion.integrals, link.length, d, wL[0])
                 tor = part.torsion.integrals
                 spin += ca.mtimes(RL, ca.vertcat(p[part.i_mu] * (link.length * wL[0]
                                                                  + ca.dot(ca.DM(tor.phi), d.alpha_dot)), 0, 0))
-            bodies.append(dict(joint=i, mass=rho * link.length, moment=rho * link.length * Pp + ca.mtimes(RL, rho * S1),
+            bodies.append(dict(joint=i, mass=rho * m_unit, moment=rho * m_unit * Pp + ca.mtimes(RL, rho * S1),
                                momentum=momentum, spin=spin + ca.cross(Pp, momentum)))
             if i_g is not None:
-                Vg += -ca.dot(g_vec, rho * link.length * Pp + ca.mtimes(RL, rho * S1))
-            tip = tip_kinematics(part.bending.integrals if part.bending else None,
-                                 part.torsion.integrals if part.torsion else None, link.length, d, second_order)
+                Vg += -ca.dot(g_vec, rho * m_unit * Pp + ca.mtimes(RL, rho * S1))
+            if part.body is not None:
+                tip = body_tip_kinematics(part.body, eta_q)
+            else:
+                tip = tip_kinematics(part.bending.integrals if part.bending else None,
+                                     part.torsion.integrals if part.torsion else None, link.length, d, second_order)
             Rdef = small_rotation(tip.rotation_vector, second_order)
             Pt = Pp + ca.mtimes(RL, tip.position)
             Rt = ca.mtimes(RL, Rdef)
@@ -459,6 +498,13 @@ def build_model(scene: Scene) -> SymbolicModel:
     R = 0
     for i, (joint, part) in enumerate(zip(scene.joints, parts, strict=True)):
         q_d = deformation(part, qa, va)
+        if part.body is not None:
+            x = ca.vertcat(*[qa[k] for k in part.eta])
+            xd = ca.vertcat(*[va[k] for k in part.eta])
+            K = ca.DM(part.body.stiffness)
+            Ve += 0.5 * p[part.i_EI] * ca.dot(x, ca.mtimes(K, x))
+            if part.i_kv is not None:
+                R += 0.5 * p[part.i_kv] * p[part.i_EI] * ca.dot(xd, ca.mtimes(K, xd))
         for name, stiff_i in (("v", part.i_EI), ("w", part.i_EIo), ("alpha", part.i_GJ)):
             if name not in part.fields:
                 continue
@@ -530,6 +576,13 @@ def build_model(scene: Scene) -> SymbolicModel:
             out.append((Signal(f"{joint.name}.tau", "N.m", "joint torque the prescribed law needs",
                                feedthrough=True), r_prescribed[driven]))
         tip = frames[i][6]
+        if part.body is not None:
+            where = "the mid-point of the free edge" if link.shapes.section == "plate" else "the end section"
+            for k, c in ((1, "v"), (2, "w")):
+                out.append((Signal(f"{link.name}.tip.{c}", "m", f"tip deflection {c} at {where}"),
+                            tip.position[k] - float(part.body.tip_point[k])))
+            out.append((Signal(f"{link.name}.tip.twist", "rad", "twist of the end section (rigid fit of its nodes)"),
+                        tip.rotation_vector[0]))
         if "v" in part.fields:
             out.append((Signal(f"{link.name}.tip.v", "m", "in-plane tip deflection v(L)"), tip.position[1]))
         if "w" in part.fields:

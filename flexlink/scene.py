@@ -36,7 +36,10 @@ __all__ = [
 
 DRIVES = ("torque", "position", "free")
 DEFORMATIONS = ("v", "w", "alpha")
-SHAPE_KINDS = ("clamped-free", "polynomial", "fe")
+SHAPE_KINDS = ("clamped-free", "polynomial", "fe", "shell")
+SHELL_SECTIONS = ("plate", "box")
+MESH_PATTERNS = ("symmetric", "A", "B")
+SHELL_KINEMATICS = ("linear", "first-order")
 KINEMATICS = ("linear", "first-order", "second-order")
 INITIAL_DEFORMATIONS = ("undeformed", "static")
 INTEGRATORS = ("ss22",)
@@ -57,9 +60,14 @@ _JOINT_KEYS = (
 )
 _LINK_KEYS = (
     "name", "length", "linear_density", "density", "area", "EI", "EI_out", "GJ", "polar_inertia",
-    "kelvin_voigt", "deformation", "shapes", "kinematics", "payload", "initial_deformation",
+    "kelvin_voigt", "deformation", "shapes", "kinematics", "payload", "initial_deformation", "E", "poisson",
 )
-_SHAPES_KEYS = ("kind", "count")
+_SHELL_LINK_KEYS = (
+    "name", "length", "density", "E", "poisson", "kelvin_voigt", "shapes", "kinematics", "payload",
+    "initial_deformation",
+)
+_SHAPES_KEYS = ("kind", "count", "modes")
+_SHELL_SHAPES_KEYS = ("kind", "section", "width", "height", "thickness", "mesh", "pattern", "modes")
 _PAYLOAD_KEYS = ("mass", "inertia", "offset")
 _TRAJECTORY_KEYS = ("segments",)
 _SEGMENT_KEYS = ("until", "poly", "cos")
@@ -148,8 +156,25 @@ class Payload:
 
 @dataclass(frozen=True)
 class Shapes:
+    """A beam family (``count`` functions or elements), or a shell mesh; ``modes``: reduce an FE link to its
+    first modes with the joint held (None: keep every finite-element coordinate)."""
+
     kind: str = "clamped-free"
     count: int = 3
+    modes: int | None = None
+    section: str | None = None                  # shell: "plate" | "box"
+    width: float | None = None                  # shell: along the joint axis (plate) / box width
+    height: float | None = None                 # box: along the in-plane bending direction v
+    thickness: float | None = None
+    mesh: tuple[int, ...] = ()                  # shell: [nx, nw] (plate) or [nx, nw, nh] (box)
+    pattern: str = "symmetric"                  # shell: diagonals of the triangles (seed 001 fig. 5.5)
+
+    @property
+    def section_area(self) -> float:
+        """Area of the shell's cross-section (mid-surface perimeter × thickness)."""
+        if self.section == "box":
+            return 2.0 * (self.width + self.height) * self.thickness
+        return self.width * self.thickness
 
 
 @dataclass(frozen=True)
@@ -157,7 +182,7 @@ class Link:
     name: str
     length: float
     linear_density: float
-    EI: float
+    EI: float | None
     EI_out: float | None = None
     GJ: float | None = None
     polar_inertia: float | None = None
@@ -167,6 +192,13 @@ class Link:
     kinematics: str = "second-order"
     payload: Payload = Payload()
     initial_deformation: str = "undeformed"
+    density: float | None = None              # shell links: kg/m³
+    E: float | None = None                    # shell links: Young's modulus, Pa
+    poisson: float | None = None              # shell links
+
+    @property
+    def is_shell(self) -> bool:
+        return self.shapes.kind == "shell"
 
 
 @dataclass(frozen=True)
@@ -448,7 +480,14 @@ class _Parser:
         return Trajectory(tuple(segments))
 
     def link(self, data: dict, key: str) -> Link:
+        shapes_raw = data.get("shapes") if isinstance(data, dict) else None
+        if isinstance(shapes_raw, dict) and shapes_raw.get("kind") == "shell":
+            return self.shell_link(data, key)
         t = self.table(data, key, _LINK_KEYS)
+        for k in ("E", "poisson"):
+            if k in t:
+                raise self.fail(f"{key}.{k}", 'no value: E and poisson are for shell links (shapes.kind = "shell"); '
+                                "a beam takes EI", t[k])
         name = self.name(t.get("name", _MISSING), f"{key}.name")
         length = self.number(t.get("length", _MISSING), f"{key}.length", "m", positive=True)
         linear_density = self.linear_density(t, key)
@@ -477,6 +516,67 @@ class _Parser:
                     polar_inertia=optional.get("polar_inertia"), kelvin_voigt=kelvin_voigt,
                     deformation=deformation, shapes=shapes, kinematics=kinematics, payload=payload,
                     initial_deformation=initial_deformation)
+
+    def shell_link(self, data: dict, key: str) -> Link:
+        """A plate or box-section link of DKT + CST shell elements (seed 001 part 5): material, not section
+        properties, since the mesh integrates them."""
+        t = self.table(data, key, _SHELL_LINK_KEYS, "a table")
+        name = self.name(t.get("name", _MISSING), f"{key}.name")
+        length = self.number(t.get("length", _MISSING), f"{key}.length", "m", positive=True)
+        density = self.number(t.get("density", _MISSING), f"{key}.density", "kg/m³", positive=True)
+        E = self.number(t.get("E", _MISSING), f"{key}.E", "Pa", positive=True)
+        poisson = self.number(t.get("poisson", _MISSING), f"{key}.poisson")
+        if not -1.0 < poisson < 0.5:
+            raise self.fail(f"{key}.poisson", "a number in (-1, 0.5) (Poisson's ratio)", poisson)
+        kelvin_voigt = self.number(t.get("kelvin_voigt", 0.0), f"{key}.kelvin_voigt", "s", minimum=0)
+        shapes = self.shell_shapes(t["shapes"], f"{key}.shapes")
+        kinematics = self.string(t.get("kinematics", "first-order"), f"{key}.kinematics", SHELL_KINEMATICS)
+        payload = self.payload(t.get("payload", {}), f"{key}.payload")
+        initial_deformation = self.string(t.get("initial_deformation", "undeformed"),
+                                          f"{key}.initial_deformation", INITIAL_DEFORMATIONS)
+        return Link(name=name, length=length, linear_density=density * shapes.section_area, EI=None,
+                    kelvin_voigt=kelvin_voigt, deformation=("v", "w", "alpha"), shapes=shapes,
+                    kinematics=kinematics, payload=payload, initial_deformation=initial_deformation,
+                    density=density, E=E, poisson=poisson)
+
+    def shell_shapes(self, value: Any, key: str) -> Shapes:
+        t = self.table(value, key, _SHELL_SHAPES_KEYS, 'a table {kind = "shell", section = "plate", …}')
+        section = self.string(t.get("section", _MISSING), f"{key}.section", SHELL_SECTIONS)
+        width = self.number(t.get("width", _MISSING), f"{key}.width", "m", positive=True)
+        height = None
+        if section == "box":
+            height = self.number(t.get("height", _MISSING), f"{key}.height", "m", positive=True)
+        elif "height" in t:
+            raise self.fail(f"{key}.height", 'no value: a plate has no height (section = "box" has)', t["height"])
+        thickness = self.number(t.get("thickness", _MISSING), f"{key}.thickness", "m", positive=True)
+        if not thickness < min(width, height or width) / 2:
+            raise self.fail(f"{key}.thickness", "a thickness below half the width and height (a thin wall)",
+                            thickness)
+        n_mesh = 3 if section == "box" else 2
+        what = "[nx, nw, nh]" if section == "box" else "[nx, nw]"
+        raw = t.get("mesh", _MISSING)
+        expected = f"a list {what} of integers ≥ 1 (elements along the length, across the width" + (
+            ", across the height)" if section == "box" else ")")
+        if raw is _MISSING or not isinstance(raw, list) or len(raw) != n_mesh or not all(
+                isinstance(m, int) and not isinstance(m, bool) and m >= 1 for m in raw):
+            raise self.fail(f"{key}.mesh", expected, raw)
+        pattern = self.string(t.get("pattern", "symmetric"), f"{key}.pattern", MESH_PATTERNS)
+        modes = self.modes(t, key)
+        nx, nw = raw[0], raw[1]
+        with_mass = 3 * nx * (2 * (nw + raw[2]) if section == "box" else nw + 1)   # translations off the root
+        if modes is not None and modes > with_mass:
+            raise self.fail(f"{key}.modes", f"at most {with_mass} (the mesh's translational degrees of freedom "
+                            "off the root)", modes)
+        return Shapes(kind="shell", count=int(raw[0]), modes=modes, section=section, width=width, height=height,
+                      thickness=thickness, mesh=tuple(int(m) for m in raw), pattern=pattern)
+
+    def modes(self, t: dict, key: str) -> int | None:
+        if "modes" not in t:
+            return None
+        m = t["modes"]
+        if not isinstance(m, int) or isinstance(m, bool) or m < 1:
+            raise self.fail(f"{key}.modes", "an integer ≥ 1 (modes kept, joint held)", m)
+        return m
 
     def linear_density(self, t: dict, key: str) -> float:
         """Exactly one way to give the mass per length, so that the two can never disagree."""
@@ -516,7 +616,13 @@ class _Parser:
         if not isinstance(count, int) or isinstance(count, bool) or count < 1:
             what = "number of elements" if kind == "fe" else "number of shape functions"
             raise self.fail(f"{key}.count", f"an integer ≥ 1 ({what})", count)
-        return Shapes(kind=kind, count=count)
+        modes = self.modes(t, key)
+        if modes is not None and kind != "fe":
+            raise self.fail(f"{key}.modes", 'no value: only finite-element links (kind = "fe" or "shell") are '
+                            "reduced to modes", modes)
+        if modes is not None and modes > 2 * count:
+            raise self.fail(f"{key}.modes", f"at most {2 * count} (2 coordinates per element)", modes)
+        return Shapes(kind=kind, count=count, modes=modes)
 
     def payload(self, value: Any, key: str) -> Payload:
         t = self.table(value, key, _PAYLOAD_KEYS, "a table {mass = …, inertia = …, offset = [x, y, z]}")

@@ -377,7 +377,7 @@ BAD = [
     ("deformation-str", _set("link", 0, "deformation", "v"), "link[1].deformation", "a list of distinct"),
     # shapes
     ("shape-kind", _set("link", 1, "shapes", "kind", "spline"), "link[2].shapes.kind",
-     'one of "clamped-free", "polynomial", "fe", got "spline"'),
+     'one of "clamped-free", "polynomial", "fe", "shell", got "spline"'),
     ("shape-count-0", _set("link", 1, "shapes", "count", 0), "link[2].shapes.count",
      "an integer ≥ 1 (number of elements), got 0"),
     ("shape-count-float", _set("link", 0, "shapes", {"count": 2.5}), "link[1].shapes.count",

@@ -1,0 +1,122 @@
+"""A finite-element link brought into the floating frame: the constant integrals of its reduced basis.
+
+The displacement field of a shell link is u(X) = Φ(X) η over its mid-surface, Φ the fixed-interface modes
+(:mod:`flexlink.shapes.reduction`).  Everything the kinetic and gravitational energies need is then a sum
+over the mesh's mass points (DESIGN.md §2, seed 001 §5.7), computed once here, per unit density:
+
+    V = Σ m,  ∫X,  ∫X Xᵀ,  S = ∫Φ,  B_ab = ∫X_a Φ_b,  C_ab = ∫Φ_aᵀ Φ_b  (a, b ∈ x, y, z).
+
+The mass points are exact for the linear interpolation of the translations, so these are the integrals of
+the discrete model itself, not an approximation of them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from flexlink.scene import Link
+
+from .reduction import ModalBasis, _unit_peak, fixed_interface_modes
+
+
+@dataclass(frozen=True)
+class BodyIntegrals:
+    """Constant integrals of one reduced FE link, for unit density and unit Young's modulus."""
+
+    volume: float
+    first: np.ndarray            # (3,)        ∫ X dV
+    second: np.ndarray           # (3, 3)      ∫ X Xᵀ dV
+    modal: np.ndarray            # (3, N)      ∫ Φ dV
+    x_modal: np.ndarray          # (3, 3, N)   [a, b] = ∫ X_a Φ_b dV
+    pairs: np.ndarray            # (3, 3, N, N) [a, b] = ∫ Φ_aᵀ Φ_b dV
+    stiffness: np.ndarray        # (N, N)      Ψᵀ K Ψ / E
+    tip_point: np.ndarray        # (3,)        undeformed tip point (mid-point of the free edge / section centre)
+    tip_translation: np.ndarray  # (3, N)      its displacement
+    tip_rotation: np.ndarray     # (3, N)      rotation vector of the free end section (twist = component x)
+    frequencies_hz: np.ndarray   # (N,)        of the link alone, joint held, at the scene's E and density
+
+    @property
+    def n(self) -> int:
+        return self.stiffness.shape[0]
+
+    @property
+    def mass_matrix(self) -> np.ndarray:
+        return self.pairs[0, 0] + self.pairs[1, 1] + self.pairs[2, 2]
+
+
+def shell_assembly(link: Link):
+    """The scene's shell mesh, assembled (seed 001 §5.2–5.6)."""
+    from .shell import assemble_shell, box_mesh, plate_mesh
+
+    s = link.shapes
+    if s.section == "box":
+        mesh = box_mesh(link.length, s.width, s.height, *s.mesh, pattern=s.pattern)
+    else:
+        mesh = plate_mesh(link.length, s.width, *s.mesh, pattern=s.pattern)
+    return assemble_shell(mesh, s.thickness, link.E, link.poisson, link.density)
+
+
+def _end_section(assembly, Psi_full: np.ndarray, section: str):
+    """Rows (3, N) of the tip point's translation and of the end section's rotation vector: a rigid fit of the
+    end nodes' displacements (the twist from the edge corners), the bending slope of a plate from its nodes'
+    rotations (a flat section has no extent along its normal to fit it from)."""
+    mesh = assembly.mesh
+    X = mesh.nodes
+    end = np.flatnonzero(np.abs(X[:, 0] - X[:, 0].max()) < 1e-9 * max(1.0, X[:, 0].max()))
+    disp = np.stack([Psi_full[[assembly.dof(k, c) for k in end]] for c in range(3)], axis=1)   # (e, 3, N)
+    rot = np.stack([Psi_full[[assembly.dof(k, 3 + c) for k in end]] for c in range(3)], axis=1)
+    centre = X[end].mean(axis=0)
+    d = X[end] - centre
+    # u_i = t + r × d_i: least squares over the end nodes, per mode
+    rows = []
+    for di in d:
+        rows.append(np.hstack([np.eye(3), -np.array([[0, -di[2], di[1]], [di[2], 0, -di[0]], [-di[1], di[0], 0]])]))
+    A = np.vstack(rows)
+    spread = np.linalg.norm(A[:, 3:], axis=0) > 1e-12
+    fit = np.linalg.lstsq(A[:, np.r_[0:3, 3 + np.flatnonzero(spread)]], disp.reshape(-1, disp.shape[2]), rcond=None)[0]
+    rotation = rot.mean(axis=0)
+    rotation[np.flatnonzero(spread)] = fit[3:]
+    if section == "plate":
+        mid = end[np.argsort(np.abs(X[end, 2]))]
+        mid = mid[np.abs(np.abs(X[mid, 2]) - np.abs(X[mid[0], 2])) < 1e-9]      # the middle node, or the two
+        point = X[mid].mean(axis=0)
+        translation = np.mean([disp[list(end).index(k)] for k in mid], axis=0)
+    else:
+        point, translation = centre, fit[:3]
+    return point, translation, rotation
+
+
+def shell_body(link: Link) -> BodyIntegrals:
+    """Reduce the link's shell model to ``shapes.modes`` fixed-interface modes (all if not given)."""
+    assembly = shell_assembly(link)
+    free = assembly.free_dofs
+    K = assembly.stiffness[free][:, free]
+    M = assembly.mass[free][:, free]
+    basis: ModalBasis = fixed_interface_modes(K, M, link.shapes.modes)
+    Psi = np.zeros((assembly.stiffness.shape[0], basis.shapes.shape[1]))
+    Psi[free] = basis.shapes
+    point, translation, rotation = _end_section(assembly, Psi, link.shapes.section)
+    # η in metres: each mode scaled to a peak translation of one over the mesh
+    trans = Psi.reshape(-1, 6, Psi.shape[1])[:, :3].reshape(-1, Psi.shape[1])
+    scaled = _unit_peak(trans, np.eye(Psi.shape[1]))
+    Psi, translation, rotation = Psi @ scaled, translation @ scaled, rotation @ scaled
+    mp = assembly.mass_points
+    m = mp.m / link.density
+    U = (mp.N @ Psi).reshape(len(m), 3, -1)                       # (P, 3, N)
+    Xp = mp.X
+    Km = Psi.T @ (assembly.stiffness @ Psi) / link.E
+    return BodyIntegrals(
+        volume=float(m.sum()),
+        first=m @ Xp,
+        second=(Xp * m[:, None]).T @ Xp,
+        modal=np.einsum("p,pbn->bn", m, U),
+        x_modal=np.einsum("p,pa,pbn->abn", m, Xp, U),
+        pairs=np.einsum("p,pan,pbk->abnk", m, U, U, optimize=True),
+        stiffness=0.5 * (Km + Km.T),
+        tip_point=point,
+        tip_translation=translation,
+        tip_rotation=rotation,
+        frequencies_hz=basis.frequencies_hz,
+    )

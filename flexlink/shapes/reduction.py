@@ -1,0 +1,127 @@
+"""Reduction of a finite-element link to the modes a scene needs (issue 9).
+
+The link is clamped to its joint frame, so its interface (the root nodes) is held: the fixed-interface
+modes of Craig–Bampton.  Craig–Bampton's constraint modes of that interface are the rigid motions of the
+frame itself, which the floating-frame model already carries as the joint coordinates, so the reduced
+basis is the first N fixed-interface modes.  Degrees of freedom that carry no mass (the rotations of a
+DKT plate whose mass is interpolated from w alone, the drilling rotations) are condensed statically
+first: with no inertia they follow the massive ones exactly (K_ss x_s = −K_sm x_m), so the condensation
+changes nothing but the size of the eigenproblem.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse
+
+from .base import ShapeBasis
+from .torsion import TorsionIntegrals
+
+
+@dataclass(frozen=True)
+class ModalBasis:
+    """Ψ (n_dof × N), M-orthonormal columns, with their ω² in ascending order."""
+
+    omega2: np.ndarray
+    shapes: np.ndarray
+
+    @property
+    def frequencies_hz(self) -> np.ndarray:
+        return np.sqrt(np.maximum(self.omega2, 0.0)) / (2 * np.pi)
+
+
+def _dense(a) -> np.ndarray:
+    return a.toarray() if scipy.sparse.issparse(a) else np.asarray(a, dtype=float)
+
+
+def fixed_interface_modes(stiffness, mass, count: int | None = None) -> ModalBasis:
+    """The first ``count`` (all if None) modes of K x = ω² M x on the free degrees of freedom.
+
+    ``stiffness`` and ``mass`` are symmetric, K positive definite (the interface already removed);
+    M may be singular, but only through degrees of freedom with no mass at all.
+    """
+    K = _dense(stiffness)
+    M = _dense(mass)
+    n = K.shape[0]
+    if K.shape != (n, n) or M.shape != (n, n):
+        raise ValueError(f"stiffness and mass must be square and of the same size, got {K.shape} and {M.shape}")
+    scale = np.max(np.abs(M)) if M.size else 0.0
+    massive = np.flatnonzero(np.max(np.abs(M), axis=1) > 1e-14 * scale) if scale > 0 else np.arange(0)
+    massless = np.setdiff1d(np.arange(n), massive)
+    if massive.size == 0:
+        raise ValueError("the link has no mass")
+    Kmm = K[np.ix_(massive, massive)]
+    if massless.size:
+        Kss = K[np.ix_(massless, massless)]
+        Ksm = K[np.ix_(massless, massive)]
+        recover = -scipy.linalg.cho_solve(scipy.linalg.cho_factor(Kss), Ksm)
+        Kmm = Kmm + K[np.ix_(massive, massless)] @ recover
+        Kmm = 0.5 * (Kmm + Kmm.T)
+    m = massive.size
+    count = m if count is None else int(count)
+    if not 1 <= count <= m:
+        raise ValueError(f"modes must be between 1 and {m} (the link's degrees of freedom with mass), got {count}")
+    w2, X = scipy.linalg.eigh(Kmm, M[np.ix_(massive, massive)], subset_by_index=[0, count - 1])
+    shapes = np.zeros((n, count))
+    shapes[massive] = X
+    if massless.size:
+        shapes[massless] = recover @ X
+    return ModalBasis(w2, shapes)
+
+
+def _unit_peak(values: np.ndarray, shapes: np.ndarray) -> np.ndarray:
+    """Scale each mode to a peak displacement of one, so that η is in metres (or radians) like the FE
+    coordinates it replaces, whatever the density; the sign makes that peak positive."""
+    peak = values[np.argmax(np.abs(values), axis=0), np.arange(values.shape[1])]
+    return shapes / np.where(peak != 0, peak, 1.0)
+
+
+class ModalBeamBasis(ShapeBasis):
+    """The first ``modes`` clamped modes of a Hermite FE beam, as a shape family of their own: the
+    integrals are those of the FE basis projected on the modes (exact), so the model is unchanged."""
+
+    def __init__(self, fe: ShapeBasis, modes: int):
+        super().__init__(fe.count, fe.length, fe.linear_density)
+        g = fe.integrals
+        basis = fixed_interface_modes(g.curv, g.phi_phi, modes)
+        nodes = np.linspace(0.0, fe.length, 4 * fe.count + 1)
+        self.fe = fe
+        self.modes = basis.shapes.shape[1]
+        self.psi = _unit_peak(fe.evaluate(nodes) @ basis.shapes, basis.shapes)
+        self.kind = f"{fe.kind} ({self.modes} modes)"
+
+    @property
+    def n(self) -> int:
+        return self.modes
+
+    def _evaluate(self, x: np.ndarray, derivative: int) -> np.ndarray:
+        return self.fe._evaluate(x, derivative) @ self.psi
+
+    def _quadrature(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.fe._quadrature()
+
+
+class ModalTorsionBasis:
+    """The first ``modes`` clamped twist modes of linear torsion elements (see ModalBeamBasis)."""
+
+    def __init__(self, fe, modes: int):
+        g = fe.integrals
+        basis = fixed_interface_modes(g.stiff, g.phi_phi, min(modes, fe.n))
+        self.fe, self.kind, self.count, self.length = fe, fe.kind, fe.count, fe.length
+        self.psi = _unit_peak(fe.evaluate(np.linspace(0.0, fe.length, fe.count + 1)) @ basis.shapes, basis.shapes)
+
+    @property
+    def n(self) -> int:
+        return self.psi.shape[1]
+
+    def evaluate(self, x, derivative: int = 0) -> np.ndarray:
+        return self.fe.evaluate(x, derivative) @ self.psi
+
+    @functools.cached_property
+    def integrals(self) -> TorsionIntegrals:
+        g, P = self.fe.integrals, self.psi
+        return TorsionIntegrals(phi_phi=P.T @ g.phi_phi @ P, phi=g.phi @ P, stiff=P.T @ g.stiff @ P, tip=g.tip @ P)
