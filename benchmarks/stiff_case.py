@@ -21,9 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -70,6 +68,7 @@ def ss22_run(fmu, case, coords: list[str], step: float, theta: float, repeats: i
     import fmpy
     from fmpy.fmi2 import FMU2Slave
 
+    from flexlink.bench import time_slave
     from flexlink.simulate import SlaveRunner
 
     start = {"solver.step": step, "solver.theta1": theta, "solver.theta2": theta}
@@ -83,26 +82,12 @@ def ss22_run(fmu, case, coords: list[str], step: float, theta: float, repeats: i
     s = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier,
                   instanceName="stiff")
     s.instantiate()
-    bounds = [0.0, *case.switches, case.stop]
-    cpu = []
     try:
-        for _ in range(repeats):
-            s.reset()
-            for name, value in start.items():
-                s.setReal([vr[name]], [value])
-            s.setupExperiment(startTime=0.0)
-            s.enterInitializationMode()
-            s.exitInitializationMode()
-            t0 = time.process_time()
-            for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
-                u = case.inputs_at(lo)
-                s.setReal([vr[k] for k in u], list(u.values()))
-                s.doStep(lo, hi - lo)
-            cpu.append(time.process_time() - t0)
+        cost = time_slave(s, vr, case, start, repeats)
     finally:
         s.terminate()
         s.freeInstance()
-    return statistics.median(cpu) / case.stop, Q
+    return cost, Q
 
 
 def run_stiff(scene_path=SCENE, *, quick: bool = False, repeats: int | None = None,

@@ -94,6 +94,28 @@ def reference_outputs(case: BenchCase, rtol: float = 1e-12) -> dict[str, np.ndar
 
 # ------------------------------------------------------------------------------------------- the FMU
 
+def time_slave(slave, vr: dict, case: BenchCase, start: dict, repeats: int) -> float:
+    """Median CPU seconds per simulated second of an instantiated FMU2Slave over ``case``: reset, ``start``
+    set, then one fmi2DoStep per input switch, so that no Python loop is charged."""
+    bounds = [0.0, *case.switches, case.stop]
+    cpu = []
+    for _ in range(repeats):
+        slave.reset()
+        for name, value in start.items():
+            slave.setReal([vr[name]], [value])
+        slave.setupExperiment(startTime=0.0)
+        slave.enterInitializationMode()
+        slave.exitInitializationMode()
+        t0 = time.process_time()
+        for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+            u = case.inputs_at(lo)
+            if u:
+                slave.setReal([vr[k] for k in u], list(u.values()))
+            slave.doStep(lo, hi - lo)
+        cpu.append(time.process_time() - t0)
+    return statistics.median(cpu) / case.stop
+
+
 def bench_ss22(case: BenchCase, fmu, steps, thetas, ref, repeats: int = 5, order: int = 2) -> list[BenchRow]:
     import fmpy
     from fmpy.fmi2 import FMU2Slave
@@ -107,7 +129,6 @@ def bench_ss22(case: BenchCase, fmu, steps, thetas, ref, repeats: int = 5, order
     timer = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier,
                       instanceName="bench")
     timer.instantiate()
-    bounds = [0.0, *case.switches, case.stop]
     try:
         with SlaveRunner(fmu) as runner:
             for theta in thetas:
@@ -117,24 +138,10 @@ def bench_ss22(case: BenchCase, fmu, steps, thetas, ref, repeats: int = 5, order
                     res = runner.run(case.stop, float(case.times[1] - case.times[0]), inputs=case.inputs_at,
                                      start=start, outputs=case.outputs)
                     err = relative_error(case, res, ref)
-                    cpu = []
-                    for _ in range(repeats):
-                        timer.reset()
-                        for name, value in start.items():
-                            timer.setReal([vr[name]], [value])
-                        timer.setupExperiment(startTime=0.0)
-                        timer.enterInitializationMode()
-                        timer.exitInitializationMode()
-                        t0 = time.process_time()
-                        for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
-                            u = case.inputs_at(lo)
-                            if u:
-                                timer.setReal([vr[k] for k in u], list(u.values()))
-                            timer.doStep(lo, hi - lo)
-                        cpu.append(time.process_time() - t0)
+                    cost = time_slave(timer, vr, case, start, repeats)
                     setting = f"step={h:g}" + ("" if theta == (0.5, 0.5) else f", theta={theta[0]:g}/{theta[1]:g}")
                     method = "ss22 (FMU)" if order == 2 else "ss22 order 4 (FMU, Richardson)"
-                    rows.append(BenchRow(method, setting, statistics.median(cpu) / case.stop, err))
+                    rows.append(BenchRow(method, setting, cost, err))
     finally:
         timer.terminate()
         timer.freeInstance()

@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import statistics
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -154,23 +152,9 @@ class _Runs:
                                start={"solver.step": step}, outputs=case.outputs)
 
     def cost(self, step: float, repeats: int) -> float:
-        case, s, vr = self.case, self.runner.slave, self.runner.vr
-        bounds = [0.0, *case.switches, case.stop]
-        cpu = []
-        for _ in range(repeats):
-            s.reset()
-            s.setReal([vr["solver.step"]], [step])
-            s.setupExperiment(startTime=0.0)
-            s.enterInitializationMode()
-            s.exitInitializationMode()
-            t0 = time.process_time()
-            for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
-                u = case.inputs_at(lo)
-                if u:
-                    s.setReal([vr[k] for k in u], list(u.values()))
-                s.doStep(lo, hi - lo)
-            cpu.append(time.process_time() - t0)
-        return statistics.median(cpu) / case.stop
+        from flexlink.bench import time_slave
+
+        return time_slave(self.runner.slave, self.runner.vr, self.case, {"solver.step": step}, repeats)
 
     def close(self) -> None:
         self.runner.close()
