@@ -40,6 +40,8 @@ class Level:
     def label(self, scene: Scene) -> str:
         kinds = sorted({link.shapes.kind for link in scene.links})
         word = SHAPE_WORDS.get(kinds[0], "shape") if len(kinds) == 1 else "shape"
+        if all(_reduced(link) for link in scene.links):
+            word = "mode"
         plural = "" if self.count == 1 else "s"
         per_link = " per link" if len(scene.links) > 1 else ""
         return f"{self.count} {word}{plural}{per_link}, {self.kinematics}, {'+'.join(self.deformation)}"
@@ -90,26 +92,55 @@ class Ladder:
 def deformation_levels(scene: Scene) -> list[tuple[str, ...]]:
     """Planar, then (when the scene has torsion and out-of-plane bending) bending only, then the scene's set."""
     union = tuple(f for f in ("v", "w", "alpha") if any(f in link.deformation for link in scene.links))
+    if any(link.is_shell for link in scene.links):
+        return [union]                      # a shell's modes deform in every direction
     out = [("v",), ("v", "w"), union] if {"w", "alpha"} <= set(union) else [("v",), union]
     out = [d for d in dict.fromkeys(out) if all(set(d) & set(link.deformation) for link in scene.links)]
     return out
 
 
+def _reduced(link) -> bool:
+    """A link whose ladder counts modes (a shell, or an FE beam reduced with ``shapes.modes``)."""
+    return link.is_shell or link.shapes.modes is not None
+
+
+def _max_modes(link) -> int:
+    """Modes a reduced link has: translations off the root (a shell), two per element (a Hermite beam)."""
+    s = link.shapes
+    if link.is_shell:
+        return 3 * s.mesh[0] * (2 * (s.mesh[1] + s.mesh[2]) if s.section == "box" else s.mesh[1] + 1)
+    return 2 * s.count
+
+
+def shape_count(link) -> int:
+    if not _reduced(link):
+        return link.shapes.count
+    return link.shapes.modes or _max_modes(link)
+
+
+def top_kinematics(scene: Scene) -> str:
+    """Second order, unless a shell link has no such model (its element has no large-deflection strain)."""
+    return "first-order" if any(link.is_shell for link in scene.links) else "second-order"
+
+
 def levels(scene: Scene, counts=None, kinematics=None, quick: bool = False) -> list[Level]:
     """Counts × kinematics with the scene's deformation; the scene's own count is always one, the largest is the
     truth's."""
-    counts = sorted(set(counts or (QUICK_COUNTS if quick else COUNTS)) | {scene.links[0].shapes.count})
+    counts = sorted(set(counts or (QUICK_COUNTS if quick else COUNTS)) | {shape_count(scene.links[0])})
+    counts = [n for n in counts if all(n <= _max_modes(link) for link in scene.links if _reduced(link))]
     if counts[0] < 1:
         raise FlexlinkError(f"shape counts must be positive, got {counts}")
-    kinematics = list(kinematics or KINEMATICS)
-    if "second-order" not in kinematics:
-        kinematics.append("second-order")
+    top = top_kinematics(scene)
+    kinematics = [k for k in (kinematics or KINEMATICS) if k != "second-order" or top == "second-order"]
+    if top not in kinematics:
+        kinematics.append(top)
     return [Level(n, k, deformation_levels(scene)[-1]) for k in kinematics for n in counts]
 
 
 def variant(scene: Scene, level: Level) -> Scene:
     """The scene's arm modelled at ``level`` (a distinct FMU identifier, so that variants can coexist)."""
-    links = tuple(dataclasses.replace(link, shapes=dataclasses.replace(link.shapes, count=level.count),
+    links = tuple(dataclasses.replace(link, shapes=dataclasses.replace(link.shapes, modes=level.count)
+                                      if _reduced(link) else dataclasses.replace(link.shapes, count=level.count),
                                       kinematics=level.kinematics,
                                       deformation=tuple(f for f in link.deformation if f in level.deformation))
                   for link in scene.links)
@@ -210,7 +241,7 @@ def run_ladder(scene_path, *, target: float | None = None, quick: bool = False, 
     repeats = repeats or (1 if quick else 3)
     deformations = deformation_levels(scene)
     factorial = levels(scene, counts, kinematics, quick)
-    top = Level(max(lv.count for lv in factorial), "second-order", deformations[-1])
+    top = Level(max(lv.count for lv in factorial), top_kinematics(scene), deformations[-1])
 
     # phase 1: every level's equations under CVODES, against the truth's
     truth = _measure(scene, top, stop, progress)
@@ -238,7 +269,7 @@ def run_ladder(scene_path, *, target: float | None = None, quick: bool = False, 
     order = sorted(measured.values(), key=lambda m: (m.n_q, KINEMATICS.index(m.level.kinematics)))
     best_cost = math.inf
     rungs = []
-    own = Level(scene.links[0].shapes.count, scene.links[0].kinematics, deformations[-1])
+    own = Level(shape_count(scene.links[0]), scene.links[0].kinematics, deformations[-1])
     for m in order:
         progress(f"fidelity: SS22 FMU of {m.level.label(scene)}")
         runs = _Runs(m.case, m.fmu)

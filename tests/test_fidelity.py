@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from flexlink.bench import default_case, reference_outputs, relative_error
-from flexlink.fidelity import Level, deformation_levels, recommend, run_ladder, variant
+from flexlink.fidelity import Level, deformation_levels, levels, recommend, run_ladder, variant
 from flexlink.model import build_model
 from flexlink.scene import load_scene, parse_scene
 
@@ -136,3 +136,14 @@ def test_cli_bad_error_target(value):
     lines = out.stderr.strip().splitlines()
     assert len(lines) == 1 and "--error-target" in lines[0] and "positive" in lines[0], out.stderr
     assert out.stdout == ""
+
+
+def test_reduced_links_climb_the_ladder_in_modes():
+    """A shell (or a reduced FE beam) is varied in its number of modes, not its mesh, and a shell has no
+    second-order level: the truth is first-order with the most modes."""
+    scene = load_scene("examples/plate_raise.toml")
+    ladder = levels(scene, quick=True)
+    assert {lv.kinematics for lv in ladder} == {"linear", "first-order"}
+    assert max(lv.count for lv in ladder) == scene.links[0].shapes.modes
+    for lv in ladder:
+        assert build_model(variant(scene, lv)).n_q == lv.count
