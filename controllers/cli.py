@@ -152,7 +152,12 @@ def cmd_control(args) -> int:
         raise FlexlinkError(f"--duration must be a positive number of seconds, got {args.duration}")
     limit = args.torque_limit if args.torque_limit is not None else default_torque_limit(plant, delta,
                                                                                           args.duration)
-    d = design(model, torque_limit=limit, dt=args.sample_time, sensors=args.sensors)
+    try:
+        d = design(model, torque_limit=limit, dt=args.sample_time, sensors=args.sensors)
+    except (ValueError, np.linalg.LinAlgError) as e:
+        # e.g. the Riccati solver on a model with uncontrollable high modes (a symmetric plate's torsion)
+        raise FlexlinkError(f"{args.scene}: the LQR/Kalman design failed ({e}); a model with fewer modes "
+                            "(shapes.modes) may help") from None
     fmu = cached_fmu(args.scene)          # built (or found in the cache) before the timed run
     with FmuLoop(fmu) as loop:
         for name in run_params:

@@ -583,6 +583,9 @@ def build_model(scene: Scene) -> SymbolicModel:
                             tip.position[k] - float(part.body.tip_point[k])))
             out.append((Signal(f"{link.name}.tip.twist", "rad", "twist of the end section (rigid fit of its nodes)"),
                         tip.rotation_vector[0]))
+            out.append((Signal(f"{link.name}.root.moment", "N.m", "elastic bending moment at the root about the "
+                               "joint axis (clamp reactions of the modes)"),
+                        p[part.i_EI] * ca.dot(ca.DM(part.body.root_moment), ca.vertcat(*[qa[k] for k in part.eta]))))
         if "v" in part.fields:
             out.append((Signal(f"{link.name}.tip.v", "m", "in-plane tip deflection v(L)"), tip.position[1]))
         if "w" in part.fields:

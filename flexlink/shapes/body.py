@@ -35,6 +35,7 @@ class BodyIntegrals:
     tip_point: np.ndarray        # (3,)        undeformed tip point (mid-point of the free edge / section centre)
     tip_translation: np.ndarray  # (3, N)      its displacement
     tip_rotation: np.ndarray     # (3, N)      rotation vector of the free end section (twist = component x)
+    root_moment: np.ndarray      # (N,)        elastic bending moment at the root about the joint axis z, per unit E
     frequencies_hz: np.ndarray   # (N,)        of the link alone, joint held, at the scene's E and density
 
     @property
@@ -107,6 +108,11 @@ def shell_body(link: Link) -> BodyIntegrals:
     U = (mp.N @ Psi).reshape(len(m), 3, -1)                       # (P, 3, N)
     Xp = mp.X
     Km = Psi.T @ (assembly.stiffness @ Psi) / link.E
+    # the clamp's reactions K_rf u_f on the root nodes; their moment about z (at x = 0: m_z − y f_x) is minus
+    # the elastic moment the link carries there (EI v''(0) for a beam)
+    reaction = (assembly.stiffness @ Psi) / link.E
+    support = sum(reaction[assembly.dof(k, 5)] - assembly.mesh.nodes[k, 1] * reaction[assembly.dof(k, 0)]
+                  for k in assembly.mesh.root_nodes)
     return BodyIntegrals(
         volume=float(m.sum()),
         first=m @ Xp,
@@ -118,5 +124,6 @@ def shell_body(link: Link) -> BodyIntegrals:
         tip_point=point,
         tip_translation=translation,
         tip_rotation=rotation,
+        root_moment=-support,
         frequencies_hz=basis.frequencies_hz,
     )
