@@ -561,6 +561,9 @@ class _Parser:
                 isinstance(m, int) and not isinstance(m, bool) and m >= 1 for m in raw):
             raise self.fail(f"{key}.mesh", expected, raw)
         pattern = self.string(t.get("pattern", "symmetric"), f"{key}.pattern", MESH_PATTERNS)
+        if pattern == "symmetric" and any(m % 2 for m in raw[1:]):
+            raise self.fail(f"{key}.mesh", f"{what} with even counts across (the symmetric pattern mirrors the "
+                            'diagonals about the mid-line), or pattern = "A" or "B"', raw)
         modes = self.modes(t, key)
         nx, nw = raw[0], raw[1]
         with_mass = 3 * nx * (2 * (nw + raw[2]) if section == "box" else nw + 1)   # translations off the root

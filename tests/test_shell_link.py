@@ -194,6 +194,8 @@ def test_symmetric_plate_does_not_twist_under_a_symmetric_motion():
      r"link\[1\]\.shapes\.height"),
     ({"shapes": {"kind": "shell", "section": "plate", "width": 0.2, "thickness": 0.006, "mesh": [5, 2],
                  "modes": 46}}, "at most 45"),
+    ({"shapes": {"kind": "shell", "section": "plate", "width": 0.2, "thickness": 0.006, "mesh": [5, 3]}},
+     r"link\[1\]\.shapes\.mesh: expected \[nx, nw\] with even counts"),
 ])
 def test_bad_shell_links_are_refused_with_the_key(change, key):
     data = json.loads(json.dumps(DATA))
