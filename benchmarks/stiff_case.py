@@ -65,8 +65,6 @@ def errors(q: np.ndarray, q_ref: np.ndarray, P: np.ndarray, c: np.ndarray) -> di
 def ss22_run(fmu, case, coords: list[str], step: float, theta: float, repeats: int) -> tuple[float, np.ndarray]:
     """Positions at ``case.times`` (SlaveRunner, 10 ms communication steps) and the median CPU seconds per
     simulated second of the same run as one fmi2DoStep per input switch."""
-    import fmpy
-    from fmpy.fmi2 import FMU2Slave
 
     from flexlink.bench import time_slave
     from flexlink.simulate import SlaveRunner
@@ -75,18 +73,8 @@ def ss22_run(fmu, case, coords: list[str], step: float, theta: float, repeats: i
     sample = float(case.times[1] - case.times[0])
     with SlaveRunner(fmu) as runner:
         res = runner.run(case.stop, sample, inputs=case.inputs_at, start=start, outputs=coords)
+        cost = time_slave(runner.slave, runner.vr, case, start, repeats)
     Q = np.column_stack([res[name] for name in coords])
-    md = fmpy.read_model_description(str(fmu))
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    unzipdir = fmpy.extract(str(fmu))
-    s = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier,
-                  instanceName="stiff")
-    s.instantiate()
-    try:
-        cost = time_slave(s, vr, case, start, repeats)
-    finally:
-        s.terminate()
-        s.freeInstance()
     return cost, Q
 
 

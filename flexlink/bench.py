@@ -117,34 +117,19 @@ def time_slave(slave, vr: dict, case: BenchCase, start: dict, repeats: int) -> f
 
 
 def bench_ss22(case: BenchCase, fmu, steps, thetas, ref, repeats: int = 5, order: int = 2) -> list[BenchRow]:
-    import fmpy
-    from fmpy.fmi2 import FMU2Slave
-
     from flexlink.simulate import SlaveRunner
 
     rows = []
-    md = fmpy.read_model_description(str(fmu))
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    unzipdir = fmpy.extract(str(fmu))
-    timer = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier,
-                      instanceName="bench")
-    timer.instantiate()
-    try:
-        with SlaveRunner(fmu) as runner:
-            for theta in thetas:
-                for h in steps:
-                    start = {"solver.step": h, "solver.theta1": theta[0], "solver.theta2": theta[1],
-                             "solver.order": order}
-                    res = runner.run(case.stop, float(case.times[1] - case.times[0]), inputs=case.inputs_at,
-                                     start=start, outputs=case.outputs)
-                    err = relative_error(case, res, ref)
-                    cost = time_slave(timer, vr, case, start, repeats)
-                    setting = f"step={h:g}" + ("" if theta == (0.5, 0.5) else f", theta={theta[0]:g}/{theta[1]:g}")
-                    method = "ss22 (FMU)" if order == 2 else "ss22 order 4 (FMU, Richardson)"
-                    rows.append(BenchRow(method, setting, cost, err))
-    finally:
-        timer.terminate()
-        timer.freeInstance()
+    with SlaveRunner(fmu) as runner:
+        for theta in thetas:
+            for h in steps:
+                start = {"solver.step": h, "solver.theta1": theta[0], "solver.theta2": theta[1], "solver.order": order}
+                res = runner.run(case.stop, float(case.times[1] - case.times[0]), inputs=case.inputs_at,
+                                 start=start, outputs=case.outputs)
+                cost = time_slave(runner.slave, runner.vr, case, start, repeats)     # after run(): it resets
+                setting = f"step={h:g}" + ("" if theta == (0.5, 0.5) else f", theta={theta[0]:g}/{theta[1]:g}")
+                method = "ss22 (FMU)" if order == 2 else "ss22 order 4 (FMU, Richardson)"
+                rows.append(BenchRow(method, setting, cost, relative_error(case, res, ref)))
     return rows
 
 
