@@ -100,26 +100,13 @@ class _Fmu:
         return cls(guid=self.md.guid, unzipDirectory=self.dir, modelIdentifier=ident, instanceName=name)
 
 
-def _quiet_callbacks(messages: list | None = None):
-    """fmi2 callbacks whose logger collects the messages instead of printing them."""
-    from fmpy.fmi2 import defaultCallbacks, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
+def _quiet_callbacks():
+    """fmi2 callbacks that drop the FMU's messages (the checks read statuses, not log lines), through
+    flexlink's one logger router: fmpy's native logger proxy is process-wide, and a logger of our own
+    registered there would be called after it is freed by whichever FMU logs next (a segfault)."""
+    from flexlink.simulate import logging_callbacks
 
-    def log(env, name, status, category, message):
-        if messages is not None and len(messages) < 1000:
-            messages.append((status, message.decode(errors="replace") if message else ""))
-
-    cb = fmi2CallbackFunctions()
-    cb.logger = fmi2CallbackLoggerTYPE(log)
-    cb.allocateMemory = defaultCallbacks.allocateMemory
-    cb.freeMemory = defaultCallbacks.freeMemory
-    try:
-        from fmpy.logging import addLoggerProxy
-
-        addLoggerProxy(ctypes.byref(cb))
-    except Exception:
-        pass
-    cb._keep = log     # keep the Python callback alive
-    return cb
+    return logging_callbacks(lambda *message: None)
 
 
 def _call(fn, *args):
