@@ -7,11 +7,29 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 from scipy.optimize import brentq
 
 from flexlink.scene import Scene, parse_scene
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+@pytest.fixture(scope="session")
+def example_fmu(tmp_path_factory):
+    """``example_fmu(name)``: the FMU of examples/<name>.toml, built once per test session (several test files
+    check the same examples; the FMUs are only read)."""
+    from flexlink.fmu import build_fmu
+
+    directory = tmp_path_factory.mktemp("example_fmus")
+    built: dict[str, Path] = {}
+
+    def get(name: str) -> Path:
+        if name not in built:
+            built[name] = build_fmu(EXAMPLES / f"{name}.toml", directory / f"{name}.fmu").fmu
+        return built[name]
+
+    return get
+
 
 # Seed 000 §3.4.3 link (examples/rotating_link.toml): E = 71 GPa, I_z = 1.32e-9 m^4, rho = 0.349 kg/m, L = 2.2 m.
 SEED000_LINK = {"length": 2.2, "linear_density": 0.349, "EI": 93.72}

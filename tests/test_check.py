@@ -15,21 +15,19 @@ import pytest
 from flexlink.cbuild import compile_shared_library
 from flexlink.check import check_fmu, write_report
 from flexlink.cli import main
-from flexlink.fmu import build_fmu
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 NAMES = sorted(p.stem for p in EXAMPLES.glob("*.toml"))
 
 
 @pytest.fixture(scope="module")
-def rotating(tmp_path_factory):
-    d = tmp_path_factory.mktemp("check")
-    return build_fmu(EXAMPLES / "rotating_link.toml", d / "rotating_link.fmu").fmu
+def rotating(example_fmu):
+    return example_fmu("rotating_link")
 
 
 @pytest.mark.parametrize("name", NAMES)
-def test_every_example_passes_the_check(tmp_path, name):
-    fmu = build_fmu(EXAMPLES / f"{name}.toml", tmp_path / f"{name}.fmu").fmu
+def test_every_example_passes_the_check(tmp_path, example_fmu, name):
+    fmu = example_fmu(name)
     assert main(["check", str(fmu), "--report", str(tmp_path / "report"), "--fuzz", "40"]) == 0
     data = json.loads((tmp_path / "report" / "report.json").read_text())
     assert data["passed"]

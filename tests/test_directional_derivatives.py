@@ -10,17 +10,14 @@ import numpy as np
 import pytest
 
 from flexlink.check import _Fmu, check_directional_derivatives
-from flexlink.fmu import build_fmu
 from flexlink.linearize import fmu_state_space, linear_plant
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
-    d = tmp_path_factory.mktemp("dd_fmus")
-    names = ["rotating_link", "flexible_pendulum", "steel_beam_raise"]
-    return {n: build_fmu(EXAMPLES / f"{n}.toml", d / f"{n}.fmu").fmu for n in names}
+def fmus(example_fmu):
+    return {n: example_fmu(n) for n in ["rotating_link", "flexible_pendulum", "steel_beam_raise"]}
 
 
 @pytest.mark.parametrize("name", ["rotating_link", "flexible_pendulum", "steel_beam_raise"])
@@ -35,8 +32,8 @@ def test_directional_derivatives_match_central_differences(fmus, name):
 
 
 @pytest.mark.parametrize("name", ["rotating_link", "rotating_link_linear", "rotating_link_payload"])
-def test_lqr_from_the_fmu_alone_equals_lqr_from_the_model(tmp_path, name):
-    fmu = build_fmu(EXAMPLES / f"{name}.toml", tmp_path / f"{name}.fmu").fmu
+def test_lqr_from_the_fmu_alone_equals_lqr_from_the_model(example_fmu, name):
+    fmu = example_fmu(name)
     outputs = ["hub.theta", "arm.tip.v", "arm.root.moment", "tip.sy"]
     plant = linear_plant(EXAMPLES / f"{name}.toml", outputs=outputs).sys
     sys = fmu_state_space(fmu, outputs=outputs)

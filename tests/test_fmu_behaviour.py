@@ -32,7 +32,6 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave, fmi2LastSuccessfulTime
 
 from flexlink.analysis import natural_frequencies
-from flexlink.fmu import build_fmu
 from flexlink.model import build_model
 from flexlink.scene import load_scene
 from flexlink.simulate import logging_callbacks
@@ -115,11 +114,11 @@ class Slave:
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory) -> dict[str, Built]:
+def fmus(tmp_path_factory, example_fmu) -> dict[str, Built]:
     out = tmp_path_factory.mktemp("behaviour")
     built = {}
     for name in SCENES:
-        fmu = build_fmu(EXAMPLES / f"{name}.toml", out / f"{name}.fmu").fmu
+        fmu = example_fmu(name)
         md = fmpy.read_model_description(str(fmu))
         b = Built(fmu, md, fmpy.extract(str(fmu), out / f"{name}.unzipped"))
         b.vr = {v.name: v.valueReference for v in md.modelVariables}

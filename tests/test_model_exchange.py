@@ -12,16 +12,14 @@ import pytest
 from fmpy.fmi2 import FMU2Model
 
 from flexlink.check import ME_VS_CS_ACCELERATION_TOLERANCE, ME_VS_CS_TOLERANCE, _Fmu, check_me_vs_cs
-from flexlink.fmu import build_fmu
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 NAMES = sorted(p.stem for p in EXAMPLES.glob("*.toml"))
 
 
 @pytest.fixture(scope="session")
-def me_fmus(tmp_path_factory):
-    d = tmp_path_factory.mktemp("me_fmus")
-    return {n: build_fmu(EXAMPLES / f"{n}.toml", d / f"{n}.fmu").fmu for n in NAMES}
+def me_fmus(example_fmu):
+    return {n: example_fmu(n) for n in NAMES}
 
 
 @pytest.mark.parametrize("name", NAMES)
