@@ -73,10 +73,10 @@ def main() -> None:
 
     from controllers.cosim import FmuLoop
     from controllers.manoeuvre import default_torque_limit, design, reference, rest_to_rest
-    from flexlink.fmu import cached_fmu
-    from flexlink.linearize import linear_plant
-    from flexlink.model import build_model
-    from flexlink.scene import load_scene
+    from flexlink.export.fmu import cached_fmu
+    from flexlink.mechanics.model import build_model
+    from flexlink.run.linearize import linear_plant
+    from flexlink.scene.loader import load_scene
 
     scenes = args.scenes or [str(ROOT / "examples" / s) for s in DEFAULT]
     dt, target, duration, settle = args.sample_time, math.pi / 2, 1.5, 1.5

@@ -41,7 +41,7 @@ def build_python_fmu(model, outputs: list[str], path: str | Path, substeps=SUBST
     import casadi as ca
     from pythonfmu import FmuBuilder
 
-    from flexlink.bench import _ode
+    from flexlink.tools.bench import _ode
 
     x, u, p, ode = _ode(model)
     f = ca.Function("f", [x, u, p], [ode])
@@ -127,7 +127,7 @@ def cvodes_per_step(case, comm_step: float, tol: float, repeats: int) -> tuple[f
     """CasADi's CVODES restarted at every communication step, called from a Python loop."""
     import casadi as ca
 
-    from flexlink.bench import _model_inputs, _ode, _outputs
+    from flexlink.tools.bench import _model_inputs, _ode, _outputs
 
     x, u, p, ode = _ode(case.model)
     F = ca.integrator("step", "cvodes", {"x": x, "p": ca.vertcat(u, p), "ode": ode}, 0.0, comm_step,
@@ -174,10 +174,10 @@ def equal_error_table(rows: list[dict]) -> list[dict]:
 
 def run_cosim(scene_path, *, quick: bool = False, repeats: int | None = None, comm_step: float = 1e-3,
               fmu: str | Path | None = None, workdir: str | Path | None = None) -> tuple[list[dict], dict]:
-    from flexlink.bench import default_case, reference_outputs, relative_error
-    from flexlink.fmu import build_fmu
-    from flexlink.model import build_model
-    from flexlink.scene import load_scene
+    from flexlink.export.fmu import build_fmu
+    from flexlink.mechanics.model import build_model
+    from flexlink.scene.loader import load_scene
+    from flexlink.tools.bench import default_case, reference_outputs, relative_error
 
     scene = load_scene(scene_path)
     model = build_model(scene)

@@ -52,8 +52,8 @@ def main() -> None:
     ap.add_argument("--sim-time", type=float, default=10.0)
     ap.add_argument("--large", action="store_true", help="also the 81-coordinate FE model (about 10 s to build)")
     args = ap.parse_args()
-    from flexlink.fmu import build_fmu
-    from flexlink.scene import load_scene
+    from flexlink.export.fmu import build_fmu
+    from flexlink.scene.loader import load_scene
 
     scenes = args.scenes or [str(ROOT / "examples" / s) for s in DEFAULT]
     if args.large:

@@ -55,9 +55,9 @@ TARGETS = {"floor": 3.0, "cvodes_per_step": 4.0, "python_fmu": 2.5, "stiff_error
 
 def build_times(quick: bool, tmp: Path) -> dict:
     """Build time of the one-link FMUs (median of 3; 1 in quick) and of the largest example (by coordinates)."""
-    from flexlink.fmu import build_fmu
-    from flexlink.model import build_model
-    from flexlink.scene import load_scene
+    from flexlink.export.fmu import build_fmu
+    from flexlink.mechanics.model import build_model
+    from flexlink.scene.loader import load_scene
 
     out: dict = {"fmus": {}, "builds": []}
     for key, path in SCENES.items():
@@ -77,7 +77,7 @@ def build_times(quick: bool, tmp: Path) -> dict:
 
 
 def measure_all(quick: bool, repeats: int | None) -> dict:
-    from flexlink.bench import run_bench
+    from flexlink.tools.bench import run_bench
 
     data: dict = {"quick": quick, "machine": f"{platform.machine()}, {platform.python_implementation()} "
                   f"{platform.python_version()}", "date": time.strftime("%Y-%m-%d")}

@@ -23,11 +23,11 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def main() -> None:
-    from flexlink.analysis import natural_frequencies
-    from flexlink.fmu import build_fmu
-    from flexlink.model import build_model
-    from flexlink.scene import load_scene
-    from flexlink.simulate import SlaveRunner
+    from flexlink.export.fmu import build_fmu
+    from flexlink.mechanics.analysis import natural_frequencies
+    from flexlink.mechanics.model import build_model
+    from flexlink.run.simulate import SlaveRunner
+    from flexlink.scene.loader import load_scene
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("scene", nargs="?", default=str(ROOT / "examples" / "plate_raise.toml"))

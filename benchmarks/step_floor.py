@@ -28,8 +28,8 @@ DEFAULT = ["rotating_link_linear.toml", "rotating_link.toml"]
 
 def compile_driver(fmu: str | Path, workdir: str | Path) -> Path:
     """Extract the FMU's ``sources/`` into ``workdir`` and compile the driver with them (an executable)."""
-    from flexlink.cbuild import compiler
     from flexlink.errors import BuildError
+    from flexlink.export.cbuild import compiler
 
     workdir = Path(workdir)
     src = workdir / "sources"
@@ -72,7 +72,7 @@ def manoeuvre_tokens(fmu: str | Path, case, start: dict[str, float]) -> list[str
 
 
 def measure(exe: Path, fmu: str | Path, case, *, step: float, order: int = 2, repeats: int = 11) -> dict:
-    """Run the compiled driver on ``case`` (a flexlink.bench.BenchCase) and return its figures, with
+    """Run the compiled driver on ``case`` (a flexlink.tools.bench.BenchCase) and return its figures, with
     ``per_step_over_floor`` = CPU time per internal step / floor."""
     import fmpy
 
@@ -88,10 +88,10 @@ def measure(exe: Path, fmu: str | Path, case, *, step: float, order: int = 2, re
 def measure_scene(scene_path: str | Path, *, step: float | None = None, orders=(2,), repeats: int = 11,
                   stop: float = 5.0, fmu: str | Path | None = None) -> list[dict]:
     """Build the scene's FMU (unless given), compile the driver and measure each order."""
-    from flexlink.bench import default_case
-    from flexlink.fmu import build_fmu
-    from flexlink.model import build_model
-    from flexlink.scene import load_scene
+    from flexlink.export.fmu import build_fmu
+    from flexlink.mechanics.model import build_model
+    from flexlink.scene.loader import load_scene
+    from flexlink.tools.bench import default_case
 
     scene = load_scene(scene_path)
     model = build_model(scene)

@@ -66,8 +66,8 @@ def ss22_run(fmu, case, coords: list[str], step: float, theta: float, repeats: i
     """Positions at ``case.times`` (SlaveRunner, 10 ms communication steps) and the median CPU seconds per
     simulated second of the same run as one fmi2DoStep per input switch."""
 
-    from flexlink.bench import time_slave
-    from flexlink.simulate import SlaveRunner
+    from flexlink.run.simulate import SlaveRunner
+    from flexlink.tools.bench import time_slave
 
     start = {"solver.step": step, "solver.theta1": theta, "solver.theta2": theta}
     sample = float(case.times[1] - case.times[0])
@@ -82,11 +82,11 @@ def run_stiff(scene_path=SCENE, *, quick: bool = False, repeats: int | None = No
               fmu: str | Path | None = None) -> tuple[list[dict], dict]:
     import casadi as ca
 
-    from flexlink.bench import _ode, casadi_states, default_case
-    from flexlink.fmu import build_fmu
-    from flexlink.model import build_model
-    from flexlink.reference import simulate_reference
-    from flexlink.scene import load_scene
+    from flexlink.export.fmu import build_fmu
+    from flexlink.mechanics.model import build_model
+    from flexlink.mechanics.reference import simulate_reference
+    from flexlink.scene.loader import load_scene
+    from flexlink.tools.bench import _ode, casadi_states, default_case
 
     scene = load_scene(scene_path)
     model = build_model(scene)

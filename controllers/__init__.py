@@ -14,7 +14,7 @@ One module per concern (python-control's layout):
 ``cli``, ``demo``      ``flexlink control`` / ``flexlink linearize``; the README's control job
 =====================  ===================================================================================
 
-The linearisation itself is :mod:`flexlink.linearize`.  The names below are importable from the package
+The linearisation itself is :mod:`flexlink.run.linearize`.  The names below are importable from the package
 (loaded on first use, so that ``import controllers.cli`` stays light).
 
 Examples

@@ -63,10 +63,10 @@ def add_control_parsers(subparsers) -> None:
 
 
 def cmd_linearize(args) -> int:
-    from flexlink.linearize import linear_plant
-    from flexlink.model import build_model
-    from flexlink.scene import load_scene
-    from flexlink.simulate import parse_assignments
+    from flexlink.mechanics.model import build_model
+    from flexlink.run.linearize import linear_plant
+    from flexlink.run.simulate import parse_assignments
+    from flexlink.scene.loader import load_scene
 
     model = build_model(load_scene(args.scene))
     angle = None if args.angle is None else math.radians(args.angle)
@@ -132,11 +132,11 @@ def _print_matrix(name: str, M, rows: list[str], cols: list[str]) -> None:
 def cmd_control(args) -> int:
     from controllers.cosim import FmuLoop
     from controllers.manoeuvre import check_scene, default_torque_limit, design, predict_manoeuvre, rest_to_rest
-    from flexlink.fmu import cached_fmu
-    from flexlink.linearize import linear_plant
-    from flexlink.model import build_model
-    from flexlink.scene import load_scene
-    from flexlink.simulate import parse_assignments
+    from flexlink.export.fmu import cached_fmu
+    from flexlink.mechanics.model import build_model
+    from flexlink.run.linearize import linear_plant
+    from flexlink.run.simulate import parse_assignments
+    from flexlink.scene.loader import load_scene
 
     if not (args.sample_time > 0):
         raise FlexlinkError(f"--sample-time must be positive, got {args.sample_time}")

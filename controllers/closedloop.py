@@ -19,7 +19,7 @@ import numpy as np
 
 from controllers.laws import SampledLaw, reference_names
 from controllers.trajectory import Reference
-from flexlink.linearize import LinearPlant, signal_name
+from flexlink.run.linearize import LinearPlant, signal_name
 
 __all__ = ["closed_loop", "loop_transfer", "margins", "predict", "sampled_plant"]
 

@@ -17,10 +17,10 @@ def run_control_demo(out: str | Path = "out", scene: str | Path = EXAMPLE, targe
     from controllers.cosim import FmuLoop
     from controllers.manoeuvre import default_torque_limit, design, predict_manoeuvre, rest_to_rest
     from controllers.plots import plot_manoeuvre
-    from flexlink.fmu import build_fmu
-    from flexlink.linearize import linear_plant
-    from flexlink.model import build_model
-    from flexlink.scene import load_scene
+    from flexlink.export.fmu import build_fmu
+    from flexlink.mechanics.model import build_model
+    from flexlink.run.linearize import linear_plant
+    from flexlink.scene.loader import load_scene
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -12,7 +12,7 @@ Everything returns python-control objects or plain arrays that python-control pr
   damping ratio, placed exactly on the flexible model (not only on the rigid inertia);
 * :func:`rigid_pair` — natural frequency and damping of the dominant (slowest) closed-loop pair.
 
-The plant is a :class:`flexlink.linearize.LinearPlant` (deviation variables about its operating point).
+The plant is a :class:`flexlink.run.linearize.LinearPlant` (deviation variables about its operating point).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import control as ct
 import numpy as np
 
 from flexlink.errors import FlexlinkError
-from flexlink.linearize import LinearPlant
+from flexlink.run.linearize import LinearPlant
 
 __all__ = [
     "SENSOR_NOISE",

@@ -38,7 +38,7 @@ import numpy as np
 
 from controllers.design import KalmanDesign, LQRDesign, PDDesign
 from controllers.trajectory import Reference
-from flexlink.linearize import LinearPlant, signal_name
+from flexlink.run.linearize import LinearPlant, signal_name
 
 __all__ = ["LQGLaw", "MeasurementSchedule", "PDLaw", "SampledLaw", "measurement_schedule", "reference_names"]
 

@@ -34,7 +34,7 @@ from controllers.design import KalmanDesign, LQRDesign, PDDesign, design_kalman,
 from controllers.laws import LQGLaw, PDLaw, SampledLaw
 from controllers.trajectory import Reference, min_jerk_reference, quintic_reference
 from flexlink.errors import FlexlinkError
-from flexlink.linearize import LinearPlant, linear_plant
+from flexlink.run.linearize import LinearPlant, linear_plant
 
 __all__ = [
     "ControlDesign",

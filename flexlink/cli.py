@@ -13,7 +13,7 @@ from flexlink.errors import FlexlinkError
 
 
 def _cmd_build(args) -> int:
-    from flexlink.fmu import build_fmu
+    from flexlink.export.fmu import build_fmu
 
     rep = build_fmu(args.scene, args.output, keep_dir=args.keep_sources)
     total = sum(rep.seconds.values())
@@ -24,9 +24,9 @@ def _cmd_build(args) -> int:
 
 
 def _cmd_modes(args) -> int:
-    from flexlink.analysis import natural_frequencies
-    from flexlink.model import build_model
-    from flexlink.scene import load_scene
+    from flexlink.mechanics.analysis import natural_frequencies
+    from flexlink.mechanics.model import build_model
+    from flexlink.scene.loader import load_scene
 
     model = build_model(load_scene(args.scene))
     modes = natural_frequencies(model, args.rate)
@@ -44,8 +44,8 @@ def _cmd_modes(args) -> int:
 
 
 def _cmd_simulate(args) -> int:
-    from flexlink.fmu import cached_fmu
-    from flexlink.simulate import parse_assignments, plot_result, read_input_csv, simulate, write_csv
+    from flexlink.export.fmu import cached_fmu
+    from flexlink.run.simulate import parse_assignments, plot_result, read_input_csv, simulate, write_csv
 
     start = parse_assignments(args.set)
     fmu = cached_fmu(args.scene)
@@ -71,7 +71,7 @@ def _cmd_simulate(args) -> int:
 
 
 def _cmd_explain(args) -> int:
-    from flexlink.explain import explain, fidelity, format_explanation, format_fidelity
+    from flexlink.tools.explain import explain, fidelity, format_explanation, format_fidelity
 
     target = None
     if args.error_target is not None:
@@ -94,7 +94,7 @@ def _cmd_explain(args) -> int:
 
 
 def _cmd_bench(args) -> int:
-    from flexlink.bench import plot_bench, report_markdown, run_bench
+    from flexlink.tools.bench import plot_bench, report_markdown, run_bench
 
     rows, info = run_bench(args.scene, quick=args.quick, repeats=args.repeats)
     if args.plot:
@@ -110,7 +110,7 @@ def _cmd_bench(args) -> int:
 
 def _cmd_demo(args) -> int:
     if args.open_loop:
-        from flexlink.demo import run_demo
+        from flexlink.tools.demo import run_demo
 
         return run_demo(args.out)
     from controllers.demo import run_control_demo
@@ -167,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--open-loop", action="store_true", help="the open-loop bang-bang run against the reference")
     p.set_defaults(func=_cmd_demo)
 
-    from flexlink.check import add_parser as add_check_parser
+    from flexlink.tools.check import add_parser as add_check_parser
 
     add_check_parser(sub)
 
@@ -175,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
 
     add_control_parsers(sub)
 
-    from flexlink.sweep import add_sweep_parser
+    from flexlink.tools.sweep import add_sweep_parser
 
     add_sweep_parser(sub)
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from flexlink.scene import Scene, parse_scene
+from flexlink.scene.loader import Scene, parse_scene
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -18,7 +18,7 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 def example_fmu(tmp_path_factory):
     """``example_fmu(name)``: the FMU of examples/<name>.toml, built once per test session (several test files
     check the same examples; the FMUs are only read)."""
-    from flexlink.fmu import build_fmu
+    from flexlink.export.fmu import build_fmu
 
     directory = tmp_path_factory.mktemp("example_fmus")
     built: dict[str, Path] = {}

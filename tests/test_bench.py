@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flexlink.bench import run_bench
+from flexlink.tools.bench import run_bench
 
 
 @pytest.fixture(scope="module")
@@ -154,16 +154,16 @@ def test_python_fmu_agrees_with_the_reference(quick_report):
 
 
 def test_stiff_case_modal_split_matches_the_model_analysis():
-    """The low-frequency measure of benchmarks/stiff_case.py: its modes are flexlink.analysis's natural
+    """The low-frequency measure of benchmarks/stiff_case.py: its modes are flexlink.mechanics.analysis's natural
     frequencies, and Φ_low Φ_lowᵀ M is a projection that keeps the low modes and removes the others."""
     sys.path.insert(0, str(REPO / "benchmarks"))
     try:
         import stiff_case
     finally:
         sys.path.remove(str(REPO / "benchmarks"))
-    from flexlink.analysis import natural_frequencies
-    from flexlink.model import build_model
-    from flexlink.scene import load_scene
+    from flexlink.mechanics.analysis import natural_frequencies
+    from flexlink.mechanics.model import build_model
+    from flexlink.scene.loader import load_scene
 
     model = build_model(load_scene(stiff_case.SCENE))
     freq, P, c = stiff_case.modal_projection(model)

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from flexlink.cbuild import compile_shared_library
-from flexlink.check import check_fmu, write_report
 from flexlink.cli import main
+from flexlink.export.cbuild import compile_shared_library
+from flexlink.tools.check import check_fmu, write_report
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 NAMES = sorted(p.stem for p in EXAMPLES.glob("*.toml"))

@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flexlink.analysis import natural_frequencies
-from flexlink.model import build_model
-from flexlink.scene import load_scene
+from flexlink.mechanics.analysis import natural_frequencies
+from flexlink.mechanics.model import build_model
+from flexlink.scene.loader import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = "examples/rotating_link.toml"

@@ -24,9 +24,9 @@ from controllers.closedloop import closed_loop
 from controllers.cosim import FmuLoop, FmuLoopError
 from controllers.manoeuvre import design, predict_manoeuvre, reference, rest_to_rest, stability_report
 from flexlink.errors import FlexlinkError
-from flexlink.fmu import build_fmu
-from flexlink.model import build_model
-from flexlink.scene import load_scene
+from flexlink.export.fmu import build_fmu
+from flexlink.mechanics.model import build_model
+from flexlink.scene.loader import load_scene
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 TARGET, DURATION, SETTLE, DT = math.pi / 2, 1.5, 1.5, 1e-3

@@ -1,4 +1,4 @@
-"""flexlink.linearize: the scene's model as a python-control StateSpace with named signals."""
+"""flexlink.run.linearize: the scene's model as a python-control StateSpace with named signals."""
 
 from __future__ import annotations
 
@@ -10,11 +10,11 @@ import control as ct
 import numpy as np
 import pytest
 
-from flexlink.analysis import linearise, natural_frequencies
 from flexlink.errors import FlexlinkError
-from flexlink.linearize import explicit_functions, linear_plant, linearize, operating_point_at, signal_name
-from flexlink.model import build_model
-from flexlink.scene import load_scene
+from flexlink.mechanics.analysis import linearise, natural_frequencies
+from flexlink.mechanics.model import build_model
+from flexlink.run.linearize import explicit_functions, linear_plant, linearize, operating_point_at, signal_name
+from flexlink.scene.loader import load_scene
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 OUTPUTS = ["hub.theta", "hub.omega", "arm.tip.v", "arm.root.moment", "tip.sx", "tip.sy", "tip.ay"]
@@ -46,7 +46,7 @@ def test_names_follow_the_fmu(model):
 
 
 def test_state_matrices_from_the_second_order_form(model):
-    """A = [[0, I], [−M⁻¹K, −M⁻¹C]], B = [0; M⁻¹B] from flexlink.analysis.linearise, checked against
+    """A = [[0, I], [−M⁻¹K, −M⁻¹C]], B = [0; M⁻¹B] from flexlink.mechanics.analysis.linearise, checked against
     the CasADi Jacobian of the explicit form ẋ = f(x, u)."""
     plant = linear_plant(model, outputs=OUTPUTS)
     lin = linearise(model, plant.op)

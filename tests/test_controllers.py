@@ -17,8 +17,8 @@ from controllers.laws import measurement_schedule
 from controllers.manoeuvre import default_torque_limit, design, reference, rest_to_rest
 from controllers.trajectory import min_jerk_feedforward, min_jerk_reference, quintic
 from flexlink.errors import FlexlinkError
-from flexlink.model import build_model
-from flexlink.scene import load_scene
+from flexlink.mechanics.model import build_model
+from flexlink.scene.loader import load_scene
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 DT = 1e-3

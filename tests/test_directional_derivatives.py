@@ -9,8 +9,8 @@ import control as ct
 import numpy as np
 import pytest
 
-from flexlink.check import _Fmu, check_directional_derivatives
-from flexlink.linearize import fmu_state_space, linear_plant
+from flexlink.run.linearize import fmu_state_space, linear_plant
+from flexlink.tools.check import _Fmu, check_directional_derivatives
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 

@@ -10,10 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from flexlink.analysis import natural_frequencies
-from flexlink.explain import STEPS_PER_PERIOD, explain
-from flexlink.model import build_model
-from flexlink.scene import parse_scene
+from flexlink.mechanics.analysis import natural_frequencies
+from flexlink.mechanics.model import build_model
+from flexlink.scene.loader import parse_scene
+from flexlink.tools.explain import STEPS_PER_PERIOD, explain
 
 BASE = tomllib.loads(Path("examples/rotating_link.toml").read_text())
 

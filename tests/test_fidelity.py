@@ -1,4 +1,4 @@
-"""The fidelity ladder (``flexlink.fidelity``, ``flexlink explain --error-target``), CI size.
+"""The fidelity ladder (``flexlink.tools.fidelity``, ``flexlink explain --error-target``), CI size.
 
 Checked against properties that hold independently of the measured numbers: the assumed-modes series converges
 as modes are added; the linear and first-order kinematic models differ only by terms quadratic in the hub rate;
@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flexlink.bench import default_case, reference_outputs, relative_error
-from flexlink.fidelity import Level, deformation_levels, levels, recommend, run_ladder, variant
-from flexlink.model import build_model
-from flexlink.scene import load_scene, parse_scene
+from flexlink.mechanics.model import build_model
+from flexlink.scene.loader import load_scene, parse_scene
+from flexlink.tools.bench import default_case, reference_outputs, relative_error
+from flexlink.tools.fidelity import Level, deformation_levels, levels, recommend, run_ladder, variant
 
 SCENE = "examples/rotating_link.toml"
 TARGET = 1e-2

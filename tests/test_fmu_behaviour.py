@@ -8,7 +8,7 @@ Covered: independent instances, FMU states (get/set/serialize), reset, variable 
 tunable parameters in step mode, every kind of bad input (status, message, state afterwards), a step that
 fails (fmi2Discard and its undo) and the ModelStructure's feedthrough.
 
-Log messages reach Python through ``flexlink.simulate.logging_callbacks``, which routes every instance's
+Log messages reach Python through ``flexlink.run.simulate.logging_callbacks``, which routes every instance's
 messages through one router (fmpy's native proxy keeps a single process-wide logger); the slaves here file
 them under their instance name (test_logging_callbacks_of_two_runners_stay_separate checks the routing).
 """
@@ -31,10 +31,10 @@ import pytest
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave, fmi2LastSuccessfulTime
 
-from flexlink.analysis import natural_frequencies
-from flexlink.model import build_model
-from flexlink.scene import load_scene
-from flexlink.simulate import logging_callbacks
+from flexlink.mechanics.analysis import natural_frequencies
+from flexlink.mechanics.model import build_model
+from flexlink.run.simulate import logging_callbacks
+from flexlink.scene.loader import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
@@ -236,7 +236,7 @@ def test_logging_callbacks_of_two_runners_stay_separate(fmus, tmp_path):
     script.write_text(textwrap.dedent(f"""
         import gc
         from fmpy.fmi1 import FMICallException
-        from flexlink.simulate import SlaveRunner
+        from flexlink.run.simulate import SlaveRunner
         a = SlaveRunner({str(fmus['rotating_link'].fmu)!r}, instance_name="A")
         b = SlaveRunner({str(fmus['rotating_link'].fmu)!r}, instance_name="B")
         try:

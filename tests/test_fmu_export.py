@@ -1,7 +1,7 @@
 """The exported FMU: standard compliance, independent importers, and agreement with the reference.
 
 Every example scene is exported once per session.  The FMU's trajectories are compared with the
-CVODES reference simulation of the same symbolic model (flexlink.reference); the tolerance is not a
+CVODES reference simulation of the same symbolic model (flexlink.mechanics.reference); the tolerance is not a
 number picked to pass but a convergence study: halving SS22's step must divide the error by about 4
 (Θ = ½ is second-order accurate), which shows the remaining difference is SS22's own truncation error.
 """
@@ -15,13 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flexlink.analysis import static_deflection
-from flexlink.fmu import build_fmu
-from flexlink.importers import fmutool_check, libcosim_available, run_libcosim
-from flexlink.model import build_model
-from flexlink.reference import simulate_reference
-from flexlink.scene import Scene, load_scene
-from flexlink.simulate import SlaveRunner
+from flexlink.export.fmu import build_fmu
+from flexlink.mechanics.analysis import static_deflection
+from flexlink.mechanics.model import build_model
+from flexlink.mechanics.reference import simulate_reference
+from flexlink.run.simulate import SlaveRunner
+from flexlink.scene.loader import Scene, load_scene
+from flexlink.tools.importers import fmutool_check, libcosim_available, run_libcosim
 
 EXAMPLES = sorted((Path(__file__).resolve().parent.parent / "examples").glob("*.toml"))
 

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from flexlink import cbuild
 from flexlink.errors import BuildError
+from flexlink.export import cbuild
 
 TESTS_C = Path(__file__).parent / "c"
 GLUE = ("fmi2Functions.c", "cosimulation.c", "ss22.c", "linalg.c")
@@ -164,7 +164,7 @@ def test_log_categories_match_the_c_glue() -> None:
     source = (cbuild.fmu_src_dir() / "cosimulation.c").read_text()
     table = source.split("LOG_CATEGORY_NAMES[N_LOG_CATEGORIES] = {", 1)[1].split("};", 1)[0]
     assert tuple(re.findall(r'"([^"]+)"', table)) == cbuild.LOG_CATEGORIES
-    from flexlink import fmu  # the modelDescription.xml writer lists the same categories
+    from flexlink.export import fmu  # the modelDescription.xml writer lists the same categories
 
     assert tuple(fmu.LOG_CATEGORIES) == cbuild.LOG_CATEGORIES
 

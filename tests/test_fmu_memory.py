@@ -13,8 +13,8 @@ from pathlib import Path
 import fmpy
 import pytest
 
-from flexlink import cbuild
-from flexlink.fmu import build_fmu
+from flexlink.export import cbuild
+from flexlink.export.fmu import build_fmu
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENES = ["rotating_link", "steel_beam_raise", "flexible_pendulum"]

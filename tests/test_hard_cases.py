@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flexlink.analysis import natural_frequencies
-from flexlink.bench import default_case, reference_outputs
-from flexlink.fmu import build_fmu
-from flexlink.model import build_model
-from flexlink.scene import load_scene, parse_scene
-from flexlink.simulate import SlaveRunner
+from flexlink.export.fmu import build_fmu
+from flexlink.mechanics.analysis import natural_frequencies
+from flexlink.mechanics.model import build_model
+from flexlink.run.simulate import SlaveRunner
+from flexlink.scene.loader import load_scene, parse_scene
+from flexlink.tools.bench import default_case, reference_outputs
 
 HARD = Path(__file__).resolve().parent.parent / "benchmarks" / "hard_cases"
 FULL = os.environ.get("FLEXLINK_FULL") == "1"

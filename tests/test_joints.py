@@ -17,10 +17,10 @@ from numpy.polynomial.legendre import leggauss
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq, curve_fit
 
-from flexlink.analysis import linearise, natural_frequencies, operating_point
-from flexlink.model import build_model
-from flexlink.reference import simulate_reference
-from flexlink.scene import load_scene, parse_scene
+from flexlink.mechanics.analysis import linearise, natural_frequencies, operating_point
+from flexlink.mechanics.model import build_model
+from flexlink.mechanics.reference import simulate_reference
+from flexlink.scene.loader import load_scene, parse_scene
 
 G = 9.81
 

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 from conftest import SEED000_LINK, clamped_free_lambdas, make_link_scene
 
-from flexlink.analysis import linearise, natural_frequencies, operating_point
-from flexlink.model import build_model
-from flexlink.reference import simulate_reference
-from flexlink.shapes import make_basis
+from flexlink.mechanics.analysis import linearise, natural_frequencies, operating_point
+from flexlink.mechanics.model import build_model
+from flexlink.mechanics.reference import simulate_reference
+from flexlink.mechanics.shapes import make_basis
 
 L, RHO, EI = SEED000_LINK["length"], SEED000_LINK["linear_density"], SEED000_LINK["EI"]
 GRAVITY = (0.0, -9.81, 0.0)

@@ -19,9 +19,9 @@ from numpy.polynomial.legendre import leggauss
 from scipy.integrate import quad
 from scipy.optimize import brentq
 
-from flexlink.analysis import natural_frequencies
-from flexlink.model import build_model
-from flexlink.scene import load_scene
+from flexlink.mechanics.analysis import natural_frequencies
+from flexlink.mechanics.model import build_model
+from flexlink.scene.loader import load_scene
 
 L, RHO, EI = SEED000_LINK["length"], SEED000_LINK["linear_density"], SEED000_LINK["EI"]
 OMEGA_SCALE = math.sqrt(EI / (RHO * L**4))          # ω = λ² · OMEGA_SCALE

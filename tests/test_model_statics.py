@@ -17,10 +17,10 @@ import scipy.linalg
 from conftest import EXAMPLES, make_link_scene
 from numpy.polynomial.legendre import leggauss
 
-from flexlink.analysis import natural_frequencies, operating_point, static_deflection
-from flexlink.model import build_model
-from flexlink.scene import load_scene
-from flexlink.shapes import make_basis
+from flexlink.mechanics.analysis import natural_frequencies, operating_point, static_deflection
+from flexlink.mechanics.model import build_model
+from flexlink.mechanics.shapes import make_basis
+from flexlink.scene.loader import load_scene
 
 G = 9.81
 KINEMATICS = ("linear", "first-order", "second-order")

@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flexlink.analysis import operating_point, static_deflection
-from flexlink.model import build_model
-from flexlink.reference import simulate_reference
-from flexlink.scene import load_scene, parse_scene
+from flexlink.mechanics.analysis import operating_point, static_deflection
+from flexlink.mechanics.model import build_model
+from flexlink.mechanics.reference import simulate_reference
+from flexlink.scene.loader import load_scene, parse_scene
 
 
 def test_static_reaction_carries_the_weight_and_its_moment():

@@ -14,14 +14,14 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from flexlink.analysis import natural_frequencies
-from flexlink.bench import BenchCase, relative_error
 from flexlink.errors import SceneError
-from flexlink.model import build_model
-from flexlink.reference import simulate_reference
-from flexlink.scene import parse_scene
-from flexlink.shapes import make_basis
-from flexlink.shapes.reduction import ModalBeamBasis, fixed_interface_modes
+from flexlink.mechanics.analysis import natural_frequencies
+from flexlink.mechanics.model import build_model
+from flexlink.mechanics.reference import simulate_reference
+from flexlink.mechanics.shapes import make_basis
+from flexlink.mechanics.shapes.reduction import ModalBeamBasis, fixed_interface_modes
+from flexlink.scene.loader import parse_scene
+from flexlink.tools.bench import BenchCase, relative_error
 
 LAMBDA = np.array([1.87510407, 4.69409113, 7.85475744, 10.99554073])     # clamped–free roots
 

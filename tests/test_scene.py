@@ -1,4 +1,4 @@
-"""flexlink.scene: the SCENE.md contract — defaults, units, and one clear SceneError for every mistake."""
+"""flexlink.scene.loader: the SCENE.md contract — defaults, units, and one clear SceneError for every mistake."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from flexlink.errors import SceneError
-from flexlink.scene import (
+from flexlink.scene.loader import (
     FmuSettings,
     Payload,
     Scene,

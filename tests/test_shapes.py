@@ -10,14 +10,14 @@ import pytest
 import scipy.linalg
 from scipy.integrate import quad
 
-from flexlink.shapes import (
+from flexlink.mechanics.shapes import (
     KINDS,
     ShapeIntegrals,
     clamped_free_roots,
     integrals_from_rule,
     make_basis,
 )
-from flexlink.shapes.base import composite_gauss_legendre
+from flexlink.mechanics.shapes.base import composite_gauss_legendre
 
 LENGTH = 1.7
 RHO = 2.5

@@ -14,8 +14,8 @@ import scipy.sparse
 import scipy.sparse.linalg
 from numpy.polynomial import Legendre, Polynomial
 
-from flexlink.shapes.reduction import fixed_interface_modes
-from flexlink.shapes.shell import (
+from flexlink.mechanics.shapes.reduction import fixed_interface_modes
+from flexlink.mechanics.shapes.shell import (
     ShellMesh,
     assemble_shell,
     box_mesh,

@@ -15,13 +15,13 @@ import numpy as np
 import pytest
 import scipy.sparse.linalg
 
-from flexlink.analysis import natural_frequencies, operating_point
-from flexlink.bench import BenchCase, relative_error
 from flexlink.errors import SceneError
-from flexlink.model import build_model
-from flexlink.reference import simulate_reference
-from flexlink.scene import load_scene, parse_scene
-from flexlink.shapes.body import shell_assembly, shell_body
+from flexlink.mechanics.analysis import natural_frequencies, operating_point
+from flexlink.mechanics.model import build_model
+from flexlink.mechanics.reference import simulate_reference
+from flexlink.mechanics.shapes.body import shell_assembly, shell_body
+from flexlink.scene.loader import load_scene, parse_scene
+from flexlink.tools.bench import BenchCase, relative_error
 
 PLATE = load_scene("examples/plate_raise.toml")
 DATA = tomllib.loads(Path("examples/plate_raise.toml").read_text())

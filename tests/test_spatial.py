@@ -15,10 +15,10 @@ import scipy.linalg
 from conftest import EXAMPLES, clamped_free_lambdas
 from numpy.polynomial.legendre import leggauss
 
-from flexlink.analysis import natural_frequencies
-from flexlink.model import build_model
-from flexlink.reference import simulate_reference
-from flexlink.scene import load_scene, parse_scene
+from flexlink.mechanics.analysis import natural_frequencies
+from flexlink.mechanics.model import build_model
+from flexlink.mechanics.reference import simulate_reference
+from flexlink.scene.loader import load_scene, parse_scene
 
 # An aluminium-like bar with distinct stiffnesses in the three fields (SI)
 BAR = {"length": 1.0, "linear_density": 2.0, "EI": 500.0, "EI_out": 200.0, "GJ": 100.0, "polar_inertia": 1e-3}

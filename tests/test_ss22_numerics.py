@@ -11,11 +11,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flexlink.analysis import linearise, natural_frequencies, operating_point
-from flexlink.fmu import build_fmu
-from flexlink.model import build_model
-from flexlink.scene import load_scene, parse_scene
-from flexlink.simulate import SlaveRunner
+from flexlink.export.fmu import build_fmu
+from flexlink.mechanics.analysis import linearise, natural_frequencies, operating_point
+from flexlink.mechanics.model import build_model
+from flexlink.run.simulate import SlaveRunner
+from flexlink.scene.loader import load_scene, parse_scene
 
 
 def ss22_amplification(omega: float, dt: float, theta1: float, theta2: float) -> np.ndarray:
@@ -107,7 +107,7 @@ def test_order_four_option_converges_at_order_four(tmp_path):
     16; the option refuses Θ ≠ ½, where the expansion has odd terms."""
     from fmpy.fmi1 import FMICallException
 
-    from flexlink.bench import default_case, reference_outputs, relative_error
+    from flexlink.tools.bench import default_case, reference_outputs, relative_error
 
     scene = load_scene("examples/rotating_link_linear.toml")
     model = build_model(scene)

@@ -1,4 +1,4 @@
-"""Parameter sweeps on Dask (``flexlink.sweep``, ``flexlink sweep``), at CI size.
+"""Parameter sweeps on Dask (``flexlink.tools.sweep``, ``flexlink sweep``), at CI size.
 
 * cases: grids (full product, order), seeded Monte Carlo (uniform, truncated normal), bad specs;
 * 30 closed-loop LQR cases (a short 10° manoeuvre) on a local Dask cluster of 2 worker processes give
@@ -30,7 +30,7 @@ import pandas as pd
 import pytest
 
 from flexlink.errors import FlexlinkError
-from flexlink.sweep import journal_path, make_cases, run_sweep, summary_table
+from flexlink.tools.sweep import journal_path, make_cases, run_sweep, summary_table
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "examples" / "rotating_link_payload.toml"
@@ -84,7 +84,7 @@ def test_bad_case_specs_are_one_clear_message(params, kwargs, message):
 # ------------------------------------------------------------------------------------------------ fixtures
 @pytest.fixture(scope="module")
 def fmu(tmp_path_factory):
-    from flexlink.fmu import build_fmu
+    from flexlink.export.fmu import build_fmu
 
     return build_fmu(SCENE, tmp_path_factory.mktemp("sweep-fmu") / "rotating_link_payload.fmu").fmu
 
@@ -112,7 +112,7 @@ def plain_loop(fmu):
     """The GRID cases one after the other with controllers.manoeuvre.rest_to_rest: no Dask, no sweep code."""
     from controllers.cosim import FmuLoop
     from controllers.manoeuvre import default_torque_limit, design, rest_to_rest
-    from flexlink.linearize import linear_plant
+    from flexlink.run.linearize import linear_plant
 
     target = math.radians(MANOEUVRE["target_deg"])
     limit = default_torque_limit(linear_plant(SCENE, outputs=["hub.theta"]), target, MANOEUVRE["duration"])

@@ -1,7 +1,7 @@
 """The symbolic model of a scene: energies → Lagrange equations → CasADi Functions.
 
 The mechanics is written once, as energies (seed 000 chapter 3, generalised): kinetic energy T from
-the inertia invariants of :mod:`flexlink.kinematics`, elastic and gravitational potential V, and
+the inertia invariants of :mod:`flexlink.mechanics.kinematics`, elastic and gravitational potential V, and
 Rayleigh's dissipation function R.  CasADi's automatic differentiation then gives the equations
 
     r(q, v, a, u, p) = d/dt ∂L/∂q̇ − ∂L/∂q + ∂R/∂q̇ − Q = M(q) a + h(q, v, u, p) = 0,
@@ -28,7 +28,7 @@ import casadi as ca
 import numpy as np
 
 from flexlink.errors import FlexlinkError
-from flexlink.kinematics import (
+from flexlink.mechanics.kinematics import (
     LinkDeformation,
     beam_invariants,
     body_invariants,
@@ -39,11 +39,11 @@ from flexlink.kinematics import (
     tip_kinematics,
     torsion_kinetic,
 )
-from flexlink.scene import Scene, Trajectory
-from flexlink.shapes import make_basis
-from flexlink.shapes.body import shell_body
-from flexlink.shapes.reduction import ModalBeamBasis, ModalTorsionBasis
-from flexlink.shapes.torsion import make_torsion_basis
+from flexlink.mechanics.shapes import make_basis
+from flexlink.mechanics.shapes.body import shell_body
+from flexlink.mechanics.shapes.reduction import ModalBeamBasis, ModalTorsionBasis
+from flexlink.mechanics.shapes.torsion import make_torsion_basis
+from flexlink.scene.loader import Scene, Trajectory
 
 
 @dataclass(frozen=True)

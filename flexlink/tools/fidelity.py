@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from flexlink.errors import FlexlinkError
-from flexlink.scene import Scene, load_scene
+from flexlink.scene.loader import Scene, load_scene
 
 COUNTS = (1, 2, 3, 4, 6)               # shapes per link (modes, polynomials or elements)
 QUICK_COUNTS = (1, 2, 3)
@@ -152,15 +152,15 @@ def variant(scene: Scene, level: Level) -> Scene:
 
 def variant_fmu(scene: Scene, model=None) -> Path:
     """The variant's FMU from the flexlink cache, keyed on the scene's content (it has no file of its own)."""
-    from flexlink.fmu import cached_fmu
+    from flexlink.export.fmu import cached_fmu
 
     return cached_fmu(scene, model=model)
 
 
 def recommended_step(model) -> tuple[float, float]:
     """(step, highest frequency in Hz) as ``flexlink explain`` gives them."""
-    from flexlink.analysis import natural_frequencies
-    from flexlink.explain import STEPS_PER_PERIOD
+    from flexlink.mechanics.analysis import natural_frequencies
+    from flexlink.tools.explain import STEPS_PER_PERIOD
 
     freqs = natural_frequencies(model).frequencies_hz
     f_max = max(freqs) if freqs else 0.0
@@ -172,7 +172,7 @@ class _Runs:
     fmi2DoStep per input switch, median of ``repeats`` runs, CPU seconds per simulated second)."""
 
     def __init__(self, case, fmu: Path):
-        from flexlink.simulate import SlaveRunner
+        from flexlink.run.simulate import SlaveRunner
 
         self.case = case
         self.runner = SlaveRunner(fmu, instance_name="fidelity")
@@ -183,7 +183,7 @@ class _Runs:
                                start={"solver.step": step}, outputs=case.outputs)
 
     def cost(self, step: float, repeats: int) -> float:
-        from flexlink.bench import time_slave
+        from flexlink.tools.bench import time_slave
 
         return time_slave(self.runner.slave, self.runner.vr, self.case, {"solver.step": step}, repeats)
 
@@ -196,7 +196,7 @@ class _Measured:
     """A level after its CVODES run (phase 1); its FMU is run and timed in phase 2."""
 
     level: Level
-    case: object                        # flexlink.bench.BenchCase, its model dropped
+    case: object                        # flexlink.tools.bench.BenchCase, its model dropped
     ref: dict
     fmu: Path
     n_q: int
@@ -206,8 +206,8 @@ class _Measured:
 
 
 def _measure(scene: Scene, level: Level, stop: float, progress) -> _Measured:
-    from flexlink.bench import default_case, reference_outputs
-    from flexlink.model import build_model
+    from flexlink.mechanics.model import build_model
+    from flexlink.tools.bench import default_case, reference_outputs
 
     progress(f"fidelity: {level.label(scene)}")
     sc = variant(scene, level)
@@ -227,7 +227,7 @@ def run_ladder(scene_path, *, target: float | None = None, quick: bool = False, 
     and kinematics (its best rung), and, when that meets ``target``, at every count × kinematics too.  With a
     target, a rung whose model error meets it has its step halved (at most MAX_HALVINGS times, and not once
     its cost would pass the cheapest rung already meeting the target) until its error meets it too."""
-    from flexlink.bench import relative_error
+    from flexlink.tools.bench import relative_error
 
     if target is not None:
         check_target(target)
@@ -307,8 +307,8 @@ def run_ladder(scene_path, *, target: float | None = None, quick: bool = False, 
 
 def _truth_check(scene: Scene, top: Level, stop: float) -> dict:
     """The truth's CVODES run at 1/10 of the tolerance (as ``flexlink bench`` checks its reference)."""
-    from flexlink.bench import default_case, reference_outputs
-    from flexlink.model import build_model
+    from flexlink.mechanics.model import build_model
+    from flexlink.tools.bench import default_case, reference_outputs
 
     return reference_outputs(default_case(build_model(variant(scene, top)), stop=stop), REFERENCE_RTOL / 10)
 

@@ -1,7 +1,7 @@
 """The scene's model linearised about an operating point, as a python-control ``StateSpace``.
 
 With x = (q, q̇) the free coordinates and their rates, the linearised equations
-``M δq̈ + C δq̇ + K δq = B δu`` (:func:`flexlink.analysis.linearise`) give
+``M δq̈ + C δq̇ + K δq = B δu`` (:func:`flexlink.mechanics.analysis.linearise`) give
 
     A = [[0, I], [−M⁻¹K, −M⁻¹C]],   B = [[0], [M⁻¹ B_u]]   (B_u = −∂r/∂u),
 
@@ -28,10 +28,10 @@ import casadi as ca
 import control as ct
 import numpy as np
 
-from flexlink.analysis import Linearisation, OperatingPoint, linearise, operating_point, static_deflection
 from flexlink.errors import FlexlinkError
-from flexlink.model import SymbolicModel, build_model
-from flexlink.scene import Scene, load_scene
+from flexlink.mechanics.analysis import Linearisation, OperatingPoint, linearise, operating_point, static_deflection
+from flexlink.mechanics.model import SymbolicModel, build_model
+from flexlink.scene.loader import Scene, load_scene
 
 __all__ = ["LinearPlant", "explicit_functions", "fmu_state_space", "linear_plant", "linearize", "operating_point_at",
            "signal_name", "state_names"]
@@ -120,7 +120,7 @@ def _parameter_vector(model: SymbolicModel, parameters: Mapping[str, float] | No
 
 def operating_point_at(model: SymbolicModel, *, angle: float | None = None, rate: float = 0.0,
                        parameters: Mapping[str, float] | None = None) -> OperatingPoint:
-    """The operating point of ``flexlink modes`` (:func:`flexlink.analysis.operating_point`), optionally
+    """The operating point of ``flexlink modes`` (:func:`flexlink.mechanics.analysis.operating_point`), optionally
     with the first joint at ``angle`` (rad) instead of its initial angle and with parameters changed.
 
     The elastic coordinates take their static (steady-state) deflection there and a torque-driven first

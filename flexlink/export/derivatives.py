@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from flexlink.model import SymbolicModel
+from flexlink.mechanics.model import SymbolicModel
 
 __all__ = ["Structure", "forward_functions", "structure"]
 

@@ -20,8 +20,8 @@ import casadi as ca
 import numpy as np
 
 from flexlink.errors import FlexlinkError
-from flexlink.model import SymbolicModel
-from flexlink.reference import simulate_reference
+from flexlink.mechanics.model import SymbolicModel
+from flexlink.mechanics.reference import simulate_reference
 
 
 @dataclass
@@ -79,7 +79,7 @@ def relative_error(case: BenchCase, y: dict[str, np.ndarray], ref: dict[str, np.
 def reference_outputs(case: BenchCase, rtol: float = 1e-12) -> dict[str, np.ndarray]:
     """CVODES from the state the FMU starts from: a coordinate the scene starts in static equilibrium is solved
     for as the FMU does it (laws at rest)."""
-    from flexlink.analysis import static_deflection
+    from flexlink.mechanics.analysis import static_deflection
 
     model = case.model
     q0, v0 = model.start_state()
@@ -117,7 +117,7 @@ def time_slave(slave, vr: dict, case: BenchCase, start: dict, repeats: int) -> f
 
 
 def bench_ss22(case: BenchCase, fmu, steps, thetas, ref, repeats: int = 5, order: int = 2) -> list[BenchRow]:
-    from flexlink.simulate import SlaveRunner
+    from flexlink.run.simulate import SlaveRunner
 
     rows = []
     with SlaveRunner(fmu) as runner:
@@ -279,9 +279,9 @@ def run_bench(scene_path, *, quick: bool = False, repeats: int | None = None) ->
     import tempfile
     from pathlib import Path
 
-    from flexlink.fmu import build_fmu
-    from flexlink.model import build_model
-    from flexlink.scene import load_scene
+    from flexlink.export.fmu import build_fmu
+    from flexlink.mechanics.model import build_model
+    from flexlink.scene.loader import load_scene
 
     scene = load_scene(scene_path)
     model = build_model(scene)

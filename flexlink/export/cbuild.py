@@ -50,7 +50,7 @@ def fmu_src_dir() -> Path:
     try:
         path = Path(str(importlib.resources.files("flexlink.fmu_src")))
     except ModuleNotFoundError:  # a source tree on sys.path without the installed package mapping
-        path = Path(__file__).resolve().parent.parent / "fmu_src"
+        path = Path(__file__).resolve().parents[2] / "fmu_src"
     if not (path / "fmi2Functions.c").is_file():
         raise BuildError(f"the generic FMU sources are missing: no fmi2Functions.c in {path}")
     return path

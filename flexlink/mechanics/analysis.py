@@ -15,7 +15,7 @@ import numpy as np
 import scipy.linalg
 
 from flexlink.errors import FlexlinkError
-from flexlink.model import SymbolicModel
+from flexlink.mechanics.model import SymbolicModel
 
 
 @dataclass

@@ -1,6 +1,6 @@
 """Parameter studies at scale: full grids and Monte Carlo runs of one FMU on Dask (``flexlink sweep``).
 
-The FMU is built once (:func:`flexlink.fmu.cached_fmu`) and shipped to the workers, as bytes (default) or
+The FMU is built once (:func:`flexlink.export.fmu.cached_fmu`) and shipped to the workers, as bytes (default) or
 as a path on a shared file system; each worker process writes it out once and keeps one FMU instance per
 worker thread, reset (``fmi2Reset``) between cases.  A case only sets the FMU's tunable parameters
 (SCENE.md names, e.g. ``arm.payload.mass``) before initialisation: no re-export.
@@ -30,7 +30,7 @@ installed); ``scheduler="serial"`` runs the same code in a plain loop in this pr
 
 Examples
 --------
->>> from flexlink.sweep import run_sweep                                                  # doctest: +SKIP
+>>> from flexlink.tools.sweep import run_sweep                                                  # doctest: +SKIP
 >>> df = run_sweep("examples/rotating_link_payload.toml", {"arm.payload.mass": "0.5:2.0:21"},
 ...                controller="lqr", target_deg=90, duration=1.5, settle=1.5, out="payload.parquet")
 >>> df[["arm.payload.mass", "residual_vibration_rms_m", "overshoot_deg"]]              # doctest: +SKIP
@@ -282,7 +282,7 @@ class _WorkerJob:
                     record = [*s["record"], *[n for n in self.spec.series if n not in s["record"]]]
                     self.runner = FmuLoop(self.fmu, record=record, instance_name="flexlink_sweep")
                 else:
-                    from flexlink.simulate import SlaveRunner
+                    from flexlink.run.simulate import SlaveRunner
 
                     self.runner = SlaveRunner(self.fmu, instance_name="flexlink_sweep")
             finally:
@@ -522,7 +522,7 @@ def _write_output(df, path: Path) -> None:
 # ============================================================================ the sweep
 def _design(model, *, controller, target, duration, sample_time, torque_limit, sensors):
     from controllers.manoeuvre import _target, check_scene, default_torque_limit, design
-    from flexlink.linearize import linear_plant
+    from flexlink.run.linearize import linear_plant
 
     check_scene(model)
     plant = linear_plant(model, outputs=[f"{model.scene.joints[0].name}.theta"])
@@ -605,8 +605,8 @@ def run_sweep(scene: str | os.PathLike, params: Mapping[str, object] | None = No
     """
     import fmpy
 
-    from flexlink.fmu import cached_fmu
-    from flexlink.scene import load_scene
+    from flexlink.export.fmu import cached_fmu
+    from flexlink.scene.loader import load_scene
 
     t_start = time.perf_counter()
     scene_path = Path(scene)
@@ -659,7 +659,7 @@ def run_sweep(scene: str | os.PathLike, params: Mapping[str, object] | None = No
             """Linearisation and design (seconds): only when there are cases to run; reused in this process."""
             import cloudpickle
 
-            from flexlink.model import build_model
+            from flexlink.mechanics.model import build_model
 
             dkey = json.dumps([hashlib.sha256(scene_path.read_bytes()).hexdigest(), controller, float(target_deg),
                                float(duration), float(sample_time), torque_limit, sensors])

@@ -15,7 +15,7 @@ d. ``fmu-state``: get/set/serialize round trips (bit for bit) and reset, in both
 e. ``directional-derivatives``: ``fmi2GetDirectionalDerivative`` against central finite differences
    (Model Exchange: derivatives and outputs w.r.t. states and inputs; Co-Simulation: outputs w.r.t.
    inputs).
-f. ``libcosim``, ``fmutool``: the independent importers of :mod:`flexlink.importers`.
+f. ``libcosim``, ``fmutool``: the independent importers of :mod:`flexlink.tools.importers`.
 
 The fuzz size is small by default (CI); the full-size run is ``flexlink check OUT.fmu --fuzz 5000``.
 """
@@ -104,7 +104,7 @@ def _quiet_callbacks():
     """fmi2 callbacks that drop the FMU's messages (the checks read statuses, not log lines), through
     flexlink's one logger router: fmpy's native logger proxy is process-wide, and a logger of our own
     registered there would be called after it is freed by whichever FMU logs next (a segfault)."""
-    from flexlink.simulate import logging_callbacks
+    from flexlink.run.simulate import logging_callbacks
 
     return logging_callbacks(lambda *message: None)
 
@@ -464,7 +464,7 @@ def _raw(inst, function: str, argtypes: list, *args) -> None:
 
 def check_fuzz(f: _Fmu, n: int = CI_FUZZ, seed: int = 0, timeout: float = 1800) -> CheckResult:
     t0 = time.perf_counter()
-    cmd = [sys.executable, "-m", "flexlink.check", "--fuzz-child", f.path, str(n), str(seed)]
+    cmd = [sys.executable, "-m", "flexlink.tools.check", "--fuzz-child", f.path, str(n), str(seed)]
     inp = f"{n} random legal sequences (seed {seed}) + the illegal catalogue, in a child process"
     ref = "legal: fmi2OK/fmi2Warning (doStep may discard); illegal: fmi2Error, then fmi2Reset works"
     try:
@@ -660,7 +660,7 @@ def check_directional_derivatives(f: _Fmu, seed: int = 1) -> CheckResult:
 # ========================================================================= f. importers
 
 def check_importers(f: _Fmu) -> list[CheckResult]:
-    from flexlink.importers import fmutool_check, libcosim_available, run_libcosim
+    from flexlink.tools.importers import fmutool_check, libcosim_available, run_libcosim
 
     out = []
     t0 = time.perf_counter()
@@ -760,7 +760,7 @@ if __name__ == "__main__":
         out = _fuzz(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]))
         print("FUZZ " + json.dumps(out), flush=True)
         sys.exit(0)
-    ap = argparse.ArgumentParser(prog="python -m flexlink.check")
+    ap = argparse.ArgumentParser(prog="python -m flexlink.tools.check")
     add_parser(ap.add_subparsers(dest="command", required=True))
     a = ap.parse_args(["check", *sys.argv[1:]])
     sys.exit(a.func(a))

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from flexlink.shapes import ShapeIntegrals
-from flexlink.shapes.torsion import TorsionIntegrals
+from flexlink.mechanics.shapes import ShapeIntegrals
+from flexlink.mechanics.shapes.torsion import TorsionIntegrals
 
 
 def link_basis(axis) -> np.ndarray:
@@ -162,7 +162,7 @@ def tip_kinematics(g: ShapeIntegrals, t: TorsionIntegrals | None, length: float,
 
 
 def body_invariants(b, eta, eta_dot) -> Invariants:
-    """Invariants of a reduced finite-element link (flexlink.shapes.body.BodyIntegrals), per unit density:
+    """Invariants of a reduced finite-element link (flexlink.mechanics.shapes.body.BodyIntegrals), per unit density:
     s = X + Φη, first-order kinematics (the membrane strain of large deflections is not in the shell element)."""
     first = _dm(b.first) + ca.mtimes(_dm(b.modal), eta)
     lin = ca.vertcat(*[ca.horzcat(*[ca.dot(_dm(b.x_modal[a, c]), eta) for c in range(3)]) for a in range(3)])

@@ -1,12 +1,12 @@
 """``flexlink explain``: what a scene's model contains and why, its frequencies, and a step for SS22; with
-``--error-target``, the cheapest model level that is accurate enough (``flexlink.fidelity``)."""
+``--error-target``, the cheapest model level that is accurate enough (``flexlink.tools.fidelity``)."""
 
 from __future__ import annotations
 
-from flexlink.analysis import natural_frequencies
-from flexlink.fidelity import MAX_HALVINGS, recommend, run_ladder
-from flexlink.model import build_model
-from flexlink.scene import load_scene
+from flexlink.mechanics.analysis import natural_frequencies
+from flexlink.mechanics.model import build_model
+from flexlink.scene.loader import load_scene
+from flexlink.tools.fidelity import MAX_HALVINGS, recommend, run_ladder
 
 STEPS_PER_PERIOD = 20     # Θ = ½: phase error per period ≈ (2π/20)²/12 · 2π ≈ 0.5 %
 
@@ -64,7 +64,7 @@ def format_explanation(info: dict) -> str:
     return "\n".join(lines)
 
 
-# ------------------------------------------------------------------------- --error-target (flexlink.fidelity)
+# ------------------------------------------------------------------------- --error-target (flexlink.tools.fidelity)
 
 def fidelity(scene_path, error_target: float, *, quick: bool = False, progress=None) -> dict:
     """The fidelity ladder of the scene and the cheapest level that meets ``error_target``."""

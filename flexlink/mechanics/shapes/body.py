@@ -1,7 +1,7 @@
 """A finite-element link brought into the floating frame: the constant integrals of its reduced basis.
 
 The displacement field of a shell link is u(X) = Φ(X) η over its mid-surface, Φ the fixed-interface modes
-(:mod:`flexlink.shapes.reduction`).  Everything the kinetic and gravitational energies need is then a sum
+(:mod:`flexlink.mechanics.shapes.reduction`).  Everything the kinetic and gravitational energies need is then a sum
 over the mesh's mass points (DESIGN.md §2, seed 001 §5.7), computed once here, per unit density:
 
     V = Σ m,  ∫X,  ∫X Xᵀ,  S = ∫Φ,  B_ab = ∫X_a Φ_b,  C_ab = ∫Φ_aᵀ Φ_b  (a, b ∈ x, y, z).
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flexlink.scene import Link
+from flexlink.scene.loader import Link
 
 from .reduction import ModalBasis, _unit_peak, fixed_interface_modes
 

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flexlink.model import SymbolicModel
+from flexlink.mechanics.model import SymbolicModel
 
 BIG = 1e300   # "no bound" in the C tables (finite, so the glue can compare)
 

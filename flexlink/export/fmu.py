@@ -21,11 +21,11 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 import flexlink
-from flexlink.cbuild import compile_shared_library, fmi_headers_dir, fmu_src_dir
-from flexlink.codegen import GeneratedModel, generate
-from flexlink.derivatives import structure
-from flexlink.model import SymbolicModel, build_model
-from flexlink.scene import Scene, load_scene
+from flexlink.export.cbuild import compile_shared_library, fmi_headers_dir, fmu_src_dir
+from flexlink.export.codegen import GeneratedModel, generate
+from flexlink.export.derivatives import structure
+from flexlink.mechanics.model import SymbolicModel, build_model
+from flexlink.scene.loader import Scene, load_scene
 
 # unit → exponents of the SI base units (FMI 2.0 BaseUnit attributes)
 UNITS = {
@@ -128,7 +128,7 @@ def model_description(model: SymbolicModel, gen: GeneratedModel, sources: list[s
 
 def model_structure(model: SymbolicModel, gen: GeneratedModel) -> list[str]:
     """``<ModelStructure>``: outputs and state derivatives with their dependencies on states and inputs
-    (structural, from CasADi's sparsity: flexlink.derivatives), and the initial unknowns (outputs,
+    (structural, from CasADi's sparsity: flexlink.export.derivatives), and the initial unknowns (outputs,
     states, derivatives) with their dependencies on inputs and parameters."""
     st = structure(model)
     n = model.n_q
@@ -255,7 +255,7 @@ def cached_fmu(scene, model=None) -> Path:
     for f in sorted(fmu_src_dir().iterdir()):
         if f.suffix in (".c", ".h"):
             h.update(f.read_bytes())
-    for f in sorted(Path(__file__).parent.rglob("*.py")):
+    for f in sorted(Path(flexlink.__file__).parent.rglob("*.py")):
         h.update(f.read_bytes())
     path = cache_dir() / f"{scene.model_identifier}-{h.hexdigest()[:16]}.fmu"
     if not path.exists():

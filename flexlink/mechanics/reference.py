@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from flexlink.model import SymbolicModel
+from flexlink.mechanics.model import SymbolicModel
 
 
 @dataclass

@@ -12,16 +12,16 @@ from pathlib import Path
 
 import numpy as np
 
-EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "rotating_link.toml"
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "rotating_link.toml"
 
 
 def run_demo(out: str | Path = "out") -> int:
-    from flexlink.analysis import natural_frequencies
-    from flexlink.fmu import build_fmu
-    from flexlink.model import build_model
-    from flexlink.reference import simulate_reference
-    from flexlink.scene import load_scene
-    from flexlink.simulate import plot_result, simulate, write_csv
+    from flexlink.export.fmu import build_fmu
+    from flexlink.mechanics.analysis import natural_frequencies
+    from flexlink.mechanics.model import build_model
+    from flexlink.mechanics.reference import simulate_reference
+    from flexlink.run.simulate import plot_result, simulate, write_csv
+    from flexlink.scene.loader import load_scene
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
