@@ -1,0 +1,522 @@
+"""Assembly of a serial chain's Lagrangian: coordinates, parameters, inputs, energies, equations.
+
+The chain is walked once from the base: joint i sits on the tip frame of link i−1 and drives link i.
+Every body contributes its kinetic energy from its inertia invariants (:mod:`flexlink.mechanics.kinematics`),
+its gravitational and elastic potential and its Rayleigh dissipation; Lagrange's equations then come from
+CasADi's automatic differentiation.  With ``kinematics = "second-order"`` each body's energy is kept to
+second order in its own elastic coordinates and the bodies are composed exactly along the chain: nothing is
+truncated after differentiation, so ``M = ∂²T/∂q̇²`` stays symmetric and T + V is conserved by the exact
+flow (README "Mechanics", "Why the second-order model is consistent").
+
+The builder keeps its working state in :class:`ChainAssembly`, which :mod:`flexlink.mechanics.outputs`
+reads to form the outputs; :func:`flexlink.mechanics.model.build_model` runs the stages in order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from flexlink.errors import FlexlinkError
+from flexlink.mechanics.kinematics import (
+    LinkDeformation,
+    beam_invariants,
+    body_invariants,
+    body_tip_kinematics,
+    link_basis,
+    rotation,
+    small_rotation,
+    tip_kinematics,
+    torsion_kinetic,
+)
+from flexlink.mechanics.shapes import make_basis
+from flexlink.mechanics.shapes.body import shell_body
+from flexlink.mechanics.shapes.reduction import ModalBeamBasis, ModalTorsionBasis
+from flexlink.mechanics.shapes.torsion import make_torsion_basis
+from flexlink.mechanics.symbolic import Law, Parameter, Signal, StartValue
+from flexlink.scene.loader import Joint, Link, Scene
+
+
+def _unsupported(scene: Scene, what: str) -> FlexlinkError:
+    where = scene.path or scene.name
+    return FlexlinkError(f"{where}: {what} is not supported yet")
+
+
+def check_supported(scene: Scene) -> None:
+    kinds = {link.kinematics for link in scene.links}
+    if len(kinds) > 1:
+        raise _unsupported(scene, f"a chain mixing kinematic models {sorted(kinds)} (use one for every link)")
+    for link in scene.links:
+        if not link.deformation:
+            raise _unsupported(scene, f'link "{link.name}": a rigid link (deformation = [])')
+        if link.shapes.kind not in ("clamped-free", "polynomial", "fe", "shell"):
+            raise _unsupported(scene, f'link "{link.name}": shapes kind {link.shapes.kind!r}')
+
+
+class _Params:
+    """Collects the tunable parameters as they are met; after :meth:`freeze` ``self(i)`` is their symbol."""
+
+    def __init__(self) -> None:
+        self.items: list[Parameter] = []
+        self.p: ca.MX | None = None
+
+    def add(self, *args, **kwargs) -> int:
+        self.items.append(Parameter(*args, **kwargs))
+        return len(self.items) - 1
+
+    def freeze(self) -> ca.MX:
+        self.p = ca.MX.sym("p", len(self.items))
+        return self.p
+
+    def __call__(self, i):
+        return 0 if i is None else self.p[i]
+
+
+@dataclass
+class LinkParts:
+    """Per-link bookkeeping while the chain is assembled: where its coordinates and parameters are."""
+
+    eta: list[int]                 # indices of the link's elastic coordinates in the full vector
+    fields: dict[str, list[int]]   # "v", "w", "alpha" (or "modes" of a shell) → indices
+    bending: object | None         # ShapeBasis for v and w
+    torsion: object | None         # TorsionBasis
+    body: object | None = None     # BodyIntegrals of a shell link (its modes deform in every direction)
+    i_rho: int = 0
+    i_EI: int | None = None
+    i_EIo: int | None = None
+    i_GJ: int | None = None
+    i_mu: int | None = None
+    i_kv: int | None = None
+    i_pm: int | None = None
+    i_pj: int | list[int] | None = None
+    tip: object | None = None      # TipKinematics, once the energies are formed
+
+
+@dataclass
+class Frame:
+    """A link's floating frame (origin, rotation, angular velocity in it) and its tip frame, world-resolved."""
+
+    origin: ca.MX
+    rotation: ca.MX
+    omega: ca.MX
+    tip_origin: ca.MX
+    tip_rotation: ca.MX
+    tip_omega: ca.MX
+
+
+def _vee_skew(A):
+    """The vector of the skew-symmetric part of a 3×3 matrix (ω from Rᵀ Ṙ)."""
+    return 0.5 * ca.vertcat(A[2, 1] - A[1, 2], A[0, 2] - A[2, 0], A[1, 0] - A[0, 1])
+
+
+@dataclass
+class ChainAssembly:
+    """The working state of one chain's assembly, in the order the stages fill it."""
+
+    scene: Scene
+    coordinates: list[str] = field(default_factory=list)
+    kinds: list[str] = field(default_factory=list)
+    nominal: list[float] = field(default_factory=list)
+    joint_coord: list[int] = field(default_factory=list)          # link-side angle of joint i
+    motor_coord: list[int | None] = field(default_factory=list)   # motor angle of elastic joint i
+    parts: list[LinkParts] = field(default_factory=list)
+    terms: list[str] = field(default_factory=list)
+    P: _Params = field(default_factory=_Params)
+    i_Ih: list[int] = field(default_factory=list)
+    i_damp: list[int | None] = field(default_factory=list)
+    i_k: list[int | None] = field(default_factory=list)
+    i_g: list[int] | None = None
+    inputs: list[Signal] = field(default_factory=list)
+    laws: list[Law] = field(default_factory=list)
+    tau_input: dict[int, int] = field(default_factory=dict)   # coordinate → u index of its torque
+    prescribed: dict[int, int] = field(default_factory=dict)  # coordinate → u offset of its law
+    tip_load: int | None = None
+    bodies: list[dict] = field(default_factory=list)   # per body: mass, ∫ρr, ∫ρṙ, ∫ρ r×ṙ (world)
+    joint_frames: list[tuple] = field(default_factory=list)   # per joint: origin, rotation (world)
+    frames: list[Frame] = field(default_factory=list)
+
+    @property
+    def kinematics(self) -> str:
+        return self.scene.links[0].kinematics
+
+    @property
+    def second_order(self) -> bool:
+        return self.kinematics == "second-order"
+
+    def driven(self, i: int) -> int:
+        """The coordinate joint i's actuator acts on: the motor angle of an elastic joint, else the joint angle."""
+        return self.motor_coord[i] if self.motor_coord[i] is not None else self.joint_coord[i]
+
+    def deformation(self, part: LinkParts, q, v) -> LinkDeformation:
+        f = part.fields
+
+        def pick(x, name):
+            return ca.vertcat(*[x[i] for i in f[name]]) if name in f else None
+
+        return LinkDeformation(pick(q, "v"), pick(q, "w"), pick(q, "alpha"),
+                               pick(v, "v"), pick(v, "w"), pick(v, "alpha"))
+
+    # ---- coordinates: per joint its angle (and motor angle if elastic), then its link's η (v, w, α)
+    def _new(self, name: str, kind: str, nominal: float = 1.0) -> int:
+        self.coordinates.append(name)
+        self.kinds.append(kind)
+        self.nominal.append(nominal)
+        return len(self.coordinates) - 1
+
+    def add_joint_coordinates(self, joint: Joint) -> None:
+        if joint.is_elastic:
+            self.motor_coord.append(self._new(f"{joint.name}.motor_theta", "joint"))
+            self.joint_coord.append(self._new(f"{joint.name}.theta", "link_angle"))
+        else:
+            self.motor_coord.append(None)
+            self.joint_coord.append(self._new(f"{joint.name}.theta", "joint"))
+
+    def add_shell_coordinates(self, link: Link) -> None:
+        try:
+            body = shell_body(link)
+        except ValueError as exc:
+            raise FlexlinkError(f'{self.scene.path or self.scene.name}: link "{link.name}": {exc}') from None
+        eta = [self._new(f"{link.name}.eta[{k + 1}]", "elastic") for k in range(body.n)]
+        self.parts.append(LinkParts(eta, {"modes": eta}, None, None, body))
+        shape = link.shapes
+        self.terms.append(f'link "{link.name}": {body.n} modes of a {shape.section} of DKT + CST shell elements '
+                          f"(mesh {'x'.join(map(str, shape.mesh))}, joint held), {self.kinematics} kinematics")
+
+    def add_beam_coordinates(self, link: Link) -> None:
+        bending = torsion = None
+        xs = np.linspace(0.0, link.length, 401)
+        if "v" in link.deformation or "w" in link.deformation:
+            bending = make_basis(link.shapes.kind, link.shapes.count, link.length, link.linear_density)
+            if link.shapes.modes is not None:
+                bending = ModalBeamBasis(bending, link.shapes.modes)
+            scale = np.maximum(np.max(np.abs(bending.evaluate(xs)), axis=0),
+                               link.length * np.max(np.abs(bending.evaluate(xs, 1)), axis=0))
+        if "alpha" in link.deformation:
+            torsion = make_torsion_basis(link.shapes.kind, link.shapes.count, link.length, link.polar_inertia or 0.0)
+            if link.shapes.modes is not None:
+                torsion = ModalTorsionBasis(torsion, link.shapes.modes)
+        fields: dict[str, list[int]] = {}
+        eta: list[int] = []
+        for name in ("v", "w", "alpha"):
+            if name not in link.deformation:
+                continue
+            basis = torsion if name == "alpha" else bending
+            nominal = (1.0 / np.max(np.abs(torsion.evaluate(xs)), axis=0)) if name == "alpha" else 1.0 / scale
+            fields[name] = [self._new(f"{link.name}.eta[{len(eta) + k + 1}]", "elastic", float(nominal[k]))
+                            for k in range(basis.n)]
+            eta += fields[name]
+        self.parts.append(LinkParts(eta, fields, bending, torsion))
+        kind = link.shapes.kind if link.shapes.modes is None else f"{link.shapes.kind} ({link.shapes.modes} modes)"
+        self.terms.append(f'link "{link.name}": ' + ", ".join(f"{len(fields[f])} {kind} coordinates for {f}"
+                                                              for f in fields) + f", {self.kinematics} kinematics")
+
+    def add_coordinates(self) -> None:
+        for joint, link in zip(self.scene.joints, self.scene.links, strict=True):
+            self.add_joint_coordinates(joint)
+            if link.is_shell:
+                self.add_shell_coordinates(link)
+            else:
+                self.add_beam_coordinates(link)
+        n = len(self.coordinates)
+        self.qa, self.va, self.aa = ca.MX.sym("qa", n), ca.MX.sym("va", n), ca.MX.sym("aa", n)
+
+    # ---- parameters: a term is in the model only if the scene needs it, or [fmu] tunable asks
+    def add_link_parameters(self, link: Link, part: LinkParts, tunable: set[str]) -> None:
+        P = self.P
+        if link.is_shell:
+            part.i_rho = P.add(f"{link.name}.density", link.density, "kg/m3", "density of the shell", 0.0, True)
+            part.i_EI = P.add(f"{link.name}.E", link.E, "Pa", "Young's modulus of the shell (its modes are kept)",
+                              0.0, True)
+        else:
+            part.i_rho = P.add(f"{link.name}.linear_density", link.linear_density, "kg/m", "mass per unit length",
+                               0.0, True)
+        if "v" in part.fields:
+            part.i_EI = P.add(f"{link.name}.EI", link.EI, "N.m2", "bending stiffness in the joint's plane", 0.0, True)
+        if "w" in part.fields:
+            part.i_EIo = P.add(f"{link.name}.EI_out", link.EI_out, "N.m2", "out-of-plane bending stiffness",
+                               0.0, True)
+        if "alpha" in part.fields:
+            part.i_GJ = P.add(f"{link.name}.GJ", link.GJ, "N.m2", "torsional stiffness", 0.0, True)
+            part.i_mu = P.add(f"{link.name}.polar_inertia", link.polar_inertia, "kg.m",
+                              "polar mass moment of the section per unit length", 0.0)
+        if link.kelvin_voigt > 0 or f"{link.name}.kelvin_voigt" in tunable:
+            part.i_kv = P.add(f"{link.name}.kelvin_voigt", link.kelvin_voigt, "s", "Kelvin-Voigt damping coefficient",
+                              0.0)
+            self.terms.append(f'link "{link.name}": Kelvin-Voigt structural damping')
+        pay = link.payload
+        if pay.is_present or {f"{link.name}.payload.mass", f"{link.name}.payload.inertia"} & tunable:
+            part.i_pm = P.add(f"{link.name}.payload.mass", pay.mass, "kg", "tip payload mass", 0.0)
+            if isinstance(pay.inertia, int | float):
+                part.i_pj = P.add(f"{link.name}.payload.inertia", float(pay.inertia), "kg.m2",
+                                  "tip payload inertia about the joint axis", 0.0)
+            else:
+                part.i_pj = [P.add(f"{link.name}.payload.inertia[{k + 1}]", float(pay.inertia[k]), "kg.m2",
+                                   f"tip payload inertia J{'xyz'[k]}{'xyz'[k]}, tip frame", 0.0) for k in range(3)]
+            self.terms.append(f'link "{link.name}": tip payload')
+
+    def add_parameters(self) -> None:
+        scene, P = self.scene, self.P
+        tunable = set(scene.fmu.tunable)
+        for link, part in zip(scene.links, self.parts, strict=True):
+            self.add_link_parameters(link, part, tunable)
+        self.i_Ih = [P.add(f"{j.name}.inertia", j.inertia, "kg.m2", "rotor / hub inertia about the axis", 0.0)
+                     for j in scene.joints]
+        self.i_damp = [P.add(f"{j.name}.damping", j.damping, "N.m.s/rad", "viscous joint damping", 0.0)
+                       if (j.damping > 0 or f"{j.name}.damping" in tunable) else None for j in scene.joints]
+        self.i_k = [P.add(f"{j.name}.stiffness", j.stiffness, "N.m/rad", "joint stiffness (motor to link)", 0.0, True)
+                    if j.is_elastic else None for j in scene.joints]
+        if scene.has_gravity or "gravity" in tunable:
+            self.i_g = [P.add(f"gravity[{k + 1}]", scene.gravity[k], "m/s2", "gravity, inertial frame")
+                        for k in range(3)]
+            self.terms.append("gravity (non-zero in the scene or tunable)")
+        self.p = P.freeze()
+        self.g_vec = ca.vertcat(*[self.p[i] for i in self.i_g]) if self.i_g is not None else ca.DM.zeros(3)
+
+    # ---- inputs: torques, prescribed laws, tip loads
+    def add_inputs(self) -> None:
+        inputs = self.inputs
+        for i, joint in enumerate(self.scene.joints):
+            if joint.drive == "torque":
+                self.tau_input[self.driven(i)] = len(inputs)
+                inputs.append(Signal(f"{joint.name}.tau", "N.m", "joint torque (motor side)"))
+            elif joint.drive == "position":
+                builtin = joint.trajectory is not None
+                self.prescribed[self.driven(i)] = len(inputs)
+                self.laws.append(Law(joint.name, len(inputs), joint.trajectory))
+                for suffix, unit, what in (("theta_ref", "rad", "angle"), ("omega_ref", "rad/s", "rate"),
+                                           ("alpha_ref", "rad/s2", "acceleration")):
+                    inputs.append(Signal(f"{joint.name}.{suffix}", unit, f"prescribed joint {what}",
+                                         fmu_variable=not builtin))
+        if self.scene.fmu.tip_load_inputs:
+            self.tip_load = len(inputs)
+            for c, unit, what in (("fx", "N", "force"), ("fy", "N", "force"), ("fz", "N", "force"),
+                                  ("mx", "N.m", "moment"), ("my", "N.m", "moment"), ("mz", "N.m", "moment")):
+                inputs.append(Signal(f"tip.{c}", unit, f"external {what} on the tip, inertial frame"))
+            self.terms.append("tip force and moment inputs ([fmu] tip_load_inputs)")
+        self.u = ca.MX.sym("u", len(inputs))
+
+    # ---- kinetic and gravitational energy along the chain (seed 000 ch. 2–3, generalised)
+    def link_energy(self, i: int, link: Link, part: LinkParts, VL, RL, wL) -> tuple:
+        """Kinetic energy of link i's material, its body record and its gravitational energy."""
+        qa, va, p = self.qa, self.va, self.p
+        Pp = self.origin
+        rho = p[part.i_rho]
+        d = self.deformation(part, qa, va)
+        m_unit = link.length                    # mass per unit of the density parameter
+        if part.body is not None:
+            inv = body_invariants(part.body, self.eta_of(part, qa), self.eta_of(part, va))
+            m_unit = part.body.volume
+        elif part.bending is not None:
+            inv = beam_invariants(part.bending.integrals, link.length, d, self.second_order)
+        else:                                   # torsion only: the link's axis stays straight
+            inv = None
+        if inv is not None:
+            S1, J, H = inv.first_moment, inv.inertia(), inv.angular_momentum
+            S1d = ca.jtimes(S1, qa, va)
+            T = 0.5 * rho * (m_unit * ca.dot(VL, VL) + 2 * ca.dot(ca.mtimes(RL.T, VL), ca.cross(wL, S1) + S1d)
+                             + ca.dot(wL, ca.mtimes(J, wL)) + 2 * ca.dot(wL, H) + inv.relative_kinetic)
+        else:
+            S1 = ca.vertcat(link.length**2 / 2, 0, 0)
+            J = ca.diag(ca.vertcat(0, link.length**3 / 3, link.length**3 / 3))
+            H, S1d = ca.DM.zeros(3), ca.DM.zeros(3)
+            T = 0.5 * rho * (link.length * ca.dot(VL, VL) + 2 * ca.dot(ca.mtimes(RL.T, VL), ca.cross(wL, S1))
+                             + ca.dot(wL, ca.mtimes(J, wL)))
+        # ∫ρ ṙ = ρ(L V + R(ω×S1 + Ṡ1));  ∫ρ (r × ṙ) = P × ∫ρṙ + R ρ(S1 × (RᵀV) + J ω + H)
+        momentum = rho * (m_unit * VL + ca.mtimes(RL, ca.cross(wL, S1) + S1d))
+        spin = ca.mtimes(RL, rho * (ca.cross(S1, ca.mtimes(RL.T, VL)) + ca.mtimes(J, wL) + H))
+        if part.torsion is not None:
+            T += 0.5 * p[part.i_mu] * torsion_kinetic(part.torsion.integrals, link.length, d, wL[0])
+            tor = part.torsion.integrals
+            spin += ca.mtimes(RL, ca.vertcat(p[part.i_mu] * (link.length * wL[0]
+                                                             + ca.dot(ca.DM(tor.phi), d.alpha_dot)), 0, 0))
+        moment = rho * m_unit * Pp + ca.mtimes(RL, rho * S1)
+        self.bodies.append(dict(joint=i, mass=rho * m_unit, moment=moment, momentum=momentum,
+                                spin=spin + ca.cross(Pp, momentum)))
+        Vg = -ca.dot(self.g_vec, moment) if self.i_g is not None else 0
+        return T, Vg
+
+    def eta_of(self, part: LinkParts, x):
+        return ca.vertcat(*[x[k] for k in part.eta])
+
+    def link_tip(self, link: Link, part: LinkParts, RL, wL) -> Frame:
+        """The tip frame of a link: position, rotation and angular velocity (world-resolved)."""
+        qa, va = self.qa, self.va
+        if part.body is not None:
+            tip = body_tip_kinematics(part.body, self.eta_of(part, qa))
+        else:
+            d = self.deformation(part, qa, va)
+            tip = tip_kinematics(part.bending.integrals if part.bending else None,
+                                 part.torsion.integrals if part.torsion else None, link.length, d, self.second_order)
+        part.tip = tip
+        Rdef = small_rotation(tip.rotation_vector, self.second_order)
+        Rdef_dot = ca.reshape(ca.jtimes(ca.vec(Rdef), qa, va), 3, 3)
+        wt = ca.mtimes(Rdef.T, wL) + _vee_skew(ca.mtimes(Rdef.T, Rdef_dot))
+        self.Rdef = Rdef
+        return Frame(self.origin, RL, wL, self.origin + ca.mtimes(RL, tip.position), ca.mtimes(RL, Rdef), wt)
+
+    def payload_energy(self, i: int, link: Link, part: LinkParts, VL, frame: Frame) -> tuple:
+        """Kinetic and gravitational energy of link i's tip payload, and its body record."""
+        p, RL, wL, Pp = self.p, frame.rotation, frame.omega, self.origin
+        # the payload's velocity in the link basis: base velocity + ω × s_p + ṡ_p (no world rotation in it,
+        # so that a linear model stays structurally linear)
+        offset = ca.DM(np.asarray(link.payload.offset, float))
+        sp = part.tip.position + ca.mtimes(self.Rdef, offset)
+        Vp = ca.mtimes(RL.T, VL) + ca.cross(wL, sp) + ca.jtimes(sp, self.qa, self.va)
+        rp = Pp + ca.mtimes(RL, sp)
+        if isinstance(part.i_pj, list):
+            Jp = ca.diag(ca.vertcat(*[p[k] for k in part.i_pj]))
+        else:
+            Jp = ca.diag(ca.vertcat(0, 0, p[part.i_pj]))
+        wt = frame.tip_omega
+        T = 0.5 * p[part.i_pm] * ca.dot(Vp, Vp) + 0.5 * ca.dot(wt, ca.mtimes(Jp, wt))
+        Vg = -p[part.i_pm] * ca.dot(self.g_vec, rp) if self.i_g is not None else 0
+        mom_p = p[part.i_pm] * ca.mtimes(RL, Vp)
+        self.bodies.append(dict(joint=i, mass=p[part.i_pm], moment=p[part.i_pm] * rp, momentum=mom_p,
+                                spin=ca.cross(rp, mom_p) + ca.mtimes(frame.tip_rotation, ca.mtimes(Jp, wt))))
+        return T, Vg
+
+    def add_energies(self) -> None:
+        """T and V_gravity of the whole chain, walking the frames from the base."""
+        qa, va = self.qa, self.va
+        T = Vg = 0
+        self.origin, Rp, wp = ca.DM.zeros(3), ca.DM.eye(3), ca.DM.zeros(3)   # parent frame
+        for i, (joint, link, part) in enumerate(zip(self.scene.joints, self.scene.links, self.parts, strict=True)):
+            a = np.asarray(joint.axis, float)
+            th, thd = qa[self.joint_coord[i]], va[self.joint_coord[i]]
+            Rj = rotation(a, th)
+            RL = ca.mtimes(ca.mtimes(Rp, Rj), ca.DM(link_basis(a)))
+            wL = ca.mtimes(ca.DM(link_basis(a)).T, ca.mtimes(Rj.T, wp) + ca.DM(a) * thd)
+            motor_rate = va[self.motor_coord[i]] if self.motor_coord[i] is not None else thd
+            # the rotor spins about the joint axis with the shaft: angular momentum only (it sits at the joint)
+            rotor_rate = ca.dot(ca.DM(a), wp) + motor_rate
+            T += 0.5 * self.P(self.i_Ih[i]) * rotor_rate ** 2
+            self.bodies.append(dict(joint=i, mass=0, moment=ca.DM.zeros(3), momentum=ca.DM.zeros(3),
+                                    spin=self.P(self.i_Ih[i]) * rotor_rate * ca.mtimes(Rp, ca.DM(a))))
+            VL = ca.jtimes(self.origin, qa, va) if i > 0 else ca.DM.zeros(3)
+            T_link, Vg_link = self.link_energy(i, link, part, VL, RL, wL)
+            frame = self.link_tip(link, part, RL, wL)
+            T, Vg = T + T_link, Vg + Vg_link
+            if part.i_pm is not None:
+                T_pay, Vg_pay = self.payload_energy(i, link, part, VL, frame)
+                T, Vg = T + T_pay, Vg + Vg_pay
+            self.joint_frames.append((self.origin, ca.mtimes(Rp, Rj)))
+            self.frames.append(frame)
+            self.origin, Rp, wp = frame.tip_origin, frame.tip_rotation, frame.tip_omega
+        if self.kinematics == "linear":
+            # T at η = 0, the rates kept (seed 000 eq. 3.7)
+            eta_all = {k for part in self.parts for k in part.eta}
+            mask = ca.DM([0.0 if k in eta_all else 1.0 for k in range(len(self.coordinates))])
+            T = ca.Function("T", [qa, va, self.p], [T])(qa * mask, va, self.p)
+        self.T, self.Vg = T, Vg
+
+    # ---- elastic potential, dissipation and generalized forces
+    def add_potential_and_dissipation(self) -> None:
+        qa, va, p = self.qa, self.va, self.p
+        Ve = R = 0
+        for i, (joint, part) in enumerate(zip(self.scene.joints, self.parts, strict=True)):
+            if part.body is not None:
+                x, xd, K = self.eta_of(part, qa), self.eta_of(part, va), ca.DM(part.body.stiffness)
+                Ve += 0.5 * p[part.i_EI] * ca.dot(x, ca.mtimes(K, x))
+                if part.i_kv is not None:
+                    R += 0.5 * p[part.i_kv] * p[part.i_EI] * ca.dot(xd, ca.mtimes(K, xd))
+            q_d = self.deformation(part, qa, va)
+            for name, stiff_i in (("v", part.i_EI), ("w", part.i_EIo), ("alpha", part.i_GJ)):
+                if name not in part.fields:
+                    continue
+                K = ca.DM(part.torsion.integrals.stiff if name == "alpha" else part.bending.integrals.curv)
+                x, xd = getattr(q_d, name), getattr(q_d, f"{name}_dot")
+                Ve += 0.5 * p[stiff_i] * ca.dot(x, ca.mtimes(K, x))
+                if part.i_kv is not None:
+                    R += 0.5 * p[part.i_kv] * p[stiff_i] * ca.dot(xd, ca.mtimes(K, xd))
+            if self.i_damp[i] is not None:
+                R += 0.5 * p[self.i_damp[i]] * va[self.driven(i)] ** 2
+            if self.i_k[i] is not None:
+                Ve += 0.5 * p[self.i_k[i]] * (qa[self.motor_coord[i]] - qa[self.joint_coord[i]]) ** 2
+                self.terms.append(f'joint "{joint.name}": elastic (stiffness > 0), motor and link angles')
+        self.Ve, self.R = Ve, R
+
+    def generalized_forces(self):
+        """Joint torques and the tip load's power F·ṙ_tip + M·ω_tip, as forces on the coordinates."""
+        u = self.u
+        Q = ca.MX.zeros(len(self.coordinates))
+        for k, j in self.tau_input.items():
+            Q[k] = u[j]
+        if self.tip_load is not None:
+            last = self.frames[-1]
+            power = (ca.dot(u[self.tip_load:self.tip_load + 3], ca.jtimes(last.tip_origin, self.qa, self.va))
+                     + ca.dot(u[self.tip_load + 3:self.tip_load + 6], ca.mtimes(last.tip_rotation, last.tip_omega)))
+            Q += ca.gradient(power, self.va)
+        return Q
+
+    # ---- Lagrange's equations by automatic differentiation, then free and prescribed coordinates
+    def add_equations(self) -> None:
+        qa, va, aa = self.qa, self.va, self.aa
+        Lag = self.T - self.Ve - self.Vg
+        dL_dv = ca.gradient(Lag, va)
+        r_all = (ca.jtimes(dL_dv, va, aa) + ca.jtimes(dL_dv, qa, va) - ca.gradient(Lag, qa)
+                 + ca.gradient(self.R, va) - self.generalized_forces())
+        self.r_all = ca.Function("r_all", [qa, va, aa, self.u, self.p], [r_all])
+        if self.second_order:
+            self.terms.append("second-order kinematics: foreshortening; each body's energy to second order in its "
+                              "own elastic coordinates, the chain composed exactly (a Lagrangian: M symmetric)")
+        n_all = len(self.coordinates)
+        self.free = [k for k in range(n_all) if k not in self.prescribed]
+        n_free = len(self.free)
+        self.q, self.v, self.a = ca.MX.sym("q", n_free), ca.MX.sym("v", n_free), ca.MX.sym("a", n_free)
+        # the full coordinate vectors seen from the free ones: a prescribed coordinate's value, rate and
+        # acceleration are slots 0, 1, 2 of its law's inputs
+        self.qa_e, self.va_e, self.aa_e = (
+            ca.vertcat(*[self.u[self.prescribed[k] + slot] if k in self.prescribed else x[self.free.index(k)]
+                         for k in range(n_all)])
+            for slot, x in enumerate((self.q, self.v, self.a)))
+        r_full = self.r_all(self.qa_e, self.va_e, self.aa_e, self.u, self.p)
+        self.residual = ca.Function("residual", [self.q, self.v, self.a, self.u, self.p], [r_full[self.free]],
+                                    ["q", "v", "a", "u", "p"], ["r"])
+
+    def free_function(self, name: str, expressions: list, with_rates: bool = True) -> ca.Function:
+        """A Function of the free (q, v, a, u, p) — or (q, u, p) — from expressions in the full coordinates."""
+        inner = ca.Function(f"{name}_all", [self.qa, self.va, self.aa, self.u, self.p], [ca.vertcat(*expressions)])
+        if with_rates:
+            value = inner(self.qa_e, self.va_e, self.aa_e, self.u, self.p)
+            return ca.Function(name, [self.q, self.v, self.a, self.u, self.p], [value],
+                               ["q", "v", "a", "u", "p"], ["y"])
+        zeros = ca.DM.zeros(len(self.coordinates))
+        value = inner(self.qa_e, zeros, zeros, self.u, self.p)
+        return ca.Function(name, [self.q, self.u, self.p], [value], ["q", "u", "p"], ["g"])
+
+    # ---- start values and initial deformation
+    def start_values(self) -> tuple[list[StartValue], list[int]]:
+        start: list[StartValue] = []
+        static: list[int] = []
+        free = self.free
+        for i, (joint, link, part) in enumerate(zip(self.scene.joints, self.scene.links, self.parts, strict=True)):
+            for k in (self.motor_coord[i], self.joint_coord[i]):
+                if k is None or k in self.prescribed:
+                    continue
+                suffix = "motor_" if k == self.motor_coord[i] else ""
+                angle = joint.initial_angle
+                if joint.trajectory is not None:          # a position-driven elastic joint: start unstretched
+                    angle = joint.trajectory.evaluate(0.0)[0]
+                what = suffix.replace("_", " ")
+                start.append(StartValue(f"{joint.name}.{suffix}initial_angle", free.index(k), False, angle,
+                                        "rad", f"initial {what}angle"))
+                start.append(StartValue(f"{joint.name}.{suffix}initial_rate", free.index(k), True,
+                                        joint.initial_rate, "rad/s", f"initial {what}rate"))
+            if link.initial_deformation == "static":
+                static += [free.index(k) for k in part.eta]
+                if self.motor_coord[i] is not None and self.joint_coord[i] not in self.prescribed:
+                    static.append(free.index(self.joint_coord[i]))
+        return start, sorted(static)
+
+
+def structure(residual: ca.Function) -> tuple[bool, bool]:
+    """(linear in the state, Newton matrix constant) — decided on the scalar expansion, where CasADi
+    folds structural zeros that the matrix graph keeps."""
+    f = residual.expand()
+    q, v, a, u, p = (ca.SX.sym(n, *f.size_in(i)) for i, n in enumerate("qvaup"))
+    state = ca.vertcat(q, v, a)
+    J = ca.jacobian(f(q, v, a, u, p), state)
+    linear = not ca.depends_on(J, state)
+    return linear, linear and not ca.depends_on(J, u)

@@ -1,0 +1,150 @@
+"""What a chain's model reports: joint and link outputs, joint reactions, the end effector, energies, validity.
+
+Every output is an expression in the full coordinates (q, q̇, q̈) of a :class:`ChainAssembly`; the builder
+turns them into one Function of the free coordinates.  The *validity* function measures, as ratios that must
+stay ≤ 1, how far the state is from what a small-deflection beam model is meant for; the FMU refuses a step
+that leaves this range instead of returning numbers the model cannot stand behind (README "Guards").
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+
+from flexlink.mechanics.assembly import ChainAssembly
+from flexlink.mechanics.symbolic import Signal
+
+#: Largest tip deflection a link's beam model is trusted for, as a fraction of its length.  The mass matrix
+#: of the second-order model stays positive definite well beyond it (its smallest eigenvalue is 0.99 of the
+#: undeformed one at 10 % and 0.61 at 20 % for smooth deflections of a two-link arm, tests/test_mass_matrix.py),
+#: and the small-rotation kinematics of the tip frame are off by ≈ ψ²/6 ≈ 1 % at this size.
+DEFLECTION_LIMIT = 0.2
+#: Largest tip rotation (bending slope or twist, rad) the small-rotation tip frame is trusted for (20°).
+ROTATION_LIMIT = 0.35
+
+
+def _link_outputs(chain: ChainAssembly, i: int) -> list[tuple[Signal, object]]:
+    """Joint i's angle, rate (and prescribed torque), its link's tip deflections, root moment and coordinates."""
+    joint, link, part = chain.scene.joints[i], chain.scene.links[i], chain.parts[i]
+    qa, va, p = chain.qa, chain.va, chain.p
+    out: list[tuple[Signal, object]] = [
+        (Signal(f"{joint.name}.theta", "rad", "joint angle (link side)"), qa[chain.joint_coord[i]]),
+        (Signal(f"{joint.name}.omega", "rad/s", "joint rate (link side)"), va[chain.joint_coord[i]])]
+    if chain.motor_coord[i] is not None:
+        out.append((Signal(f"{joint.name}.motor_theta", "rad", "motor angle of the elastic joint"),
+                    qa[chain.motor_coord[i]]))
+    if chain.driven(i) in chain.prescribed:
+        r_full = chain.r_all(qa, va, chain.aa, chain.u, p)
+        out.append((Signal(f"{joint.name}.tau", "N.m", "joint torque the prescribed law needs", feedthrough=True),
+                    r_full[chain.driven(i)]))
+    tip = part.tip
+    if part.body is not None:
+        where = "the mid-point of the free edge" if link.shapes.section == "plate" else "the end section"
+        for k, c in ((1, "v"), (2, "w")):
+            out.append((Signal(f"{link.name}.tip.{c}", "m", f"tip deflection {c} at {where}"),
+                        tip.position[k] - float(part.body.tip_point[k])))
+        out.append((Signal(f"{link.name}.tip.twist", "rad", "twist of the end section (rigid fit of its nodes)"),
+                    tip.rotation_vector[0]))
+        out.append((Signal(f"{link.name}.root.moment", "N.m", "elastic bending moment at the root about the "
+                           "joint axis (clamp reactions of the modes)"),
+                    p[part.i_EI] * ca.dot(ca.DM(part.body.root_moment), chain.eta_of(part, qa))))
+    if "v" in part.fields:
+        out.append((Signal(f"{link.name}.tip.v", "m", "in-plane tip deflection v(L)"), tip.position[1]))
+    if "w" in part.fields:
+        out.append((Signal(f"{link.name}.tip.w", "m", "out-of-plane tip deflection w(L)"), tip.position[2]))
+    if "alpha" in part.fields:
+        out.append((Signal(f"{link.name}.tip.twist", "rad", "tip twist alpha(L)"), tip.rotation_vector[0]))
+    if "v" in part.fields:
+        curv0 = ca.DM(part.bending.evaluate([0.0], 2)[0])
+        ev = ca.vertcat(*[qa[k] for k in part.fields["v"]])
+        out.append((Signal(f"{link.name}.root.moment", "N.m", "bending moment at the root EI v''(0)"),
+                    p[part.i_EI] * ca.dot(curv0, ev)))
+    for n_k, k in enumerate(part.eta):
+        out.append((Signal(f"{link.name}.eta[{n_k + 1}]", "", f"elastic coordinate {n_k + 1}"), qa[k]))
+    return out
+
+
+def _joint_reactions(chain: ChainAssembly, i: int) -> list[tuple[Signal, object]]:
+    """The force and moment the parent exerts on everything beyond joint i (seed 001 §2.10).
+
+    Newton–Euler on that subtree: F = d/dt Σ∫ṙ − Σ m g − F_tip and
+    M_O = d/dt Σ∫(r−O)×ṙ + Ȯ × Σ∫ṙ − Σ (∫r − m O) × g − (P_tip − O) × F_tip − M_tip, in the joint frame.
+    """
+    qa, va, aa, u, g = chain.qa, chain.va, chain.aa, chain.u, chain.g_vec
+
+    def rate(x):
+        return ca.jtimes(x, qa, va) + ca.jtimes(x, va, aa)
+
+    sub = [b for b in chain.bodies if b["joint"] >= i]
+    O, Rjf = chain.joint_frames[i]
+    mass = sum(b["mass"] for b in sub)
+    moment = sum(b["moment"] for b in sub)
+    momentum = sum(b["momentum"] for b in sub)
+    spin = sum(b["spin"] for b in sub)
+    force = rate(momentum) - mass * g
+    O_dot = ca.jtimes(O, qa, va) if i > 0 else ca.DM.zeros(3)
+    torque = rate(spin - ca.cross(O, momentum)) + ca.cross(O_dot, momentum) - ca.cross(moment - mass * O, g)
+    if chain.tip_load is not None:
+        k0 = chain.tip_load
+        force -= u[k0:k0 + 3]
+        torque -= ca.cross(chain.frames[-1].tip_origin - O, u[k0:k0 + 3]) + u[k0 + 3:k0 + 6]
+    f_local, m_local = ca.mtimes(Rjf.T, force), ca.mtimes(Rjf.T, torque)
+    name = chain.scene.joints[i].name
+    return ([(Signal(f"{name}.reaction.f{c}", "N", f"force transmitted by the joint, joint frame {c}",
+                     feedthrough=True), f_local[k]) for k, c in enumerate("xyz")]
+            + [(Signal(f"{name}.reaction.m{c}", "N.m", f"moment transmitted by the joint about its origin, "
+                       f"joint frame {c}", feedthrough=True), m_local[k]) for k, c in enumerate("xyz")])
+
+
+def _end_effector(chain: ChainAssembly) -> list[tuple[Signal, object]]:
+    """Position, absolute acceleration and accelerometer specific force of the last link's tip."""
+    qa, va, aa = chain.qa, chain.va, chain.aa
+    last = chain.frames[-1]
+    v_tip = ca.jtimes(last.tip_origin, qa, va)
+    a_tip = ca.jtimes(v_tip, qa, va) + ca.jtimes(v_tip, va, aa)
+    specific = ca.mtimes(last.tip_rotation.T, a_tip - chain.g_vec)
+    return ([(Signal(f"tip.{c}", "m", f"end-effector position {c}, inertial frame"), last.tip_origin[k])
+             for k, c in enumerate("xyz")]
+            + [(Signal(f"tip.a{c}", "m/s2", f"end-effector absolute acceleration {c}", feedthrough=True), a_tip[k])
+               for k, c in enumerate("xyz")]
+            + [(Signal(f"tip.s{c}", "m/s2", f"tip accelerometer specific force {c}, tip frame", feedthrough=True),
+                specific[k]) for k, c in enumerate("xyz")])
+
+
+def chain_outputs(chain: ChainAssembly) -> tuple[list[Signal], list]:
+    """Every output of the chain, in the order the FMU lists them: links, reactions, end effector, energies."""
+    out: list[tuple[Signal, object]] = []
+    for i in range(len(chain.scene.joints)):
+        out += _link_outputs(chain, i)
+    for i in range(len(chain.scene.joints)):
+        out += _joint_reactions(chain, i)
+    out += _end_effector(chain)
+    out.append((Signal("energy.kinetic", "J", "kinetic energy"), chain.T))
+    out.append((Signal("energy.potential", "J", "elastic and gravitational potential energy"),
+                chain.Ve + chain.Vg))
+    return [s for s, _ in out], [e for _, e in out]
+
+
+def validity(chain: ChainAssembly) -> tuple[ca.Function, list[str]]:
+    """g(q, u, p): per beam link, |tip deflection| / (DEFLECTION_LIMIT · L) and |tip rotation| / ROTATION_LIMIT.
+
+    A shell link's modes are checked by their tip deflection against the same fraction of its length.
+    Returns the Function and the name of each entry (what the FMU's log line quotes when one exceeds 1).
+    """
+    names: list[str] = []
+    ratios: list = []
+    for link, part in zip(chain.scene.links, chain.parts, strict=True):
+        tip = part.tip
+        reach = DEFLECTION_LIMIT * link.length
+        offset = part.body.tip_point if part.body is not None else (0.0, 0.0, 0.0)
+        bends = [(k, c) for k, c in ((1, "v"), (2, "w")) if c in part.fields or part.body is not None]
+        for k, c in bends:
+            names.append(f"{link.name}.tip.{c} / ({DEFLECTION_LIMIT:g} x length)")
+            ratios.append(ca.fabs(tip.position[k] - float(offset[k])) / reach)
+        if part.body is None:
+            for k, c in bends:
+                names.append(f"{link.name} tip slope d{c}/dx / {ROTATION_LIMIT:g} rad")
+                ratios.append(ca.fabs(tip.rotation_vector[3 - k]) / ROTATION_LIMIT)
+        if "alpha" in part.fields or part.body is not None:
+            names.append(f"{link.name}.tip.twist / {ROTATION_LIMIT:g} rad")
+            ratios.append(ca.fabs(tip.rotation_vector[0]) / ROTATION_LIMIT)
+    return chain.free_function("model_validity", ratios, with_rates=False), names
