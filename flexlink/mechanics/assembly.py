@@ -23,10 +23,12 @@ from flexlink.errors import FlexlinkError
 from flexlink.mechanics.kinematics import (
     LinkDeformation,
     beam_invariants,
+    beam_points,
     body_invariants,
     body_tip_kinematics,
     link_basis,
     rotation,
+    skew,
     small_rotation,
     tip_kinematics,
     torsion_kinetic,
@@ -301,15 +303,54 @@ class ChainAssembly:
     def link_energy(self, i: int, link: Link, part: LinkParts, VL, RL, wL) -> tuple:
         """Kinetic energy of link i's material, its body record and its gravitational energy."""
         qa, va, p = self.qa, self.va, self.p
+        if self.second_order and part.bending is not None:
+            T, record = self.material_points(part, VL, RL, wL)
+        else:
+            T, record = self.invariant_body(link, part, VL, RL, wL)
+        if part.torsion is not None:
+            d = self.deformation(part, qa, va)
+            T += 0.5 * p[part.i_mu] * torsion_kinetic(part.torsion.integrals, link.length, d, wL[0])
+            record["spin"] += ca.mtimes(RL, ca.vertcat(p[part.i_mu] * (link.length * wL[0] + ca.dot(
+                ca.DM(part.torsion.integrals.phi), d.alpha_dot)), 0, 0))
+        record["spin"] += ca.cross(self.origin, record["momentum"])
+        self.bodies.append(dict(joint=i, **record))
+        Vg = -ca.dot(self.g_vec, record["moment"]) if self.i_g is not None else 0
+        return T, Vg
+
+    def material_points(self, part: LinkParts, VL, RL, wL) -> tuple:
+        """T = ½ρ Σ_k w_k |ṙ(x_k)|² over the link's material points, foreshortening kept whole.
+
+        A sum of squares: its mass matrix is positive semi-definite for every deflection, and definite
+        wherever the points' velocities determine q̇ (README "Why the second-order model is consistent").
+        Returns T and the body record (mass, ∫ρr, ∫ρṙ, ∫ρ s×ṡ resolved in the world, about the link origin).
+        """
+        rule = part.bending.points
+        rho = self.p[part.i_rho]
+        S = beam_points(rule, self.deformation(part, self.qa, self.va))
+        K = rule.x.size
+        S_dot = ca.reshape(ca.jtimes(ca.vec(S), self.qa, self.va), 3, K)
+        # velocity of each point in the link basis: Rᵀ V + ω × s + ṡ
+        vel = ca.repmat(ca.mtimes(RL.T, VL), 1, K) + ca.mtimes(skew(wL), S) + S_dot
+        w = ca.DM(rule.w)
+        T = 0.5 * rho * ca.mtimes(ca.sum1(vel * vel), w)
+        s_cross_v = ca.vertcat(S[1, :] * vel[2, :] - S[2, :] * vel[1, :], S[2, :] * vel[0, :] - S[0, :] * vel[2, :],
+                               S[0, :] * vel[1, :] - S[1, :] * vel[0, :])
+        m = rho * float(np.sum(rule.w))
+        return T, dict(mass=m, moment=m * self.origin + ca.mtimes(RL, rho * ca.mtimes(S, w)),
+                       momentum=ca.mtimes(RL, rho * ca.mtimes(vel, w)),
+                       spin=ca.mtimes(RL, rho * ca.mtimes(s_cross_v, w)))
+
+    def invariant_body(self, link: Link, part: LinkParts, VL, RL, wL) -> tuple:
+        """T from the inertia invariants (exact for first-order kinematics and for the shell modes)."""
+        qa, va = self.qa, self.va
+        rho = self.p[part.i_rho]
         Pp = self.origin
-        rho = p[part.i_rho]
-        d = self.deformation(part, qa, va)
         m_unit = link.length                    # mass per unit of the density parameter
         if part.body is not None:
             inv = body_invariants(part.body, self.eta_of(part, qa), self.eta_of(part, va))
             m_unit = part.body.volume
         elif part.bending is not None:
-            inv = beam_invariants(part.bending.integrals, link.length, d, self.second_order)
+            inv = beam_invariants(part.bending.integrals, link.length, self.deformation(part, qa, va))
         else:                                   # torsion only: the link's axis stays straight
             inv = None
         if inv is not None:
@@ -323,19 +364,11 @@ class ChainAssembly:
             H, S1d = ca.DM.zeros(3), ca.DM.zeros(3)
             T = 0.5 * rho * (link.length * ca.dot(VL, VL) + 2 * ca.dot(ca.mtimes(RL.T, VL), ca.cross(wL, S1))
                              + ca.dot(wL, ca.mtimes(J, wL)))
-        # ∫ρ ṙ = ρ(L V + R(ω×S1 + Ṡ1));  ∫ρ (r × ṙ) = P × ∫ρṙ + R ρ(S1 × (RᵀV) + J ω + H)
+        # ∫ρ ṙ = ρ(L V + R(ω×S1 + Ṡ1));  ∫ρ (s × ṙ) = R ρ(S1 × (RᵀV) + J ω + H)
         momentum = rho * (m_unit * VL + ca.mtimes(RL, ca.cross(wL, S1) + S1d))
         spin = ca.mtimes(RL, rho * (ca.cross(S1, ca.mtimes(RL.T, VL)) + ca.mtimes(J, wL) + H))
-        if part.torsion is not None:
-            T += 0.5 * p[part.i_mu] * torsion_kinetic(part.torsion.integrals, link.length, d, wL[0])
-            tor = part.torsion.integrals
-            spin += ca.mtimes(RL, ca.vertcat(p[part.i_mu] * (link.length * wL[0]
-                                                             + ca.dot(ca.DM(tor.phi), d.alpha_dot)), 0, 0))
-        moment = rho * m_unit * Pp + ca.mtimes(RL, rho * S1)
-        self.bodies.append(dict(joint=i, mass=rho * m_unit, moment=moment, momentum=momentum,
-                                spin=spin + ca.cross(Pp, momentum)))
-        Vg = -ca.dot(self.g_vec, moment) if self.i_g is not None else 0
-        return T, Vg
+        return T, dict(mass=rho * m_unit, moment=rho * m_unit * Pp + ca.mtimes(RL, rho * S1), momentum=momentum,
+                       spin=spin)
 
     def eta_of(self, part: LinkParts, x):
         return ca.vertcat(*[x[k] for k in part.eta])

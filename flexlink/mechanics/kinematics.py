@@ -87,8 +87,9 @@ class Invariants:
         return ca.trace(S) * ca.DM.eye(3) - S
 
 
-def beam_invariants(g: ShapeIntegrals, length: float, d: LinkDeformation, second_order: bool) -> Invariants:
-    """Invariants of a link bending in v and/or w (the same shape family in both planes)."""
+def beam_invariants(g: ShapeIntegrals, length: float, d: LinkDeformation) -> Invariants:
+    """Invariants of a link bending in v and/or w (the same shape family in both planes), first-order
+    kinematics: exact for s = (x, v, w).  Second-order kinematics take :func:`beam_points` instead."""
     L = float(length)
     zero = 0.0
     v1 = ca.dot(_dm(g.phi), d.v) if d.v is not None else zero
@@ -104,15 +105,9 @@ def beam_invariants(g: ShapeIntegrals, length: float, d: LinkDeformation, second
         ww = _quad(d.w, g.phi_phi)
     if d.v is not None and d.w is not None:
         vw = _quad(d.v, g.phi_phi, d.w)
-    if second_order:
-        # ∫ u dx = −½ ηᵀ fs η,  ∫ 2 x u dx = −ηᵀ fs_x η  (∫ u² is of order four)
-        for eta in (d.v, d.w):
-            if eta is not None:
-                x_moment = x_moment - 0.5 * _quad(eta, g.fs)
-                xx = xx - _quad(eta, g.fs_x)
     first = ca.vertcat(x_moment, v1, w1)
     second = ca.vertcat(ca.horzcat(xx, xv, xw), ca.horzcat(xv, vv, vw), ca.horzcat(xw, vw, ww))
-    # ∫ s × ṡ = (v ẇ − w v̇, w u̇ − (x+u) ẇ, (x+u) v̇ − v u̇): u-terms are of order three
+    # ∫ s × ṡ = (v ẇ − w v̇, −x ẇ, x v̇)
     hx, hy, hz = zero, zero, zero
     if d.v is not None:
         hz = ca.dot(_dm(g.x_phi), d.v_dot)
@@ -125,6 +120,21 @@ def beam_invariants(g: ShapeIntegrals, length: float, d: LinkDeformation, second
         if rate is not None:
             relative = relative + _quad(rate, g.phi_phi)
     return Invariants(first, second, ca.vertcat(hx, hy, hz), relative)
+
+
+def beam_points(rule, d: LinkDeformation) -> ca.MX:
+    """Positions s(x_k) = (x_k + u_k, v_k, w_k) of a link's material points (a 3×K matrix, link basis),
+    with the second-order foreshortening u_k = −½ Σ ηᵀ F(x_k) η kept whole (no term dropped)."""
+    zero = ca.DM.zeros(1, rule.x.size)
+    axial = ca.DM(rule.x).T
+    rows = []
+    for eta in (d.v, d.w):
+        if eta is None:
+            rows.append(zero)
+            continue
+        axial = axial - 0.5 * ca.mtimes(ca.DM(rule.F), ca.vec(ca.mtimes(eta, eta.T))).T
+        rows.append(ca.mtimes(ca.DM(rule.phi), eta).T)
+    return ca.vertcat(axial, *rows)
 
 
 def torsion_kinetic(t: TorsionIntegrals, length: float, d: LinkDeformation, omega_x):

@@ -73,6 +73,14 @@ class ShapeBasis(abc.ABC):
         x, w = self._quadrature()
         return integrals_from_rule(self, x, w)
 
+    def panel_edges(self) -> np.ndarray:
+        """Edges of the intervals on which φ is smooth (one interval, cut in 8 panels, unless piecewise)."""
+        return np.linspace(0.0, self.length, 9)
+
+    @functools.cached_property
+    def points(self) -> PointRule:
+        return point_rule(self)
+
     def __repr__(self) -> str:
         return f"{type(self).__name__}(count={self.count}, length={self.length:g}, n={self.n})"
 
@@ -110,6 +118,40 @@ def integrals_from_rule(basis: ShapeBasis, x: np.ndarray, w: np.ndarray) -> Shap
     for value in fields.values():
         value.setflags(write=False)
     return ShapeIntegrals(**fields)
+
+
+@dataclass(frozen=True)
+class PointRule:
+    """Material points of a link and their weights, with what the foreshortened field needs at each.
+
+    With second-order kinematics a point at x moves to s(x) = (x + u, v, w), u(x) = −½ Σ ηᵀ F(x) η over the
+    bending fields, F(x) = ∫₀ˣ φ'φ'ᵀ dξ.  Integrals over the link become sums Σ_k w_k f(s(x_k)) that are
+    exact for the piecewise-polynomial finite-element shapes (and converged for the others): the kinetic
+    energy is then a sum of squares, so its mass matrix is positive semi-definite for every deflection.
+    """
+
+    x: np.ndarray     # (K,)      points
+    w: np.ndarray     # (K,)      weights
+    phi: np.ndarray   # (K, n)    φ(x_k)
+    F: np.ndarray     # (K, n·n)  F(x_k), row-major, for u_k = −½ F_k · vec(η ηᵀ)
+
+
+#: Gauss points per panel of the point rule: exact to degree 11, i.e. for u² and u̇² of cubic elements.
+POINT_RULE_ORDER = 6
+
+
+def point_rule(basis: ShapeBasis, order: int = POINT_RULE_ORDER) -> PointRule:
+    """The :class:`PointRule` of a basis: Gauss points on its panels, F(x_k) by Gauss on [0, x_k]."""
+    edges = basis.panel_edges()
+    x, w = composite_gauss_legendre(edges, order)
+    F = np.empty((x.size, basis.n * basis.n))
+    for k, xk in enumerate(x):
+        inner = np.append(edges[edges < xk], xk)
+        xi, wi = composite_gauss_legendre(inner, order)
+        d1 = basis.evaluate(xi, 1)
+        Fk = d1.T @ (wi[:, None] * d1)
+        F[k] = (0.5 * (Fk + Fk.T)).ravel()
+    return PointRule(x, w, basis.evaluate(x, 0), F)
 
 
 def composite_gauss_legendre(edges: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:

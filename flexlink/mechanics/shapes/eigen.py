@@ -87,6 +87,10 @@ class ClampedFreeBasis(ShapeBasis):
         )
         return value * (self.amplitude * (lam / self.length) ** derivative)
 
+    def panel_edges(self) -> np.ndarray:
+        # about one radian of the highest mode per panel: the point rule's integrands (u², u̇²) oscillate 4×
+        return np.linspace(0.0, self.length, max(4, math.ceil(self.lambdas[-1])) + 1)
+
     def _quadrature(self) -> tuple[np.ndarray, np.ndarray]:
         panels = max(2, math.ceil(self.lambdas[-1] / _PANEL_RADIANS))
         return composite_gauss_legendre(np.linspace(0.0, self.length, panels + 1), _GL_ORDER)

@@ -70,4 +70,7 @@ class HermiteFEBasis(ShapeBasis):
         return out
 
     def _quadrature(self) -> tuple[np.ndarray, np.ndarray]:
-        return composite_gauss_legendre(np.linspace(0.0, self.length, self.count + 1), _GL_ORDER)
+        return composite_gauss_legendre(self.panel_edges(), _GL_ORDER)
+
+    def panel_edges(self) -> np.ndarray:
+        return np.linspace(0.0, self.length, self.count + 1)

@@ -104,6 +104,9 @@ class ModalBeamBasis(ShapeBasis):
     def _quadrature(self) -> tuple[np.ndarray, np.ndarray]:
         return self.fe._quadrature()
 
+    def panel_edges(self) -> np.ndarray:
+        return self.fe.panel_edges()
+
 
 class ModalTorsionBasis:
     """The first ``modes`` clamped twist modes of linear torsion elements (see ModalBeamBasis)."""
