@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import random
 from pathlib import Path
@@ -20,6 +21,16 @@ from flexlink.scene.loader import (
     load_scene,
     parse_scene,
     sanitise_identifier,
+)
+from flexlink.scene.schema import (
+    KEYS,
+    NUMBER_BOUNDS,
+    OPTIONAL,
+    REQUIRED,
+    SECTIONS,
+    Joint,
+    Link,
+    section_keys,
 )
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -576,3 +587,113 @@ def test_fuzz_files_only_scene_error_escapes(tmp_path: Path) -> None:
             load_scene(path)
         except SceneError as e:
             assert str(e).startswith(f"{path}: ") and "\n" not in str(e), str(e)
+
+
+# --------------------------------------------------------------------------------------------- key table
+
+
+def shell() -> dict:
+    """A valid box-section shell link (every shell key has a place), driven by a torque."""
+    return {"name": "box", "joint": [{"name": "hub"}],
+            "link": [{"name": "tube", "length": 1.0, "density": 2700.0, "E": 7e10, "poisson": 0.3,
+                      "shapes": {"kind": "shell", "section": "box", "width": 0.1, "height": 0.05,
+                                 "thickness": 0.002, "mesh": [4, 2, 2], "modes": 4}}]}
+
+
+# Where each section of KEYS sits in base() / shell(), and how the loader names it in messages.
+PLACES = {
+    "scene": (base, (), ""),
+    "joint": (base, ("joint", 0), "joint[1]"),
+    "joint.trajectory": (base, ("joint", 1, "trajectory"), "joint[2].trajectory"),
+    "joint.trajectory.segments": (base, ("joint", 1, "trajectory", "segments", 1),
+                                  "joint[2].trajectory.segments[2]"),
+    "link": (base, ("link", 0), "link[1]"),
+    "link.shapes": (base, ("link", 0, "shapes"), "link[1].shapes"),
+    "link.payload": (base, ("link", 0, "payload"), "link[1].payload"),
+    "shell_link": (shell, ("link", 0), "link[1]"),
+    "shell_link.shapes": (shell, ("link", 0, "shapes"), "link[1].shapes"),
+    "fmu": (base, ("fmu",), "fmu"),
+}
+# shapes.kind = "shell" is what makes a link a shell link: another value there reads the link as a beam.
+DISCRIMINATORS = {("shell_link", "shapes"), ("shell_link.shapes", "kind")}
+
+
+def _table_at(section: str) -> tuple[dict, dict, str]:
+    make, path, prefix = PLACES[section]
+    doc = make()
+    node = doc
+    for p in path:
+        node = node.setdefault(p, {}) if isinstance(node, dict) else node[p]
+    return doc, node, prefix
+
+
+def _outcome(doc: dict) -> str:
+    try:
+        return repr(parse_scene(doc, SOURCE))
+    except SceneError as e:
+        return str(e)
+
+
+def test_key_table_is_well_formed() -> None:
+    ids = [s.id for s in SECTIONS]
+    assert len(set(ids)) == len(ids) and set(ids) == set(PLACES)
+    assert len({(k.section, k.name) for k in KEYS}) == len(KEYS)
+    for k in KEYS:
+        assert k.section in ids and k.type and k.description, k
+        if k.choices:
+            given = k.default if isinstance(k.default, tuple) else (k.default,)
+            assert k.default is REQUIRED or set(given) <= set(k.choices), k
+        if k.type == "number" and k.bounds not in NUMBER_BOUNDS:     # checked in code: say so in words
+            assert len(k.bounds) > 3, k
+    assert all(section_keys(s) for s in ids)
+
+
+@pytest.mark.parametrize("section", list(PLACES))
+def test_parser_accepts_exactly_the_keys_of_the_table(section: str) -> None:
+    """An unknown key is refused with the list of accepted ones: the section's keys in KEYS (a beam link also
+    knows the shell-only E and poisson, to refuse them with a better message)."""
+    doc, table, prefix = _table_at(section)
+    table["not_a_key"] = 1.0
+    known = section_keys(section) + (("E", "poisson") if section == "link" else ())
+    where = f"{prefix}.not_a_key" if prefix else "not_a_key"
+    with pytest.raises(SceneError) as info:
+        parse_scene(doc, SOURCE)
+    assert str(info.value) == f"{SOURCE}: {where}: unknown key; expected one of: {', '.join(known)}"
+    del table["not_a_key"]
+    parse_scene(doc, SOURCE)
+
+
+@pytest.mark.parametrize("spec", [k for k in KEYS if (k.section, k.name) not in DISCRIMINATORS],
+                         ids=lambda k: f"{k.section}.{k.name}")
+def test_parser_reads_every_key_of_the_table(spec) -> None:
+    """A value no reader takes, put at any key of the table, is refused at that key: the parser reads it."""
+    doc, table, prefix = _table_at(spec.section)
+    table[spec.name] = object()
+    where = f"{prefix}.{spec.name}" if prefix else spec.name
+    with pytest.raises(SceneError) as info:
+        parse_scene(doc, SOURCE)
+    assert str(info.value).startswith(f"{SOURCE}: {where}: "), str(info.value)
+
+
+@pytest.mark.parametrize("spec", [k for k in KEYS if k.default not in (REQUIRED, OPTIONAL)],
+                         ids=lambda k: f"{k.section}.{k.name}")
+def test_absent_key_means_its_default(spec) -> None:
+    doc, table, _ = _table_at(spec.section)
+    table.pop(spec.name, None)
+    absent = _outcome(doc)
+    table[spec.name] = spec.toml_default()
+    assert _outcome(doc) == absent
+    assert not absent.startswith(SOURCE), absent
+
+
+@pytest.mark.parametrize(("section", "cls"), [("joint", Joint), ("link", Link), ("link.shapes", Shapes),
+                                              ("link.payload", Payload), ("joint.trajectory.segments", Segment),
+                                              ("fmu", FmuSettings)])
+def test_data_class_defaults_agree_with_the_table(section: str, cls) -> None:
+    fields = {f.name: f.default for f in dataclasses.fields(cls) if f.default is not dataclasses.MISSING}
+    compared = 0
+    for k in KEYS:
+        if k.section == section and k.name in fields and k.type != "table" and k.default is not OPTIONAL:
+            assert fields[k.name] == k.default, (section, k.name)
+            compared += 1
+    assert compared >= 2

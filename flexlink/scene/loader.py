@@ -5,20 +5,41 @@ reported as one :class:`SceneError` of the form ``FILE: KEY: expected WHAT, got 
 missing; expected WHAT``, ``FILE: KEY: unknown key; did you mean …``). Keys are dotted
 paths with 1-based indices into the arrays of tables, e.g. ``link[1].EI``, ``joint[2].trajectory.segments[1].
 until``, ``fmu.theta``, because the index exists even when the name is missing or wrong.
+
+The keys each table accepts, their defaults, units and bounds come from :data:`~flexlink.scene.schema.KEYS`;
+the checks that relate several keys are in :mod:`flexlink.scene.checks`. The data classes live in
+:mod:`flexlink.scene.schema` and are re-exported here.
 """
 
 from __future__ import annotations
 
 import difflib
-import json
 import math
 import os
 import re
 import tomllib
-from dataclasses import dataclass
 from typing import Any
 
 from flexlink.errors import SceneError
+from flexlink.scene import checks
+from flexlink.scene.checks import MISSING, is_number, show
+from flexlink.scene.schema import (
+    AXIS_TOLERANCE,
+    DEFORMATIONS,
+    OPTIONAL,
+    REQUIRED,
+    RESERVED_NAMES,
+    FmuSettings,
+    Joint,
+    Link,
+    Payload,
+    Scene,
+    Segment,
+    Shapes,
+    Trajectory,
+    key_spec,
+    section_keys,
+)
 
 __all__ = [
     "FmuSettings",
@@ -26,6 +47,7 @@ __all__ = [
     "Link",
     "Payload",
     "Scene",
+    "SceneError",
     "Segment",
     "Shapes",
     "Trajectory",
@@ -34,197 +56,15 @@ __all__ = [
     "sanitise_identifier",
 ]
 
-DRIVES = ("torque", "position", "free")
-DEFORMATIONS = ("v", "w", "alpha")
-SHAPE_KINDS = ("clamped-free", "polynomial", "fe", "shell")
-SHELL_SECTIONS = ("plate", "box")
-MESH_PATTERNS = ("symmetric", "A", "B")
-SHELL_KINEMATICS = ("linear", "first-order")
-KINEMATICS = ("linear", "first-order", "second-order")
-INITIAL_DEFORMATIONS = ("undeformed", "static")
-INTEGRATORS = ("ss22",)
-AXIS_TOLERANCE = 1e-9
-
-# Names that already start FMU variable names of their own (tip.x, energy.kinetic, solver.step, gravity[1]).
-RESERVED_NAMES = ("tip", "energy", "solver", "gravity")
 _NAME_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _C_KEYWORDS = frozenset(
     "auto break case char const continue default do double else enum extern float for goto if inline int "
     "long register restrict return short signed sizeof static struct switch typedef union unsigned void "
     "volatile while _Bool _Complex _Imaginary".split()
 )
-
-_TOP_KEYS = ("name", "gravity", "joint", "link", "fmu")
-_JOINT_KEYS = (
-    "name", "axis", "inertia", "damping", "drive", "stiffness", "initial_angle", "initial_rate", "trajectory",
-)
-_LINK_KEYS = (
-    "name", "length", "linear_density", "density", "area", "EI", "EI_out", "GJ", "polar_inertia",
-    "kelvin_voigt", "deformation", "shapes", "kinematics", "payload", "initial_deformation", "E", "poisson",
-)
-_SHELL_LINK_KEYS = (
-    "name", "length", "density", "E", "poisson", "kelvin_voigt", "shapes", "kinematics", "payload",
-    "initial_deformation",
-)
-_SHAPES_KEYS = ("kind", "count", "modes")
-_SHELL_SHAPES_KEYS = ("kind", "section", "width", "height", "thickness", "mesh", "pattern", "modes")
-_PAYLOAD_KEYS = ("mass", "inertia", "offset")
-_TRAJECTORY_KEYS = ("segments",)
-_SEGMENT_KEYS = ("until", "poly", "cos")
-_FMU_KEYS = ("step", "integrator", "theta", "tolerance", "tunable", "tip_load_inputs")
-_LINK_TUNABLE = ("kelvin_voigt", "payload.mass", "payload.inertia")
-_JOINT_TUNABLE = ("stiffness", "damping")
-
-Vec3 = tuple[float, float, float]
-
-
-# ----------------------------------------------------------------------------------------------- objects
-
-
-@dataclass(frozen=True)
-class Segment:
-    """θ(t) = Σ poly[k] t^k + Σ amp·cos(w·t + phase), t absolute, valid for t < until."""
-
-    until: float
-    poly: tuple[float, ...] = ()
-    cos: tuple[tuple[float, float, float], ...] = ()
-
-    def evaluate(self, t: float) -> tuple[float, float, float]:
-        """(θ, θ̇, θ̈) by Horner, so that long polynomials stay accurate far from t = 0."""
-        p = d = dd = 0.0
-        for c in reversed(self.poly):
-            dd = dd * t + 2.0 * d
-            d = d * t + p
-            p = p * t + c
-        for amp, w, phase in self.cos:
-            arg = w * t + phase
-            c, s = math.cos(arg), math.sin(arg)
-            p += amp * c
-            d -= amp * w * s
-            dd -= amp * w * w * c
-        return p, d, dd
-
-
-@dataclass(frozen=True)
-class Trajectory:
-    """A piecewise law for a position-driven joint; segments are ordered by ``until``."""
-
-    segments: tuple[Segment, ...]
-
-    def segment_at(self, t: float) -> Segment:
-        """The segment with t < until; the last one beyond its end, so a law never runs out."""
-        for seg in self.segments:
-            if t < seg.until:
-                return seg
-        return self.segments[-1]
-
-    def evaluate(self, t: float) -> tuple[float, float, float]:
-        """(θ, θ̇, θ̈) at absolute time t."""
-        return self.segment_at(t).evaluate(t)
-
-
-@dataclass(frozen=True)
-class Joint:
-    name: str
-    axis: Vec3
-    inertia: float = 0.0
-    damping: float = 0.0
-    drive: str = "torque"
-    stiffness: float = 0.0
-    initial_angle: float = 0.0
-    initial_rate: float = 0.0
-    trajectory: Trajectory | None = None
-
-    @property
-    def is_elastic(self) -> bool:
-        """An elastic joint adds a motor coordinate (SCENE.md: only if stiffness > 0)."""
-        return self.stiffness > 0.0
-
-
-@dataclass(frozen=True)
-class Payload:
-    mass: float = 0.0
-    inertia: float | Vec3 = 0.0
-    offset: Vec3 = (0.0, 0.0, 0.0)
-
-    @property
-    def is_present(self) -> bool:
-        """SCENE.md: a payload is in the model only if its mass or inertia is non-zero."""
-        inertia = self.inertia if isinstance(self.inertia, tuple) else (self.inertia,)
-        return self.mass != 0.0 or any(j != 0.0 for j in inertia)
-
-
-@dataclass(frozen=True)
-class Shapes:
-    """A beam family (``count`` functions or elements), or a shell mesh; ``modes``: reduce an FE link to its
-    first modes with the joint held (None: keep every finite-element coordinate)."""
-
-    kind: str = "clamped-free"
-    count: int = 3
-    modes: int | None = None
-    section: str | None = None                  # shell: "plate" | "box"
-    width: float | None = None                  # shell: along the joint axis (plate) / box width
-    height: float | None = None                 # box: along the in-plane bending direction v
-    thickness: float | None = None
-    mesh: tuple[int, ...] = ()                  # shell: [nx, nw] (plate) or [nx, nw, nh] (box)
-    pattern: str = "symmetric"                  # shell: diagonals of the triangles (seed 001 fig. 5.5)
-
-    @property
-    def section_area(self) -> float:
-        """Area of the shell's cross-section (mid-surface perimeter × thickness)."""
-        if self.section == "box":
-            return 2.0 * (self.width + self.height) * self.thickness
-        return self.width * self.thickness
-
-
-@dataclass(frozen=True)
-class Link:
-    name: str
-    length: float
-    linear_density: float
-    EI: float | None
-    EI_out: float | None = None
-    GJ: float | None = None
-    polar_inertia: float | None = None
-    kelvin_voigt: float = 0.0
-    deformation: tuple[str, ...] = ("v",)
-    shapes: Shapes = Shapes()
-    kinematics: str = "second-order"
-    payload: Payload = Payload()
-    initial_deformation: str = "undeformed"
-    density: float | None = None              # shell links: kg/m³
-    E: float | None = None                    # shell links: Young's modulus, Pa
-    poisson: float | None = None              # shell links
-
-    @property
-    def is_shell(self) -> bool:
-        return self.shapes.kind == "shell"
-
-
-@dataclass(frozen=True)
-class FmuSettings:
-    step: float = 1e-3
-    integrator: str = "ss22"
-    theta: tuple[float, float] = (0.5, 0.5)
-    tolerance: float = 1e-10
-    tunable: tuple[str, ...] = ()
-    tip_load_inputs: bool = False
-
-
-@dataclass(frozen=True)
-class Scene:
-    name: str
-    model_identifier: str
-    gravity: Vec3
-    joints: tuple[Joint, ...]
-    links: tuple[Link, ...]
-    fmu: FmuSettings = FmuSettings()
-    path: str | None = None
-
-    @property
-    def has_gravity(self) -> bool:
-        """SCENE.md: gravity terms are generated only if the vector is non-zero."""
-        return any(g != 0.0 for g in self.gravity)
+# A beam link knows the shell-only keys, to answer "E and poisson are for shell links" rather than "unknown".
+_SHELL_ONLY = tuple(k for k in section_keys("shell_link") if k not in section_keys("link"))
+_BOUNDS = {"": {}, "> 0": {"positive": True}, "≥ 0": {"minimum": 0}}
 
 
 # ------------------------------------------------------------------------------------------ public API
@@ -266,54 +106,27 @@ def parse_scene(data: dict, source: str = "<scene>", *, _path: str | None = None
     return _Parser(source).scene(data, _path)
 
 
-# ---------------------------------------------------------------------------------------- validation
+# ------------------------------------------------------------------------------------------ values
 
 
-_MISSING = object()
+class _Values:
+    """Reads single values: each returns the value in SI units, or raises the one SceneError naming its key."""
 
-
-def _show(value: Any, limit: int = 60) -> str:
-    """The offending value in TOML spelling, shortened, so that the message stays one line."""
-    if isinstance(value, bool):
-        text = "true" if value else "false"
-    elif isinstance(value, float):
-        text = "nan" if math.isnan(value) else ("inf" if value == math.inf else
-                                                 "-inf" if value == -math.inf else repr(value))
-    elif isinstance(value, int):
-        text = repr(value)
-    elif isinstance(value, str):
-        text = json.dumps(value, ensure_ascii=False)  # TOML basic-string escapes: one line, always
-    elif isinstance(value, list | tuple):
-        text = "[" + ", ".join(_show(v, limit) for v in value) + "]"
-    elif isinstance(value, dict):
-        text = "{" + ", ".join(f"{k} = {_show(v, limit)}" for k, v in value.items()) + "}"
-    else:
-        text = f"a {type(value).__name__}"
-    return text if len(text) <= limit else text[: limit - 1] + "…"
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
-
-
-class _Parser:
     def __init__(self, source: str) -> None:
         self.source = source
 
-    # -------------------------------------------------------------------------------- error helpers
+    def fail(self, key: str, expected: str, value: Any = MISSING) -> SceneError:
+        return checks.error(self.source, key, expected, value)
 
-    def fail(self, key: str, expected: str, value: Any = _MISSING) -> SceneError:
-        if value is _MISSING:
-            return SceneError(f"{self.source}: {key}: missing; expected {expected}")
-        return SceneError(f"{self.source}: {key}: expected {expected}, got {_show(value)}")
-
-    def table(self, value: Any, key: str, known: tuple[str, ...], what: str = "a table") -> dict:
-        """Check a table and refuse unknown keys, suggesting the closest known one (typos are common)."""
+    def table(self, value: Any, key: str, section: str, what: str = "a table", *, also: tuple[str, ...] = ()
+              ) -> dict:
+        """Check a table and refuse keys its section of KEYS lacks, suggesting the closest (typos are common)."""
+        known = section_keys(section) + also
         if not isinstance(value, dict):
             raise self.fail(key, what, value)
         for k in value:
             if k not in known:
-                bare = str(k) if re.fullmatch(r"[A-Za-z0-9_-]+", str(k)) else _show(str(k))
+                bare = str(k) if re.fullmatch(r"[A-Za-z0-9_-]+", str(k)) else show(str(k))
                 where = f"{key}.{bare}" if key else bare
                 close = difflib.get_close_matches(str(k), known, n=1, cutoff=0.6)
                 hint = f'did you mean "{close[0]}"? ' if close else ""
@@ -321,7 +134,22 @@ class _Parser:
                                  f"expected one of: {', '.join(known)}")
         return value
 
-    # ------------------------------------------------------------------------------- scalar readers
+    def get(self, t: dict, section: str, name: str) -> Any:
+        """The key's value, else its default from KEYS (MISSING for a required or optional key)."""
+        spec = key_spec(section, name)
+        if name in t:
+            return t[name]
+        return MISSING if spec.default is REQUIRED or spec.default is OPTIONAL else spec.toml_default()
+
+    def number_key(self, t: dict, section: str, name: str, prefix: str, **bounds: Any) -> float:
+        """A number key with the unit, default and bounds ("> 0", "≥ 0") of its row of KEYS; other bounds are
+        checked by the caller."""
+        spec = key_spec(section, name)
+        return self.number(self.get(t, section, name), f"{prefix}.{name}", spec.unit,
+                           **_BOUNDS.get(spec.bounds, {}), **bounds)
+
+    def choice_key(self, t: dict, section: str, name: str, prefix: str) -> str:
+        return self.string(self.get(t, section, name), f"{prefix}.{name}", key_spec(section, name).choices or None)
 
     def number(self, value: Any, key: str, unit: str = "", *, minimum: float | None = None,
                positive: bool = False, allow_inf: bool = False) -> float:
@@ -335,9 +163,9 @@ class _Parser:
             expected = f"a number{unit} or inf"
         else:
             expected = f"a finite number{unit}"
-        if value is _MISSING:
+        if value is MISSING:
             raise self.fail(key, expected)
-        if not _is_number(value):
+        if not is_number(value):
             raise self.fail(key, expected, value)
         try:
             x = float(value)
@@ -378,37 +206,28 @@ class _Parser:
             raise self.fail(key, "true or false", value)
         return value
 
-    # ----------------------------------------------------------------------------------- structure
+
+# ------------------------------------------------------------------------------------------ sections
+
+
+class _Parser(_Values):
+    """One method per table of the scene file, reading its keys in a fixed order (the first mistake wins)."""
 
     def scene(self, data: Any, path: str | None) -> Scene:
-        top = self.table(data, "", _TOP_KEYS, "a TOML document (a table at the top level)")
+        top = self.table(data, "", "scene", "a TOML document (a table at the top level)")
         if "name" not in top:
             raise self.fail("name", "a string (the FMU modelName)")
         name = top["name"]
         if not isinstance(name, str) or not name.strip():
             raise self.fail("name", "a non-empty string (the FMU modelName)", name)
-        gravity = (0.0, 0.0, 0.0)
-        if "gravity" in top:
-            gravity = self.vector(top["gravity"], "gravity", 3, "m/s²")
-
+        gravity = self.vector(self.get(top, "scene", "gravity"), "gravity", 3, key_spec("scene", "gravity").unit)
         joint_data = self.array_of_tables(top, "joint")
         link_data = self.array_of_tables(top, "link")
-        if len(joint_data) != len(link_data):
-            raise SceneError(
-                f"{self.source}: joint, link: expected as many [[joint]] as [[link]] (link i is driven by "
-                f"joint i), got {len(joint_data)} [[joint]] and {len(link_data)} [[link]]")
+        checks.same_count(self.source, len(joint_data), len(link_data))
         joints = tuple(self.joint(d, f"joint[{i + 1}]") for i, d in enumerate(joint_data))
         links = tuple(self.link(d, f"link[{i + 1}]") for i, d in enumerate(link_data))
-
-        seen: dict[str, str] = {}
-        for kind, items in (("joint", joints), ("link", links)):
-            for i, item in enumerate(items):
-                key = f"{kind}[{i + 1}].name"
-                if item.name in seen:
-                    raise self.fail(key, f"a name not already used (by {seen[item.name]})", item.name)
-                seen[item.name] = key.removesuffix(".name")
-
-        fmu = self.fmu(top.get("fmu", {}), joints, links)
+        checks.unique_names(self.source, joints, links)
+        fmu = self.fmu(self.get(top, "scene", "fmu"), joints, links)
         return Scene(name=name, model_identifier=sanitise_identifier(name), gravity=gravity,
                      joints=joints, links=links, fmu=fmu, path=path)
 
@@ -424,182 +243,101 @@ class _Parser:
                 raise self.fail(f"{key}[{i + 1}]", f"a [[{key}]] table", item)
         return value
 
+    # ---------------------------------------------------------------------------------------- joints
+
     def joint(self, data: dict, key: str) -> Joint:
-        t = self.table(data, key, _JOINT_KEYS)
-        name = self.name(t.get("name", _MISSING), f"{key}.name")
-        axis = (0.0, 0.0, 1.0)
-        if "axis" in t:
-            raw = self.vector(t["axis"], f"{key}.axis", 3)
-            norm = math.hypot(*raw)
-            if not norm > 0 or not math.isfinite(norm):
-                raise self.fail(f"{key}.axis", "a non-zero finite vector", t["axis"])
-            axis = tuple(c / norm for c in raw)
-            if abs(axis[0]) > AXIS_TOLERANCE:
-                raise self.fail(f"{key}.axis", "a vector normal to the link's x axis [1, 0, 0] "
-                                "(x component 0)", t["axis"])
-            axis = (0.0, axis[1], axis[2])
-        inertia = self.number(t.get("inertia", 0.0), f"{key}.inertia", "kg m²", minimum=0)
-        damping = self.number(t.get("damping", 0.0), f"{key}.damping", "N m s/rad", minimum=0)
-        drive = self.string(t.get("drive", "torque"), f"{key}.drive", DRIVES)
-        stiffness = self.number(t.get("stiffness", 0.0), f"{key}.stiffness", "N m/rad", minimum=0)
-        initial_angle = self.number(t.get("initial_angle", 0.0), f"{key}.initial_angle", "rad")
-        initial_rate = self.number(t.get("initial_rate", 0.0), f"{key}.initial_rate", "rad/s")
+        t = self.table(data, key, "joint")
+        name = self.name(self.get(t, "joint", "name"), f"{key}.name")
+        axis = self.axis(t, key)
+        inertia = self.number_key(t, "joint", "inertia", key)
+        damping = self.number_key(t, "joint", "damping", key)
+        drive = self.choice_key(t, "joint", "drive", key)
+        stiffness = self.number_key(t, "joint", "stiffness", key)
+        initial_angle = self.number_key(t, "joint", "initial_angle", key)
+        initial_rate = self.number_key(t, "joint", "initial_rate", key)
         trajectory = None
         if "trajectory" in t:
-            if drive != "position":
-                raise SceneError(f'{self.source}: {key}.trajectory: expected only with drive = "position", '
-                                 f'got drive = "{drive}"')
+            checks.trajectory_needs_position(self.source, key, drive)
             trajectory = self.trajectory(t["trajectory"], f"{key}.trajectory")
         return Joint(name=name, axis=axis, inertia=inertia, damping=damping, drive=drive, stiffness=stiffness,
                      initial_angle=initial_angle, initial_rate=initial_rate, trajectory=trajectory)
 
+    def axis(self, t: dict, key: str) -> tuple[float, float, float]:
+        """A unit vector normal to the link's x axis (a non-zero vector, normalised)."""
+        value = self.get(t, "joint", "axis")
+        raw = self.vector(value, f"{key}.axis", 3, key_spec("joint", "axis").unit)
+        norm = math.hypot(*raw)
+        if not norm > 0 or not math.isfinite(norm):
+            raise self.fail(f"{key}.axis", "a non-zero finite vector", value)
+        axis = tuple(c / norm for c in raw)
+        if abs(axis[0]) > AXIS_TOLERANCE:
+            raise self.fail(f"{key}.axis", "a vector normal to the link's x axis [1, 0, 0] "
+                            "(x component 0)", value)
+        return (0.0, axis[1], axis[2])
+
     def trajectory(self, data: Any, key: str) -> Trajectory:
-        t = self.table(data, key, _TRAJECTORY_KEYS, "a table with segments = [{until, poly, cos}, ...]")
-        raw = t.get("segments", _MISSING)
+        t = self.table(data, key, "joint.trajectory", "a table with segments = [{until, poly, cos}, ...]")
+        raw = self.get(t, "joint.trajectory", "segments")
         expected = "a non-empty list of tables {until = …, poly = […], cos = [[amp, rad_per_s, phase], …]}"
         if not isinstance(raw, list) or not raw:
             raise self.fail(f"{key}.segments", expected, raw)
         segments: list[Segment] = []
         for i, item in enumerate(raw):
-            skey = f"{key}.segments[{i + 1}]"
-            s = self.table(item, skey, _SEGMENT_KEYS, expected)
-            until = self.number(s.get("until", math.inf), f"{skey}.until", "s", allow_inf=True)
-            if segments and not until > segments[-1].until:
-                raise self.fail(f"{skey}.until", f"a time after the previous segment's until = "
-                                f"{_show(segments[-1].until)} (strictly increasing)", until)
-            poly_raw = s.get("poly", [])
-            if not isinstance(poly_raw, list):
-                raise self.fail(f"{skey}.poly", "a list of numbers (coefficients of t^0, t^1, …, rad)",
-                                poly_raw)
-            poly = tuple(self.number(c, f"{skey}.poly[{k + 1}]", "rad") for k, c in enumerate(poly_raw))
-            cos_raw = s.get("cos", [])
-            if not isinstance(cos_raw, list):
-                raise self.fail(f"{skey}.cos", "a list of [amp, rad_per_s, phase] triples", cos_raw)
-            cos = tuple(self.vector(c, f"{skey}.cos[{k + 1}]", 3) for k, c in enumerate(cos_raw))
-            segments.append(Segment(until=until, poly=poly, cos=cos))
+            previous = segments[-1].until if segments else None
+            segments.append(self.segment(item, f"{key}.segments[{i + 1}]", expected, previous))
         return Trajectory(tuple(segments))
+
+    def segment(self, item: Any, key: str, expected: str, previous: float | None) -> Segment:
+        section = "joint.trajectory.segments"
+        s = self.table(item, key, section, expected)
+        until = self.number_key(s, section, "until", key, allow_inf=True)
+        if previous is not None and not until > previous:
+            raise self.fail(f"{key}.until", f"a time after the previous segment's until = "
+                            f"{show(previous)} (strictly increasing)", until)
+        poly_raw = self.get(s, section, "poly")
+        if not isinstance(poly_raw, list):
+            raise self.fail(f"{key}.poly", "a list of numbers (coefficients of t^0, t^1, …, rad)", poly_raw)
+        unit = key_spec(section, "poly").unit
+        poly = tuple(self.number(c, f"{key}.poly[{k + 1}]", unit) for k, c in enumerate(poly_raw))
+        cos_raw = self.get(s, section, "cos")
+        if not isinstance(cos_raw, list):
+            raise self.fail(f"{key}.cos", "a list of [amp, rad_per_s, phase] triples", cos_raw)
+        cos = tuple(self.vector(c, f"{key}.cos[{k + 1}]", 3) for k, c in enumerate(cos_raw))
+        return Segment(until=until, poly=poly, cos=cos)
+
+    # ----------------------------------------------------------------------------------------- links
 
     def link(self, data: dict, key: str) -> Link:
         shapes_raw = data.get("shapes") if isinstance(data, dict) else None
         if isinstance(shapes_raw, dict) and shapes_raw.get("kind") == "shell":
             return self.shell_link(data, key)
-        t = self.table(data, key, _LINK_KEYS)
-        for k in ("E", "poisson"):
-            if k in t:
-                raise self.fail(f"{key}.{k}", 'no value: E and poisson are for shell links (shapes.kind = "shell"); '
-                                "a beam takes EI", t[k])
-        name = self.name(t.get("name", _MISSING), f"{key}.name")
-        length = self.number(t.get("length", _MISSING), f"{key}.length", "m", positive=True)
+        t = self.table(data, key, "link", also=_SHELL_ONLY)
+        checks.no_shell_material(self.source, key, t)
+        name = self.name(self.get(t, "link", "name"), f"{key}.name")
+        length = self.number_key(t, "link", "length", key)
         linear_density = self.linear_density(t, key)
-        EI = self.number(t.get("EI", _MISSING), f"{key}.EI", "N m²", positive=True)
-        optional = {}
-        for k, unit, positive in (("EI_out", "N m²", True), ("GJ", "N m²", True),
-                                  ("polar_inertia", "kg m", False)):
-            if k in t:
-                optional[k] = self.number(t[k], f"{key}.{k}", unit, positive=positive,
-                                          minimum=None if positive else 0)
-        kelvin_voigt = self.number(t.get("kelvin_voigt", 0.0), f"{key}.kelvin_voigt", "s", minimum=0)
-        deformation = self.deformation(t.get("deformation", ["v"]), f"{key}.deformation")
-        if "w" in deformation and "EI_out" not in optional:
-            raise self.fail(f"{key}.EI_out", 'a positive number (N m²) because deformation includes "w"')
-        if "alpha" in deformation:
-            for k, what in (("GJ", "a positive number (N m²)"), ("polar_inertia", "a number ≥ 0 (kg m)")):
-                if k not in optional:
-                    raise self.fail(f"{key}.{k}", f'{what} because deformation includes "alpha"')
-        shapes = self.shapes(t.get("shapes", {}), f"{key}.shapes")
-        kinematics = self.string(t.get("kinematics", "second-order"), f"{key}.kinematics", KINEMATICS)
-        payload = self.payload(t.get("payload", {}), f"{key}.payload")
-        initial_deformation = self.string(t.get("initial_deformation", "undeformed"),
-                                          f"{key}.initial_deformation", INITIAL_DEFORMATIONS)
+        EI = self.number_key(t, "link", "EI", key)
+        given = {k: self.number_key(t, "link", k, key) for k in ("EI_out", "GJ", "polar_inertia") if k in t}
+        kelvin_voigt = self.number_key(t, "link", "kelvin_voigt", key)
+        deformation = self.deformation(self.get(t, "link", "deformation"), f"{key}.deformation")
+        checks.deformation_data(self.source, key, deformation, given)
+        shapes = self.shapes(self.get(t, "link", "shapes"), f"{key}.shapes")
+        kinematics = self.choice_key(t, "link", "kinematics", key)
+        payload = self.payload(self.get(t, "link", "payload"), f"{key}.payload")
+        initial_deformation = self.choice_key(t, "link", "initial_deformation", key)
         return Link(name=name, length=length, linear_density=linear_density, EI=EI,
-                    EI_out=optional.get("EI_out"), GJ=optional.get("GJ"),
-                    polar_inertia=optional.get("polar_inertia"), kelvin_voigt=kelvin_voigt,
+                    EI_out=given.get("EI_out"), GJ=given.get("GJ"),
+                    polar_inertia=given.get("polar_inertia"), kelvin_voigt=kelvin_voigt,
                     deformation=deformation, shapes=shapes, kinematics=kinematics, payload=payload,
                     initial_deformation=initial_deformation)
 
-    def shell_link(self, data: dict, key: str) -> Link:
-        """A plate or box-section link of DKT + CST shell elements (seed 001 part 5): material, not section
-        properties, since the mesh integrates them."""
-        t = self.table(data, key, _SHELL_LINK_KEYS, "a table")
-        name = self.name(t.get("name", _MISSING), f"{key}.name")
-        length = self.number(t.get("length", _MISSING), f"{key}.length", "m", positive=True)
-        density = self.number(t.get("density", _MISSING), f"{key}.density", "kg/m³", positive=True)
-        E = self.number(t.get("E", _MISSING), f"{key}.E", "Pa", positive=True)
-        poisson = self.number(t.get("poisson", _MISSING), f"{key}.poisson")
-        if not -1.0 < poisson < 0.5:
-            raise self.fail(f"{key}.poisson", "a number in (-1, 0.5) (Poisson's ratio)", poisson)
-        kelvin_voigt = self.number(t.get("kelvin_voigt", 0.0), f"{key}.kelvin_voigt", "s", minimum=0)
-        shapes = self.shell_shapes(t["shapes"], f"{key}.shapes")
-        kinematics = self.string(t.get("kinematics", "first-order"), f"{key}.kinematics", SHELL_KINEMATICS)
-        payload = self.payload(t.get("payload", {}), f"{key}.payload")
-        initial_deformation = self.string(t.get("initial_deformation", "undeformed"),
-                                          f"{key}.initial_deformation", INITIAL_DEFORMATIONS)
-        return Link(name=name, length=length, linear_density=density * shapes.section_area, EI=None,
-                    kelvin_voigt=kelvin_voigt, deformation=("v", "w", "alpha"), shapes=shapes,
-                    kinematics=kinematics, payload=payload, initial_deformation=initial_deformation,
-                    density=density, E=E, poisson=poisson)
-
-    def shell_shapes(self, value: Any, key: str) -> Shapes:
-        t = self.table(value, key, _SHELL_SHAPES_KEYS, 'a table {kind = "shell", section = "plate", …}')
-        section = self.string(t.get("section", _MISSING), f"{key}.section", SHELL_SECTIONS)
-        width = self.number(t.get("width", _MISSING), f"{key}.width", "m", positive=True)
-        height = None
-        if section == "box":
-            height = self.number(t.get("height", _MISSING), f"{key}.height", "m", positive=True)
-        elif "height" in t:
-            raise self.fail(f"{key}.height", 'no value: a plate has no height (section = "box" has)', t["height"])
-        thickness = self.number(t.get("thickness", _MISSING), f"{key}.thickness", "m", positive=True)
-        if not thickness < min(width, height or width) / 2:
-            raise self.fail(f"{key}.thickness", "a thickness below half the width and height (a thin wall)",
-                            thickness)
-        n_mesh = 3 if section == "box" else 2
-        what = "[nx, nw, nh]" if section == "box" else "[nx, nw]"
-        raw = t.get("mesh", _MISSING)
-        expected = f"a list {what} of integers ≥ 1 (elements along the length, across the width" + (
-            ", across the height)" if section == "box" else ")")
-        if raw is _MISSING or not isinstance(raw, list) or len(raw) != n_mesh or not all(
-                isinstance(m, int) and not isinstance(m, bool) and m >= 1 for m in raw):
-            raise self.fail(f"{key}.mesh", expected, raw)
-        pattern = self.string(t.get("pattern", "symmetric"), f"{key}.pattern", MESH_PATTERNS)
-        if pattern == "symmetric" and any(m % 2 for m in raw[1:]):
-            raise self.fail(f"{key}.mesh", f"{what} with even counts across (the symmetric pattern mirrors the "
-                            'diagonals about the mid-line), or pattern = "A" or "B"', raw)
-        modes = self.modes(t, key)
-        nx, nw = raw[0], raw[1]
-        with_mass = 3 * nx * (2 * (nw + raw[2]) if section == "box" else nw + 1)   # translations off the root
-        if modes is not None and modes > with_mass:
-            raise self.fail(f"{key}.modes", f"at most {with_mass} (the mesh's translational degrees of freedom "
-                            "off the root)", modes)
-        return Shapes(kind="shell", count=int(raw[0]), modes=modes, section=section, width=width, height=height,
-                      thickness=thickness, mesh=tuple(int(m) for m in raw), pattern=pattern)
-
-    def modes(self, t: dict, key: str) -> int | None:
-        if "modes" not in t:
-            return None
-        m = t["modes"]
-        if not isinstance(m, int) or isinstance(m, bool) or m < 1:
-            raise self.fail(f"{key}.modes", "an integer ≥ 1 (modes kept, joint held)", m)
-        return m
-
     def linear_density(self, t: dict, key: str) -> float:
-        """Exactly one way to give the mass per length, so that the two can never disagree."""
-        has_lin = "linear_density" in t
-        has_vol = "density" in t or "area" in t
-        if has_lin and has_vol:
-            extra = "density" if "density" in t else "area"
-            raise self.fail(f"{key}.{extra}", "either linear_density (kg/m) or density and area, not both",
-                            t[extra])
-        if has_lin:
-            return self.number(t["linear_density"], f"{key}.linear_density", "kg/m", positive=True)
-        if not has_vol:
-            raise self.fail(f"{key}.linear_density", "a positive number (kg/m), or density (kg/m³) and "
-                            "area (m²)")
-        density = self.number(t.get("density", _MISSING), f"{key}.density", "kg/m³", positive=True)
-        area = self.number(t.get("area", _MISSING), f"{key}.area", "m²", positive=True)
-        rho_a = density * area
-        if not (rho_a > 0 and math.isfinite(rho_a)):
-            raise self.fail(f"{key}.area", "density·area to be a positive finite number (kg/m)", t["area"])
-        return rho_a
+        """linear_density, or density × area."""
+        if checks.mass_per_length_given_once(self.source, key, t):
+            return self.number_key(t, "link", "linear_density", key)
+        density = self.number_key(t, "link", "density", key)
+        area = self.number_key(t, "link", "area", key)
+        return checks.density_times_area(self.source, key, t, density, area)
 
     def deformation(self, value: Any, key: str) -> tuple[str, ...]:
         expected = 'a list of distinct fields from "v", "w", "alpha"'
@@ -613,68 +351,110 @@ class _Parser:
         return tuple(d for d in DEFORMATIONS if d in value)  # canonical order v, w, alpha
 
     def shapes(self, value: Any, key: str) -> Shapes:
-        t = self.table(value, key, _SHAPES_KEYS, 'a table {kind = "clamped-free", count = 3}')
-        kind = self.string(t.get("kind", "clamped-free"), f"{key}.kind", SHAPE_KINDS)
-        count = t.get("count", 3)
+        t = self.table(value, key, "link.shapes", 'a table {kind = "clamped-free", count = 3}')
+        kind = self.choice_key(t, "link.shapes", "kind", key)
+        count = self.get(t, "link.shapes", "count")
         if not isinstance(count, int) or isinstance(count, bool) or count < 1:
             what = "number of elements" if kind == "fe" else "number of shape functions"
             raise self.fail(f"{key}.count", f"an integer ≥ 1 ({what})", count)
         modes = self.modes(t, key)
-        if modes is not None and kind != "fe":
-            raise self.fail(f"{key}.modes", 'no value: only finite-element links (kind = "fe" or "shell") are '
-                            "reduced to modes", modes)
-        if modes is not None and modes > 2 * count:
-            raise self.fail(f"{key}.modes", f"at most {2 * count} (2 coordinates per element)", modes)
+        checks.beam_modes(self.source, key, kind, count, modes)
         return Shapes(kind=kind, count=count, modes=modes)
 
+    def modes(self, t: dict, key: str) -> int | None:
+        if "modes" not in t:
+            return None
+        m = t["modes"]
+        if not isinstance(m, int) or isinstance(m, bool) or m < 1:
+            raise self.fail(f"{key}.modes", "an integer ≥ 1 (modes kept, joint held)", m)
+        return m
+
     def payload(self, value: Any, key: str) -> Payload:
-        t = self.table(value, key, _PAYLOAD_KEYS, "a table {mass = …, inertia = …, offset = [x, y, z]}")
-        mass = self.number(t.get("mass", 0.0), f"{key}.mass", "kg", minimum=0)
-        raw = t.get("inertia", 0.0)
+        section = "link.payload"
+        t = self.table(value, key, section, "a table {mass = …, inertia = …, offset = [x, y, z]}")
+        mass = self.number_key(t, section, "mass", key)
+        raw = self.get(t, section, "inertia")
         inertia: float | tuple[float, ...]
         if isinstance(raw, list):
-            inertia = self.vector(raw, f"{key}.inertia", 3, "kg m²", minimum=0)
-        elif _is_number(raw):
-            inertia = self.number(raw, f"{key}.inertia", "kg m²", minimum=0)
+            inertia = self.vector(raw, f"{key}.inertia", 3, key_spec(section, "inertia").unit, minimum=0)
+        elif is_number(raw):
+            inertia = self.number_key(t, section, "inertia", key)
         else:
             raise self.fail(f"{key}.inertia", "a number ≥ 0 or a list [Jxx, Jyy, Jzz] of numbers ≥ 0 (kg m²)",
                             raw)
-        offset = self.vector(t.get("offset", [0.0, 0.0, 0.0]), f"{key}.offset", 3, "m")
+        offset = self.vector(self.get(t, section, "offset"), f"{key}.offset", 3, key_spec(section, "offset").unit)
         return Payload(mass=mass, inertia=inertia, offset=offset)
 
+    # ------------------------------------------------------------------------------------ shell links
+
+    def shell_link(self, data: dict, key: str) -> Link:
+        """A plate or box-section link of DKT + CST shell elements (seed 001 part 5): material, not section
+        properties, since the mesh integrates them."""
+        section = "shell_link"
+        t = self.table(data, key, section, "a table")
+        name = self.name(self.get(t, section, "name"), f"{key}.name")
+        length = self.number_key(t, section, "length", key)
+        density = self.number_key(t, section, "density", key)
+        E = self.number_key(t, section, "E", key)
+        poisson = self.number_key(t, section, "poisson", key)
+        if not -1.0 < poisson < 0.5:
+            raise self.fail(f"{key}.poisson", "a number in (-1, 0.5) (Poisson's ratio)", poisson)
+        kelvin_voigt = self.number_key(t, section, "kelvin_voigt", key)
+        shapes = self.shell_shapes(self.get(t, section, "shapes"), f"{key}.shapes")
+        kinematics = self.choice_key(t, section, "kinematics", key)
+        payload = self.payload(self.get(t, section, "payload"), f"{key}.payload")
+        initial_deformation = self.choice_key(t, section, "initial_deformation", key)
+        return Link(name=name, length=length, linear_density=density * shapes.section_area, EI=None,
+                    kelvin_voigt=kelvin_voigt, deformation=("v", "w", "alpha"), shapes=shapes,
+                    kinematics=kinematics, payload=payload, initial_deformation=initial_deformation,
+                    density=density, E=E, poisson=poisson)
+
+    def shell_shapes(self, value: Any, key: str) -> Shapes:
+        section = "shell_link.shapes"
+        t = self.table(value, key, section, 'a table {kind = "shell", section = "plate", …}')
+        box = self.choice_key(t, section, "section", key) == "box"
+        width = self.number_key(t, section, "width", key)
+        height = None
+        if box:
+            height = self.number_key(t, section, "height", key)
+        else:
+            checks.plate_has_no_height(self.source, key, t)
+        thickness = self.number_key(t, section, "thickness", key)
+        checks.thin_wall(self.source, key, thickness, width, height)
+        mesh, what = self.mesh(self.get(t, section, "mesh"), key, box)
+        pattern = self.choice_key(t, section, "pattern", key)
+        checks.symmetric_mesh(self.source, key, what, mesh, pattern)
+        modes = self.modes(t, key)
+        checks.shell_modes(self.source, key, "box" if box else "plate", mesh, modes)
+        return Shapes(kind="shell", count=int(mesh[0]), modes=modes, section="box" if box else "plate",
+                      width=width, height=height, thickness=thickness, mesh=tuple(int(m) for m in mesh),
+                      pattern=pattern)
+
+    def mesh(self, raw: Any, key: str, box: bool) -> tuple[list[int], str]:
+        """Element counts [nx, nw] (plate) or [nx, nw, nh] (box), and how the message spells them."""
+        what = "[nx, nw, nh]" if box else "[nx, nw]"
+        expected = f"a list {what} of integers ≥ 1 (elements along the length, across the width" + (
+            ", across the height)" if box else ")")
+        if raw is MISSING or not isinstance(raw, list) or len(raw) != (3 if box else 2) or not all(
+                isinstance(m, int) and not isinstance(m, bool) and m >= 1 for m in raw):
+            raise self.fail(f"{key}.mesh", expected, raw)
+        return raw, what
+
+    # ------------------------------------------------------------------------------------------- fmu
+
     def fmu(self, value: Any, joints: tuple[Joint, ...], links: tuple[Link, ...]) -> FmuSettings:
-        t = self.table(value, "fmu", _FMU_KEYS, "an [fmu] table")
-        step = self.number(t.get("step", 1e-3), "fmu.step", "s", positive=True)
-        integrator = self.string(t.get("integrator", "ss22"), "fmu.integrator", INTEGRATORS)
+        t = self.table(value, "fmu", "fmu", "an [fmu] table")
+        step = self.number_key(t, "fmu", "step", "fmu")
+        integrator = self.choice_key(t, "fmu", "integrator", "fmu")
         expected = "[Θ1, Θ2] with 0.5 ≤ Θ1 ≤ Θ2 ≤ 1 (unconditional stability of SS22)"
-        raw = t.get("theta", [0.5, 0.5])
+        raw = self.get(t, "fmu", "theta")
         if not isinstance(raw, list) or len(raw) != 2:
             raise self.fail("fmu.theta", expected, raw)
         th1, th2 = (self.number(v, f"fmu.theta[{i + 1}]") for i, v in enumerate(raw))
         if not 0.5 <= th1 <= th2 <= 1.0:
             raise self.fail("fmu.theta", expected, raw)
-        tolerance = self.number(t.get("tolerance", 1e-10), "fmu.tolerance", positive=True)
-        tunable = self.tunable(t.get("tunable", []), joints, links)
-        tip_load_inputs = self.boolean(t.get("tip_load_inputs", False), "fmu.tip_load_inputs")
+        tolerance = self.number_key(t, "fmu", "tolerance", "fmu")
+        tunable = checks.tunable_names(self.source, self.get(t, "fmu", "tunable"), joints, links)
+        tip_load_inputs = self.boolean(self.get(t, "fmu", "tip_load_inputs"), "fmu.tip_load_inputs")
         return FmuSettings(step=step, integrator=integrator, theta=(th1, th2), tolerance=tolerance,
                            tunable=tunable, tip_load_inputs=tip_load_inputs)
-
-    def tunable(self, value: Any, joints: tuple[Joint, ...], links: tuple[Link, ...]) -> tuple[str, ...]:
-        allowed = ["gravity"]
-        allowed += [f"{link.name}.{p}" for link in links for p in _LINK_TUNABLE]
-        allowed += [f"{joint.name}.{p}" for joint in joints for p in _JOINT_TUNABLE]
-        forms = ("<link>.kelvin_voigt, <link>.payload.mass, <link>.payload.inertia, <joint>.stiffness, "
-                 "<joint>.damping or gravity")
-        if not isinstance(value, list):
-            raise self.fail("fmu.tunable", f"a list of FMU parameter names ({forms})", value)
-        out: list[str] = []
-        for i, item in enumerate(value):
-            key = f"fmu.tunable[{i + 1}]"
-            if not isinstance(item, str) or item not in allowed:
-                close = difflib.get_close_matches(item, allowed, n=1) if isinstance(item, str) else []
-                hint = f' (did you mean "{close[0]}"?)' if close else ""
-                raise self.fail(key, f"a parameter name of this scene: {forms}{hint}", item)
-            if item in out:
-                raise self.fail(key, "a parameter not already listed", item)
-            out.append(item)
-        return tuple(out)

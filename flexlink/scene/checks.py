@@ -1,0 +1,177 @@
+"""The one form of every scene error, and the checks that involve more than one key.
+
+A :class:`~flexlink.errors.SceneError` reads ``FILE: KEY: expected WHAT, got VALUE`` (or ``FILE: KEY: missing;
+expected WHAT``). The loader reads one key at a time; the checks here relate keys to each other (a field to
+the data it needs, a mesh to its pattern, a tunable name to the joints and links). The loader calls each at
+the point of its single pass where the keys involved have been read, so that of several mistakes the first
+one in reading order is the one reported.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import math
+from typing import Any
+
+from flexlink.errors import SceneError
+from flexlink.scene.schema import JOINT_TUNABLE, LINK_TUNABLE, Joint, Link
+
+MISSING: Any = object()   # a key that is absent (distinct from every TOML value)
+
+
+def show(value: Any, limit: int = 60) -> str:
+    """The offending value in TOML spelling, shortened, so that the message stays one line."""
+    if isinstance(value, bool):
+        text = "true" if value else "false"
+    elif isinstance(value, float):
+        text = "nan" if math.isnan(value) else ("inf" if value == math.inf else
+                                                 "-inf" if value == -math.inf else repr(value))
+    elif isinstance(value, int):
+        text = repr(value)
+    elif isinstance(value, str):
+        text = json.dumps(value, ensure_ascii=False)  # TOML basic-string escapes: one line, always
+    elif isinstance(value, list | tuple):
+        text = "[" + ", ".join(show(v, limit) for v in value) + "]"
+    elif isinstance(value, dict):
+        text = "{" + ", ".join(f"{k} = {show(v, limit)}" for k, v in value.items()) + "}"
+    else:
+        text = f"a {type(value).__name__}"
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def error(source: str, key: str, expected: str, value: Any = MISSING) -> SceneError:
+    if value is MISSING:
+        return SceneError(f"{source}: {key}: missing; expected {expected}")
+    return SceneError(f"{source}: {key}: expected {expected}, got {show(value)}")
+
+
+# ---------------------------------------------------------------------------------------------- chain
+
+
+def same_count(source: str, n_joints: int, n_links: int) -> None:
+    if n_joints != n_links:
+        raise SceneError(
+            f"{source}: joint, link: expected as many [[joint]] as [[link]] (link i is driven by "
+            f"joint i), got {n_joints} [[joint]] and {n_links} [[link]]")
+
+
+def unique_names(source: str, joints: tuple[Joint, ...], links: tuple[Link, ...]) -> None:
+    """Joint and link names share one namespace: both prefix FMU variable names."""
+    seen: dict[str, str] = {}
+    for kind, items in (("joint", joints), ("link", links)):
+        for i, item in enumerate(items):
+            key = f"{kind}[{i + 1}].name"
+            if item.name in seen:
+                raise error(source, key, f"a name not already used (by {seen[item.name]})", item.name)
+            seen[item.name] = key.removesuffix(".name")
+
+
+def trajectory_needs_position(source: str, key: str, drive: str) -> None:
+    if drive != "position":
+        raise SceneError(f'{source}: {key}.trajectory: expected only with drive = "position", '
+                         f'got drive = "{drive}"')
+
+
+# ----------------------------------------------------------------------------------------------- link
+
+
+def no_shell_material(source: str, key: str, t: dict) -> None:
+    for k in ("E", "poisson"):
+        if k in t:
+            raise error(source, f"{key}.{k}", 'no value: E and poisson are for shell links (shapes.kind = "shell"); '
+                        "a beam takes EI", t[k])
+
+
+def mass_per_length_given_once(source: str, key: str, t: dict) -> bool:
+    """Exactly one way to give the mass per length, so that the two can never disagree; True: linear_density."""
+    has_lin = "linear_density" in t
+    has_vol = "density" in t or "area" in t
+    if has_lin and has_vol:
+        extra = "density" if "density" in t else "area"
+        raise error(source, f"{key}.{extra}", "either linear_density (kg/m) or density and area, not both", t[extra])
+    if not has_lin and not has_vol:
+        raise error(source, f"{key}.linear_density", "a positive number (kg/m), or density (kg/m³) and area (m²)")
+    return has_lin
+
+
+def density_times_area(source: str, key: str, t: dict, density: float, area: float) -> float:
+    rho_a = density * area
+    if not (rho_a > 0 and math.isfinite(rho_a)):
+        raise error(source, f"{key}.area", "density·area to be a positive finite number (kg/m)", t["area"])
+    return rho_a
+
+
+def deformation_data(source: str, key: str, deformation: tuple[str, ...], given: dict[str, float]) -> None:
+    """Each deformation field needs its stiffness (and torsion its section's polar inertia)."""
+    if "w" in deformation and "EI_out" not in given:
+        raise error(source, f"{key}.EI_out", 'a positive number (N m²) because deformation includes "w"')
+    if "alpha" in deformation:
+        for k, what in (("GJ", "a positive number (N m²)"), ("polar_inertia", "a number ≥ 0 (kg m)")):
+            if k not in given:
+                raise error(source, f"{key}.{k}", f'{what} because deformation includes "alpha"')
+
+
+def beam_modes(source: str, key: str, kind: str, count: int, modes: int | None) -> None:
+    if modes is not None and kind != "fe":
+        raise error(source, f"{key}.modes", 'no value: only finite-element links (kind = "fe" or "shell") are '
+                    "reduced to modes", modes)
+    if modes is not None and modes > 2 * count:
+        raise error(source, f"{key}.modes", f"at most {2 * count} (2 coordinates per element)", modes)
+
+
+# ---------------------------------------------------------------------------------------------- shell
+
+
+def plate_has_no_height(source: str, key: str, t: dict) -> None:
+    if "height" in t:
+        raise error(source, f"{key}.height", 'no value: a plate has no height (section = "box" has)', t["height"])
+
+
+def thin_wall(source: str, key: str, thickness: float, width: float, height: float | None) -> None:
+    if not thickness < min(width, height or width) / 2:
+        raise error(source, f"{key}.thickness", "a thickness below half the width and height (a thin wall)",
+                    thickness)
+
+
+def symmetric_mesh(source: str, key: str, what: str, mesh: list[int], pattern: str) -> None:
+    if pattern == "symmetric" and any(m % 2 for m in mesh[1:]):
+        raise error(source, f"{key}.mesh", f"{what} with even counts across (the symmetric pattern mirrors the "
+                    'diagonals about the mid-line), or pattern = "A" or "B"', mesh)
+
+
+def shell_modes(source: str, key: str, section: str, mesh: list[int], modes: int | None) -> None:
+    nx, nw = mesh[0], mesh[1]
+    with_mass = 3 * nx * (2 * (nw + mesh[2]) if section == "box" else nw + 1)   # translations off the root
+    if modes is not None and modes > with_mass:
+        raise error(source, f"{key}.modes", f"at most {with_mass} (the mesh's translational degrees of freedom "
+                    "off the root)", modes)
+
+
+# ------------------------------------------------------------------------------------------------ fmu
+
+
+def tunable_names(source: str, value: Any, joints: tuple[Joint, ...], links: tuple[Link, ...]) -> tuple[str, ...]:
+    """``[fmu] tunable`` names parameters of this scene's joints and links."""
+    allowed = ["gravity"]
+    allowed += [f"{link.name}.{p}" for link in links for p in LINK_TUNABLE]
+    allowed += [f"{joint.name}.{p}" for joint in joints for p in JOINT_TUNABLE]
+    forms = ("<link>.kelvin_voigt, <link>.payload.mass, <link>.payload.inertia, <joint>.stiffness, "
+             "<joint>.damping or gravity")
+    if not isinstance(value, list):
+        raise error(source, "fmu.tunable", f"a list of FMU parameter names ({forms})", value)
+    out: list[str] = []
+    for i, item in enumerate(value):
+        key = f"fmu.tunable[{i + 1}]"
+        if not isinstance(item, str) or item not in allowed:
+            close = difflib.get_close_matches(item, allowed, n=1) if isinstance(item, str) else []
+            hint = f' (did you mean "{close[0]}"?)' if close else ""
+            raise error(source, key, f"a parameter name of this scene: {forms}{hint}", item)
+        if item in out:
+            raise error(source, key, "a parameter not already listed", item)
+        out.append(item)
+    return tuple(out)
