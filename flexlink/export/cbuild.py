@@ -46,11 +46,20 @@ def fmi_headers_dir() -> Path:
 
 
 def fmu_src_dir() -> Path:
-    """The directory of the generic C sources (the package data ``flexlink.fmu_src``)."""
+    """The directory of the generic C sources (the package data ``flexlink.fmu_src``).
+
+    The copy next to this flexlink comes first: a source tree's ``fmu_src/`` (a checkout on sys.path, or
+    a second worktree whose interpreter has another checkout installed in editable mode, whose mapping
+    of ``flexlink.fmu_src`` would otherwise pair this Python with that checkout's C), or an installed
+    package's ``flexlink/fmu_src``; the package mapping only if neither exists."""
+    here = Path(__file__).resolve()
+    for path in (here.parents[2] / "fmu_src", here.parents[1] / "fmu_src"):
+        if (path / "fmi2Functions.c").is_file():
+            return path
     try:
         path = Path(str(importlib.resources.files("flexlink.fmu_src")))
-    except ModuleNotFoundError:  # a source tree on sys.path without the installed package mapping
-        path = Path(__file__).resolve().parents[2] / "fmu_src"
+    except ModuleNotFoundError:
+        path = here.parents[2] / "fmu_src"
     if not (path / "fmi2Functions.c").is_file():
         raise BuildError(f"the generic FMU sources are missing: no fmi2Functions.c in {path}")
     return path
