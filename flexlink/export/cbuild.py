@@ -18,11 +18,20 @@ from pathlib import Path
 
 from flexlink.errors import BuildError
 
-#: The log categories of the C glue (``LOG_CATEGORY_NAMES`` in fmu_src/cosimulation.c), in its order:
+#: The log categories of the C glue (``LOG_CATEGORY_NAMES`` in fmu_src/logging.c), in its order:
 #: modelDescription.xml must list exactly these in ``<LogCategories>``.
 LOG_CATEGORIES: tuple[str, ...] = (
     "logEvents", "logStatusWarning", "logStatusDiscard", "logStatusError", "logAll",
 )
+
+#: The generic C sources of every FMU, compiled with the generated model half: the FMI API layer, the
+#: functions behind it (cosimulation.h) by concern, the integrator and dense LU.
+GENERIC_SOURCES: tuple[str, ...] = (
+    "fmi2Functions.c", "logging.c", "instance.c", "variables.c", "cs_step.c", "model_exchange.c",
+    "derivatives.c", "fmu_state.c", "ss22.c", "linalg.c",
+)
+#: The generic headers they include (copied into an FMU's ``sources/`` with them).
+GENERIC_HEADERS: tuple[str, ...] = ("model.h", "cosimulation.h", "internal.h", "ss22.h", "linalg.h")
 
 #: Flags of every FMU build (generated CasADi code included).
 CFLAGS: tuple[str, ...] = (

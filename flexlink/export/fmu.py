@@ -21,7 +21,13 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 import flexlink
-from flexlink.export.cbuild import compile_shared_library, fmi_headers_dir, fmu_src_dir
+from flexlink.export.cbuild import (
+    GENERIC_HEADERS,
+    GENERIC_SOURCES,
+    compile_shared_library,
+    fmi_headers_dir,
+    fmu_src_dir,
+)
 from flexlink.export.codegen import GeneratedModel, generate
 from flexlink.export.derivatives import structure
 from flexlink.mechanics.model import SymbolicModel, build_model
@@ -44,7 +50,6 @@ LOG_CATEGORIES = {
     "logStatusError": "errors",
     "logAll": "everything",
 }
-GENERIC_SOURCES = ("fmi2Functions.c", "cosimulation.c", "ss22.c", "linalg.c")
 
 
 @dataclass
@@ -207,7 +212,7 @@ def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, ke
         gen = generate(model, src)
         t2 = time.perf_counter()
         generic = fmu_src_dir()
-        for name in [*GENERIC_SOURCES, "model.h", "ss22.h", "linalg.h", "cosimulation.h"]:
+        for name in [*GENERIC_SOURCES, *GENERIC_HEADERS]:
             shutil.copyfile(generic / name, src / name)
         for h in fmi_headers_dir().glob("fmi2*.h"):
             shutil.copyfile(h, src / h.name)
