@@ -257,8 +257,10 @@ def cached_fmu(scene, model=None) -> Path:
         scene = load_scene(path)              # first: a missing or bad file is a SceneError
         h = hashlib.sha256(Path(path).read_bytes())
     h.update(flexlink.__version__.encode())
-    for f in sorted(fmu_src_dir().iterdir()):
-        if f.suffix in (".c", ".h"):
+    generic = fmu_src_dir()
+    for f in sorted(generic.rglob("*")):     # C sources, headers and the templates of codegen
+        if f.is_file() and "__pycache__" not in f.parts:
+            h.update(f.relative_to(generic).as_posix().encode())
             h.update(f.read_bytes())
     for f in sorted(Path(flexlink.__file__).parent.rglob("*.py")):
         h.update(f.read_bytes())
