@@ -3,6 +3,8 @@
  *
  * fmi2Functions.c checks arguments and the call sequence and calls the functions below; these know
  * the generic model of model.h (residual form, kinematic laws, variables) and nothing of beams.
+ * They are defined by concern in logging.c, instance.c, variables.c, cs_step.c, model_exchange.c,
+ * derivatives.c and fmu_state.c, which share a few helpers through internal.h.
  *
  * Everything numeric of an instance sits in one plain struct (FmuData, no pointers), so that
  *   - an FMU state is a copy of it (fmi2GetFMUstate / fmi2SetFMUstate),

@@ -1,5 +1,5 @@
 /* fmi2Functions.c -- the FMI 2.0 functions of every flexlink FMU, and nothing else: argument checks,
- * the call-sequence state machine and delegation to cosimulation.c.
+ * the call-sequence state machine and delegation to the functions of cosimulation.h.
  *
  * Each function names the states it may be called in (a bitmask of Phase, after the state table of
  * FMI 2.0 section 4.2.4).  A call out of sequence, a bad argument or any other error returns

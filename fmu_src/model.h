@@ -1,7 +1,7 @@
 /*
  * model.h -- the narrow contract between the generic half of every flexlink FMU
- * (fmi2Functions.c, cosimulation.c, ss22.c, linalg.c) and one generated model
- * (config.h + model.c, written by flexlink.codegen).
+ * (fmi2Functions.c, the files behind cosimulation.h, ss22.c, linalg.c) and one generated model
+ * (config.h + model.c, written by flexlink.export.codegen from templates/).
  *
  * Nothing here knows about links, beams or joints.  A model is a second-order
  * mechanical system in residual form

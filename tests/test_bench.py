@@ -107,7 +107,7 @@ def test_report_refuses_a_readme_without_markers(tmp_path):
 
 
 def test_floor_driver_counters(quick_report):
-    """What ss22.c and cosimulation.c guarantee: equal internal steps (stop / step of them, 3 SS22 steps each
+    """What ss22.c and cs_step.c guarantee: equal internal steps (stop / step of them, 3 SS22 steps each
     for order 4); the linear model without gravity takes one residual and no Newton iteration a step and
     factorises its constant matrix at most once per cached step size; the Newton model evaluates one
     residual per iteration and iterates at least once a step."""

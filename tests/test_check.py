@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from flexlink.cli import main
-from flexlink.export.cbuild import compile_shared_library
+from flexlink.export.cbuild import GENERIC_SOURCES, compile_shared_library
 from flexlink.tools.check import check_fmu, write_report
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -85,13 +85,13 @@ def test_do_step_returning_nan_is_caught(rotating, tmp_path):
     src = tmp_path / "src"
     with zipfile.ZipFile(rotating) as z:
         z.extractall(src)
-    c = src / "sources" / "cosimulation.c"
+    c = src / "sources" / "cs_step.c"
     text = c.read_text()
     anchor = "    d->time = t_end;\n    d->last_successful_time = t_end;"
     assert anchor in text
     c.write_text(text.replace(anchor, "    d->q[0] = NAN;\n" + anchor))
     so = next((src / "binaries" / "linux64").glob("*.so"))
-    sources = [src / "sources" / n for n in ("fmi2Functions.c", "cosimulation.c", "ss22.c", "linalg.c", "model.c")]
+    sources = [src / "sources" / n for n in (*GENERIC_SOURCES, "model.c")]
     compile_shared_library(sources, [src / "sources"], so)
     bad = tmp_path / "nan_step.fmu"
     with zipfile.ZipFile(bad, "w") as z:

@@ -156,3 +156,30 @@ def test_flexible_pendulum_swing_matches_reference(tmp_path):
         "examples/flexible_pendulum.toml", 0.1, 0.005, [4e-6, 2e-6, 1e-6], start=start,
         outputs=[f"{joint}.theta", "tip.x"], tmp_path=tmp_path)
     _assert_second_order(errors, scale, f"{joint}.theta", 0.01)
+
+
+def test_fmu_cache_key_covers_the_c_sources_and_templates(tmp_path, monkeypatch):
+    """A change to any file of fmu_src/ (C sources, headers, codegen templates) is a new cached FMU."""
+    import shutil
+
+    from flexlink.export import cbuild
+    from flexlink.export import fmu as fmu_module
+
+    src = tmp_path / "fmu_src"
+    shutil.copytree(cbuild.fmu_src_dir(), src, ignore=shutil.ignore_patterns("__pycache__"))
+    monkeypatch.setattr(fmu_module, "fmu_src_dir", lambda: src)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+
+    def build(scene, path, model=None):                   # no compiler: only the cache key is tested
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        Path(path).write_bytes(b"")
+
+    monkeypatch.setattr(fmu_module, "build_fmu", build)
+    scene = EXAMPLES[0]
+    paths = [fmu_module.cached_fmu(scene)]
+    for name in ("templates/model.c.in", "cs_step.c", "cosimulation.h"):
+        with (src / name).open("a") as f:
+            f.write("\n")
+        paths.append(fmu_module.cached_fmu(scene))
+    assert len(set(paths)) == len(paths)
+    assert fmu_module.cached_fmu(scene) == paths[-1]      # unchanged sources: the same cached FMU

@@ -18,7 +18,7 @@ from flexlink.errors import BuildError
 from flexlink.export import cbuild
 
 TESTS_C = Path(__file__).parent / "c"
-GLUE = ("fmi2Functions.c", "cosimulation.c", "ss22.c", "linalg.c")
+GLUE = cbuild.GENERIC_SOURCES
 MODELS = ("twodof", "nonlinear")
 N_FMI2_FUNCTIONS = 44
 
@@ -161,7 +161,7 @@ def test_missing_compiler_is_a_build_error(tmp_path: Path, monkeypatch: pytest.M
 
 
 def test_log_categories_match_the_c_glue() -> None:
-    source = (cbuild.fmu_src_dir() / "cosimulation.c").read_text()
+    source = (cbuild.fmu_src_dir() / "logging.c").read_text()
     table = source.split("LOG_CATEGORY_NAMES[N_LOG_CATEGORIES] = {", 1)[1].split("};", 1)[0]
     assert tuple(re.findall(r'"([^"]+)"', table)) == cbuild.LOG_CATEGORIES
     from flexlink.export import fmu  # the modelDescription.xml writer lists the same categories
@@ -171,4 +171,8 @@ def test_log_categories_match_the_c_glue() -> None:
 
 def test_sources_and_headers_are_found() -> None:
     assert (cbuild.fmu_src_dir() / "model.h").is_file()
+    # every generic C file is compiled into (and shipped with) each FMU: none forgotten in the lists
+    src = cbuild.fmu_src_dir()
+    assert sorted(p.name for p in src.glob("*.c")) == sorted(cbuild.GENERIC_SOURCES)
+    assert sorted(p.name for p in src.glob("*.h")) == sorted(cbuild.GENERIC_HEADERS)
     assert (cbuild.fmi_headers_dir() / "fmi2FunctionTypes.h").is_file()

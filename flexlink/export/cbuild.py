@@ -18,11 +18,20 @@ from pathlib import Path
 
 from flexlink.errors import BuildError
 
-#: The log categories of the C glue (``LOG_CATEGORY_NAMES`` in fmu_src/cosimulation.c), in its order:
+#: The log categories of the C glue (``LOG_CATEGORY_NAMES`` in fmu_src/logging.c), in its order:
 #: modelDescription.xml must list exactly these in ``<LogCategories>``.
 LOG_CATEGORIES: tuple[str, ...] = (
     "logEvents", "logStatusWarning", "logStatusDiscard", "logStatusError", "logAll",
 )
+
+#: The generic C sources of every FMU, compiled with the generated model half: the FMI API layer, the
+#: functions behind it (cosimulation.h) by concern, the integrator and dense LU.
+GENERIC_SOURCES: tuple[str, ...] = (
+    "fmi2Functions.c", "logging.c", "instance.c", "variables.c", "cs_step.c", "model_exchange.c",
+    "derivatives.c", "fmu_state.c", "ss22.c", "linalg.c",
+)
+#: The generic headers they include (copied into an FMU's ``sources/`` with them).
+GENERIC_HEADERS: tuple[str, ...] = ("model.h", "cosimulation.h", "internal.h", "ss22.h", "linalg.h")
 
 #: Flags of every FMU build (generated CasADi code included).
 CFLAGS: tuple[str, ...] = (
@@ -46,11 +55,20 @@ def fmi_headers_dir() -> Path:
 
 
 def fmu_src_dir() -> Path:
-    """The directory of the generic C sources (the package data ``flexlink.fmu_src``)."""
+    """The directory of the generic C sources (the package data ``flexlink.fmu_src``).
+
+    The copy next to this flexlink comes first: a source tree's ``fmu_src/`` (a checkout on sys.path, or
+    a second worktree whose interpreter has another checkout installed in editable mode, whose mapping
+    of ``flexlink.fmu_src`` would otherwise pair this Python with that checkout's C), or an installed
+    package's ``flexlink/fmu_src``; the package mapping only if neither exists."""
+    here = Path(__file__).resolve()
+    for path in (here.parents[2] / "fmu_src", here.parents[1] / "fmu_src"):
+        if (path / "fmi2Functions.c").is_file():
+            return path
     try:
         path = Path(str(importlib.resources.files("flexlink.fmu_src")))
-    except ModuleNotFoundError:  # a source tree on sys.path without the installed package mapping
-        path = Path(__file__).resolve().parents[2] / "fmu_src"
+    except ModuleNotFoundError:
+        path = here.parents[2] / "fmu_src"
     if not (path / "fmi2Functions.c").is_file():
         raise BuildError(f"the generic FMU sources are missing: no fmi2Functions.c in {path}")
     return path

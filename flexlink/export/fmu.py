@@ -21,7 +21,13 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 import flexlink
-from flexlink.export.cbuild import compile_shared_library, fmi_headers_dir, fmu_src_dir
+from flexlink.export.cbuild import (
+    GENERIC_HEADERS,
+    GENERIC_SOURCES,
+    compile_shared_library,
+    fmi_headers_dir,
+    fmu_src_dir,
+)
 from flexlink.export.codegen import GeneratedModel, generate
 from flexlink.export.derivatives import structure
 from flexlink.mechanics.model import SymbolicModel, build_model
@@ -44,7 +50,6 @@ LOG_CATEGORIES = {
     "logStatusError": "errors",
     "logAll": "everything",
 }
-GENERIC_SOURCES = ("fmi2Functions.c", "cosimulation.c", "ss22.c", "linalg.c")
 
 
 @dataclass
@@ -207,7 +212,7 @@ def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, ke
         gen = generate(model, src)
         t2 = time.perf_counter()
         generic = fmu_src_dir()
-        for name in [*GENERIC_SOURCES, "model.h", "ss22.h", "linalg.h", "cosimulation.h"]:
+        for name in [*GENERIC_SOURCES, *GENERIC_HEADERS]:
             shutil.copyfile(generic / name, src / name)
         for h in fmi_headers_dir().glob("fmi2*.h"):
             shutil.copyfile(h, src / h.name)
@@ -252,8 +257,10 @@ def cached_fmu(scene, model=None) -> Path:
         scene = load_scene(path)              # first: a missing or bad file is a SceneError
         h = hashlib.sha256(Path(path).read_bytes())
     h.update(flexlink.__version__.encode())
-    for f in sorted(fmu_src_dir().iterdir()):
-        if f.suffix in (".c", ".h"):
+    generic = fmu_src_dir()
+    for f in sorted(generic.rglob("*")):     # C sources, headers and the templates of codegen
+        if f.is_file() and "__pycache__" not in f.parts:
+            h.update(f.relative_to(generic).as_posix().encode())
             h.update(f.read_bytes())
     for f in sorted(Path(flexlink.__file__).parent.rglob("*.py")):
         h.update(f.read_bytes())

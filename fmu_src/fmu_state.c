@@ -1,0 +1,170 @@
+/* fmu_state.c -- FMU states: get, set and free copies of FmuData, and their serialisation (header,
+ * checksum, validation on the way back in).  See cosimulation.h. */
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+#include "internal.h"
+
+/* ================================================================= FMU state */
+
+static int state_ok(const SavedState *s) {
+    return s != NULL && s->magic == STATE_MAGIC;
+}
+
+fmi2Status fmu_get_state(Instance *inst, fmi2FMUstate *state) {
+    SavedState *s = (SavedState *)*state;
+    if (s != NULL && !state_ok(s)) {
+        return fmu_error(inst, "fmi2GetFMUstate: *FMUstate is neither NULL nor a state of this FMU");
+    }
+    if (s == NULL) {
+        s = (SavedState *)inst->cb.allocateMemory(1, sizeof(SavedState));
+        if (s == NULL) {
+            return fmu_error(inst, "fmi2GetFMUstate: out of memory");
+        }
+        memset(s, 0, sizeof(*s));
+        s->magic = STATE_MAGIC;
+    }
+    memcpy(&s->d, &inst->d, sizeof(s->d));
+    *state = s;
+    return fmi2OK;
+}
+
+fmi2Status fmu_set_state(Instance *inst, fmi2FMUstate state) {
+    const SavedState *s = (const SavedState *)state;
+    if (!state_ok(s)) {
+        return fmu_error(inst, "fmi2SetFMUstate: not a state of this FMU (NULL or freed)");
+    }
+    memcpy(&inst->d, &s->d, sizeof(inst->d));
+    return fmi2OK;
+}
+
+fmi2Status fmu_free_state(Instance *inst, fmi2FMUstate *state) {
+    SavedState *s = (SavedState *)*state;
+    if (s == NULL) return fmi2OK;
+    if (!state_ok(s)) {
+        return fmu_error(inst, "fmi2FreeFMUstate: not a state of this FMU (already freed?)");
+    }
+    s->magic = 0;
+    inst->cb.freeMemory(s);
+    *state = NULL;
+    return fmi2OK;
+}
+
+/* Serialized layout: magic (8 bytes) | MODEL_GUID with its NUL | payload size (uint64) |
+ * FNV-1a checksum of the payload (uint64) | the FmuData bytes.  Same machine and build only. */
+static const char SERIAL_MAGIC[8] = {'F', 'L', 'X', 'S', 'T', 'A', 'T', '1'};
+#define GUID_BYTES sizeof(MODEL_GUID)
+#define HEADER_BYTES (sizeof(SERIAL_MAGIC) + GUID_BYTES + 2 * sizeof(uint64_t))
+
+static uint64_t checksum(const unsigned char *p, size_t n) {
+    uint64_t h = 14695981039346656037ULL;
+    for (size_t i = 0; i < n; i++) {
+        h ^= p[i];
+        h *= 1099511628211ULL;
+    }
+    return h;
+}
+
+size_t fmu_serialized_size(void) {
+    return HEADER_BYTES + sizeof(FmuData);
+}
+
+fmi2Status fmu_serialize(Instance *inst, fmi2FMUstate state, fmi2Byte buffer[], size_t size) {
+    const SavedState *s = (const SavedState *)state;
+    const uint64_t payload = sizeof(FmuData);
+    uint64_t sum;
+    unsigned char *b = (unsigned char *)buffer;
+    if (!state_ok(s)) {
+        return fmu_error(inst, "fmi2SerializeFMUstate: not a state of this FMU");
+    }
+    if (size < fmu_serialized_size()) {
+        return fmu_error(inst, "fmi2SerializeFMUstate: buffer of %zu bytes, %zu needed", size,
+                         fmu_serialized_size());
+    }
+    sum = checksum((const unsigned char *)&s->d, sizeof(s->d));
+    memcpy(b, SERIAL_MAGIC, sizeof(SERIAL_MAGIC));
+    b += sizeof(SERIAL_MAGIC);
+    memcpy(b, MODEL_GUID, GUID_BYTES);
+    b += GUID_BYTES;
+    memcpy(b, &payload, sizeof(payload));
+    b += sizeof(payload);
+    memcpy(b, &sum, sizeof(sum));
+    b += sizeof(sum);
+    memcpy(b, &s->d, sizeof(s->d));
+    return fmi2OK;
+}
+
+/* Beyond the checksum: nothing in a state may lead to an out-of-bounds access. */
+static const char *invalid_data(const FmuData *d) {
+    const int phases[] = {PHASE_INSTANTIATED, PHASE_INITIALIZATION, PHASE_STEP, PHASE_TERMINATED, PHASE_ERROR,
+                          PHASE_FATAL, PHASE_EVENT, PHASE_CONTINUOUS};
+    int phase_ok = 0;
+    for (size_t k = 0; k < sizeof(phases) / sizeof(phases[0]); k++) phase_ok |= d->phase == phases[k];
+    if (!phase_ok) return "state machine";
+    if ((d->outputs_valid | d->acceleration_ok | d->stop_time_defined | d->experiment_tolerance_defined |
+         d->model_exchange) & ~1)
+        return "flags";
+    if (d->ss22.max_iterations < 0 || d->ss22.max_iterations > 1000) return "solver settings";
+    for (int k = 0; k < SS22_CACHE; k++) {
+        const SS22Factor *f = &d->ss22.cache[k];
+        if (f->valid & ~1) return "solver cache";
+        for (int i = 0; i < N_Q && f->valid; i++) {
+            if (f->piv[i] < i || f->piv[i] >= N_Q) return "solver cache";
+        }
+    }
+    if (!isfinite(d->time) || !fmu_all_finite(d->q, N_Q) || !fmu_all_finite(d->v, N_Q)) return "time or state";
+    return NULL;
+}
+
+fmi2Status fmu_deserialize(Instance *inst, const fmi2Byte buffer[], size_t size, fmi2FMUstate *state) {
+    const unsigned char *b = (const unsigned char *)buffer;
+    uint64_t payload, sum;
+    SavedState *s, *target = (SavedState *)*state;
+    const char *bad;
+    if (target != NULL && !state_ok(target)) {
+        return fmu_error(inst, "fmi2DeSerializeFMUstate: *FMUstate is neither NULL nor a state of "
+                         "this FMU");
+    }
+    if (size != fmu_serialized_size()) {
+        return fmu_error(inst, "fmi2DeSerializeFMUstate: %zu bytes, a state of this FMU has %zu", size,
+                         fmu_serialized_size());
+    }
+    if (memcmp(b, SERIAL_MAGIC, sizeof(SERIAL_MAGIC)) != 0) {
+        return fmu_error(inst, "fmi2DeSerializeFMUstate: not a serialized flexlink FMU state");
+    }
+    b += sizeof(SERIAL_MAGIC);
+    if (memcmp(b, MODEL_GUID, GUID_BYTES) != 0) {
+        return fmu_error(inst, "fmi2DeSerializeFMUstate: the state belongs to another FMU "
+                         "(GUID differs from %s)", MODEL_GUID);
+    }
+    b += GUID_BYTES;
+    memcpy(&payload, b, sizeof(payload));
+    b += sizeof(payload);
+    memcpy(&sum, b, sizeof(sum));
+    b += sizeof(sum);
+    if (payload != sizeof(FmuData)) {
+        return fmu_error(inst, "fmi2DeSerializeFMUstate: the state was written by another build "
+                         "of this FMU (payload size differs)");
+    }
+    if (checksum(b, sizeof(FmuData)) != sum) {
+        return fmu_error(inst, "fmi2DeSerializeFMUstate: the state is corrupted (checksum)");
+    }
+    s = (SavedState *)inst->cb.allocateMemory(1, sizeof(SavedState));
+    if (s == NULL) {
+        return fmu_error(inst, "fmi2DeSerializeFMUstate: out of memory");
+    }
+    memset(s, 0, sizeof(*s));
+    memcpy(&s->d, b, sizeof(s->d));
+    if ((bad = invalid_data(&s->d)) != NULL) {
+        inst->cb.freeMemory(s);
+        return fmu_error(inst, "fmi2DeSerializeFMUstate: the state is invalid (%s)", bad);
+    }
+    if (target != NULL) {                              /* reuse the host's state, as fmi2GetFMUstate does */
+        memcpy(&target->d, &s->d, sizeof(target->d));
+        inst->cb.freeMemory(s);
+        return fmi2OK;
+    }
+    s->magic = STATE_MAGIC;
+    *state = s;
+    return fmi2OK;
+}

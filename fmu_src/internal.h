@@ -1,0 +1,34 @@
+/* internal.h -- what the C files behind cosimulation.h share among themselves; fmi2Functions.c and
+ * hosts use cosimulation.h only.
+ *
+ *   logging.c         log categories, messages through the host's logger, fmi2SetDebugLogging
+ *   instance.c        instantiate, free, reset, start values, setup experiment, initialization
+ *   variables.c       get/set of the variable table, inputs with kinematic laws, outputs
+ *   cs_step.c         the Co-Simulation communication step (SS22 internal steps)
+ *   model_exchange.c  states, derivatives, nominals and time events of Model Exchange
+ *   derivatives.c     directional derivatives
+ *   fmu_state.c       FMU states and their serialisation */
+#ifndef FLEXLINK_INTERNAL_H
+#define FLEXLINK_INTERNAL_H
+
+#include "cosimulation.h"
+
+/* logging.c: a message before an instance exists (fmi2Instantiate refusing to create one). */
+#ifdef __GNUC__
+__attribute__((format(printf, 4, 5)))
+#endif
+void fmu_log_callbacks(const fmi2CallbackFunctions *cb, const char *name, fmi2Status status,
+                       const char *format, ...);
+
+/* variables.c */
+/* Where the value of variable v lives in d. */
+double *fmu_slot(FmuData *d, const VarInfo *v);
+/* 1 if the n values of x are all finite. */
+int fmu_all_finite(const double *x, int n);
+/* u_model(t): the host's inputs, with the kinematic-law slots filled in. */
+void fmu_model_inputs(const FmuData *d, double t, double *u);
+/* The consistent acceleration M(q) a = -r(q, v, 0, u, p) at d->time, then the outputs, unless they are
+ * up to date; function names the FMI function in messages. */
+fmi2Status fmu_update_outputs(Instance *inst, const char *function);
+
+#endif /* FLEXLINK_INTERNAL_H */

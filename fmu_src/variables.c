@@ -1,0 +1,210 @@
+/* variables.c -- fmi2GetReal / fmi2SetReal on the variable table of model.h, the inputs as the model sees
+ * them (kinematic laws filled in) and the outputs with the consistent acceleration behind them.
+ * See cosimulation.h. */
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+#include "internal.h"
+#include "linalg.h"
+
+/* ==================================================================== variables */
+
+double *fmu_slot(FmuData *d, const VarInfo *v) {
+    switch (v->kind) {
+    case VAR_PARAMETER: return &d->p[v->index];
+    case VAR_START_Q: return &d->q_start[v->index];
+    case VAR_START_V: return &d->v_start[v->index];
+    case VAR_SOLVER: return &d->solver[v->index];
+    case VAR_INPUT: return &d->u[v->index];
+    case VAR_OUTPUT: return &d->y[v->index];
+    case VAR_STATE_Q: return &d->q[v->index];
+    case VAR_STATE_V: return &d->v[v->index];
+    case VAR_DER_Q: return &d->v[v->index];
+    case VAR_DER_V: return &d->acceleration[v->index];
+    }
+    return NULL;
+}
+
+/* ========================================================= inputs, kinematic laws */
+
+#if N_LAWS > 0
+/* Position, rate and acceleration of a built-in law at time t. */
+static void law_builtin(const KinematicLaw *law, double t, double *x) {
+    const LawSegment *s;
+    double x0 = 0.0, x1 = 0.0, x2 = 0.0;
+    x[0] = x[1] = x[2] = 0.0;
+    if (law->n_segments <= 0) return;
+    s = &law->segments[law->n_segments - 1];
+    for (int k = 0; k < law->n_segments; k++) {
+        if (t < law->segments[k].until) { s = &law->segments[k]; break; }
+    }
+    for (int k = s->n_poly - 1; k >= 0; k--) {     /* Horner with the first two derivatives */
+        x2 = x2 * t + x1;
+        x1 = x1 * t + x0;
+        x0 = x0 * t + s->poly[k];
+    }
+    x[0] = x0;
+    x[1] = x1;
+    x[2] = 2.0 * x2;
+    for (int j = 0; j < s->n_cos; j++) {
+        const double amp = s->cos[3 * j], w = s->cos[3 * j + 1], phase = s->cos[3 * j + 2];
+        const double c = cos(w * t + phase), sn = sin(w * t + phase);
+        x[0] += amp * c;
+        x[1] -= amp * w * sn;
+        x[2] -= amp * w * w * c;
+    }
+}
+
+/* The host's (x, xd, xdd) of law k, given at d->law_time[k], extended to t. */
+static void law_extended(const FmuData *d, int k, double t, double *x) {
+    const int o = MODEL_LAWS[k].u_offset;
+    const double s = t - d->law_time[k];
+    x[0] = d->u[o] + s * (d->u[o + 1] + 0.5 * s * d->u[o + 2]);
+    x[1] = d->u[o + 1] + s * d->u[o + 2];
+    x[2] = d->u[o + 2];
+}
+#endif
+
+/* u_model(t): the host's inputs, with the kinematic-law slots filled in. */
+void fmu_model_inputs(const FmuData *d, double t, double *u) {
+    memcpy(u, d->u, sizeof(d->u));
+#if N_LAWS > 0
+    for (int k = 0; k < N_LAWS; k++) {
+        const KinematicLaw *law = &MODEL_LAWS[k];
+        if (law->builtin) law_builtin(law, t, u + law->u_offset);
+        else law_extended(d, k, t, u + law->u_offset);
+    }
+#else
+    (void)t;
+#endif
+}
+
+/* Before the host sets one slot of a host-driven law at time != the law's time, carry the other two
+ * slots forward to now, so that (x, xd, xdd) always describe the law at law_time. */
+static void rebase_law(FmuData *d, int u_index) {
+#if N_LAWS > 0
+    for (int k = 0; k < N_LAWS; k++) {
+        const int o = MODEL_LAWS[k].u_offset;
+        if (!MODEL_LAWS[k].builtin && u_index >= o && u_index < o + 3 && d->law_time[k] != d->time) {
+            double x[3];
+            law_extended(d, k, d->time, x);
+            memcpy(d->u + o, x, sizeof(x));
+            d->law_time[k] = d->time;
+        }
+    }
+#else
+    (void)d;
+    (void)u_index;
+#endif
+}
+
+/* ========================================================== outputs, acceleration */
+
+int fmu_all_finite(const double *x, int n) {
+    for (int i = 0; i < n; i++) if (!isfinite(x[i])) return 0;
+    return 1;
+}
+
+/* The consistent acceleration M(q) a = -r(q, v, 0, u, p) at d->time, then the outputs. */
+fmi2Status fmu_update_outputs(Instance *inst, const char *function) {
+    FmuData *d = &inst->d;
+    fmi2Status status = fmi2OK;
+    if (d->outputs_valid) return fmi2OK;
+    fmu_model_inputs(d, d->time, inst->u0);
+    if (model_residual(d->q, d->v, inst->zero, inst->u0, d->p, inst->r, &inst->work) ||
+        model_newton_matrix(d->q, d->v, inst->zero, inst->u0, d->p, 1.0, 0.0, 0.0, inst->J, &inst->work)) {
+        return fmu_error(inst, "%s: the model failed to evaluate at t = %.17g", function, d->time);
+    }
+    if (fmu_all_finite(inst->J, N_Q * N_Q) && lu_factor(inst->J, N_Q, inst->piv) == 0) {
+        for (int i = 0; i < N_Q; i++) d->acceleration[i] = -inst->r[i];
+        lu_solve(inst->J, N_Q, inst->piv, d->acceleration);
+        d->acceleration_ok = fmu_all_finite(d->acceleration, N_Q);
+    } else {
+        d->acceleration_ok = 0;
+    }
+    if (!d->acceleration_ok) {
+        memcpy(d->acceleration, d->alpha, sizeof(d->acceleration));
+        fmu_log(inst, fmi2Warning, LOG_STATUS_WARNING,
+                "%s: the mass matrix is singular at t = %.17g: outputs use the last step's mean acceleration",
+                function, d->time);
+        status = fmi2Warning;
+    }
+    if (model_outputs(d->q, d->v, d->acceleration, inst->u0, d->p, d->y, &inst->work)) {
+        return fmu_error(inst, "%s: the model failed to evaluate its outputs at t = %.17g", function,
+                         d->time);
+    }
+    d->outputs_valid = 1;
+    return status;
+}
+
+/* ================================================================ get and set */
+
+fmi2Status fmu_get_real(Instance *inst, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]) {
+    int need_outputs = 0;
+    fmi2Status status = fmi2OK;
+    for (size_t i = 0; i < nvr; i++) {
+        if (vr[i] >= (fmi2ValueReference)N_VARS) {
+            return fmu_error(inst, "fmi2GetReal: unknown value reference %u", vr[i]);
+        }
+        if (MODEL_VARS[vr[i]].kind == VAR_OUTPUT || MODEL_VARS[vr[i]].kind == VAR_DER_V) need_outputs = 1;
+    }
+    if (need_outputs) {
+        status = fmu_update_outputs(inst, "fmi2GetReal");
+        if (status > fmi2Warning) return status;
+    }
+    for (size_t i = 0; i < nvr; i++) value[i] = *fmu_slot(&inst->d, &MODEL_VARS[vr[i]]);
+    return status;
+}
+
+/* Why value x cannot be given to variable v now, or NULL. */
+static const char *refuse_value(const Instance *inst, const VarInfo *v, double x, char *why, size_t n) {
+    const int phase = inst->d.phase;
+    const int fixed = v->kind == VAR_START_Q || v->kind == VAR_START_V || v->kind == VAR_SOLVER ||
+                      (v->kind == VAR_PARAMETER && !v->tunable);
+    if (v->kind == VAR_OUTPUT) {
+        snprintf(why, n, "%s is an output: it cannot be set", v->name);
+    } else if (v->kind == VAR_STATE_Q || v->kind == VAR_STATE_V || v->kind == VAR_DER_Q || v->kind == VAR_DER_V) {
+        snprintf(why, n, "%s is a continuous state or a derivative: it cannot be set with fmi2SetReal "
+                 "(Model Exchange: fmi2SetContinuousStates)", v->name);
+    } else if (v->kind == VAR_PARAMETER && phase == PHASE_CONTINUOUS) {
+        snprintf(why, n, "%s is a tunable parameter: it can be set in event mode, not in %s", v->name,
+                 fmu_phase_name(phase));
+    } else if (fixed && !(phase & (PHASE_INSTANTIATED | PHASE_INITIALIZATION))) {
+        snprintf(why, n, "%s is fixed after initialization: it cannot be set in %s", v->name,
+                 fmu_phase_name(phase));
+    } else if (!isfinite(x)) {
+        snprintf(why, n, "%s = %g: NaN and infinite values are refused", v->name, x);
+    } else if (v->min_exclusive ? !(x > v->min) : !(x >= v->min)) {
+        snprintf(why, n, "%s = %.15g: must be %s %.15g", v->name, x, v->min_exclusive ? ">" : ">=", v->min);
+    } else if (!(x <= v->max)) {
+        snprintf(why, n, "%s = %.15g: must be <= %.15g", v->name, x, v->max);
+    } else {
+        return NULL;
+    }
+    return why;
+}
+
+fmi2Status fmu_set_real(Instance *inst, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) {
+    FmuData *d = &inst->d;
+    int invalidate = 0;
+    char why[512];
+    for (size_t i = 0; i < nvr; i++) {                 /* check everything before writing anything */
+        if (vr[i] >= (fmi2ValueReference)N_VARS) {
+            return fmu_error(inst, "fmi2SetReal: unknown value reference %u", vr[i]);
+        }
+        if (refuse_value(inst, &MODEL_VARS[vr[i]], value[i], why, sizeof(why)) != NULL) {
+            return fmu_error(inst, "fmi2SetReal: %s", why);
+        }
+    }
+    for (size_t i = 0; i < nvr; i++) {
+        const VarInfo *v = &MODEL_VARS[vr[i]];
+        if (v->kind == VAR_INPUT) rebase_law(d, v->index);
+        *fmu_slot(d, v) = value[i];
+        if (v->kind == VAR_START_Q) d->q[v->index] = value[i];       /* before initialization only */
+        if (v->kind == VAR_START_V) d->v[v->index] = value[i];
+        if (v->kind == VAR_PARAMETER && d->phase == PHASE_STEP) invalidate = 1;
+    }
+    if (invalidate) ss22_invalidate(&d->ss22);
+    if (nvr > 0) d->outputs_valid = 0;
+    return fmi2OK;
+}
