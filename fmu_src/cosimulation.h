@@ -93,6 +93,10 @@ typedef struct {
     double zero[N_Q];                 /* always 0: the acceleration argument of statics        */
     double q_save[N_Q], v_save[N_Q], alpha_save[N_Q];   /* an internal step being retried */
     int piv[N_Q];
+    /* guards.c: validity ratios, mass matrix and the reason of a refused state */
+    double guard_g[FMU_SZ(N_VALIDITY)], guard_M[N_Q * N_Q];
+    char guard_reason[512];
+    int step_discarded;               /* 1 after fmi2DoStep returned fmi2Discard (fmi2Terminated status) */
     /* directional derivatives: seeds and results */
     double dd_q[N_Q], dd_v[N_Q], dd_a[N_Q], dd_r[N_Q];
     double dd_u[FMU_SZ(N_U)], dd_um[FMU_SZ(N_U)], dd_p[FMU_SZ(N_P)], dd_y[FMU_SZ(N_Y)];

@@ -94,6 +94,7 @@ fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h) {
                          t_end, d->stop_time);
     }
     memcpy(&inst->backup, d, sizeof(*d));
+    inst->step_discarded = 1;                          /* until the step below succeeds */
     t = d->time;
     /* n equal internal steps of at most solver.step: never overshooting, and no odd short last step.
      * SS22 with Θ1 = ½ < Θ2 is only marginally stable in unresolved modes, and alternating step sizes
@@ -106,6 +107,12 @@ fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h) {
         for (long i = 1; i <= n; i++) {
             const double t_next = (i == n) ? t_end : tc + h * ((double)i / (double)n);
             SS22Status status = internal_step(inst, t, t_next);
+            if (status == SS22_OK && fmu_guard_state(inst, t_next, inst->u1, i == n) != fmi2OK) {
+                memcpy(d, &inst->backup, sizeof(*d));
+                fmu_log(inst, fmi2Discard, LOG_STATUS_DISCARD, "fmi2DoStep: %s; the step from %.17g to %.17g "
+                        "is discarded and the FMU is back at t = %.17g", inst->guard_reason, tc, t_end, d->time);
+                return fmi2Discard;
+            }
             if (status != SS22_OK) {
                 memcpy(d, &inst->backup, sizeof(*d));
                 fmu_log(inst, fmi2Discard, LOG_STATUS_DISCARD,
@@ -120,5 +127,6 @@ fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h) {
     d->time = t_end;
     d->last_successful_time = t_end;
     d->outputs_valid = 0;
+    inst->step_discarded = 0;
     return fmi2OK;
 }

@@ -363,7 +363,9 @@ fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boo
     BEGIN("fmi2GetBooleanStatus", STATUS_QUERY);
     REQUIRE(value != NULL, "fmi2GetBooleanStatus", "value is NULL");
     REQUIRE(s == fmi2Terminated, "fmi2GetBooleanStatus", "only fmi2Terminated is a Boolean status");
-    *value = fmi2False;                                /* the FMU never asks to end the simulation */
+    /* After a discarded step the FMU asks the master to end: it has already retried the step as 8 sub-steps,
+     * and a master that retries the same step (fmpy does, while this is false) would never return. */
+    *value = inst->step_discarded ? fmi2True : fmi2False;
     return fmi2OK;
 }
 

@@ -154,6 +154,7 @@ void fmu_reset(Instance *inst) {
     const int model_exchange = inst->d.model_exchange;
     set_start_values(&inst->d);
     inst->d.model_exchange = model_exchange;
+    inst->step_discarded = 0;
 }
 
 fmi2Status fmu_setup_experiment(Instance *inst, fmi2Boolean tolerance_defined, fmi2Real tolerance,

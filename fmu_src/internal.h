@@ -7,7 +7,8 @@
  *   cs_step.c         the Co-Simulation communication step (SS22 internal steps)
  *   model_exchange.c  states, derivatives, nominals and time events of Model Exchange
  *   derivatives.c     directional derivatives
- *   fmu_state.c       FMU states and their serialisation */
+ *   fmu_state.c       FMU states and their serialisation
+ *   guards.c          the checks that refuse a state the model cannot stand behind */
 #ifndef FLEXLINK_INTERNAL_H
 #define FLEXLINK_INTERNAL_H
 
@@ -30,5 +31,10 @@ void fmu_model_inputs(const FmuData *d, double t, double *u);
 /* The consistent acceleration M(q) a = -r(q, v, 0, u, p) at d->time, then the outputs, unless they are
  * up to date; function names the FMI function in messages. */
 fmi2Status fmu_update_outputs(Instance *inst, const char *function);
+
+/* guards.c: fmi2OK if the state d (q, v; inputs u at time t) is finite and within the model's validity
+ * (and, if check_mass_matrix, its mass matrix positive definite); else fmi2Discard with the reason in
+ * inst->guard_reason. */
+fmi2Status fmu_guard_state(Instance *inst, double t, const double *u, int check_mass_matrix);
 
 #endif /* FLEXLINK_INTERNAL_H */

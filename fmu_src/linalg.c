@@ -46,3 +46,20 @@ void lu_solve(const double *LU, int n, const int *piv, double *b) {
         if (bj != 0.0) for (int i = 0; i < j; i++) b[i] -= LU[i + j * n] * bj;
     }
 }
+
+int cholesky_factor(double *A, int n, double tiny) {
+    for (int k = 0; k < n; k++) {
+        const double akk = A[k + k * n];
+        double d = akk;
+        for (int j = 0; j < k; j++) d -= A[k + j * n] * A[k + j * n];
+        if (!(d > tiny * fabs(akk)) || !isfinite(d)) return k + 1;
+        const double l = sqrt(d);
+        A[k + k * n] = l;
+        for (int i = k + 1; i < n; i++) {
+            double s = A[i + k * n];
+            for (int j = 0; j < k; j++) s -= A[i + j * n] * A[k + j * n];
+            A[i + k * n] = s / l;
+        }
+    }
+    return 0;
+}

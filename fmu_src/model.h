@@ -134,6 +134,12 @@ int model_outputs_forward(const double *q, const double *v, const double *a, con
                           const double *p, const double *dq, const double *dv, const double *da,
                           const double *du, const double *dp, double *dy, ModelWork *work);
 
+/* g = model_validity(q, u, p): the model's assumptions hold while every g[i] <= 1 (ratios of tip
+ * deflections and rotations to the limits the beam model is meant for); MODEL_VALIDITY_NAMES[i] says
+ * what g[i] measures, for the message that refuses a step leaving that range. */
+extern const char *const MODEL_VALIDITY_NAMES[N_VALIDITY > 0 ? N_VALIDITY : 1];
+int model_validity(const double *q, const double *u, const double *p, double *g, ModelWork *work);
+
 /* MODEL_LINEAR_IN_STATE (config.h): 1 if r is affine in (q, v, a): one linear solve
  * per step, no Newton iteration.  MODEL_JACOBIAN_CONSTANT: 1 if moreover the Newton
  * matrix depends on p (and the step) only: factorised only when they change. */

@@ -430,3 +430,21 @@ def test_building_bases_is_fast():
         return time.perf_counter() - start
 
     assert min(build() for _ in range(3)) < 0.1
+
+
+@pytest.mark.parametrize("kind, count", [("clamped-free", 1), ("clamped-free", 4), ("fe", 3), ("fe", 6),
+                                         ("polynomial", 4)])
+def test_point_rule_reproduces_the_foreshortening_integrals(kind, count):
+    """The second-order model's point rule (u at Gauss points by the integration matrix) against the
+    double integrals ∫₀ᴸ∫₀ˣ φ'φ'ᵀ and ∫₀ᴸ x∫₀ˣ φ'φ'ᵀ, which ShapeIntegrals forms by swapping the order of
+    integration (a different route): exact for the piecewise-cubic elements and polynomials, converged for
+    the eigenfunctions; and the weights integrate φφᵀ."""
+    basis = make_basis(kind, count, 1.3, 0.7)
+    rule, g = basis.points, basis.integrals
+    to_x = rule.local + rule.start @ rule.panel_sums          # ∫₀^{x_k} f = Σ_j to_x[k, j] f(x_j)
+    F = np.einsum("kj,ja,jb->kab", to_x, rule.slope, rule.slope)
+    tol = 1e-12 if kind == "clamped-free" else 1e-14
+    np.testing.assert_allclose(np.einsum("k,kab->ab", rule.w, F), g.fs, atol=tol * np.abs(g.fs).max())
+    np.testing.assert_allclose(np.einsum("k,kab->ab", rule.w * rule.x, F), g.fs_x, atol=tol * np.abs(g.fs_x).max())
+    np.testing.assert_allclose(rule.phi.T @ (rule.w[:, None] * rule.phi), g.phi_phi,
+                               atol=tol * np.abs(g.phi_phi).max())

@@ -220,16 +220,19 @@ def _size(scene):
     return model.n_q, model.residual.expand().n_instructions(), model.outputs_function.expand().n_instructions()
 
 
-def test_planar_scene_does_not_pay_for_spatial_coordinates():
-    """The same arm (4 elements, second order) declared planar (["v"]) and spatial (["v", "w", "alpha"]):
-    the planar model has exactly the 8 coordinates of v (the held joint is prescribed) and a much smaller
-    residual; a planar arm turning about another axis (y) costs the same as about z."""
-    planar = _size(cantilever("fe", 4, deformation=["v"]))
-    spatial = _size(cantilever("fe", 4))
+@pytest.mark.parametrize("kinematics, ratio", [("first-order", 0.6), ("second-order", 0.85)])
+def test_planar_scene_does_not_pay_for_spatial_coordinates(kinematics, ratio):
+    """The same arm (4 elements) declared planar (["v"]) and spatial (["v", "w", "alpha"]): the planar model
+    has exactly the 8 coordinates of v (the held joint is prescribed) and a smaller residual; a planar arm
+    turning about another axis (y) costs the same as about z.  With second-order kinematics both carry the
+    kinetic energy of the foreshortening at the link's Gauss points (u from v' alone, or from v' and w'),
+    which planar and spatial share, so the planar saving is smaller there (0.78 of the spatial count)."""
+    planar = _size(cantilever("fe", 4, deformation=["v"], kinematics=kinematics))
+    spatial = _size(cantilever("fe", 4, kinematics=kinematics))
     tilted = _size(parse_scene({"name": "tilted", "joint": [held("hub", (0.0, 1.0, 0.0))],
-                                "link": [bar("arm", "fe", 4, ["v"])]}))
+                                "link": [bar("arm", "fe", 4, ["v"], kinematics=kinematics)]}))
     print(f"\nmodel size (coordinates, residual instructions, output instructions): planar {planar}, "
           f"planar about y {tilted}, spatial {spatial}")
     assert planar[0] == 8 and spatial[0] == 8 + 8 + 4           # joint held: a prescribed coordinate
-    assert planar[1] < 0.6 * spatial[1] and planar[2] < spatial[2]
+    assert planar[1] < ratio * spatial[1] and planar[2] < spatial[2]
     assert tilted[0] == planar[0] and tilted[1] <= 1.1 * planar[1]

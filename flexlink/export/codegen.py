@@ -1,8 +1,9 @@
 """CasADi → C: the model half of an FMU (generated CasADi code, ``config.h``, ``model.c``).
 
 The generic half (``fmu_src/``) sees only the contract of ``fmu_src/model.h``: sizes and flags in
-``config.h``; the variable table, the kinematic laws and five functions (residual, Newton matrix,
-outputs, and the forward derivatives of residual and outputs of ``flexlink.export.derivatives``) in ``model.c``,
+``config.h``; the variable table, the kinematic laws and six functions (residual, Newton matrix,
+outputs, the forward derivatives of residual and outputs of ``flexlink.export.derivatives``, and the
+validity ratios of :mod:`flexlink.mechanics.outputs`) in ``model.c``,
 each a thin call into the CasADi-generated code.  Work memory is passed in by the caller (CasADi never
 keeps state), so instances never share anything.
 
@@ -60,6 +61,11 @@ def _c(x: float) -> str:
     return repr(float(x))
 
 
+def _c_string(text: str) -> str:
+    """A C string literal of ``text`` (names come from the scene: quotes and backslashes escaped)."""
+    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
 def _feedthrough(model: SymbolicModel) -> dict[int, tuple[int, ...]]:
     """Output i depends directly on input j if it reads u_j, or reads the acceleration (which
     depends on every input that the residual reads)."""
@@ -108,7 +114,7 @@ def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> list[
         # matrix column by column from one forward directional derivative of the residual instead
         newton = prepare(model.residual_forward_function())
     residual_fwd, outputs_fwd = (prepare(f) for f in forward_functions(model))
-    return [residual, newton, outputs, residual_fwd, outputs_fwd]
+    return [residual, newton, outputs, residual_fwd, outputs_fwd, prepare(model.validity)]
 
 
 def _guid(casadi_c: str, variables: list[FmuVariable], model: SymbolicModel) -> str:
@@ -125,7 +131,7 @@ def _config_h(model: SymbolicModel, guid: str, variables: list[FmuVariable], sz:
     return _template("config.h.in").substitute(
         scene=model.scene.name, identifier=model.scene.model_identifier, guid=guid, n_q=model.n_q,
         n_u=len(model.inputs), n_p=len(model.parameters), n_y=len(model.outputs), n_laws=len(model.laws),
-        n_static=len(model.static_coordinates), n_vars=len(variables),
+        n_static=len(model.static_coordinates), n_vars=len(variables), n_validity=len(model.validity_names),
         linear_in_state=int(model.linear_in_state), jacobian_constant=int(model.jacobian_constant),
         **{f"sz_{k}": v for k, v in sz.items()},
     )
@@ -178,6 +184,7 @@ def _model_c(model: SymbolicModel, variables: list[FmuVariable], casadi_name: st
         variables=_variable_rows(variables), nominal_q=", ".join(_c(x) for x in model.nominal_q),
         static_coordinates=static, laws=_law_tables(model),
         newton_matrix=newton.substitute(identifier=ident).rstrip("\n"),
+        validity_names="\n".join(f"    {_c_string(name)}," for name in model.validity_names) or '    ""',
     )
 
 

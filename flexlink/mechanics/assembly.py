@@ -23,12 +23,10 @@ from flexlink.errors import FlexlinkError
 from flexlink.mechanics.kinematics import (
     LinkDeformation,
     beam_invariants,
-    beam_points,
     body_invariants,
     body_tip_kinematics,
     link_basis,
     rotation,
-    skew,
     small_rotation,
     tip_kinematics,
     torsion_kinetic,
@@ -303,10 +301,7 @@ class ChainAssembly:
     def link_energy(self, i: int, link: Link, part: LinkParts, VL, RL, wL) -> tuple:
         """Kinetic energy of link i's material, its body record and its gravitational energy."""
         qa, va, p = self.qa, self.va, self.p
-        if self.second_order and part.bending is not None:
-            T, record = self.material_points(part, VL, RL, wL)
-        else:
-            T, record = self.invariant_body(link, part, VL, RL, wL)
+        T, record = self.invariant_body(link, part, VL, RL, wL)
         if part.torsion is not None:
             d = self.deformation(part, qa, va)
             T += 0.5 * p[part.i_mu] * torsion_kinetic(part.torsion.integrals, link.length, d, wL[0])
@@ -317,31 +312,8 @@ class ChainAssembly:
         Vg = -ca.dot(self.g_vec, record["moment"]) if self.i_g is not None else 0
         return T, Vg
 
-    def material_points(self, part: LinkParts, VL, RL, wL) -> tuple:
-        """T = ½ρ Σ_k w_k |ṙ(x_k)|² over the link's material points, foreshortening kept whole.
-
-        A sum of squares: its mass matrix is positive semi-definite for every deflection, and definite
-        wherever the points' velocities determine q̇ (README "Why the second-order model is consistent").
-        Returns T and the body record (mass, ∫ρr, ∫ρṙ, ∫ρ s×ṡ resolved in the world, about the link origin).
-        """
-        rule = part.bending.points
-        rho = self.p[part.i_rho]
-        S = beam_points(rule, self.deformation(part, self.qa, self.va))
-        K = rule.x.size
-        S_dot = ca.reshape(ca.jtimes(ca.vec(S), self.qa, self.va), 3, K)
-        # velocity of each point in the link basis: Rᵀ V + ω × s + ṡ
-        vel = ca.repmat(ca.mtimes(RL.T, VL), 1, K) + ca.mtimes(skew(wL), S) + S_dot
-        w = ca.DM(rule.w)
-        T = 0.5 * rho * ca.mtimes(ca.sum1(vel * vel), w)
-        s_cross_v = ca.vertcat(S[1, :] * vel[2, :] - S[2, :] * vel[1, :], S[2, :] * vel[0, :] - S[0, :] * vel[2, :],
-                               S[0, :] * vel[1, :] - S[1, :] * vel[0, :])
-        m = rho * float(np.sum(rule.w))
-        return T, dict(mass=m, moment=m * self.origin + ca.mtimes(RL, rho * ca.mtimes(S, w)),
-                       momentum=ca.mtimes(RL, rho * ca.mtimes(vel, w)),
-                       spin=ca.mtimes(RL, rho * ca.mtimes(s_cross_v, w)))
-
     def invariant_body(self, link: Link, part: LinkParts, VL, RL, wL) -> tuple:
-        """T from the inertia invariants (exact for first-order kinematics and for the shell modes)."""
+        """T = ½∫ρ|V + ω×s + ṡ|² from the link's inertia invariants, exact for every kinematic model."""
         qa, va = self.qa, self.va
         rho = self.p[part.i_rho]
         Pp = self.origin
@@ -350,7 +322,8 @@ class ChainAssembly:
             inv = body_invariants(part.body, self.eta_of(part, qa), self.eta_of(part, va))
             m_unit = part.body.volume
         elif part.bending is not None:
-            inv = beam_invariants(part.bending.integrals, link.length, self.deformation(part, qa, va))
+            rule = part.bending.points if self.second_order else None
+            inv = beam_invariants(part.bending.integrals, link.length, self.deformation(part, qa, va), rule)
         else:                                   # torsion only: the link's axis stays straight
             inv = None
         if inv is not None:

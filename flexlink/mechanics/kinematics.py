@@ -87,9 +87,15 @@ class Invariants:
         return ca.trace(S) * ca.DM.eye(3) - S
 
 
-def beam_invariants(g: ShapeIntegrals, length: float, d: LinkDeformation) -> Invariants:
-    """Invariants of a link bending in v and/or w (the same shape family in both planes), first-order
-    kinematics: exact for s = (x, v, w).  Second-order kinematics take :func:`beam_points` instead."""
+def beam_invariants(g: ShapeIntegrals, length: float, d: LinkDeformation, rule=None) -> Invariants:
+    """Invariants of a link bending in v and/or w (the same shape family in both planes).
+
+    Without ``rule``: first-order kinematics, s = (x, v, w), every invariant exact from the constant integrals.
+    With a :class:`~flexlink.mechanics.shapes.base.PointRule`: second-order kinematics, s = (x + u, v, w), and
+    every invariant still exact: the terms in u beyond second order (∫u², ∫uv, ∫uw, ∫(u v̇ − v u̇),
+    ∫(w u̇ − u ẇ), ∫u̇²) as sums over the rule's points.  Nothing is dropped, so the kinetic energy
+    ½∫ρ|V + ω×s + ṡ|² formed from them is a sum of squares (README "Why the second-order model is consistent").
+    """
     L = float(length)
     zero = 0.0
     v1 = ca.dot(_dm(g.phi), d.v) if d.v is not None else zero
@@ -105,9 +111,7 @@ def beam_invariants(g: ShapeIntegrals, length: float, d: LinkDeformation) -> Inv
         ww = _quad(d.w, g.phi_phi)
     if d.v is not None and d.w is not None:
         vw = _quad(d.v, g.phi_phi, d.w)
-    first = ca.vertcat(x_moment, v1, w1)
-    second = ca.vertcat(ca.horzcat(xx, xv, xw), ca.horzcat(xv, vv, vw), ca.horzcat(xw, vw, ww))
-    # ∫ s × ṡ = (v ẇ − w v̇, −x ẇ, x v̇)
+    # ∫ s × ṡ = (v ẇ − w v̇, w u̇ − (x+u) ẇ, (x+u) v̇ − v u̇)
     hx, hy, hz = zero, zero, zero
     if d.v is not None:
         hz = ca.dot(_dm(g.x_phi), d.v_dot)
@@ -119,22 +123,60 @@ def beam_invariants(g: ShapeIntegrals, length: float, d: LinkDeformation) -> Inv
     for rate in (d.v_dot, d.w_dot):
         if rate is not None:
             relative = relative + _quad(rate, g.phi_phi)
+    if rule is not None:
+        for eta in (d.v, d.w):                 # ∫ u = −½ ηᵀ fs η,  ∫ 2 x u = −ηᵀ fs_x η
+            if eta is not None:
+                x_moment = x_moment - 0.5 * _quad(eta, g.fs)
+                xx = xx - _quad(eta, g.fs_x)
+        p = _foreshortening_points(rule, d)
+        xx = xx + p.dot(p.u, p.u)
+        xv = xv + p.dot(p.u, p.v)
+        xw = xw + p.dot(p.u, p.w)
+        hy = hy + p.dot(p.w, p.u_dot) - p.dot(p.u, p.w_dot)
+        hz = hz + p.dot(p.u, p.v_dot) - p.dot(p.v, p.u_dot)
+        relative = relative + p.dot(p.u_dot, p.u_dot)
+    first = ca.vertcat(x_moment, v1, w1)
+    second = ca.vertcat(ca.horzcat(xx, xv, xw), ca.horzcat(xv, vv, vw), ca.horzcat(xw, vw, ww))
     return Invariants(first, second, ca.vertcat(hx, hy, hz), relative)
 
 
-def beam_points(rule, d: LinkDeformation) -> ca.MX:
-    """Positions s(x_k) = (x_k + u_k, v_k, w_k) of a link's material points (a 3×K matrix, link basis),
-    with the second-order foreshortening u_k = −½ Σ ηᵀ F(x_k) η kept whole (no term dropped)."""
-    zero = ca.DM.zeros(1, rule.x.size)
-    axial = ca.DM(rule.x).T
-    rows = []
-    for eta in (d.v, d.w):
+@dataclass
+class _PointFields:
+    """u, v, w and their rates at a rule's points (K-vectors; None for an absent field), and Σ w_k a_k b_k."""
+
+    weights: ca.DM
+    u: ca.MX
+    u_dot: ca.MX
+    v: ca.MX | None
+    w: ca.MX | None
+    v_dot: ca.MX | None
+    w_dot: ca.MX | None
+
+    def dot(self, a, b):
+        if a is None or b is None:
+            return 0.0
+        return ca.dot(self.weights * a, b)
+
+
+def _foreshortening_points(rule, d: LinkDeformation) -> _PointFields:
+    """u = −½∫₀ˣ(v'² + w'²) and u̇ = −∫₀ˣ(v'v̇' + w'ẇ') at the rule's points, with v, w, v̇, ẇ there."""
+    phi, slope, local, sums, start = (ca.sparsify(ca.DM(m)) for m in (rule.phi, rule.slope, rule.local,
+                                                                      rule.panel_sums, rule.start))
+
+    def integral(f):                            # ∫₀^{x_k} f at every point: this panel's part + earlier panels
+        return ca.mtimes(local, f) + ca.mtimes(start, ca.mtimes(sums, f))
+
+    squares = rates = 0
+    fields = {}
+    for name in ("v", "w"):
+        eta, eta_dot = getattr(d, name), getattr(d, f"{name}_dot")
         if eta is None:
-            rows.append(zero)
+            fields[name] = fields[f"{name}_dot"] = None
             continue
-        axial = axial - 0.5 * ca.mtimes(ca.DM(rule.F), ca.vec(ca.mtimes(eta, eta.T))).T
-        rows.append(ca.mtimes(ca.DM(rule.phi), eta).T)
-    return ca.vertcat(axial, *rows)
+        s, s_dot = ca.mtimes(slope, eta), ca.mtimes(slope, eta_dot)
+        squares, rates = squares + s * s, rates + s * s_dot
+        fields[name], fields[f"{name}_dot"] = ca.mtimes(phi, eta), ca.mtimes(phi, eta_dot)
+    return _PointFields(ca.DM(rule.w), -0.5 * integral(squares), -integral(rates), **fields)
 
 
 def torsion_kinetic(t: TorsionIntegrals, length: float, d: LinkDeformation, omega_x):

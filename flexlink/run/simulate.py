@@ -81,14 +81,21 @@ def simulate(fmu: str | os.PathLike, stop_time: float, *, step: float | None = N
     if step is not None and not (np.isfinite(step) and step > 0):
         raise FlexlinkError(f"--step must be a positive number, got {step}")
     messages: list[str] = []
+    refusals: list[str] = []
 
     def logger(component, instance, status, category, message):
-        messages.append(message.decode(errors="replace") if isinstance(message, bytes) else str(message))
+        text = message.decode(errors="replace") if isinstance(message, bytes) else str(message)
+        messages.append(text)
+        if status >= 2:                     # fmi2Discard, fmi2Error, fmi2Fatal
+            refusals.append(text)
 
     try:
-        return fmpy.simulate_fmu(str(fmu), stop_time=stop_time, output_interval=step, fmi_type="CoSimulation",
-                                 start_values=start_values or {}, input=inputs, output=outputs,
-                                 logger=logger, debug_logging=False)
+        result = fmpy.simulate_fmu(str(fmu), stop_time=stop_time, output_interval=step, fmi_type="CoSimulation",
+                                   start_values=start_values or {}, input=inputs, output=outputs,
+                                   logger=logger, debug_logging=False)
+        if refusals:                        # a discarded step ends fmpy's loop early, without an exception
+            raise FlexlinkError(f"the FMU refused: {refusals[-1]}")
+        return result
     except FMICallException as e:
         detail = messages[-1] if messages else str(e)
         raise FlexlinkError(f"the FMU refused: {detail}") from None

@@ -124,34 +124,55 @@ def integrals_from_rule(basis: ShapeBasis, x: np.ndarray, w: np.ndarray) -> Shap
 class PointRule:
     """Material points of a link and their weights, with what the foreshortened field needs at each.
 
-    With second-order kinematics a point at x moves to s(x) = (x + u, v, w), u(x) = −½ Σ ηᵀ F(x) η over the
-    bending fields, F(x) = ∫₀ˣ φ'φ'ᵀ dξ.  Integrals over the link become sums Σ_k w_k f(s(x_k)) that are
-    exact for the piecewise-polynomial finite-element shapes (and converged for the others): the kinetic
-    energy is then a sum of squares, so its mass matrix is positive semi-definite for every deflection.
+    With second-order kinematics a point at x moves to s(x) = (x + u, v, w), u(x) = −½ ∫₀ˣ (v'² + w'²) dξ.
+    The points are Gauss points on panels; u at them is the integral of the squared slopes *at the same
+    points*: within a panel the integral from the panel's start of the polynomial through its points (the
+    Gauss integration matrix), plus the Gauss sums of the earlier panels, exact for
+    the piecewise-polynomial finite-element shapes, converged for the others.  Integrals over the link
+    become sums Σ_k w_k f(s(x_k)): the kinetic energy is then a sum of squares, so its mass matrix is
+    positive semi-definite for every deflection.
     """
 
-    x: np.ndarray     # (K,)      points
-    w: np.ndarray     # (K,)      weights
-    phi: np.ndarray   # (K, n)    φ(x_k)
-    F: np.ndarray     # (K, n·n)  F(x_k), row-major, for u_k = −½ F_k · vec(η ηᵀ)
+    x: np.ndarray     # (K,)     points
+    w: np.ndarray     # (K,)     weights
+    phi: np.ndarray   # (K, n)   φ(x_k)
+    slope: np.ndarray  # (K, n)  φ'(x_k)
+    local: np.ndarray   # (K, K)  block diagonal: ∫ from the panel's start to x_k of the panel's polynomial
+    panel_sums: np.ndarray   # (P, K)  the Gauss sum over each panel
+    start: np.ndarray   # (K, P)  1 where panel p lies wholly before x_k: ∫₀^{x_k} f = local f + start (panel_sums f)
 
 
-#: Gauss points per panel of the point rule: exact to degree 11, i.e. for u² and u̇² of cubic elements.
+#: Gauss points per panel of the point rule: the integration matrix is exact for v'² of cubic elements
+#: (degree 4) and the weights for u² and u̇² (degree 10) to degree 11.
 POINT_RULE_ORDER = 6
 
 
+def gauss_integration_matrix(order: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gauss–Legendre nodes t, weights w on [−1, 1] and S with S_ij = ∫_{−1}^{t_i} ℓ_j (ℓ_j: Lagrange basis)."""
+    t, w = np.polynomial.legendre.leggauss(order)
+    V = np.vander(t, order, increasing=True)                  # V_ij = t_i^j
+    powers = np.arange(1, order + 1)
+    integrals = (t[:, None] ** powers - (-1.0) ** powers) / powers   # ∫_{−1}^{t_i} τ^j dτ
+    return t, w, integrals @ np.linalg.inv(V)
+
+
 def point_rule(basis: ShapeBasis, order: int = POINT_RULE_ORDER) -> PointRule:
-    """The :class:`PointRule` of a basis: Gauss points on its panels, F(x_k) by Gauss on [0, x_k]."""
-    edges = basis.panel_edges()
-    x, w = composite_gauss_legendre(edges, order)
-    F = np.empty((x.size, basis.n * basis.n))
-    for k, xk in enumerate(x):
-        inner = np.append(edges[edges < xk], xk)
-        xi, wi = composite_gauss_legendre(inner, order)
-        d1 = basis.evaluate(xi, 1)
-        Fk = d1.T @ (wi[:, None] * d1)
-        F[k] = (0.5 * (Fk + Fk.T)).ravel()
-    return PointRule(x, w, basis.evaluate(x, 0), F)
+    """The :class:`PointRule` of a basis: ``order`` Gauss points on each of its panels."""
+    edges = np.asarray(basis.panel_edges(), dtype=float)
+    t, wt, S = gauss_integration_matrix(order)
+    half = 0.5 * np.diff(edges)
+    x = ((0.5 * (edges[:-1] + edges[1:]))[:, None] + half[:, None] * t[None, :]).ravel()
+    w = (half[:, None] * wt[None, :]).ravel()
+    P = half.size
+    local = np.zeros((x.size, x.size))
+    panel_sums = np.zeros((P, x.size))
+    start = np.zeros((x.size, P))
+    for p, h in enumerate(half):
+        rows = slice(p * order, (p + 1) * order)
+        local[rows, rows] = h * S                          # this panel, up to each point
+        panel_sums[p, rows] = w[rows]
+        start[rows, :p] = 1.0                              # the earlier panels, whole
+    return PointRule(x, w, basis.evaluate(x, 0), basis.evaluate(x, 1), local, panel_sums, start)
 
 
 def composite_gauss_legendre(edges: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:

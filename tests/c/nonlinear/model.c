@@ -111,3 +111,11 @@ int model_outputs_forward(const double *q, const double *v, const double *a, con
     for (int i = 0; i < 3; i++) { dy[6 + i] = du[1 + i]; dy[9 + i] = du[4 + i]; }
     return 0;
 }
+
+/* No validity limits: the generic guards still refuse non-finite states. */
+const char *const MODEL_VALIDITY_NAMES[1] = {""};
+
+int model_validity(const double *q, const double *u, const double *p, double *g, ModelWork *work) {
+    (void)q; (void)u; (void)p; (void)g; (void)work;
+    return 0;
+}

@@ -72,3 +72,11 @@ int model_outputs_forward(const double *q, const double *v, const double *a, con
     dy[0] = dq[0]; dy[1] = dq[1]; dy[2] = dv[0]; dy[3] = dv[1];
     return 0;
 }
+
+/* No validity limits: the generic guards still refuse non-finite states. */
+const char *const MODEL_VALIDITY_NAMES[1] = {""};
+
+int model_validity(const double *q, const double *u, const double *p, double *g, ModelWork *work) {
+    (void)q; (void)u; (void)p; (void)g; (void)work;
+    return 0;
+}

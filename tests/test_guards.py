@@ -1,0 +1,94 @@
+"""The FMU refuses a state it cannot stand behind (issue 14): fmi2Discard with a log line that says why,
+never fmi2OK with a deflection the beam model is not meant for.
+
+The reference values are the scene's own geometry and statics, not earlier runs: a link of length L may
+deflect up to 0.2 L at its tip before the model's validity ratio reaches 1; a cantilever under its own
+weight sags ρ g L⁴ / (8 EI), so a soft enough link must cross that limit.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from flexlink.errors import FlexlinkError
+from flexlink.export.fmu import cached_fmu
+from flexlink.run.simulate import SlaveRunner
+from flexlink.scene.loader import load_scene
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+@pytest.fixture(scope="module")
+def rotating_link():
+    scene = load_scene(EXAMPLES / "rotating_link.toml")
+    return scene, cached_fmu(scene)
+
+
+def test_a_soft_arm_is_refused_before_it_leaves_the_beam_model(rotating_link):
+    """EI = 1e-3 N m² on the 2.2 m seed link spun by 0.5 N m: the tip lags far behind the hub.  The FMU
+    must stop with fmi2Discard once |v(L)| passes 0.2 L = 0.44 m, naming the quantity, and everything it
+    returned before must lie within the limit (issue 21 saw 3.7 m with fmi2OK)."""
+    scene, fmu = rotating_link
+    limit = 0.2 * scene.links[0].length
+    with SlaveRunner(fmu, logging=True) as runner:
+        slave, vr = runner.slave, runner.vr
+        slave.setReal([vr["arm.EI"]], [1e-3])
+        slave.setupExperiment(startTime=0.0)
+        slave.enterInitializationMode()
+        slave.exitInitializationMode()
+        slave.setReal([vr["hub.tau"]], [0.5])
+        tips, t, refused = [], 0.0, None
+        while t < 5.0 and refused is None:
+            tips.append(slave.getReal([vr["arm.tip.v"]])[0])
+            try:
+                slave.doStep(currentCommunicationPoint=t, communicationStepSize=1e-3)
+            except Exception as error:         # fmpy raises on fmi2Discard
+                refused = error
+            t += 1e-3
+        messages = " ".join(runner.messages)
+    assert refused is not None, f"never refused; max |tip.v| = {max(map(abs, tips)):.3g} m"
+    assert "validity" in messages and "arm.tip.v" in messages, messages[-500:]
+    assert max(map(abs, tips)) <= limit                      # nothing beyond the limit came back with fmi2OK
+    assert max(map(abs, tips)) > 0.5 * limit                 # and it was refused near it, not at once
+
+
+def test_stiff_arm_is_not_refused(rotating_link):
+    """The same manoeuvre on the real link (EI = 93.72): tip deflection ≪ 0.2 L, every step fmi2OK."""
+    scene, fmu = rotating_link
+    with SlaveRunner(fmu) as runner:
+        result = runner.run(1.0, 1e-3, inputs=lambda t: {"hub.tau": 0.5}, outputs=["arm.tip.v"])
+    assert np.max(np.abs(result["arm.tip.v"])) < 0.01 * scene.links[0].length
+
+
+def test_validity_ratio_matches_the_geometry():
+    """The model's validity function at a state with a known tip deflection: v(L) = 0.1 L gives 0.5."""
+    from flexlink.mechanics.model import build_model
+
+    model = build_model(load_scene(EXAMPLES / "rotating_link.toml"))
+    link = model.scene.links[0]
+    q = np.zeros(model.n_q)
+    elastic = [i for i, kind in enumerate(model.coordinate_kinds) if kind == "elastic"]
+    tip = model.outputs_function(q, q, q, model.default_inputs(), model.p0)
+    i_tip = model.output_index("arm.tip.v")
+    q[elastic[0]] = 1.0
+    per_unit = float(model.outputs_function(q, 0 * q, 0 * q, model.default_inputs(), model.p0)[i_tip]) - float(
+        tip[i_tip])
+    q[elastic[0]] = 0.1 * link.length / per_unit
+    g = np.array(model.validity(q, model.default_inputs(), model.p0)).ravel()
+    names = model.validity_names
+    assert g[names.index("arm.tip.v / (0.2 x length)")] == pytest.approx(0.5, rel=1e-12)
+
+
+def test_discard_is_reported_as_an_error_by_simulate(rotating_link):
+    """flexlink's own simulate turns the discard into one clear FlexlinkError (the CLI prints it, exit 2)."""
+    from flexlink.run.simulate import simulate
+
+    _, fmu = rotating_link
+    inputs = np.zeros(3001, dtype=[("time", float), ("hub.tau", float)])
+    inputs["time"] = np.linspace(0.0, 3.0, 3001)
+    inputs["hub.tau"] = 0.5
+    with pytest.raises(FlexlinkError, match="validity"):
+        simulate(fmu, 3.0, step=1e-3, inputs=inputs, start_values={"arm.EI": 1e-3})
