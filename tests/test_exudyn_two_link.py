@@ -4,8 +4,9 @@ The case (issue 14): a planar two-link aluminium arm driven by τ₁ = 40 sin 2�
 0 afterwards, 1 ms communication steps, Θ = ½. The Exudyn model (tests/references/exudyn_arm.py) is built from
 Exudyn's own items: geometrically exact 2D beams (Simo–Reissner, linear elements) made inextensible and
 shear-rigid by a large EA and GA, rigid hubs with the rotor inertias, revolute joints, the elbow torque reacting
-on link 1's tip, a point payload; generalised-α. It is converged first (N and 2N elements, step h and h/2: the
-changes are printed and must be small against the tolerances), then flexlink's FMU must agree with it:
+on link 1's tip, a point payload; generalised-α. It is converged first (N and 2N elements, step h and h/2,
+EA = GA ten times larger: the changes are printed and must be small against the tolerances), then flexlink's
+FMU (converged in its step, h and h/2) must agree with it:
 joint angles to 1e-3 of their amplitude, tip deflections to 1e-2 of theirs.
 
 The FMU holds an input over a communication step; it is fed the torque at the middle of each step (a
@@ -69,8 +70,10 @@ def show(title: str, dev: dict[str, float]) -> None:
 
 @pytest.fixture(scope="module")
 def exudyn_runs():
-    return {(n, h): simulate(n, h, STOP, output_step=COMM)
+    runs = {(n, h): simulate(n, h, STOP, output_step=COMM)
             for n, h in [(N_EXUDYN, H_EXUDYN), (2 * N_EXUDYN, H_EXUDYN), (N_EXUDYN, H_EXUDYN / 2)]}
+    runs["EA×10"] = simulate(N_EXUDYN, H_EXUDYN, STOP, output_step=COMM, EA=1e10, GA=1e10)
+    return runs
 
 
 @pytest.fixture(scope="module")
@@ -79,11 +82,13 @@ def flexlink_runs():
     return {step: run_flexlink(fmu, step) for step in ((1e-4, 2e-5) if FULL else (1e-4, 5e-5))}
 
 
-def test_exudyn_reference_is_converged_in_elements_and_step(exudyn_runs):
+def test_exudyn_reference_is_converged_in_elements_step_and_stiffness(exudyn_runs):
+    """N → 2N elements, h → h/2, and EA = GA ten times stiffer (inextensible, shear-rigid limit)."""
     n, h = N_EXUDYN, H_EXUDYN
     base = exudyn_runs[(n, h)]
     for key, what in [((2 * n, h), f"Exudyn N {n} → {2 * n}, h {h:g}"),
-                      ((n, h / 2), f"Exudyn h {h:g} → {h / 2:g}, N {n}")]:
+                      ((n, h / 2), f"Exudyn h {h:g} → {h / 2:g}, N {n}"),
+                      ("EA×10", "Exudyn EA = GA 1e9 → 1e10 N")]:
         dev = deviation(base, exudyn_runs[key])
         show(what, dev)
         for k, v in dev.items():
