@@ -96,6 +96,7 @@ typedef struct {
     /* guards.c: validity ratios, mass matrix and the reason of a refused state */
     double guard_g[FMU_SZ(N_VALIDITY)], guard_M[N_Q * N_Q];
     char guard_reason[512];
+    int mass_matrix_guarded;          /* M positive definite at the start state (fmu_guard_init)  */
     int step_discarded;               /* 1 after fmi2DoStep returned fmi2Discard (fmi2Terminated status) */
     /* directional derivatives: seeds and results */
     double dd_q[N_Q], dd_v[N_Q], dd_a[N_Q], dd_r[N_Q];

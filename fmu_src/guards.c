@@ -37,7 +37,7 @@ fmi2Status fmu_guard_state(Instance *inst, double t, const double *u, int check_
         }
     }
 #endif
-    if (check_mass_matrix && !MODEL_JACOBIAN_CONSTANT && (N_VALIDITY == 0 || largest > MASS_MATRIX_CHECK_FROM)) {
+    if (check_mass_matrix && inst->mass_matrix_guarded && (N_VALIDITY == 0 || largest > MASS_MATRIX_CHECK_FROM)) {
         model_newton_matrix(d->q, d->v, d->alpha, u, d->p, 1.0, 0.0, 0.0, inst->guard_M, &inst->work);
         const int k = cholesky_factor(inst->guard_M, N_Q, MASS_MATRIX_TINY);
         if (k) {
@@ -48,4 +48,21 @@ fmi2Status fmu_guard_state(Instance *inst, double t, const double *u, int check_
         }
     }
     return fmi2OK;
+}
+
+/* Whether the mass matrix is guarded at all: only when it is positive definite at the start state.  A scene
+ * may have massless directions by design (a twist without polar inertia, an elastic joint without motor
+ * inertia): M is then singular everywhere, SS22's step matrix stays regular, and a zero pivot is not news.
+ * A constant M (linear kinematics) cannot lose definiteness. */
+void fmu_guard_init(Instance *inst, const double *u) {
+    FmuData *d = &inst->d;
+    inst->mass_matrix_guarded = 0;
+    if (MODEL_JACOBIAN_CONSTANT) return;
+    model_newton_matrix(d->q, d->v, d->alpha, u, d->p, 1.0, 0.0, 0.0, inst->guard_M, &inst->work);
+    if (cholesky_factor(inst->guard_M, N_Q, MASS_MATRIX_TINY) == 0) {
+        inst->mass_matrix_guarded = 1;
+    } else {
+        fmu_log(inst, fmi2OK, LOG_EVENTS, "the mass matrix is singular at the start state (massless "
+                "directions): its definiteness is not guarded");
+    }
 }

@@ -275,6 +275,8 @@ fmi2Status fmu_exit_initialization(Instance *inst) {
 #endif
     ss22_init(&d->ss22, theta1, theta2, tolerance);
     memset(d->alpha, 0, sizeof(d->alpha));
+    fmu_model_inputs(d, d->time, inst->u1);
+    fmu_guard_init(inst, inst->u1);
     d->outputs_valid = 0;
     status = fmu_update_outputs(inst, "fmi2ExitInitializationMode");
     if (status > fmi2Warning) return status;

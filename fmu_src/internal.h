@@ -36,5 +36,6 @@ fmi2Status fmu_update_outputs(Instance *inst, const char *function);
  * (and, if check_mass_matrix, its mass matrix positive definite); else fmi2Discard with the reason in
  * inst->guard_reason. */
 fmi2Status fmu_guard_state(Instance *inst, double t, const double *u, int check_mass_matrix);
+void fmu_guard_init(Instance *inst, const double *u);
 
 #endif /* FLEXLINK_INTERNAL_H */

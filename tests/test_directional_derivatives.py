@@ -49,3 +49,26 @@ def test_lqr_from_the_fmu_alone_equals_lqr_from_the_model(example_fmu, name):
     K_model, _, E_model = ct.lqr(plant, Q, R)
     np.testing.assert_allclose(K_fmu, K_model, rtol=1e-7)
     np.testing.assert_allclose(np.sort_complex(E_fmu), np.sort_complex(E_model), rtol=1e-7)
+
+
+def test_a_wrong_directional_derivative_is_caught(fmus, monkeypatch):
+    """One entry of the FMU's answer off by 0.1 % of its row: central differences converge to the right value
+    at some step, so the check fails on that entry (and only there)."""
+    import flexlink.tools.check as check
+
+    honest = check.directional_jacobian
+
+    def off_by_a_little(inst, unknown, known):
+        J = honest(inst, unknown, known)
+        i, j = np.unravel_index(np.argmax(np.abs(J)), J.shape)
+        J[i, j] *= 1.001
+        return J
+
+    monkeypatch.setattr(check, "directional_jacobian", off_by_a_little)
+    f = _Fmu(fmus["rotating_link"])
+    try:
+        r = check_directional_derivatives(f)
+    finally:
+        f.close()
+    assert r.status == "fail"
+    assert 5e-4 < float(r.result.split()[3]) < 2e-3

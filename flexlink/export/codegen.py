@@ -31,13 +31,15 @@ from flexlink.export.derivatives import forward_functions
 from flexlink.export.variables import FmuVariable, fmu_variables
 from flexlink.mechanics.model import SymbolicModel
 
-# Scalar (SX) code is fast to run; its size grows like n² for a dense Newton matrix.  Up to
-# FULL_OPTIMISATION_MAX coordinates it is compiled at -O2; above, at -O1 (8 s → 2 s of gcc for 81
-# coordinates, no slower to run); above EXPAND_MAX_COORDINATES the matrix graph is kept and the Newton
-# matrix assembled in C from a forward derivative (compact, but much slower per step).
-FULL_OPTIMISATION_MAX = 24
+# Scalar (SX) code is fast to run; its size grows like n² for a dense Newton matrix (and much faster with
+# the consistent second-order kinematics: 17 coordinates of examples/flexible_pendulum.toml are 270 000
+# operations, 6.3 MB of C).  Up to FULL_OPTIMISATION_MAX_OPERATIONS it is compiled at -O2; above, at -O1:
+# for that pendulum 195 s → 29 s of gcc and the same run time (0.091 s → 0.088 s for 2 s of swing, median
+# of 3; -O0 would be 8 s of gcc but 3.3× slower to run).  Above EXPAND_MAX_COORDINATES the matrix graph is
+# kept and the Newton matrix assembled in C from a forward derivative (compact, but much slower per step).
+FULL_OPTIMISATION_MAX_OPERATIONS = 20_000
 EXPAND_MAX_COORDINATES = 160
-# around the CasADi code of a model above FULL_OPTIMISATION_MAX coordinates (model.c.in: $optimise_push/pop)
+# around the CasADi code of a model above FULL_OPTIMISATION_MAX_OPERATIONS (model.c.in: $optimise_push/pop)
 OPTIMISE_PUSH = '#pragma GCC push_options\n#pragma GCC optimize ("O1")  /* large straight-line code */\n'
 OPTIMISE_POP = "#pragma GCC pop_options\n"
 SOLVER_SETTINGS = ("SOLVER_STEP", "SOLVER_THETA1", "SOLVER_THETA2", "SOLVER_TOLERANCE", "SOLVER_ORDER")
@@ -169,7 +171,8 @@ def _law_tables(model: SymbolicModel) -> str:
     return "\n".join(arrays) + "\nconst KinematicLaw MODEL_LAWS[N_LAWS] = {\n" + "\n".join(law_rows) + "\n};\n"
 
 
-def _model_c(model: SymbolicModel, variables: list[FmuVariable], casadi_name: str, expanded: bool) -> str:
+def _model_c(model: SymbolicModel, variables: list[FmuVariable], casadi_name: str, expanded: bool,
+             large: bool) -> str:
     """``model.c``: the variable table, the kinematic laws and the functions of ``fmu_src/model.h``."""
     ident = model.scene.model_identifier
     static = ""
@@ -177,7 +180,6 @@ def _model_c(model: SymbolicModel, variables: list[FmuVariable], casadi_name: st
         static = ("const int MODEL_STATIC_COORDS[N_STATIC] = {"
                   + ", ".join(str(i) for i in model.static_coordinates) + "};\n")
     newton = _template("newton_matrix.c.in" if expanded else "newton_matrix_columns.c.in")
-    large = model.n_q > FULL_OPTIMISATION_MAX
     return _template("model.c.in").substitute(
         scene=model.scene.name, identifier=ident, casadi_name=casadi_name,
         optimise_push=OPTIMISE_PUSH if large else "", optimise_pop=OPTIMISE_POP if large else "",
@@ -207,7 +209,8 @@ def generate(model: SymbolicModel, directory: Path) -> GeneratedModel:
     sz = {k: max(int(getattr(f, f"sz_{k}")()) for f in functions) for k in ("arg", "res", "iw", "w")}
     guid = _guid((directory / f"{cname}.c").read_text(), variables, model)
     (directory / "config.h").write_text(_config_h(model, guid, variables, sz))
-    (directory / "model.c").write_text(_model_c(model, variables, cname, expanded))
+    (directory / "model.c").write_text(_model_c(model, variables, cname, expanded,
+                                                     operations > FULL_OPTIMISATION_MAX_OPERATIONS))
     sources = [directory / "model.c"]          # includes the CasADi file
     generated = [directory / "model.c", directory / f"{cname}.c", directory / f"{cname}.h"]
     return GeneratedModel(directory, sources, generated, variables, guid, ident, expanded, operations)
