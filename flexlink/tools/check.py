@@ -47,7 +47,13 @@ ME_VS_CS_TOLERANCE = 3e-2   # max deviation / peak of each output
 # at these settings: for a beam released under gravity (steel_beam_gravity) the tip accelerations differ
 # by 28 % of the peak at a 2 µs SS22 step and 15 % at 0.5 µs, the reaction force by 17 % (positions,
 # moments, torques: at most 1 %).
+# They are compared after a moving average over ACCELERATION_AVERAGE output points (both runs alike): in ME
+# they are read at CVODE's interpolated states, whose rounding-level error times the stiffness of the top
+# modes is noise from one sample to the next (examples/fast_two_link.toml, smooth-step inputs: the shoulder's
+# 2.8 mN transverse reaction jumps by 0.3 mN between samples in ME, is smooth in CS, 33 % of its peak
+# apart unaveraged).
 ME_VS_CS_ACCELERATION_TOLERANCE = 0.35
+ACCELERATION_AVERAGE = 9
 ACCELERATION_UNITS = ("m/s2", "rad/s2", "N")
 SMALL_SIGNAL = 1e-3         # a signal's peak is taken as at least this fraction of the largest of its unit
 FD_TOLERANCE = 1e-5         # directional derivative vs central differences, relative to the column
@@ -196,6 +202,26 @@ def _excitation(f: _Fmu) -> dict[str, float]:
     return {n: 0.1 for n in f.inputs if not n.endswith(("_ref",))}
 
 
+def _smooth_excitation(f: _Fmu, stop: float, interval: float) -> tuple[dict[str, float], np.ndarray | None]:
+    """The inputs of ``_excitation`` reached by a smooth step s(t/stop) = τ³(10 − 15τ + 6τ²), sampled at the
+    output points, instead of at once: a step at t = 0 rings every mode of the link, up to the top of its
+    shape functions (16 kHz for examples/fast_two_link.toml), undamped by SS22 at Θ = ½, and two
+    integrators sample that ringing at different phases after thousands of periods; the smooth step
+    leaves those modes still, so the comparison is about the motion both resolve.  Returns the start values
+    (inputs at 0) and fmpy's input table (None without inputs)."""
+    target = _excitation(f)
+    if not target:
+        return {}, None
+    t = np.arange(0.0, stop + 0.5 * interval, interval)
+    tau = np.clip(t / stop, 0.0, 1.0)
+    s = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
+    table = np.zeros(len(t), dtype=[("time", float)] + [(n, float) for n in target])
+    table["time"] = t
+    for n, v in target.items():
+        table[n] = v * s
+    return {n: 0.0 for n in target}, table
+
+
 def check_me_vs_cs(f: _Fmu, stop_time: float | None = None, cs_step: float = 2e-6,
                    rtol: float = 1e-9) -> CheckResult:
     import fmpy
@@ -203,8 +229,9 @@ def check_me_vs_cs(f: _Fmu, stop_time: float | None = None, cs_step: float = 2e-
 
     t0 = time.perf_counter()
     stop = stop_time or min(0.5, float(f.md.defaultExperiment.stopTime or 0.5) if f.md.defaultExperiment else 0.5)
-    interval = stop / 500
-    start = _excitation(f)
+    # with inputs, a finer grid: fmpy moves them at these points only and holds them between
+    interval = stop / (2000 if _excitation(f) else 500)
+    start, ramp = _smooth_excitation(f, stop, interval)
     original = sundials.CVodeSolver
 
     class _CVode(original):                    # fmpy caps CVODE at 500 steps per output interval
@@ -213,16 +240,18 @@ def check_me_vs_cs(f: _Fmu, stop_time: float | None = None, cs_step: float = 2e-
             super().__init__(*args, **kwargs)
 
     details: list[str] = []
-    inp = ", ".join(f"{k} = {v}" for k, v in start.items()) or "no inputs"
+    inp = (", ".join(f"{k} 0 → {v}" for k, v in _excitation(f).items()) + " (smooth step over the run)"
+           if ramp is not None else "no inputs")
     desc = f"0 .. {stop} s, {inp}"
     ref = f"ME: CVODE rtol {rtol}; CS: SS22 step {cs_step} s"
     try:
         sundials.CVodeSolver = _CVode
         me = fmpy.simulate_fmu(f.dir, fmi_type="ModelExchange", solver="CVode", relative_tolerance=rtol,
-                               stop_time=stop, output_interval=interval, start_values=start,
+                               stop_time=stop, output_interval=interval, start_values=start, input=ramp,
                                model_description=f.md, record_events=False)
         cs = fmpy.simulate_fmu(f.dir, fmi_type="CoSimulation", stop_time=stop, output_interval=interval,
-                               start_values={**start, "solver.step": cs_step}, model_description=f.md)
+                               start_values={**start, "solver.step": cs_step}, input=ramp,
+                               model_description=f.md)
     except Exception as e:
         return CheckResult("me-vs-cs", desc, ref, f"{type(e).__name__}: {e}", "fail", time.perf_counter() - t0)
     finally:
@@ -248,6 +277,9 @@ def check_me_vs_cs(f: _Fmu, stop_time: float | None = None, cs_step: float = 2e-
             bad.append(f"{name}: NaN or infinite values")
             continue
         unit = unit_of(name)
+        if unit in ACCELERATION_UNITS:
+            window = np.ones(ACCELERATION_AVERAGE) / ACCELERATION_AVERAGE
+            a, b = np.convolve(a, window, mode="valid"), np.convolve(b, window, mode="valid")
         scale = max(peaks[name], SMALL_SIGNAL * family.get(unit, 0.0), 1e-12)
         err = float(np.max(np.abs(a - b))) / scale
         details.append(f"{name}: max |ME - CS| / peak = {err:.2e}")
