@@ -15,20 +15,12 @@ from flexlink.scene.loader import Scene, parse_scene
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 @pytest.fixture(scope="session")
-def example_fmu(tmp_path_factory):
-    """``example_fmu(name)``: the FMU of examples/<name>.toml, built once per test session (several test files
-    check the same examples; the FMUs are only read)."""
-    from flexlink.export.fmu import build_fmu
+def example_fmu():
+    """``example_fmu(name)``: the FMU of examples/<name>.toml, from flexlink's build cache (several test files,
+    the command-line runs and the test processes check the same examples; the FMUs are only read)."""
+    from flexlink.export.fmu import cached_fmu
 
-    directory = tmp_path_factory.mktemp("example_fmus")
-    built: dict[str, Path] = {}
-
-    def get(name: str) -> Path:
-        if name not in built:
-            built[name] = build_fmu(EXAMPLES / f"{name}.toml", directory / f"{name}.fmu").fmu
-        return built[name]
-
-    return get
+    return lambda name: cached_fmu(EXAMPLES / f"{name}.toml")
 
 
 # Seed 000 §3.4.3 link (examples/rotating_link.toml): E = 71 GPa, I_z = 1.32e-9 m^4, rho = 0.349 kg/m, L = 2.2 m.

@@ -24,7 +24,7 @@ from controllers.closedloop import closed_loop
 from controllers.cosim import FmuLoop, FmuLoopError
 from controllers.manoeuvre import design, predict_manoeuvre, reference, rest_to_rest, stability_report
 from flexlink.errors import FlexlinkError
-from flexlink.export.fmu import build_fmu
+from flexlink.export.fmu import cached_fmu
 from flexlink.mechanics.model import build_model
 from flexlink.scene.loader import load_scene
 
@@ -34,14 +34,13 @@ CASES = {"rotating_link": 8.5, "rotating_link_payload": 23.0}
 
 
 @pytest.fixture(scope="module")
-def rigs(tmp_path_factory):
+def rigs():
     """Per scene: the design (scene values) and one FMU instance reused by every run (fmi2Reset)."""
     out = {}
-    tmp = tmp_path_factory.mktemp("fmus")
     for name, limit in CASES.items():
         scene = load_scene(EXAMPLES / f"{name}.toml")
         model = build_model(scene)
-        fmu = build_fmu(scene, tmp / f"{name}.fmu", model=model).fmu
+        fmu = cached_fmu(scene, model=model)
         out[name] = (design(model, torque_limit=limit, dt=DT), FmuLoop(fmu), fmu)
     yield out
     for _, loop, _ in out.values():

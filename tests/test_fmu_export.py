@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flexlink.export.fmu import build_fmu
+from flexlink.export.fmu import cached_fmu
 from flexlink.mechanics.analysis import static_deflection
 from flexlink.mechanics.model import build_model
 from flexlink.mechanics.reference import simulate_reference
@@ -27,14 +27,8 @@ EXAMPLES = sorted((Path(__file__).resolve().parent.parent / "examples").glob("*.
 
 
 @pytest.fixture(scope="session")
-def example_fmus(tmp_path_factory):
-    out = tmp_path_factory.mktemp("fmus")
-    fmus = {}
-    for path in EXAMPLES:
-        scene = load_scene(path)
-        rep = build_fmu(scene, out / f"{scene.model_identifier}.fmu")
-        fmus[path.stem] = rep.fmu
-    return fmus
+def example_fmus():
+    return {path.stem: cached_fmu(path) for path in EXAMPLES}
 
 
 @pytest.mark.parametrize("name", [p.stem for p in EXAMPLES])
@@ -74,7 +68,7 @@ def _fmu_vs_reference(scene_path, stop, comm, steps, *, inputs=None, pieces=None
     """RMS error (over the communication points) of the FMU against the reference, for each SS22 step."""
     scene = scene_path if isinstance(scene_path, Scene) else load_scene(scene_path)
     model = build_model(scene)
-    fmu = build_fmu(scene, tmp_path / "m.fmu", model=model).fmu
+    fmu = cached_fmu(scene, model=model)
     times = np.arange(int(round(stop / comm)) + 1) * comm
     q0, v0 = model.start_state()
     for s in model.start_values:

@@ -14,7 +14,7 @@ import fmpy
 import pytest
 
 from flexlink.export import cbuild
-from flexlink.export.fmu import build_fmu
+from flexlink.export.fmu import cached_fmu
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENES = ["rotating_link", "steel_beam_raise", "flexible_pendulum"]
@@ -35,7 +35,7 @@ def built(tmp_path_factory):
     d = tmp_path_factory.mktemp("memory")
     out = {"dir": d, "host": _host(d, False), "host_asan": _host(d, True)}
     for name in SCENES:
-        fmu = build_fmu(ROOT / "examples" / f"{name}.toml", d / f"{name}.fmu").fmu
+        fmu = cached_fmu(ROOT / "examples" / f"{name}.toml")
         unzip = d / name
         with zipfile.ZipFile(fmu) as z:
             z.extractall(unzip)

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flexlink.export.fmu import build_fmu
+from flexlink.export.fmu import cached_fmu
 from flexlink.mechanics.analysis import natural_frequencies
 from flexlink.mechanics.model import build_model
 from flexlink.run.simulate import SlaveRunner
@@ -24,7 +24,7 @@ FULL = os.environ.get("FLEXLINK_FULL") == "1"
 
 def _fmu(scene, tmp_path):
     model = build_model(scene)
-    return model, build_fmu(scene, tmp_path / f"{scene.model_identifier}.fmu", model=model).fmu
+    return model, cached_fmu(scene, model=model)
 
 
 def test_many_modes_low_frequency_error_at_a_step_resolving_only_the_low_modes(tmp_path):

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flexlink.export.fmu import build_fmu
+from flexlink.export.fmu import cached_fmu
 from flexlink.mechanics.analysis import linearise, natural_frequencies, operating_point
 from flexlink.mechanics.model import build_model
 from flexlink.run.simulate import SlaveRunner
@@ -43,7 +43,7 @@ def _modal_scene():
 def modal_fmu(tmp_path_factory):
     scene = _modal_scene()
     model = build_model(scene)
-    fmu = build_fmu(scene, tmp_path_factory.mktemp("ss22") / "modal.fmu", model=model).fmu
+    fmu = cached_fmu(scene, model=model)
     return model, fmu
 
 
@@ -87,7 +87,7 @@ def test_bounded_with_step_ten_times_the_highest_period(tmp_path, theta):
     dt = 10 * t_min
     # central differences are stable only for ω Δt ≤ 2
     assert np.sqrt(w2.max()) * dt > 2 * 30
-    fmu = build_fmu(scene, tmp_path / "raise.fmu", model=model).fmu
+    fmu = cached_fmu(scene, model=model)
     with SlaveRunner(fmu) as runner:
         fine = runner.run(1.5, 0.01, start={"solver.step": t_min / 10}, outputs=["beam.tip.v"])
         coarse = runner.run(1.5, 0.01, start={"solver.step": dt, "solver.theta1": theta[0],
@@ -111,7 +111,7 @@ def test_order_four_option_converges_at_order_four(tmp_path):
 
     scene = load_scene("examples/rotating_link_linear.toml")
     model = build_model(scene)
-    fmu = build_fmu(scene, tmp_path / "r4.fmu", model=model).fmu
+    fmu = cached_fmu(scene, model=model)
     case = default_case(model, stop=2.5)
     ref = reference_outputs(case)
     errors = []

@@ -85,10 +85,10 @@ def test_bad_case_specs_are_one_clear_message(params, kwargs, message):
 
 # ------------------------------------------------------------------------------------------------ fixtures
 @pytest.fixture(scope="module")
-def fmu(tmp_path_factory):
-    from flexlink.export.fmu import build_fmu
+def fmu():
+    from flexlink.export.fmu import cached_fmu
 
-    return build_fmu(SCENE, tmp_path_factory.mktemp("sweep-fmu") / "rotating_link_payload.fmu").fmu
+    return cached_fmu(SCENE)
 
 
 @pytest.fixture(scope="module")

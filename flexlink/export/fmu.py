@@ -7,6 +7,7 @@ that it can be rebuilt elsewhere.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import os
@@ -225,7 +226,7 @@ def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, ke
         (work / "modelDescription.xml").write_text(xml)
         output = Path(output)
         output.parent.mkdir(parents=True, exist_ok=True)
-        tmp = output.with_suffix(output.suffix + ".part")
+        tmp = output.with_suffix(f"{output.suffix}.{os.getpid()}.part")
         with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
             z.write(work / "modelDescription.xml", "modelDescription.xml")
             z.write(so, f"binaries/linux64/{so.name}")
@@ -248,14 +249,12 @@ def cache_dir() -> Path:
 
 
 def cached_fmu(scene, model=None) -> Path:
-    """The FMU of a scene file (or of a Scene object, keyed on its content), rebuilt only when the scene,
-    flexlink or the C sources change."""
-    if isinstance(scene, Scene):
-        h = hashlib.sha256(repr(dataclasses.replace(scene, path=None)).encode())
-    else:
-        path = scene
-        scene = load_scene(path)              # first: a missing or bad file is a SceneError
-        h = hashlib.sha256(Path(path).read_bytes())
+    """The FMU of a scene file (or of a Scene object), rebuilt only when the scene's content, flexlink or the
+    C sources change.  The key is the parsed scene, so a file and the same Scene object share one FMU.
+    Concurrent callers (Dask workers, test processes) build it once: the first holds a lock file."""
+    if not isinstance(scene, Scene):
+        scene = load_scene(scene)             # first: a missing or bad file is a SceneError
+    h = hashlib.sha256(repr(dataclasses.replace(scene, path=None)).encode())
     h.update(flexlink.__version__.encode())
     generic = fmu_src_dir()
     for f in sorted(generic.rglob("*")):     # C sources, headers and the templates of codegen
@@ -266,5 +265,25 @@ def cached_fmu(scene, model=None) -> Path:
         h.update(f.read_bytes())
     path = cache_dir() / f"{scene.model_identifier}-{h.hexdigest()[:16]}.fmu"
     if not path.exists():
-        build_fmu(scene, path, model=model)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with _exclusive(path.with_suffix(".lock")):
+            if not path.exists():             # built by another process while this one waited
+                build_fmu(scene, path, model=model)
     return path
+
+
+@contextlib.contextmanager
+def _exclusive(lock: Path):
+    """An advisory lock on ``lock`` (POSIX flock; elsewhere no lock: at worst an FMU is built twice, each
+    build writes a private file and renames it into place)."""
+    try:
+        import fcntl
+    except ImportError:                       # Windows
+        yield
+        return
+    with open(lock, "w") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
