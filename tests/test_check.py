@@ -5,6 +5,7 @@ returns NaN)."""
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import zipfile
@@ -18,6 +19,7 @@ from flexlink.tools.check import check_fmu, write_report
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 NAMES = sorted(p.stem for p in EXAMPLES.glob("*.toml"))
+FULL = os.environ.get("FLEXLINK_FULL") == "1"
 
 
 @pytest.fixture(scope="module")
@@ -27,8 +29,10 @@ def rotating(example_fmu):
 
 @pytest.mark.parametrize("name", NAMES)
 def test_every_example_passes_the_check(tmp_path, example_fmu, name):
+    """CI size: 40 fuzz sequences, ME vs CS over 0.1 s; FLEXLINK_FULL=1: the defaults (60, 0.5 s)."""
     fmu = example_fmu(name)
-    assert main(["check", str(fmu), "--report", str(tmp_path / "report"), "--fuzz", "40"]) == 0
+    size = [] if FULL else ["--fuzz", "40", "--me-vs-cs-stop", "0.1"]
+    assert main(["check", str(fmu), "--report", str(tmp_path / "report"), *size]) == 0
     data = json.loads((tmp_path / "report" / "report.json").read_text())
     assert data["passed"]
     names = [c["name"] for c in data["checks"]]
@@ -106,6 +110,8 @@ def test_do_step_returning_nan_is_caught(rotating, tmp_path):
     assert main(["check", str(bad), "--fuzz", "4", "--no-importers"]) == 1
 
 
-def test_check_of_a_missing_file_is_a_usage_error(tmp_path, capsys):
+def test_check_of_a_missing_file_is_a_usage_error(tmp_path, capsys, rotating):
     assert main(["check", str(tmp_path / "nope.fmu")]) == 2
     assert "no such file" in capsys.readouterr().err
+    assert main(["check", str(rotating), "--me-vs-cs-stop", "-1"]) == 2
+    assert "must be a positive number of seconds" in capsys.readouterr().err

@@ -796,7 +796,12 @@ def run_check(args) -> int:
         from flexlink.errors import FlexlinkError
 
         raise FlexlinkError(f"{args.fmu}: no such file")
-    results = check_fmu(args.fmu, fuzz=args.fuzz, seed=args.seed, importers=not args.no_importers)
+    if args.me_vs_cs_stop is not None and not (0.0 < args.me_vs_cs_stop < math.inf):
+        from flexlink.errors import FlexlinkError
+
+        raise FlexlinkError(f"--me-vs-cs-stop {args.me_vs_cs_stop}: must be a positive number of seconds")
+    results = check_fmu(args.fmu, fuzz=args.fuzz, seed=args.seed, importers=not args.no_importers,
+                        stop_time=args.me_vs_cs_stop)
     for r in results:
         print(f"{r.status.upper():5s} {r.name:24s} {r.result}  ({r.seconds:.1f} s)")
         if r.status == "fail":
@@ -816,6 +821,8 @@ def add_parser(sub) -> None:
     p.add_argument("--fuzz", type=int, default=CI_FUZZ, metavar="N",
                    help=f"random legal call sequences (default {CI_FUZZ}; full size: 5000)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--me-vs-cs-stop", type=float, metavar="SECONDS",
+                   help="length of the ME vs CS comparison (default: the FMU's stop time, at most 0.5 s)")
     p.add_argument("--no-importers", action="store_true", help="skip libcosim and fmutool")
     p.set_defaults(func=run_check)
 
