@@ -149,6 +149,8 @@ fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h);
 /* ----------------------------------------------------------- Model Exchange */
 fmi2Status fmu_set_time(Instance *inst, fmi2Real time);
 fmi2Status fmu_set_states(Instance *inst, const fmi2Real x[], size_t nx);
+/* the accepted state passes the guards (guards.c), else fmi2Discard and *terminate = fmi2True */
+fmi2Status fmu_completed_integrator_step(Instance *inst, fmi2Boolean *terminate);
 fmi2Status fmu_get_states(Instance *inst, fmi2Real x[], size_t nx);
 fmi2Status fmu_get_derivatives(Instance *inst, fmi2Real dx[], size_t nx);
 fmi2Status fmu_get_nominals(Instance *inst, fmi2Real x_nominal[], size_t nx);

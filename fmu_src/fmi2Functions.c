@@ -268,7 +268,7 @@ fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStat
             "enterEventMode or terminateSimulation is NULL");
     *enterEventMode = fmi2False;
     *terminateSimulation = fmi2False;
-    return fmi2OK;
+    return finish(inst, fmu_completed_integrator_step(inst, terminateSimulation));
 }
 
 fmi2Status fmi2SetTime(fmi2Component c, fmi2Real time) {

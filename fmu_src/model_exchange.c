@@ -88,3 +88,18 @@ fmi2Status fmu_new_discrete_states(Instance *inst, fmi2EventInfo *info) {
     if (isfinite(next)) fmu_log(inst, fmi2OK, LOG_EVENTS, "next time event at t = %.17g", next);
     return fmi2OK;
 }
+
+/* fmi2CompletedIntegratorStep: the importer's accepted state passes the same guards as a Co-Simulation step
+ * (guards.c).  Outside the model's validity the FMU asks the importer to stop (terminateSimulation) and
+ * answers fmi2Discard with the reason, instead of letting it integrate a state the model cannot stand behind. */
+fmi2Status fmu_completed_integrator_step(Instance *inst, fmi2Boolean *terminate) {
+    FmuData *d = &inst->d;
+    fmu_model_inputs(d, d->time, inst->u1);
+    if (fmu_guard_state(inst, d->time, inst->u1, 1) != fmi2OK) {
+        *terminate = fmi2True;
+        fmu_log(inst, fmi2Discard, LOG_STATUS_DISCARD, "fmi2CompletedIntegratorStep: %s; terminate the "
+                "simulation", inst->guard_reason);
+        return fmi2Discard;
+    }
+    return fmi2OK;
+}

@@ -92,3 +92,22 @@ def test_discard_is_reported_as_an_error_by_simulate(rotating_link):
     inputs["hub.tau"] = 0.5
     with pytest.raises(FlexlinkError, match="validity"):
         simulate(fmu, 3.0, step=1e-3, inputs=inputs, start_values={"arm.EI": 1e-3})
+
+
+def test_model_exchange_stops_the_importer_at_the_same_limit(rotating_link):
+    """The soft arm of the first test under Model Exchange (fmpy's CVODE): the accepted state passes the same
+    guard in fmi2CompletedIntegratorStep, which answers fmi2Discard, asks to terminate and logs why."""
+    import fmpy
+    from fmpy.fmi1 import FMICallException
+
+    scene, fmu = rotating_link
+    messages = []
+
+    def logger(component, instance, status, category, message):
+        messages.append(message.decode(errors="replace") if isinstance(message, bytes) else str(message))
+
+    with pytest.raises(FMICallException, match="fmi2CompletedIntegratorStep"):
+        fmpy.simulate_fmu(str(fmu), fmi_type="ModelExchange", solver="CVode", stop_time=5.0,
+                          output_interval=1e-3, start_values={"arm.EI": 1e-3, "hub.tau": 0.5}, logger=logger)
+    refusal = [m for m in messages if "fmi2CompletedIntegratorStep" in m]
+    assert refusal and "validity" in refusal[-1] and "arm.tip.v" in refusal[-1], messages[-3:]

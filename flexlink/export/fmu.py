@@ -78,7 +78,7 @@ def model_description(model: SymbolicModel, gen: GeneratedModel, sources: list[s
         f'  generationTool="flexlink {flexlink.__version__}" variableNamingConvention="structured"',
         '  numberOfEventIndicators="0">',
         f'  <ModelExchange modelIdentifier="{gen.identifier}" needsExecutionTool="false"',
-        '    completedIntegratorStepNotNeeded="true" canBeInstantiatedOnlyOncePerProcess="false"',
+        '    completedIntegratorStepNotNeeded="false" canBeInstantiatedOnlyOncePerProcess="false"',
         '    canNotUseMemoryManagementFunctions="false" canGetAndSetFMUstate="true" canSerializeFMUstate="true"',
         '    providesDirectionalDerivative="true">',
         "    <SourceFiles>",
