@@ -5,7 +5,7 @@
 
 The cases are a grid of ``arm.payload.mass`` x ``arm.EI`` on ``examples/rotating_link_payload.toml``.  The
 plain loop is what a user would write: one ``FmuLoop``, ``controllers.manoeuvre.rest_to_rest`` per case.
-The sweep is ``flexlink.tools.sweep.run_sweep`` on a ``LocalCluster`` of ``--workers`` processes; it is timed
+The sweep is ``controllers.sweep.run_sweep`` on a ``LocalCluster`` of ``--workers`` processes; it is timed
 warm (cluster started, workers' imports and FMU instance done by a first small sweep) and the cluster's
 start-up is reported apart.  Both give the same numbers (checked: the largest difference is printed).
 """
@@ -39,8 +39,8 @@ def main() -> None:
 
     from controllers.cosim import FmuLoop
     from controllers.manoeuvre import rest_to_rest
+    from controllers.sweep import make_cases, run_sweep
     from flexlink.export.fmu import cached_fmu
-    from flexlink.tools.sweep import make_cases, run_sweep
 
     n_ei = max(1, int(round(math.sqrt(args.cases / 1.5))))
     n_m = max(1, int(round(args.cases / n_ei)))
@@ -55,7 +55,7 @@ def main() -> None:
 
     # the design run_sweep uses (its in-process cache), so that both sides run the very same controller
     probe = run_sweep(SCENE, {"arm.payload.mass": 0.5}, scheduler="serial", fmu=fmu, **manoeuvre)
-    from flexlink.tools.sweep import _DESIGNS
+    from controllers.sweep import _DESIGNS
 
     design = next(iter(_DESIGNS.values()))[0]
     assert design.torque_limit == probe.attrs["settings"]["torque_limit"]

@@ -28,6 +28,30 @@ def _finite(text: str) -> float:
     return v
 
 
+def add_commands(subparsers) -> None:
+    """The ``flexlink.commands`` entry point (pyproject.toml): this package's sub-commands of ``flexlink``."""
+    from controllers.sweep import add_sweep_parser
+
+    p = subparsers.add_parser("demo", help="the README's main job: build an example FMU, run it in closed loop, "
+                                           "plot")
+    p.add_argument("--out", default="out", help="output folder")
+    p.add_argument("--open-loop", action="store_true", help="the open-loop bang-bang run against the reference")
+    p.set_defaults(func=_cmd_demo)
+    add_control_parsers(subparsers)
+    add_sweep_parser(subparsers)
+
+
+def _cmd_demo(args) -> int:
+    if args.open_loop:
+        from flexlink.tools.demo import run_demo
+
+        return run_demo(args.out)
+    from controllers.demo import run_control_demo
+
+    run_control_demo(args.out)
+    return 0
+
+
 def add_control_parsers(subparsers) -> None:
     """Add the ``control`` and ``linearize`` sub-commands to ``flexlink``'s sub-parsers."""
     p = subparsers.add_parser("linearize", help="state-space matrices A, B, C, D with named signals")

@@ -108,15 +108,14 @@ def _cmd_bench(args) -> int:
     return 0
 
 
-def _cmd_demo(args) -> int:
-    if args.open_loop:
-        from flexlink.tools.demo import run_demo
+def _add_plugin_commands(sub) -> None:
+    """Sub-commands of the applications built on flexlink (``demo``, ``control``, ``linearize``, ``sweep``
+    from the ``controllers`` package), found through the ``flexlink.commands`` entry points: the library
+    does not import what sits above it."""
+    from importlib.metadata import entry_points
 
-        return run_demo(args.out)
-    from controllers.demo import run_control_demo
-
-    run_control_demo(args.out)
-    return 0
+    for ep in sorted(entry_points(group="flexlink.commands"), key=lambda e: e.name):
+        ep.load()(sub)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -162,22 +161,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repeats", type=int, help="timed runs per setting (median; default 5, quick 2)")
     p.set_defaults(func=_cmd_bench)
 
-    p = sub.add_parser("demo", help="the README's main job: build an example FMU, run it in closed loop, plot")
-    p.add_argument("--out", default="out", help="output folder")
-    p.add_argument("--open-loop", action="store_true", help="the open-loop bang-bang run against the reference")
-    p.set_defaults(func=_cmd_demo)
-
     from flexlink.tools.check import add_parser as add_check_parser
 
     add_check_parser(sub)
-
-    from controllers.cli import add_control_parsers
-
-    add_control_parsers(sub)
-
-    from flexlink.tools.sweep import add_sweep_parser
-
-    add_sweep_parser(sub)
+    _add_plugin_commands(sub)
 
     args = parser.parse_args(argv)
     try:

@@ -1,4 +1,4 @@
-"""Parameter sweeps on Dask (``flexlink.tools.sweep``, ``flexlink sweep``), at CI size.
+"""Parameter sweeps on Dask (``controllers.sweep``, ``flexlink sweep``), at CI size.
 
 * cases: grids (full product, order), seeded Monte Carlo (uniform, truncated normal), bad specs;
 * 30 closed-loop LQR cases (a short 5° manoeuvre) on a local Dask cluster of 2 worker processes give
@@ -29,8 +29,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from controllers.sweep import journal_path, make_cases, run_sweep, summary_table
 from flexlink.errors import FlexlinkError
-from flexlink.tools.sweep import journal_path, make_cases, run_sweep, summary_table
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "examples" / "rotating_link_payload.toml"

@@ -299,108 +299,177 @@ def check_me_vs_cs(f: _Fmu, stop_time: float | None = None, cs_step: float = 2e-
 
 def _fuzz(path: str, n: int, seed: int) -> dict:
     """Random legal sequences and the illegal catalogue, in this process (the child's job)."""
-    f = _Fmu(path)
-    rng = np.random.default_rng(seed)
-    failures: list[str] = []
-    calls = 0
+    fuzzer = _Fuzzer(_Fmu(path), seed)
+    try:
+        for k in range(n):
+            fuzzer.legal_sequence("CS" if k % 2 == 0 else "ME")
+        n_illegal = fuzzer.illegal_calls()
+        fuzzer.wrong_guid()
+    finally:
+        fuzzer.f.close()
+    failures = fuzzer.failures
+    return {"sequences": n, "illegal": n_illegal + 1, "calls": fuzzer.calls, "failures": failures[:50],
+            "n_failures": len(failures)}
 
-    def expect(ok_statuses, status, what):
-        nonlocal calls
-        calls += 1
+
+class _Fuzzer:
+    """One CS and one ME instance of the FMU, re-instantiated for each sequence; every call's status is
+    checked against what the standard allows and the surprises are collected in ``failures``."""
+
+    LEGAL = (OK, WARNING)
+
+    def __init__(self, f: _Fmu, seed: int):
+        self.f = f
+        self.rng = np.random.default_rng(seed)
+        self.failures: list[str] = []
+        self.calls = 0
+        self.outputs = [f.vr[n] for n in f.outputs]
+        self.inputs = [f.vr[n] for n in f.inputs]
+        self.tunable = [f.vr[n] for n in f.tunable]
+        self.tunable_start = [float(f.vars[n].start) for n in f.tunable]
+        self.states = [f.vr[n] for n in f.states]
+        self.ders = [f.vr[n] for n in f.derivatives]
+        self.insts = {k: _instance(f, k, f"fuzz{k}") for k in ("CS", "ME")}
+
+    def expect(self, ok_statuses, status, what: str) -> None:
+        self.calls += 1
         if status not in ok_statuses:
-            failures.append(f"{what}: status {status}")
+            self.failures.append(f"{what}: status {status}")
 
-    outputs = [f.vr[n_] for n_ in f.outputs]
-    inputs = [f.vr[n_] for n_ in f.inputs]
-    tunable = [f.vr[n_] for n_ in f.tunable]
-    tunable_start = [float(f.vars[n_].start) for n_ in f.tunable]
-    states = [f.vr[n_] for n_ in f.states]
-    ders = [f.vr[n_] for n_ in f.derivatives]
-    legal = (OK, WARNING)
-    insts = {k: _instance(f, k, f"fuzz{k}") for k in ("CS", "ME")}
-
-    def fresh(kind):
-        inst = insts[kind]
+    def fresh(self, kind: str):
+        inst = self.insts[kind]
         inst.instantiate(callbacks=_quiet_callbacks())
         return inst
 
-    def init(inst, kind):
-        expect(legal, _call(inst.setupExperiment, None, 0.0, None), "setupExperiment")
-        expect(legal, _call(inst.enterInitializationMode), "enterInitializationMode")
-        expect(legal, _call(inst.exitInitializationMode), "exitInitializationMode")
+    def init(self, inst, kind: str) -> None:
+        legal = self.LEGAL
+        self.expect(legal, _call(inst.setupExperiment, None, 0.0, None), "setupExperiment")
+        self.expect(legal, _call(inst.enterInitializationMode), "enterInitializationMode")
+        self.expect(legal, _call(inst.exitInitializationMode), "exitInitializationMode")
         if kind == "ME":
-            expect(legal, _call(inst.newDiscreteStates), "newDiscreteStates")
-            expect(legal, _call(inst.enterContinuousTimeMode), "enterContinuousTimeMode")
+            self.expect(legal, _call(inst.newDiscreteStates), "newDiscreteStates")
+            self.expect(legal, _call(inst.enterContinuousTimeMode), "enterContinuousTimeMode")
 
-    # ---------------------------------------------------------------- random legal sequences
-    for k in range(n):
-        kind = "CS" if k % 2 == 0 else "ME"
-        inst = fresh(kind)
-        if tunable and rng.random() < 0.5:
-            j = int(rng.integers(len(tunable)))
-            expect(legal, _call(inst.setReal, [tunable[j]], [tunable_start[j] * rng.uniform(0.8, 1.25)]),
-                   "setReal(parameter) before init")
-        init(inst, kind)
+    def _scaled_tunable(self, inst, what: str) -> None:
+        j = int(self.rng.integers(len(self.tunable)))
+        self.expect(self.LEGAL, _call(inst.setReal, [self.tunable[j]],
+                                      [self.tunable_start[j] * self.rng.uniform(0.8, 1.25)]), what)
+
+    def legal_sequence(self, kind: str) -> None:
+        """Instantiate, maybe change a parameter, initialise, 3 to 14 random legal operations, maybe reset,
+        terminate, free."""
+        inst = self.fresh(kind)
+        if self.tunable and self.rng.random() < 0.5:
+            self._scaled_tunable(inst, "setReal(parameter) before init")
+        self.init(inst, kind)
         t = 0.0
-        for _ in range(int(rng.integers(3, 15))):
-            op = rng.integers(7)
-            if op == 0 and kind == "CS":
-                h = float(rng.uniform(1e-4, 2e-2))
-                status = _call(inst.doStep, t, h)
-                expect(legal + (DISCARD,), status, f"doStep({t}, {h})")
-                if status == OK:
-                    t += h
-            elif op == 0:
-                t += float(rng.uniform(1e-4, 2e-2))
-                expect(legal, _call(inst.setTime, t), "setTime")
-                x = np.zeros(f.nx)
-                expect(legal, _call(inst.getContinuousStates, x.ctypes.data_as(ctypes.POINTER(ctypes.c_double)),
-                                    f.nx), "getContinuousStates")
-                x += 1e-4 * rng.standard_normal(f.nx)
-                expect(legal, _call(inst.setContinuousStates, x.ctypes.data_as(ctypes.POINTER(ctypes.c_double)),
-                                    f.nx), "setContinuousStates")
-                dx = np.zeros(f.nx)
-                expect(legal, _call(inst.getDerivatives, dx.ctypes.data_as(ctypes.POINTER(ctypes.c_double)),
-                                    f.nx), "getDerivatives")
-                expect(legal, _call(inst.completedIntegratorStep), "completedIntegratorStep")
-            elif op == 1:
-                sel = list(rng.choice(outputs, size=min(len(outputs), int(rng.integers(1, 6))), replace=False))
-                expect(legal, _call(inst.getReal, [int(s) for s in sel]), "getReal(outputs)")
-            elif op == 2 and inputs:
-                expect(legal, _call(inst.setReal, [inputs[0]], [float(rng.uniform(-1, 1))]), "setReal(input)")
-            elif op == 3 and tunable and (kind == "CS"):
-                j = int(rng.integers(len(tunable)))
-                expect(legal, _call(inst.setReal, [tunable[j]], [tunable_start[j] * rng.uniform(0.8, 1.25)]),
-                       "setReal(tunable)")
-            elif op == 4:
-                try:
-                    s = inst.getFMUstate()
-                    data = inst.serializeFMUstate(s)
-                    s2 = inst.deSerializeFMUstate(data)
-                    inst.setFMUstate(s2)
-                    inst.freeFMUstate(s)
-                    inst.freeFMUstate(s2)
-                    calls += 6
-                except Exception as e:
-                    failures.append(f"FMU state round trip: {e}")
-            elif op == 5:
-                known = (states if kind == "ME" else []) + inputs
-                if known:
-                    unknown = [int(u) for u in (ders if kind == "ME" else []) + outputs]
-                    kv = [int(known[int(rng.integers(len(known)))])]
-                    expect(legal, _call(inst.getDirectionalDerivative, unknown, kv, [1.0]),
-                           "getDirectionalDerivative")
-            elif op == 6 and kind == "ME":
-                expect(legal, _call(inst.enterEventMode), "enterEventMode")
-                expect(legal, _call(inst.newDiscreteStates), "newDiscreteStates")
-                expect(legal, _call(inst.enterContinuousTimeMode), "enterContinuousTimeMode")
-        if rng.random() < 0.2:
-            expect(legal, _call(inst.reset), "reset")
-            init(inst, kind)
-        expect(legal, _call(inst.terminate), "terminate")
+        for _ in range(int(self.rng.integers(3, 15))):
+            t = self._random_operation(inst, kind, t)
+        if self.rng.random() < 0.2:
+            self.expect(self.LEGAL, _call(inst.reset), "reset")
+            self.init(inst, kind)
+        self.expect(self.LEGAL, _call(inst.terminate), "terminate")
         _free(inst)
 
-    # ---------------------------------------------------------------- illegal calls
+    def _random_operation(self, inst, kind: str, t: float) -> float:
+        """One legal operation chosen at random; returns the time reached."""
+        legal, rng = self.LEGAL, self.rng
+        op = rng.integers(7)
+        if op == 0 and kind == "CS":
+            h = float(rng.uniform(1e-4, 2e-2))
+            status = _call(inst.doStep, t, h)
+            self.expect(legal + (DISCARD,), status, f"doStep({t}, {h})")
+            return t + h if status == OK else t
+        if op == 0:
+            return self._model_exchange_step(inst, t + float(rng.uniform(1e-4, 2e-2)))
+        if op == 1:
+            n = min(len(self.outputs), int(rng.integers(1, 6)))
+            sel = list(rng.choice(self.outputs, size=n, replace=False))
+            self.expect(legal, _call(inst.getReal, [int(s) for s in sel]), "getReal(outputs)")
+        elif op == 2 and self.inputs:
+            self.expect(legal, _call(inst.setReal, [self.inputs[0]], [float(rng.uniform(-1, 1))]), "setReal(input)")
+        elif op == 3 and self.tunable and kind == "CS":
+            self._scaled_tunable(inst, "setReal(tunable)")
+        elif op == 4:
+            self._state_round_trip(inst)
+        elif op == 5:
+            known = (self.states if kind == "ME" else []) + self.inputs
+            if known:
+                unknown = [int(u) for u in (self.ders if kind == "ME" else []) + self.outputs]
+                kv = [int(known[int(rng.integers(len(known)))])]
+                self.expect(legal, _call(inst.getDirectionalDerivative, unknown, kv, [1.0]),
+                            "getDirectionalDerivative")
+        elif op == 6 and kind == "ME":
+            self.expect(legal, _call(inst.enterEventMode), "enterEventMode")
+            self.expect(legal, _call(inst.newDiscreteStates), "newDiscreteStates")
+            self.expect(legal, _call(inst.enterContinuousTimeMode), "enterContinuousTimeMode")
+        return t
+
+    def _model_exchange_step(self, inst, t: float) -> float:
+        """What an integrator does: time, states slightly moved, derivatives, step completed (which may
+        discard a state outside the model's validity)."""
+        nx, legal = self.f.nx, self.LEGAL
+        self.expect(legal, _call(inst.setTime, t), "setTime")
+        x = np.zeros(nx)
+        self.expect(legal, _call(inst.getContinuousStates, _c_doubles(x), nx), "getContinuousStates")
+        x += 1e-4 * self.rng.standard_normal(nx)
+        self.expect(legal, _call(inst.setContinuousStates, _c_doubles(x), nx), "setContinuousStates")
+        dx = np.zeros(nx)
+        self.expect(legal, _call(inst.getDerivatives, _c_doubles(dx), nx), "getDerivatives")
+        self.expect(legal + (DISCARD,), _call(inst.completedIntegratorStep), "completedIntegratorStep")
+        return t
+
+    def _state_round_trip(self, inst) -> None:
+        try:
+            s = inst.getFMUstate()
+            data = inst.serializeFMUstate(s)
+            s2 = inst.deSerializeFMUstate(data)
+            inst.setFMUstate(s2)
+            inst.freeFMUstate(s)
+            inst.freeFMUstate(s2)
+            self.calls += 6
+        except Exception as e:
+            self.failures.append(f"FMU state round trip: {e}")
+
+    def illegal_calls(self) -> int:
+        """Each call of the catalogue on a fresh instance: fmi2Error expected, then fmi2Reset must work."""
+        catalogue = _illegal_catalogue(self.f, self.outputs, self.inputs, self.tunable, self.states, self.ders)
+        for name, kind, setup, call in catalogue:
+            inst = self.fresh(kind)
+            if setup == "init":
+                self.init(inst, kind)
+            status = _call(call, inst)
+            self.calls += 1
+            if status != ERROR:
+                self.failures.append(f"illegal call '{name}' ({kind}): expected fmi2Error (3), got {status}")
+            # the instance is now in the error state: only reset brings it back
+            if _call(inst.reset) != OK:
+                self.failures.append(f"after '{name}' ({kind}): fmi2Reset failed")
+            else:
+                self.init(inst, kind)
+            _free(inst)
+        return len(catalogue)
+
+    def wrong_guid(self) -> None:
+        """An instance with a wrong GUID is refused."""
+        from fmpy.fmi2 import FMU2Slave
+
+        wrong = FMU2Slave(guid="{00000000-0000-0000-0000-000000000000}", unzipDirectory=self.f.dir,
+                          modelIdentifier=self.f.identifier, instanceName="wrong")
+        try:
+            wrong.instantiate(callbacks=_quiet_callbacks())
+            self.failures.append("an instance with a wrong GUID was created")
+        except Exception:
+            pass
+
+
+def _c_doubles(x: np.ndarray):
+    return x.ctypes.data_as(ctypes.POINTER(ctypes.c_double))
+
+
+def _illegal_catalogue(f: _Fmu, outputs, inputs, tunable, states, ders) -> list[tuple]:
+    """(name, interface, "init" or None, call): calls the standard forbids here, each of which must give
+    fmi2Error."""
     bad_vr = 10**6
     catalogue = []
 
@@ -451,35 +520,7 @@ def _fuzz(path: str, n: int, seed: int) -> dict:
             lambda i: _raw(i, "fmi2DoStep", [ctypes.c_double, ctypes.c_double, ctypes.c_int], 0.0, 0.01, 1))
     illegal("deserialize garbage", "CS", "init", lambda i: i.deSerializeFMUstate(bytes(64)))
     illegal("terminate before initialization", "ME", None, lambda i: i.terminate())
-    n_illegal = 0
-    for name, kind, setup, call in catalogue:
-        inst = fresh(kind)
-        if setup == "init":
-            init(inst, kind)
-        status = _call(call, inst)
-        n_illegal += 1
-        calls += 1
-        if status != ERROR:
-            failures.append(f"illegal call '{name}' ({kind}): expected fmi2Error (3), got {status}")
-        # the instance is now in the error state: only reset brings it back
-        if _call(inst.reset) != OK:
-            failures.append(f"after '{name}' ({kind}): fmi2Reset failed")
-        else:
-            init(inst, kind)
-        _free(inst)
-    # an instance with a wrong GUID is refused
-    from fmpy.fmi2 import FMU2Slave
-
-    wrong = FMU2Slave(guid="{00000000-0000-0000-0000-000000000000}", unzipDirectory=f.dir,
-                      modelIdentifier=f.identifier, instanceName="wrong")
-    try:
-        wrong.instantiate(callbacks=_quiet_callbacks())
-        failures.append("an instance with a wrong GUID was created")
-    except Exception:
-        pass
-    f.close()
-    return {"sequences": n, "illegal": n_illegal + 1, "calls": calls, "failures": failures[:50],
-            "n_failures": len(failures)}
+    return catalogue
 
 
 def _raw(inst, function: str, argtypes: list, *args) -> None:

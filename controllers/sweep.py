@@ -30,7 +30,7 @@ installed); ``scheduler="serial"`` runs the same code in a plain loop in this pr
 
 Examples
 --------
->>> from flexlink.tools.sweep import run_sweep                                                  # doctest: +SKIP
+>>> from controllers.sweep import run_sweep                                                  # doctest: +SKIP
 >>> df = run_sweep("examples/rotating_link_payload.toml", {"arm.payload.mass": "0.5:2.0:21"},
 ...                controller="lqr", target_deg=90, duration=1.5, settle=1.5, out="payload.parquet")
 >>> df[["arm.payload.mass", "residual_vibration_rms_m", "overshoot_deg"]]              # doctest: +SKIP
