@@ -4,6 +4,7 @@ bracketer for the transcendental frequency equations that the tests solve themse
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,12 @@ from scipy.optimize import brentq
 from flexlink.scene.loader import Scene, parse_scene
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+# The suite builds dozens of FMUs and runs each for a moment: their CasADi code is compiled at -O0 (a
+# second-order link: gcc 4x faster, the FMU about 3x slower per step; the generic C keeps -O2).  With
+# FLEXLINK_FULL=1 the FMUs are built as users get them.  Set here, so command-line runs inherit it.
+if os.environ.get("FLEXLINK_FULL") != "1":
+    os.environ.setdefault("FLEXLINK_OPTIMISE", "O0")
 
 @pytest.fixture(scope="session")
 def example_fmu():

@@ -1,9 +1,11 @@
-"""Model Exchange in the same FMU as Co-Simulation: ME (CVODE, tight) and CS (SS22, small step) agree for
-every example; the ME state machine, time events at the segment boundaries of built-in laws."""
+"""Model Exchange in the same FMU as Co-Simulation: ME (CVODE, tight) and CS (SS22, small step) agree over
+0.5 s for every example with FLEXLINK_FULL=1, for three in CI (tests/test_check.py compares every example
+over 0.1 s there); the ME state machine, time events at the segment boundaries of built-in laws."""
 
 from __future__ import annotations
 
 import ctypes
+import os
 from pathlib import Path
 
 import fmpy
@@ -15,14 +17,17 @@ from flexlink.tools.check import ME_VS_CS_ACCELERATION_TOLERANCE, ME_VS_CS_TOLER
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 NAMES = sorted(p.stem for p in EXAMPLES.glob("*.toml"))
+FULL = os.environ.get("FLEXLINK_FULL") == "1"
+# CI size: a planar link with a torque input, a built-in law with a time event, a spatial link
+AGREE = NAMES if FULL else ["rotating_link", "steel_beam_raise", "spatial_cantilever"]
 
 
 @pytest.fixture(scope="session")
 def me_fmus(example_fmu):
-    return {n: example_fmu(n) for n in NAMES}
+    return {n: example_fmu(n) for n in sorted({*AGREE, "rotating_link", "steel_beam_raise"})}
 
 
-@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("name", AGREE)
 def test_me_and_cs_agree(me_fmus, name):
     f = _Fmu(me_fmus[name])
     try:

@@ -18,6 +18,7 @@ Newton-matrix function of the model's form.
 from __future__ import annotations
 
 import hashlib
+import os
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,7 +27,7 @@ from string import Template
 import casadi as ca
 import numpy as np
 
-from flexlink.export.cbuild import fmu_src_dir
+from flexlink.export.cbuild import BuildError, fmu_src_dir
 from flexlink.export.derivatives import forward_functions
 from flexlink.export.variables import FmuVariable, fmu_variables
 from flexlink.mechanics.model import SymbolicModel
@@ -39,9 +40,31 @@ from flexlink.mechanics.model import SymbolicModel
 # kept and the Newton matrix assembled in C from a forward derivative (compact, but much slower per step).
 FULL_OPTIMISATION_MAX_OPERATIONS = 20_000
 EXPAND_MAX_COORDINATES = 160
-# around the CasADi code of a model above FULL_OPTIMISATION_MAX_OPERATIONS (model.c.in: $optimise_push/pop)
-OPTIMISE_PUSH = '#pragma GCC push_options\n#pragma GCC optimize ("O1")  /* large straight-line code */\n'
+# FLEXLINK_OPTIMISE=O0|O1|O2 imposes one level on the CasADi code instead (the generic C stays at -O2): the
+# test suite builds dozens of FMUs and runs each briefly, so it compiles them at O0 (README "Tests").
+OPTIMISE_ENV = "FLEXLINK_OPTIMISE"
+OPTIMISE_LEVELS = ("O0", "O1", "O2")
 OPTIMISE_POP = "#pragma GCC pop_options\n"
+
+
+def generated_code_optimisation(operations: int) -> str:
+    """The gcc optimisation level of the CasADi code: $FLEXLINK_OPTIMISE if set, else O2 or, above
+    FULL_OPTIMISATION_MAX_OPERATIONS, O1."""
+    level = os.environ.get(OPTIMISE_ENV, "").strip()
+    if level:
+        if level not in OPTIMISE_LEVELS:
+            raise BuildError(f"{OPTIMISE_ENV}={level!r}: expected one of {', '.join(OPTIMISE_LEVELS)}")
+        return level
+    return "O1" if operations > FULL_OPTIMISATION_MAX_OPERATIONS else "O2"
+
+
+def _optimise_push(level: str) -> str:
+    """model.c.in's $optimise_push around the CasADi code (nothing for the file's own -O2)."""
+    if level == "O2":
+        return ""
+    return f'#pragma GCC push_options\n#pragma GCC optimize ("{level}")  /* large straight-line code */\n'
+
+
 SOLVER_SETTINGS = ("SOLVER_STEP", "SOLVER_THETA1", "SOLVER_THETA2", "SOLVER_TOLERANCE", "SOLVER_ORDER")
 
 
@@ -172,7 +195,7 @@ def _law_tables(model: SymbolicModel) -> str:
 
 
 def _model_c(model: SymbolicModel, variables: list[FmuVariable], casadi_name: str, expanded: bool,
-             large: bool) -> str:
+             level: str) -> str:
     """``model.c``: the variable table, the kinematic laws and the functions of ``fmu_src/model.h``."""
     ident = model.scene.model_identifier
     static = ""
@@ -182,7 +205,7 @@ def _model_c(model: SymbolicModel, variables: list[FmuVariable], casadi_name: st
     newton = _template("newton_matrix.c.in" if expanded else "newton_matrix_columns.c.in")
     return _template("model.c.in").substitute(
         scene=model.scene.name, identifier=ident, casadi_name=casadi_name,
-        optimise_push=OPTIMISE_PUSH if large else "", optimise_pop=OPTIMISE_POP if large else "",
+        optimise_push=_optimise_push(level), optimise_pop=OPTIMISE_POP if level != "O2" else "",
         variables=_variable_rows(variables), nominal_q=", ".join(_c(x) for x in model.nominal_q),
         static_coordinates=static, laws=_law_tables(model),
         newton_matrix=newton.substitute(identifier=ident).rstrip("\n"),
@@ -210,7 +233,7 @@ def generate(model: SymbolicModel, directory: Path) -> GeneratedModel:
     guid = _guid((directory / f"{cname}.c").read_text(), variables, model)
     (directory / "config.h").write_text(_config_h(model, guid, variables, sz))
     (directory / "model.c").write_text(_model_c(model, variables, cname, expanded,
-                                                     operations > FULL_OPTIMISATION_MAX_OPERATIONS))
+                                                     generated_code_optimisation(operations)))
     sources = [directory / "model.c"]          # includes the CasADi file
     generated = [directory / "model.c", directory / f"{cname}.c", directory / f"{cname}.h"]
     return GeneratedModel(directory, sources, generated, variables, guid, ident, expanded, operations)

@@ -29,7 +29,7 @@ from flexlink.export.cbuild import (
     fmi_headers_dir,
     fmu_src_dir,
 )
-from flexlink.export.codegen import GeneratedModel, generate
+from flexlink.export.codegen import OPTIMISE_ENV, GeneratedModel, generate
 from flexlink.export.derivatives import structure
 from flexlink.mechanics.model import SymbolicModel, build_model
 from flexlink.scene.loader import Scene, load_scene
@@ -256,6 +256,7 @@ def cached_fmu(scene, model=None) -> Path:
         scene = load_scene(scene)             # first: a missing or bad file is a SceneError
     h = hashlib.sha256(repr(dataclasses.replace(scene, path=None)).encode())
     h.update(flexlink.__version__.encode())
+    h.update(os.environ.get(OPTIMISE_ENV, "").encode())      # the generated code's optimisation level
     generic = fmu_src_dir()
     for f in sorted(generic.rglob("*")):     # C sources, headers and the templates of codegen
         if f.is_file() and "__pycache__" not in f.parts:
