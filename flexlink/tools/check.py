@@ -208,10 +208,11 @@ def _smooth_excitation(f: _Fmu, stop: float, interval: float) -> tuple[dict[str,
     shape functions (16 kHz for examples/fast_two_link.toml), undamped by SS22 at Θ = ½, and two
     integrators sample that ringing at different phases after thousands of periods; the smooth step
     leaves those modes still, so the comparison is about the motion both resolve.  Returns the start values
-    (inputs at 0) and fmpy's input table (None without inputs)."""
+    (inputs at 0) and fmpy's input table (None without inputs).  An FMU without inputs (a pendulum hanging at
+    rest) would compare rounding noise: its joints start at 0.5 rad/s instead."""
     target = _excitation(f)
-    if not target:
-        return {}, None
+    if not target:              # nothing to drive: the joints start turning instead of resting in equilibrium
+        return {n: 0.5 for n in f.vars if n.endswith(".initial_rate")}, None
     t = np.arange(0.0, stop + 0.5 * interval, interval)
     tau = np.clip(t / stop, 0.0, 1.0)
     s = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
@@ -241,7 +242,7 @@ def check_me_vs_cs(f: _Fmu, stop_time: float | None = None, cs_step: float = 2e-
 
     details: list[str] = []
     inp = (", ".join(f"{k} 0 → {v}" for k, v in _excitation(f).items()) + " (smooth step over the run)"
-           if ramp is not None else "no inputs")
+           if ramp is not None else ", ".join(f"{k} = {v}" for k, v in start.items()) or "no inputs")
     desc = f"0 .. {stop} s, {inp}"
     ref = f"ME: CVODE rtol {rtol}; CS: SS22 step {cs_step} s"
     try:
