@@ -8,6 +8,7 @@ number picked to pass but a convergence study: halving SS22's step must divide t
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -23,6 +24,7 @@ from flexlink.run.simulate import SlaveRunner
 from flexlink.scene.loader import Scene, load_scene
 from flexlink.tools.importers import fmutool_check, libcosim_available, run_libcosim
 
+FULL = os.environ.get("FLEXLINK_FULL") == "1"
 EXAMPLES = sorted((Path(__file__).resolve().parent.parent / "examples").glob("*.toml"))
 
 
@@ -143,11 +145,12 @@ def test_flexible_pendulum_swing_matches_reference(tmp_path):
     """Seed 001 §6.3: free joint, released 3° from hanging, undeformed.
 
     Released undeformed, every FE mode (up to 1.2 kHz) rings with ~1e-6 rad in the swing; the study
-    converges only once their phase error over the window is small, hence steps with ω_max Δt ≤ 0.03."""
+    converges only once their phase error over the window is small, hence steps with ω_max Δt ≤ 0.03.
+    CI size: the first 20 ms (FLEXLINK_FULL=1: 100 ms; 175 000 SS22 steps of the 17-coordinate model)."""
     joint = load_scene("examples/flexible_pendulum.toml").joints[0].name
     start = {f"{joint}.initial_angle": -np.pi / 2 + np.radians(3.0)}
     errors, scale = _fmu_vs_reference(
-        "examples/flexible_pendulum.toml", 0.1, 0.005, [4e-6, 2e-6, 1e-6], start=start,
+        "examples/flexible_pendulum.toml", 0.1 if FULL else 0.02, 0.005, [4e-6, 2e-6, 1e-6], start=start,
         outputs=[f"{joint}.theta", "tip.x"], tmp_path=tmp_path)
     _assert_second_order(errors, scale, f"{joint}.theta", 0.01)
 
