@@ -41,6 +41,7 @@ Examples
 from __future__ import annotations
 
 import atexit
+import functools
 import hashlib
 import itertools
 import json
@@ -603,8 +604,6 @@ def run_sweep(scene: str | os.PathLike, params: Mapping[str, object] | None = No
         ``worker``, ``key``, ``sweep``; ``df.attrs``: ``kind`` (grid / monte-carlo), ``parameters``,
         ``computed`` (cases run now), ``resumed`` (taken from the journal), ``wall_s``, ``mode``.
     """
-    import fmpy
-
     from flexlink.export.fmu import cached_fmu
     from flexlink.scene.loader import load_scene
 
@@ -613,6 +612,54 @@ def run_sweep(scene: str | os.PathLike, params: Mapping[str, object] | None = No
     sc = load_scene(scene_path)
     kind, cases = make_cases(params, samples=samples, seed=seed, distributions=distributions)
     names = list(cases[0])
+    series_every = _check_options(controller=controller, stop_time=stop_time, sample_time=sample_time,
+                                  settle=settle, settle_band=settle_band, series_every=series_every)
+    fmu_path = Path(fmu) if fmu is not None else cached_fmu(scene_path)
+    variables = _fmu_variables(fmu_path, names, series)
+    mode, metric_names, settings, make_design = _sweep_settings(
+        sc, scene_path, variables, controller=controller, target_deg=target_deg, duration=duration, settle=settle,
+        settle_band=settle_band, torque_limit=torque_limit, sensors=sensors, stop_time=stop_time,
+        sample_time=sample_time)
+    import flexlink
+
+    sweep = _sweep_id({"scene": hashlib.sha256(scene_path.read_bytes()).hexdigest(), "mode": mode,
+                       "settings": settings, "series": list(series), "series_every": series_every,
+                       "flexlink": flexlink.__version__})
+
+    done: dict[str, dict] = {}
+    journal = None
+    if out is not None:
+        out = Path(out)
+        done, journal = _open_journal(out, sweep=sweep, scene_path=scene_path, mode=mode, settings=settings,
+                                      resume=resume, overwrite=overwrite)
+
+    todo = [(i, c) for i, c in enumerate(cases) if case_key(c) not in done]
+    resumed = len(cases) - len(todo)
+    new_rows: dict[str, dict] = {}
+    run_settings = settings
+    try:
+        if todo:
+            spec = _sweep_spec(sweep, fmu_path, settings, make_design, shared_fs=shared_fs, mode=mode,
+                               metric_names=metric_names, series=series, series_every=series_every)
+            run_settings = spec.settings
+            new_rows = _run_cases(spec, todo, sweep=sweep, total=len(cases), resumed=resumed, desc=f"sweep {sc.name}",
+                                  progress=progress, journal=journal, on_result=on_result, scheduler=scheduler,
+                                  client=client, n_workers=n_workers, batch_size=batch_size)
+    finally:
+        if journal is not None:
+            journal.close()
+
+    df = _frame(_case_rows(cases, names, done, new_rows), names, metric_names, series)
+    df.attrs.update(kind=kind, parameters=names, computed=len(todo), resumed=resumed, mode=mode,
+                    wall_s=time.perf_counter() - t_start, sweep=sweep, settings=run_settings,
+                    journal=str(journal_path(out)) if out is not None else None)
+    if out is not None:
+        _write_output(df, out)
+    return df
+
+
+def _check_options(*, controller, stop_time, sample_time, settle, settle_band, series_every) -> int:
+    """Refuse inconsistent or out-of-range settings before the FMU is built; returns ``series_every`` as an int."""
     if (controller is None) == (stop_time is None):
         raise FlexlinkError("give either a closed-loop manoeuvre (--controller, --target, --duration) or an "
                             "open-loop --stop-time")
@@ -625,8 +672,14 @@ def run_sweep(scene: str | os.PathLike, params: Mapping[str, object] | None = No
     series_every = int(series_every)
     if series_every < 1:
         raise FlexlinkError(f"--series-every must be at least 1, got {series_every}")
+    return series_every
 
-    fmu_path = Path(fmu) if fmu is not None else cached_fmu(scene_path)
+
+def _fmu_variables(fmu_path: Path, names: list[str], series: Sequence[str]) -> dict:
+    """The FMU's variables by name, once the swept names are checked to be its parameters and the series its
+    variables."""
+    import fmpy
+
     md = fmpy.read_model_description(str(fmu_path))
     variables = {v.name: v for v in md.modelVariables}
     tunable = [v.name for v in md.modelVariables if v.causality == "parameter"]
@@ -637,9 +690,15 @@ def run_sweep(scene: str | os.PathLike, params: Mapping[str, object] | None = No
     for name in series:
         if name not in variables:
             raise FlexlinkError(f"--series {name}: the FMU has no variable of that name")
+    return variables
+
+
+def _sweep_settings(sc, scene_path: Path, variables: dict, *, controller, target_deg, duration, settle, settle_band,
+                    torque_limit, sensors, stop_time, sample_time):
+    """The mode, metric names and settings shared by every case (they identify the sweep), and for closed
+    loop the deferred controller design: ``(mode, metric_names, settings, make_design or None)``."""
     joint, link = sc.joints[0].name, sc.links[-1].name
     settings: dict = {"sample_time": float(sample_time), "settle": float(settle)}
-    make_design = None
     if controller is not None:
         from controllers.manoeuvre import CONTROLLERS, _check_times
 
@@ -653,127 +712,137 @@ def run_sweep(scene: str | os.PathLike, params: Mapping[str, object] | None = No
         settings.update(controller=controller, target=math.radians(target_deg), target_deg=float(target_deg),
                         duration=float(duration), settle_band=float(settle_band), torque_limit=torque_limit,
                         sensors=sensors, record=[f"{joint}.theta", f"{link}.tip.v"])
-        mode, metric_names = "closed", CLOSED_LOOP_METRICS
+        make_design = functools.partial(_closed_loop_design, sc, scene_path, settings, controller=controller,
+                                        target_deg=target_deg, duration=duration, sample_time=sample_time,
+                                        torque_limit=torque_limit, sensors=sensors)
+        return "closed", CLOSED_LOOP_METRICS, settings, make_design
+    if not (math.isfinite(stop_time) and stop_time > 0):
+        raise FlexlinkError(f"--stop-time must be a positive number of seconds, got {stop_time}")
+    if abs(round(stop_time / sample_time) * sample_time - stop_time) > 1e-9 * max(1.0, stop_time):
+        raise FlexlinkError(f"--stop-time {stop_time} s must be a multiple of the sample time {sample_time} s")
+    torques_out = [f"{j.name}.tau" for j in sc.joints
+                   if f"{j.name}.tau" in variables and variables[f"{j.name}.tau"].causality == "output"]
+    torque_start = {f"{j.name}.tau": float(variables[f"{j.name}.tau"].start or 0.0) for j in sc.joints
+                    if f"{j.name}.tau" in variables and variables[f"{j.name}.tau"].causality == "input"}
+    settings.update(stop_time=float(stop_time), joint_theta=f"{joint}.theta", tip=f"{link}.tip.v",
+                    torques=torques_out, torque_start=torque_start,
+                    record=[f"{joint}.theta", f"{link}.tip.v", *torques_out])
+    return "open", OPEN_LOOP_METRICS, settings, None
 
-        def make_design() -> tuple[dict, bytes]:
-            """Linearisation and design (seconds): only when there are cases to run; reused in this process."""
-            import cloudpickle
 
-            from flexlink.mechanics.model import build_model
+def _closed_loop_design(sc, scene_path: Path, settings: dict, *, controller, target_deg, duration, sample_time,
+                        torque_limit, sensors) -> tuple[dict, bytes]:
+    """Linearisation and design (seconds): only when there are cases to run; reused in this process."""
+    import cloudpickle
 
-            dkey = json.dumps([hashlib.sha256(scene_path.read_bytes()).hexdigest(), controller, float(target_deg),
-                               float(duration), float(sample_time), torque_limit, sensors])
-            if dkey not in _DESIGNS:
-                d = _design(build_model(sc), controller=controller, target=math.radians(target_deg),
-                            duration=duration, sample_time=sample_time, torque_limit=torque_limit, sensors=sensors)
-                while len(_DESIGNS) >= 4:
-                    _DESIGNS.pop(next(iter(_DESIGNS)))
-                _DESIGNS[dkey] = (d, cloudpickle.dumps(d))
-            d, blob = _DESIGNS[dkey]
-            return {**settings, "torque_limit": d.torque_limit}, blob
-    else:
-        if not (math.isfinite(stop_time) and stop_time > 0):
-            raise FlexlinkError(f"--stop-time must be a positive number of seconds, got {stop_time}")
-        if abs(round(stop_time / sample_time) * sample_time - stop_time) > 1e-9 * max(1.0, stop_time):
-            raise FlexlinkError(f"--stop-time {stop_time} s must be a multiple of the sample time {sample_time} s")
-        torques_out = [f"{j.name}.tau" for j in sc.joints
-                       if f"{j.name}.tau" in variables and variables[f"{j.name}.tau"].causality == "output"]
-        torque_start = {f"{j.name}.tau": float(variables[f"{j.name}.tau"].start or 0.0) for j in sc.joints
-                        if f"{j.name}.tau" in variables and variables[f"{j.name}.tau"].causality == "input"}
-        settings.update(stop_time=float(stop_time), joint_theta=f"{joint}.theta", tip=f"{link}.tip.v",
-                        torques=torques_out, torque_start=torque_start,
-                        record=[f"{joint}.theta", f"{link}.tip.v", *torques_out])
-        mode, metric_names = "open", OPEN_LOOP_METRICS
-    import flexlink
+    from flexlink.mechanics.model import build_model
 
-    sweep = _sweep_id({"scene": hashlib.sha256(scene_path.read_bytes()).hexdigest(), "mode": mode,
-                       "settings": settings, "series": list(series), "series_every": series_every,
-                       "flexlink": flexlink.__version__})
+    dkey = json.dumps([hashlib.sha256(scene_path.read_bytes()).hexdigest(), controller, float(target_deg),
+                       float(duration), float(sample_time), torque_limit, sensors])
+    if dkey not in _DESIGNS:
+        d = _design(build_model(sc), controller=controller, target=math.radians(target_deg),
+                    duration=duration, sample_time=sample_time, torque_limit=torque_limit, sensors=sensors)
+        while len(_DESIGNS) >= 4:
+            _DESIGNS.pop(next(iter(_DESIGNS)))
+        _DESIGNS[dkey] = (d, cloudpickle.dumps(d))
+    d, blob = _DESIGNS[dkey]
+    return {**settings, "torque_limit": d.torque_limit}, blob
 
-    # ---------------------------------------------------------------- what is done already
-    done: dict[str, dict] = {}
-    journal = None
-    if out is not None:
-        out = Path(out)
-        if out.suffix not in (".parquet", ".csv"):
-            raise FlexlinkError(f"--out {out}: expected a .parquet or .csv file name")
-        jpath = journal_path(out)
-        if overwrite:
-            for p in (out, jpath):
-                p.unlink(missing_ok=True)
-        old_rows: list[dict] = []
-        source = None
-        if jpath.exists():
-            header, old_rows = _read_journal(jpath)
-            source = jpath
-            if header is not None and header.get("sweep") != sweep:
-                old_rows = [{"sweep": header.get("sweep")}]
-        elif out.exists():
-            df_old = _read_output(out)
-            source = out
-            old_rows = df_old.to_dict("records")
-        if source is not None and not resume:
-            raise FlexlinkError(f"{source} exists: resume it, or pass --overwrite to start again")
-        other = {r.get("sweep") for r in old_rows} - {sweep}
-        if other:
-            raise FlexlinkError(f"{source} holds a sweep with other settings (scene, mode, manoeuvre or series): "
-                                "pass --overwrite to replace it, or choose another --out")
-        for r in old_rows:
-            done[r["key"]] = r
-        journal = _Journal(jpath, {"sweep": sweep, "scene": str(scene_path), "mode": mode, "settings": settings})
-        if source == out:      # resuming from a consolidated file without its journal: journal it again
-            journal.write([{k: v for k, v in r.items() if not _is_missing(v)} for r in old_rows])
 
-    todo = [(i, c) for i, c in enumerate(cases) if case_key(c) not in done]
-    resumed = len(cases) - len(todo)
+def _open_journal(out: Path, *, sweep: str, scene_path: Path, mode: str, settings: dict, resume: bool,
+                  overwrite: bool) -> tuple[dict[str, dict], _Journal]:
+    """The rows already done (by case key) from ``out``'s journal or ``out`` itself, refusing another sweep's
+    results unless ``overwrite``, and the journal opened for appending."""
+    if out.suffix not in (".parquet", ".csv"):
+        raise FlexlinkError(f"--out {out}: expected a .parquet or .csv file name")
+    jpath = journal_path(out)
+    if overwrite:
+        for p in (out, jpath):
+            p.unlink(missing_ok=True)
+    old_rows: list[dict] = []
+    source = None
+    if jpath.exists():
+        header, old_rows = _read_journal(jpath)
+        source = jpath
+        if header is not None and header.get("sweep") != sweep:
+            old_rows = [{"sweep": header.get("sweep")}]
+    elif out.exists():
+        df_old = _read_output(out)
+        source = out
+        old_rows = df_old.to_dict("records")
+    if source is not None and not resume:
+        raise FlexlinkError(f"{source} exists: resume it, or pass --overwrite to start again")
+    other = {r.get("sweep") for r in old_rows} - {sweep}
+    if other:
+        raise FlexlinkError(f"{source} holds a sweep with other settings (scene, mode, manoeuvre or series): "
+                            "pass --overwrite to replace it, or choose another --out")
+    done = {r["key"]: r for r in old_rows}
+    journal = _Journal(jpath, {"sweep": sweep, "scene": str(scene_path), "mode": mode, "settings": settings})
+    if source == out:      # resuming from a consolidated file without its journal: journal it again
+        journal.write([{k: v for k, v in r.items() if not _is_missing(v)} for r in old_rows])
+    return done, journal
+
+
+def _sweep_spec(sweep: str, fmu_path: Path, settings: dict, make_design, *, shared_fs: bool, mode: str,
+                metric_names: Sequence[str], series: Sequence[str], series_every: int) -> SweepSpec:
+    """The job shipped to the workers, with the controller designed now that there are cases to run."""
+    run_settings, design_blob = make_design() if make_design is not None else (settings, None)
+    return SweepSpec(key=f"{sweep}-{os.getpid()}-{time.time_ns()}", fmu_name=fmu_path.name,
+                     fmu_bytes=None if shared_fs else fmu_path.read_bytes(),
+                     fmu_path=str(fmu_path.resolve()) if shared_fs else None, mode=mode,
+                     settings=run_settings, design_blob=design_blob, series=tuple(series),
+                     series_every=series_every, metrics=metric_names)
+
+
+def _run_cases(spec: SweepSpec, todo, *, sweep: str, total: int, resumed: int, desc: str, progress, journal,
+               on_result, scheduler, client, n_workers, batch_size) -> dict[str, dict]:
+    """Run the cases not done yet (serially or on Dask), journaling each row as it arrives; rows by case key."""
+    from tqdm.auto import tqdm
+
     new_rows: dict[str, dict] = {}
-    bar = None
-    run_settings = settings
-    try:
-        if todo:
-            from tqdm.auto import tqdm
+    bar = tqdm(total=total, initial=resumed, desc=desc, unit="case",
+               disable=None if progress is None else not progress, file=sys.stderr, dynamic_ncols=True)
+    n_done = resumed
 
-            run_settings, design_blob = make_design() if make_design is not None else (settings, None)
-            spec = SweepSpec(key=f"{sweep}-{os.getpid()}-{time.time_ns()}", fmu_name=fmu_path.name,
-                             fmu_bytes=None if shared_fs else fmu_path.read_bytes(),
-                             fmu_path=str(fmu_path.resolve()) if shared_fs else None, mode=mode,
-                             settings=run_settings, design_blob=design_blob, series=tuple(series),
-                             series_every=series_every, metrics=metric_names)
-
-            bar = tqdm(total=len(cases), initial=resumed, desc=f"sweep {sc.name}", unit="case",
-                       disable=None if progress is None else not progress, file=sys.stderr, dynamic_ncols=True)
-            n_done = resumed
-
-            def collect(rows: list[dict]) -> None:
-                nonlocal n_done
-                for r in rows:
-                    r["sweep"] = sweep
-                if journal is not None:
-                    journal.write(rows)
-                for r in rows:
-                    new_rows[r["key"]] = r
-                    n_done += 1
-                    if on_result is not None:
-                        on_result(r, n_done, len(cases))
-                bar.update(len(rows))
-
-            if scheduler == "serial" and client is None:
-                for case, c in todo:
-                    collect([_run_case(spec, case, c)])
-                with _JOBS_LOCK:
-                    for job in [j for j in _ALL_JOBS if j.spec.key == spec.key]:
-                        job.close()
-                        _ALL_JOBS.remove(job)
-                getattr(_LOCAL, "jobs", {}).pop(spec.key, None)
-            else:
-                _run_on_dask(spec, todo, collect, client=client, scheduler=scheduler, n_workers=n_workers,
-                             batch_size=batch_size)
-    finally:
-        if bar is not None:
-            bar.close()
+    def collect(rows: list[dict]) -> None:
+        nonlocal n_done
+        for r in rows:
+            r["sweep"] = sweep
         if journal is not None:
-            journal.close()
+            journal.write(rows)
+        for r in rows:
+            new_rows[r["key"]] = r
+            n_done += 1
+            if on_result is not None:
+                on_result(r, n_done, total)
+        bar.update(len(rows))
 
+    try:
+        if scheduler == "serial" and client is None:
+            _run_serial(spec, todo, collect)
+        else:
+            _run_on_dask(spec, todo, collect, client=client, scheduler=scheduler, n_workers=n_workers,
+                         batch_size=batch_size)
+    finally:
+        bar.close()
+    return new_rows
+
+
+def _run_serial(spec: SweepSpec, todo, collect) -> None:
+    """``scheduler="serial"``: the cases in a plain loop in this process, then this sweep's FMU instances freed."""
+    for case, c in todo:
+        collect([_run_case(spec, case, c)])
+    with _JOBS_LOCK:
+        for job in [j for j in _ALL_JOBS if j.spec.key == spec.key]:
+            job.close()
+            _ALL_JOBS.remove(job)
+    getattr(_LOCAL, "jobs", {}).pop(spec.key, None)
+
+
+def _case_rows(cases: list[dict[str, float]], names: list[str], done: dict[str, dict],
+               new_rows: dict[str, dict]) -> list[dict]:
+    """One row per case of the sweep, in case order, from this run or the journal, numbered and with the exact
+    parameter values of the case."""
     rows = []
     for i, c in enumerate(cases):
         k = case_key(c)
@@ -782,13 +851,7 @@ def run_sweep(scene: str | os.PathLike, params: Mapping[str, object] | None = No
         for name in names:
             r[name] = c[name]
         rows.append(r)
-    df = _frame(rows, names, metric_names, series)
-    df.attrs.update(kind=kind, parameters=names, computed=len(todo), resumed=resumed, mode=mode,
-                    wall_s=time.perf_counter() - t_start, sweep=sweep, settings=run_settings,
-                    journal=str(journal_path(out)) if out is not None else None)
-    if out is not None:
-        _write_output(df, out)
-    return df
+    return rows
 
 
 def _is_missing(v) -> bool:
