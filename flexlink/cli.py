@@ -115,7 +115,11 @@ def _add_plugin_commands(sub) -> None:
     from importlib.metadata import entry_points
 
     for ep in sorted(entry_points(group="flexlink.commands"), key=lambda e: e.name):
-        ep.load()(sub)
+        try:
+            ep.load()(sub)
+        except Exception as e:      # a broken application must not take the library's own commands down
+            print(f"flexlink: the commands of {ep.value} are unavailable ({type(e).__name__}: {e})",
+                  file=sys.stderr)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -61,6 +61,7 @@ typedef struct {
     int acceleration_ok;              /* acceleration is the consistent one (M(q) non-singular) */
     int stop_time_defined;
     int experiment_tolerance_defined;
+    int mass_matrix_guarded;          /* M positive definite at the start state (fmu_guard_init) */
     double start_time, stop_time, experiment_tolerance;
     double time;                      /* current communication point                            */
     double last_successful_time;
@@ -96,7 +97,6 @@ typedef struct {
     /* guards.c: validity ratios, mass matrix and the reason of a refused state */
     double guard_g[FMU_SZ(N_VALIDITY)], guard_M[N_Q * N_Q];
     char guard_reason[512];
-    int mass_matrix_guarded;          /* M positive definite at the start state (fmu_guard_init)  */
     int step_discarded;               /* 1 after fmi2DoStep returned fmi2Discard (fmi2Terminated status) */
     /* directional derivatives: seeds and results */
     double dd_q[N_Q], dd_v[N_Q], dd_a[N_Q], dd_r[N_Q];

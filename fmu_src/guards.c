@@ -37,9 +37,10 @@ fmi2Status fmu_guard_state(Instance *inst, double t, const double *u, int check_
         }
     }
 #endif
-    if (check_mass_matrix && inst->mass_matrix_guarded && (N_VALIDITY == 0 || largest > MASS_MATRIX_CHECK_FROM)) {
-        model_newton_matrix(d->q, d->v, d->alpha, u, d->p, 1.0, 0.0, 0.0, inst->guard_M, &inst->work);
-        const int k = cholesky_factor(inst->guard_M, N_Q, MASS_MATRIX_TINY);
+    if (check_mass_matrix && d->mass_matrix_guarded && (N_VALIDITY == 0 || largest > MASS_MATRIX_CHECK_FROM)) {
+        const int failed = model_newton_matrix(d->q, d->v, d->alpha, u, d->p, 1.0, 0.0, 0.0, inst->guard_M,
+                                               &inst->work);
+        const int k = failed ? 1 : cholesky_factor(inst->guard_M, N_Q, MASS_MATRIX_TINY);
         if (k) {
             snprintf(inst->guard_reason, sizeof(inst->guard_reason),
                      "at t = %.17g the mass matrix lost positive definiteness (Cholesky pivot %d of %d): the "
@@ -56,11 +57,11 @@ fmi2Status fmu_guard_state(Instance *inst, double t, const double *u, int check_
  * A constant M (linear kinematics) cannot lose definiteness. */
 void fmu_guard_init(Instance *inst, const double *u) {
     FmuData *d = &inst->d;
-    inst->mass_matrix_guarded = 0;
+    d->mass_matrix_guarded = 0;
     if (MODEL_JACOBIAN_CONSTANT) return;
-    model_newton_matrix(d->q, d->v, d->alpha, u, d->p, 1.0, 0.0, 0.0, inst->guard_M, &inst->work);
-    if (cholesky_factor(inst->guard_M, N_Q, MASS_MATRIX_TINY) == 0) {
-        inst->mass_matrix_guarded = 1;
+    if (model_newton_matrix(d->q, d->v, d->alpha, u, d->p, 1.0, 0.0, 0.0, inst->guard_M, &inst->work) == 0 &&
+        cholesky_factor(inst->guard_M, N_Q, MASS_MATRIX_TINY) == 0) {
+        d->mass_matrix_guarded = 1;
     } else {
         fmu_log(inst, fmi2OK, LOG_EVENTS, "the mass matrix is singular at the start state (massless "
                 "directions): its definiteness is not guarded");

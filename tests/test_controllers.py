@@ -183,7 +183,8 @@ def test_accelerometer_feedthrough_is_sampled_with_the_previous_torque(link, pay
     # sensors computed independently: accelerations from a numerical solve of the residual, no AD
     k = int(np.argmax(np.abs(ref.x[:, 1])))
     x = d.plant.x0 + ref.x[k]
-    u = d.plant.u0[0] + sc.u_ff_prev[k]
+    u = d.plant.u0[0] + (ref.u_ff[k - 1] if k > 0 else 0.0)       # the torque held while y_k is sampled
+    assert sc.u_ff_prev[k] == (ref.u_ff[k - 1] if k > 0 else 0.0)
     h = 1e-4
     fd_D = (_sensors_by_solve(d.plant, law.sensors, x, u + h) - _sensors_by_solve(d.plant, law.sensors, x, u - h))
     np.testing.assert_allclose(sc.D[k], fd_D / (2 * h), rtol=1e-6, atol=1e-9)
