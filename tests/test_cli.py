@@ -58,6 +58,14 @@ def cache(tmp_path_factory) -> Path:
 # ------------------------------------------------------------------------------------------------ build
 
 
+def test_build_into_an_existing_folder_names_the_fmu_after_the_model(tmp_path, cache):
+    """``-o DIR`` with DIR an existing folder writes DIR/<model identifier>.fmu (as cp does), no temporary
+    file is left beside it."""
+    result = ok(flexlink("build", "examples/rotating_link_linear.toml", "-o", str(tmp_path), cache=cache))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rotating_link_linear.fmu"]
+    assert str(tmp_path / "rotating_link_linear.fmu") in result.stdout
+
+
 def test_build_commands_write_valid_fmus(tmp_path, cache):
     from fmpy.validation import validate_fmu
 
@@ -194,6 +202,7 @@ BAD = {
     "negative-step": ([*"simulate {scene} --stop-time 1 --step -0.01".split()], ["--step"]),
     "negative-EI": ([*"simulate {scene} --stop-time 1 --set arm.EI=-1".split()], ["arm.EI"]),
     "zero-solver-step": ([*"simulate {scene} --stop-time 1 --set solver.step=0".split()], ["solver.step"]),
+    "build-onto-a-folder": ([*"build {scene} -o {tmp}/taken".split()], ["rotating_link.fmu", "is a folder"]),
 }
 
 
@@ -208,6 +217,7 @@ def bad_runs(tmp_path_factory, cache) -> dict[str, subprocess.CompletedProcess[s
     text = (ROOT / SCENE).read_text()
     assert "length = 2.2 " in text
     negative.write_text(text.replace("length = 2.2 ", "length = -2.2 "))
+    (tmp / "taken" / "rotating_link.fmu").mkdir(parents=True)     # where -o {tmp}/taken would put the FMU
     ok(flexlink("simulate", SCENE, "--stop-time", "0.01", cache=cache))
 
     def go(args):

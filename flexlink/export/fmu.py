@@ -22,6 +22,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 import flexlink
+from flexlink.errors import BuildError
 from flexlink.export.cbuild import (
     GENERIC_HEADERS,
     GENERIC_SOURCES,
@@ -200,10 +201,16 @@ def model_structure(model: SymbolicModel, gen: GeneratedModel) -> list[str]:
 
 def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, keep_dir: str | None = None,
               model: SymbolicModel | None = None) -> BuildReport:
-    """Export ``scene`` as an FMI 2.0 FMU (Model Exchange and Co-Simulation) at ``output``."""
+    """Export ``scene`` as an FMI 2.0 FMU (Model Exchange and Co-Simulation) at ``output``; an existing
+    folder as ``output`` receives ``<model identifier>.fmu``."""
     t0 = time.perf_counter()
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
+    output = Path(output)
+    if output.is_dir():
+        output = output / f"{scene.model_identifier}.fmu"
+    if output.is_dir():
+        raise BuildError(f"{output}: is a folder; give the FMU's file name")
     model = build_model(scene) if model is None else model
     t1 = time.perf_counter()
     work = Path(keep_dir) if keep_dir else Path(tempfile.mkdtemp(prefix="flexlink-build-"))
@@ -225,15 +232,17 @@ def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, ke
         t3 = time.perf_counter()
         xml = model_description(model, gen, c_files)
         (work / "modelDescription.xml").write_text(xml)
-        output = Path(output)
         output.parent.mkdir(parents=True, exist_ok=True)
-        tmp = output.with_suffix(f"{output.suffix}.{os.getpid()}.part")
-        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
-            z.write(work / "modelDescription.xml", "modelDescription.xml")
-            z.write(so, f"binaries/linux64/{so.name}")
-            for f in sorted(src.iterdir()):
-                z.write(f, f"sources/{f.name}")
-        tmp.replace(output)
+        tmp = output.with_suffix(f"{output.suffix}.{os.getpid()}.part")   # unique: concurrent builders
+        try:
+            with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
+                z.write(work / "modelDescription.xml", "modelDescription.xml")
+                z.write(so, f"binaries/linux64/{so.name}")
+                for f in sorted(src.iterdir()):
+                    z.write(f, f"sources/{f.name}")
+            tmp.replace(output)
+        finally:
+            tmp.unlink(missing_ok=True)
         t4 = time.perf_counter()
         generated_bytes = sum(p.stat().st_size for p in gen.generated)
         return BuildReport(output, gen.guid, {"model": t1 - t0, "codegen": t2 - t1, "compile": t3 - t2,
