@@ -1,6 +1,7 @@
 /* variables.c -- fmi2GetReal / fmi2SetReal on the variable table of model.h, the inputs as the model sees
  * them (kinematic laws filled in) and the outputs with the consistent acceleration behind them.
  * See cosimulation.h. */
+#include <float.h>
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
@@ -174,6 +175,9 @@ static const char *refuse_value(const Instance *inst, const VarInfo *v, double x
                  fmu_phase_name(phase));
     } else if (!isfinite(x)) {
         snprintf(why, n, "%s = %g: NaN and infinite values are refused", v->name, x);
+    } else if (v->kind != VAR_INPUT && fpclassify(x) == FP_SUBNORMAL) {
+        /* a parameter's products underflow and its quotients overflow; an input may decay that far */
+        snprintf(why, n, "%s = %g: subnormal values are refused (0 or magnitude >= %g)", v->name, x, DBL_MIN);
     } else if (v->min_exclusive ? !(x > v->min) : !(x >= v->min)) {
         snprintf(why, n, "%s = %.15g: must be %s %.15g", v->name, x, v->min_exclusive ? ">" : ">=", v->min);
     } else if (!(x <= v->max)) {

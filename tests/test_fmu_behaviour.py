@@ -564,6 +564,8 @@ BAD_INPUT = [
     ("negative-EI", "instantiated", lambda s: s.set({"arm.EI": -93.72}), ("fmi2SetReal", "arm.EI", "> 0")),
     ("negative-EI-in-step-mode", "step", lambda s: s.set({"arm.EI": -1.0}), ("fmi2SetReal", "arm.EI")),
     ("zero-EI", "step", lambda s: s.set({"arm.EI": 0.0}), ("arm.EI", "> 0")),
+    ("subnormal-EI", "step", lambda s: s.set({"arm.EI": 5e-324}), ("fmi2SetReal", "arm.EI", "subnormal")),
+    ("subnormal-hub-inertia", "instantiated", lambda s: s.set({"hub.inertia": 1e-310}), ("hub.inertia", "subnormal")),
     ("negative-linear-density", "step", lambda s: s.set({"arm.linear_density": -0.349}),
      ("fmi2SetReal", "arm.linear_density")),
     ("negative-hub-inertia", "initialization", lambda s: s.set({"hub.inertia": -0.1}), ("hub.inertia",)),
@@ -774,3 +776,18 @@ def test_position_driven_joint_torque_is_finite_and_starts_from_the_static_load(
     assert static * (1 - 1e-3) <= rows[0, 0] <= static + rigid
     assert np.max(np.abs(rows[:, 0])) < 10 * (static + rigid)
     assert rows[-1, 1] == pytest.approx(np.pi / 2, abs=1e-12)
+
+
+def test_a_subnormal_input_is_accepted(new_slave):
+    """Unlike a parameter, an input may decay to a subnormal value (a controller's output tending to 0): it is
+    taken, and the step gives what a zero input gives (1e-310 N m moves nothing measurable)."""
+    s = new_slave("rotating_link")
+    _to_phase(s, "step")
+    s.set({"hub.tau": 1e-310})
+    s.fmu.doStep(s.t, 0.01)
+    tiny = s.get(["hub.theta", "arm.tip.v"])
+    z = new_slave("rotating_link")
+    _to_phase(z, "step")
+    z.set({"hub.tau": 0.0})
+    z.fmu.doStep(z.t, 0.01)
+    np.testing.assert_allclose(tiny, z.get(["hub.theta", "arm.tip.v"]), rtol=0, atol=1e-300)

@@ -451,6 +451,9 @@ BAD = [
     ("tunable-dup", _set("fmu", "tunable", ["gravity", "gravity"]), "fmu.tunable[2]", "not already listed"),
     ("tunable-str", _set("fmu", "tunable", "gravity"), "fmu.tunable", "a list of FMU parameter names"),
     ("tunable-int", _set("fmu", "tunable", [3]), "fmu.tunable[1]", "a parameter name"),
+    # subnormal numbers (issue 21: EI = 5e-324 ended in LinAlgError)
+    ("subnormal-EI", _set("link", 0, "EI", 5e-324), "link[1].EI", "not subnormal"),
+    ("subnormal-gravity", _set("gravity", [0.0, -1e-310, 0.0]), "gravity[2]", "not subnormal"),
 ]
 
 
@@ -697,3 +700,11 @@ def test_data_class_defaults_agree_with_the_table(section: str, cls) -> None:
             assert fields[k.name] == k.default, (section, k.name)
             compared += 1
     assert compared >= 2
+
+
+def test_negative_zero_is_zero() -> None:
+    """A payload mass of -0.0 (issue 21) is the number 0, with no sign bit left to leak into the model."""
+    data = base()
+    data["link"][0]["payload"]["mass"] = -0.0
+    mass = parse_scene(data, SOURCE).links[0].payload.mass
+    assert mass == 0.0 and math.copysign(1.0, mass) == 1.0

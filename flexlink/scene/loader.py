@@ -17,6 +17,7 @@ import difflib
 import math
 import os
 import re
+import sys
 import tomllib
 from typing import Any
 
@@ -175,7 +176,9 @@ class _Values:
             raise self.fail(key, expected, value)
         if (positive and not x > 0) or (minimum is not None and not x >= minimum):
             raise self.fail(key, expected, value)
-        return x
+        if x != 0.0 and abs(x) < sys.float_info.min:     # subnormal: its products underflow, its quotients blow up
+            raise self.fail(key, f"{expected}, not subnormal (|x| ≥ {sys.float_info.min:.4g} or 0)", value)
+        return x + 0.0                                    # -0.0 is 0.0
 
     def vector(self, value: Any, key: str, n: int, unit: str = "", *, minimum: float | None = None
                ) -> tuple[float, ...]:
