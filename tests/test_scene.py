@@ -17,6 +17,7 @@ from flexlink.scene.loader import (
     Scene,
     Segment,
     Shapes,
+    Tool,
     Trajectory,
     load_scene,
     parse_scene,
@@ -152,6 +153,8 @@ def test_defaults_follow_scene_md() -> None:
     assert link.kinematics == "second-order" and link.initial_deformation == "undeformed"
     assert link.payload == Payload(0.0, 0.0, (0.0, 0.0, 0.0)) and not link.payload.is_present
     assert s.fmu == FmuSettings(1e-3, "ss22", (0.5, 0.5), 1e-10, (), False)
+    assert (j.origin, j.rpy) == ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)) and s.tool == Tool()
+    assert not link.is_rigid and (link.mass, link.center_of_mass, link.inertia) == (None, None, None)
 
 
 def test_values_are_floats_and_partial_tables_get_defaults() -> None:
@@ -615,6 +618,7 @@ PLACES = {
     "link.payload": (base, ("link", 0, "payload"), "link[1].payload"),
     "shell_link": (shell, ("link", 0), "link[1]"),
     "shell_link.shapes": (shell, ("link", 0, "shapes"), "link[1].shapes"),
+    "tool": (base, ("tool",), "tool"),
     "fmu": (base, ("fmu",), "fmu"),
 }
 # shapes.kind = "shell" is what makes a link a shell link: another value there reads the link as a beam.
@@ -646,8 +650,11 @@ def test_key_table_is_well_formed() -> None:
         if k.choices:
             given = k.default if isinstance(k.default, tuple) else (k.default,)
             assert k.default is REQUIRED or set(given) <= set(k.choices), k
-        if k.type == "number" and k.bounds not in NUMBER_BOUNDS:     # checked in code: say so in words
+        head, _, rule = k.bounds.partition(";")
+        if k.type == "number" and head not in NUMBER_BOUNDS:     # checked in code: say so in words
             assert len(k.bounds) > 3, k
+        if k.type == "number" and head in NUMBER_BOUNDS and rule:    # a bound the loader reads, then words
+            assert head and len(rule.strip()) > 3, k
     assert all(section_keys(s) for s in ids)
 
 
@@ -691,7 +698,7 @@ def test_absent_key_means_its_default(spec) -> None:
 
 @pytest.mark.parametrize(("section", "cls"), [("joint", Joint), ("link", Link), ("link.shapes", Shapes),
                                               ("link.payload", Payload), ("joint.trajectory.segments", Segment),
-                                              ("fmu", FmuSettings)])
+                                              ("tool", Tool), ("fmu", FmuSettings)])
 def test_data_class_defaults_agree_with_the_table(section: str, cls) -> None:
     fields = {f.name: f.default for f in dataclasses.fields(cls) if f.default is not dataclasses.MISSING}
     compared = 0

@@ -9,13 +9,20 @@ one in reading order is the one reported.
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import json
 import math
 from typing import Any
 
+import numpy as np
+
 from flexlink.errors import SceneError
-from flexlink.scene.schema import JOINT_TUNABLE, LINK_TUNABLE, Joint, Link
+from flexlink.scene.schema import AXIS_TOLERANCE, JOINT_TUNABLE, LINK_TUNABLE, Joint, Link
+
+INERTIA_TOLERANCE = 1e-12    # relative: a tensor's eigenvalues and triangle inequalities, against its largest moment
+# Keys of a beam link that mean nothing for a rigid one (initial_deformation only when "static").
+NOT_RIGID = ("EI", "EI_out", "GJ", "kelvin_voigt", "shapes", "kinematics")
 
 MISSING: Any = object()   # a key that is absent (distinct from every TOML value)
 
@@ -71,6 +78,22 @@ def unique_names(source: str, joints: tuple[Joint, ...], links: tuple[Link, ...]
             seen[item.name] = key.removesuffix(".name")
 
 
+def joint_axes(source: str, joint_data: list[dict], joints: tuple[Joint, ...], links: tuple[Link, ...]
+               ) -> tuple[Joint, ...]:
+    """A flexible link (beam or shell) bends in the plane normal to its joint's axis, so that axis must be normal
+    to the link's x axis [1, 0, 0] (then stored with x exactly 0); a rigid link turns about any axis."""
+    out = []
+    for i, (joint, link) in enumerate(zip(joints, links, strict=True)):
+        if not link.is_rigid:
+            if abs(joint.axis[0]) > AXIS_TOLERANCE:
+                raise error(source, f"joint[{i + 1}].axis", "a vector normal to the link's x axis [1, 0, 0] "
+                            f'(x component 0) — link "{link.name}" is flexible; a rigid link turns about any '
+                            "axis, or orient the joint frame with rpy", joint_data[i].get("axis", joint.axis))
+            joint = dataclasses.replace(joint, axis=(0.0, joint.axis[1], joint.axis[2]))
+        out.append(joint)
+    return tuple(out)
+
+
 def trajectory_needs_position(source: str, key: str, drive: str) -> None:
     if drive != "position":
         raise SceneError(f'{source}: {key}.trajectory: expected only with drive = "position", '
@@ -97,6 +120,71 @@ def mass_per_length_given_once(source: str, key: str, t: dict) -> bool:
     if not has_lin and not has_vol:
         raise error(source, f"{key}.linear_density", "a positive number (kg/m), or density (kg/m³) and area (m²)")
     return has_lin
+
+
+def only_for_rigid(source: str, key: str, t: dict, body_keys: tuple[str, ...]) -> None:
+    """A flexible link's mass is its linear density: a body's mass, centre and inertia are refused."""
+    for k in body_keys:
+        if k in t:
+            raise error(source, f"{key}.{k}", "no value: only for a rigid link (deformation = []); a flexible "
+                        "link's mass is its linear_density", t[k])
+
+
+def not_for_rigid(source: str, key: str, t: dict) -> None:
+    """Stiffness, damping, shape functions, kinematics and a static start mean nothing for a rigid link."""
+    for k in NOT_RIGID:
+        if k in t:
+            raise error(source, f"{key}.{k}", "no value: not used by a rigid link (deformation = []); remove it",
+                        t[k])
+    if t.get("initial_deformation") == "static":
+        raise error(source, f"{key}.initial_deformation", 'no value other than "undeformed": not used by a '
+                    "rigid link (deformation = []); remove it", t["initial_deformation"])
+
+
+def rigid_mass_form(source: str, key: str, t: dict, body_keys: tuple[str, ...]) -> bool:
+    """A rigid link's mass properties come from exactly one form, so that two can never disagree: a uniform rod
+    (linear_density, or density and area) or a body (mass, with center_of_mass and inertia). True: a body."""
+    body = [k for k in body_keys if k in t]
+    rod = [k for k in ("linear_density", "density", "area") if k in t]
+    if body and rod:
+        raise error(source, f"{key}.{body[0]}", f"no value: {rod[0]} makes this rigid link a uniform rod; give "
+                    "either linear_density (or density and area) or mass, center_of_mass and inertia, not both",
+                    t[body[0]])
+    if not body and not rod:
+        raise error(source, f"{key}.mass", "a number ≥ 0 (kg), with center_of_mass and inertia, or linear_density "
+                    "(kg/m) for a uniform rod: a rigid link needs its mass")
+    if body and "mass" not in t:
+        raise error(source, f"{key}.mass", f"a number ≥ 0 (kg) because {body[0]} is given (a rigid body)")
+    return bool(body)
+
+
+def no_polar_inertia_with_body(source: str, key: str, t: dict) -> None:
+    if "polar_inertia" in t:
+        raise error(source, f"{key}.polar_inertia", "no value: the polar inertia of a uniform rod "
+                    "(linear_density); a rigid body given by mass takes inertia", t["polar_inertia"])
+
+
+def physical_inertia(source: str, key: str, raw: Any, values: tuple[float, ...]) -> None:
+    """(Ixx, Iyy, Izz, Ixy, Ixz, Iyz) about the centre of mass is the tensor of a body: positive semi-definite,
+    its principal moments satisfying the triangle inequalities (I1 ≤ I2 + I3 …; equivalently ∫ρ r rᵀ is positive
+    semi-definite), to a tolerance relative to the largest moment."""
+    scale = max(abs(v) for v in values)
+    if scale == 0.0:
+        return
+    ixx, iyy, izz, ixy, ixz, iyz = (v / scale for v in values)          # in units of the largest entry: no overflow
+    moments = np.linalg.eigvalsh(np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]]))
+    tol = INERTIA_TOLERANCE * float(np.max(np.abs(moments)))
+    shown = ", ".join(f"{m * scale:.6g}" for m in moments)
+    if moments[0] < -tol:
+        raise error(source, key, f"a positive semi-definite inertia tensor (principal moments {shown} kg m²)", raw)
+    diagonal = (ixx, iyy, izz)
+    if not any(values[3:]):                     # principal axes: say which inequality fails
+        for i, rule in enumerate(("Ixx ≤ Iyy + Izz", "Iyy ≤ Ixx + Izz", "Izz ≤ Ixx + Iyy")):
+            if diagonal[i] > sum(diagonal) - diagonal[i] + tol:
+                raise error(source, key, f"the inertia tensor of a body: {rule} (the triangle inequalities)", raw)
+    elif moments[2] > moments[0] + moments[1] + tol:
+        raise error(source, key, f"the inertia tensor of a body: its principal moments (here {shown} kg m²) "
+                    "satisfying the triangle inequalities, the largest ≤ the sum of the other two", raw)
 
 
 def density_times_area(source: str, key: str, t: dict, density: float, area: float) -> float:
@@ -158,7 +246,8 @@ def shell_modes(source: str, key: str, section: str, mesh: list[int], modes: int
 def tunable_names(source: str, value: Any, joints: tuple[Joint, ...], links: tuple[Link, ...]) -> tuple[str, ...]:
     """``[fmu] tunable`` names parameters of this scene's joints and links."""
     allowed = ["gravity"]
-    allowed += [f"{link.name}.{p}" for link in links for p in LINK_TUNABLE]
+    allowed += [f"{link.name}.{p}" for link in links for p in LINK_TUNABLE
+                if not (link.is_rigid and p == "kelvin_voigt")]          # a rigid link has no damping
     allowed += [f"{joint.name}.{p}" for joint in joints for p in JOINT_TUNABLE]
     forms = ("<link>.kelvin_voigt, <link>.payload.mass, <link>.payload.inertia, <joint>.stiffness, "
              "<joint>.damping or gravity")

@@ -6,6 +6,7 @@ missing; expected WHAT``, ``FILE: KEY: unknown key; did you mean …``). Keys ar
 paths with 1-based indices into the arrays of tables, e.g. ``link[1].EI``, ``joint[2].trajectory.segments[1].
 until``, ``fmu.theta``, because the index exists even when the name is missing or wrong.
 
+A link is a beam, a shell (``shapes.kind = "shell"``) or rigid (``deformation = []``); each has its reader.
 The keys each table accepts, their defaults, units and bounds come from :data:`~flexlink.scene.schema.KEYS`;
 the checks that relate several keys are in :mod:`flexlink.scene.checks`. The data classes live in
 :mod:`flexlink.scene.schema` and are re-exported here.
@@ -25,7 +26,6 @@ from flexlink.errors import SceneError
 from flexlink.scene import checks
 from flexlink.scene.checks import MISSING, is_number, show
 from flexlink.scene.schema import (
-    AXIS_TOLERANCE,
     DEFORMATIONS,
     OPTIONAL,
     REQUIRED,
@@ -37,6 +37,7 @@ from flexlink.scene.schema import (
     Scene,
     Segment,
     Shapes,
+    Tool,
     Trajectory,
     key_spec,
     section_keys,
@@ -51,6 +52,7 @@ __all__ = [
     "SceneError",
     "Segment",
     "Shapes",
+    "Tool",
     "Trajectory",
     "load_scene",
     "parse_scene",
@@ -66,6 +68,7 @@ _C_KEYWORDS = frozenset(
 # A beam link knows the shell-only keys, to answer "E and poisson are for shell links" rather than "unknown".
 _SHELL_ONLY = tuple(k for k in section_keys("shell_link") if k not in section_keys("link"))
 _BOUNDS = {"": {}, "> 0": {"positive": True}, "≥ 0": {"minimum": 0}}
+_RIGID_BODY = ("mass", "center_of_mass", "inertia")     # a rigid link's mass properties given as a body
 
 
 # ------------------------------------------------------------------------------------------ public API
@@ -143,11 +146,12 @@ class _Values:
         return MISSING if spec.default is REQUIRED or spec.default is OPTIONAL else spec.toml_default()
 
     def number_key(self, t: dict, section: str, name: str, prefix: str, **bounds: Any) -> float:
-        """A number key with the unit, default and bounds ("> 0", "≥ 0") of its row of KEYS; other bounds are
-        checked by the caller."""
+        """A number key with the unit, default and bounds ("> 0", "≥ 0", the part of the row's bounds before a
+        semicolon) of its row of KEYS; ``bounds`` given here replace those; other bounds are checked by the
+        caller."""
         spec = key_spec(section, name)
-        return self.number(self.get(t, section, name), f"{prefix}.{name}", spec.unit,
-                           **_BOUNDS.get(spec.bounds, {}), **bounds)
+        table_bounds = _BOUNDS.get(spec.bounds.split(";")[0].strip(), {})
+        return self.number(self.get(t, section, name), f"{prefix}.{name}", spec.unit, **{**table_bounds, **bounds})
 
     def choice_key(self, t: dict, section: str, name: str, prefix: str) -> str:
         return self.string(self.get(t, section, name), f"{prefix}.{name}", key_spec(section, name).choices or None)
@@ -229,10 +233,12 @@ class _Parser(_Values):
         checks.same_count(self.source, len(joint_data), len(link_data))
         joints = tuple(self.joint(d, f"joint[{i + 1}]") for i, d in enumerate(joint_data))
         links = tuple(self.link(d, f"link[{i + 1}]") for i, d in enumerate(link_data))
+        joints = checks.joint_axes(self.source, joint_data, joints, links)
         checks.unique_names(self.source, joints, links)
+        tool = self.tool(self.get(top, "scene", "tool"))
         fmu = self.fmu(self.get(top, "scene", "fmu"), joints, links)
         return Scene(name=name, model_identifier=sanitise_identifier(name), gravity=gravity,
-                     joints=joints, links=links, fmu=fmu, path=path)
+                     joints=joints, links=links, fmu=fmu, path=path, tool=tool)
 
     def array_of_tables(self, top: dict, key: str) -> list[dict]:
         expected = f"at least one [[{key}]] table"
@@ -252,6 +258,8 @@ class _Parser(_Values):
         t = self.table(data, key, "joint")
         name = self.name(self.get(t, "joint", "name"), f"{key}.name")
         axis = self.axis(t, key)
+        origin = self.vector_key(t, "joint", "origin", key)
+        rpy = self.vector_key(t, "joint", "rpy", key)
         inertia = self.number_key(t, "joint", "inertia", key)
         damping = self.number_key(t, "joint", "damping", key)
         drive = self.choice_key(t, "joint", "drive", key)
@@ -263,20 +271,23 @@ class _Parser(_Values):
             checks.trajectory_needs_position(self.source, key, drive)
             trajectory = self.trajectory(t["trajectory"], f"{key}.trajectory")
         return Joint(name=name, axis=axis, inertia=inertia, damping=damping, drive=drive, stiffness=stiffness,
-                     initial_angle=initial_angle, initial_rate=initial_rate, trajectory=trajectory)
+                     initial_angle=initial_angle, initial_rate=initial_rate, trajectory=trajectory,
+                     origin=origin, rpy=rpy)
 
     def axis(self, t: dict, key: str) -> tuple[float, float, float]:
-        """A unit vector normal to the link's x axis (a non-zero vector, normalised)."""
+        """A unit vector (a non-zero vector, normalised); whether it must be normal to the link's x axis
+        depends on the link, checked once the links are read (:func:`checks.joint_axes`)."""
         value = self.get(t, "joint", "axis")
         raw = self.vector(value, f"{key}.axis", 3, key_spec("joint", "axis").unit)
         norm = math.hypot(*raw)
         if not norm > 0 or not math.isfinite(norm):
             raise self.fail(f"{key}.axis", "a non-zero finite vector", value)
-        axis = tuple(c / norm for c in raw)
-        if abs(axis[0]) > AXIS_TOLERANCE:
-            raise self.fail(f"{key}.axis", "a vector normal to the link's x axis [1, 0, 0] "
-                            "(x component 0)", value)
-        return (0.0, axis[1], axis[2])
+        return (raw[0] / norm + 0.0, raw[1] / norm + 0.0, raw[2] / norm + 0.0)
+
+    def vector_key(self, t: dict, section: str, name: str, prefix: str) -> tuple[float, float, float]:
+        """A 3-vector key with the unit and default of its row of KEYS."""
+        spec = key_spec(section, name)
+        return self.vector(self.get(t, section, name), f"{prefix}.{name}", 3, spec.unit)
 
     def trajectory(self, data: Any, key: str) -> Trajectory:
         t = self.table(data, key, "joint.trajectory", "a table with segments = [{until, poly, cos}, ...]")
@@ -316,9 +327,15 @@ class _Parser(_Values):
             return self.shell_link(data, key)
         t = self.table(data, key, "link", also=_SHELL_ONLY)
         checks.no_shell_material(self.source, key, t)
+        if isinstance(t.get("deformation"), list) and not t["deformation"]:
+            return self.rigid_link(t, key)
         name = self.name(self.get(t, "link", "name"), f"{key}.name")
+        checks.only_for_rigid(self.source, key, t, _RIGID_BODY)
         length = self.number_key(t, "link", "length", key)
         linear_density = self.linear_density(t, key)
+        if "EI" not in t:
+            raise self.fail(f"{key}.EI", "a positive number (N m²), required for a flexible link (a rigid link "
+                            "has deformation = [])")
         EI = self.number_key(t, "link", "EI", key)
         given = {k: self.number_key(t, "link", k, key) for k in ("EI_out", "GJ", "polar_inertia") if k in t}
         kelvin_voigt = self.number_key(t, "link", "kelvin_voigt", key)
@@ -333,6 +350,46 @@ class _Parser(_Values):
                     polar_inertia=given.get("polar_inertia"), kelvin_voigt=kelvin_voigt,
                     deformation=deformation, shapes=shapes, kinematics=kinematics, payload=payload,
                     initial_deformation=initial_deformation)
+
+    def rigid_link(self, t: dict, key: str) -> Link:
+        """A rigid link (deformation = []): a uniform slender rod (linear_density, or density and area, and
+        polar_inertia) or a body (mass, center_of_mass, inertia); its length may be 0."""
+        name = self.name(self.get(t, "link", "name"), f"{key}.name")
+        checks.not_for_rigid(self.source, key, t)
+        length = self.number_key(t, "link", "length", key, positive=False, minimum=0)
+        if checks.rigid_mass_form(self.source, key, t, _RIGID_BODY):
+            checks.no_polar_inertia_with_body(self.source, key, t)
+            mass = self.number_key(t, "link", "mass", key)
+            com = (0.0, 0.0, 0.0)
+            if "center_of_mass" in t:
+                com = self.vector_key(t, "link", "center_of_mass", key)
+            inertia = self.rigid_inertia(t, key)
+            linear_density, polar_inertia = 0.0, None
+        else:
+            mass = com = inertia = None
+            linear_density = self.linear_density(t, key)
+            polar_inertia = self.number_key(t, "link", "polar_inertia", key) if "polar_inertia" in t else None
+        payload = self.payload(self.get(t, "link", "payload"), f"{key}.payload")
+        initial_deformation = self.choice_key(t, "link", "initial_deformation", key)
+        return Link(name=name, length=length, linear_density=linear_density, EI=None, polar_inertia=polar_inertia,
+                    deformation=(), payload=payload, initial_deformation=initial_deformation,
+                    mass=mass, center_of_mass=com, inertia=inertia)
+
+    def rigid_inertia(self, t: dict, key: str) -> tuple[float, ...]:
+        """[Ixx, Iyy, Izz] or [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] (kg m², about the centre of mass), as 6 values; the
+        moments ≥ 0, the tensor physical."""
+        if "inertia" not in t:
+            return (0.0,) * 6
+        raw = t["inertia"]
+        unit = key_spec("link", "inertia").unit
+        if not isinstance(raw, list) or len(raw) not in (3, 6):
+            raise self.fail(f"{key}.inertia", f"[Ixx, Iyy, Izz] or [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] ({unit}) about "
+                            "the centre of mass", raw)
+        values = tuple(self.number(v, f"{key}.inertia[{i + 1}]", unit, minimum=0 if i < 3 else None)
+                       for i, v in enumerate(raw))
+        values += (0.0,) * (6 - len(values))
+        checks.physical_inertia(self.source, f"{key}.inertia", raw, values)
+        return values
 
     def linear_density(self, t: dict, key: str) -> float:
         """linear_density, or density × area."""
@@ -442,6 +499,12 @@ class _Parser(_Values):
                 isinstance(m, int) and not isinstance(m, bool) and m >= 1 for m in raw):
             raise self.fail(f"{key}.mesh", expected, raw)
         return raw, what
+
+    # ------------------------------------------------------------------------------------------ tool
+
+    def tool(self, value: Any) -> Tool:
+        t = self.table(value, "tool", "tool", "a [tool] table {origin = [x, y, z], rpy = [roll, pitch, yaw]}")
+        return Tool(origin=self.vector_key(t, "tool", "origin", "tool"), rpy=self.vector_key(t, "tool", "rpy", "tool"))
 
     # ------------------------------------------------------------------------------------------- fmu
 

@@ -13,6 +13,8 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any
 
+import numpy as np
+
 __all__ = [
     "KEYS",
     "SECTIONS",
@@ -25,8 +27,10 @@ __all__ = [
     "Section",
     "Segment",
     "Shapes",
+    "Tool",
     "Trajectory",
     "key_spec",
+    "rpy_rotation",
     "section_keys",
 ]
 
@@ -47,6 +51,18 @@ LINK_TUNABLE = ("kelvin_voigt", "payload.mass", "payload.inertia")
 JOINT_TUNABLE = ("stiffness", "damping")
 
 Vec3 = tuple[float, float, float]
+
+
+def rpy_rotation(rpy: Vec3) -> np.ndarray:
+    """The 3×3 rotation of a frame placed with roll, pitch, yaw (URDF): R = Rz(yaw)·Ry(pitch)·Rx(roll), whose
+    columns are the placed frame's axes in the parent frame."""
+    roll, pitch, yaw = rpy
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
 
 
 # ----------------------------------------------------------------------------------------------- objects
@@ -96,6 +112,10 @@ class Trajectory:
 
 @dataclass(frozen=True)
 class Joint:
+    """A revolute joint. Its frame is placed in the parent frame (the previous link's tip frame, the world
+    frame for the first joint) by ``origin`` and ``rpy``; ``axis`` is a unit vector in that joint frame, and the
+    link it drives is clamped in the joint frame turned by the joint angle about ``axis``."""
+
     name: str
     axis: Vec3
     inertia: float = 0.0
@@ -105,11 +125,17 @@ class Joint:
     initial_angle: float = 0.0
     initial_rate: float = 0.0
     trajectory: Trajectory | None = None
+    origin: Vec3 = (0.0, 0.0, 0.0)           # m, the joint frame's origin in the parent frame
+    rpy: Vec3 = (0.0, 0.0, 0.0)              # rad, the joint frame's orientation in the parent frame (URDF)
 
     @property
     def is_elastic(self) -> bool:
         """An elastic joint adds a motor coordinate (SCENE.md: only if stiffness > 0)."""
         return self.stiffness > 0.0
+
+    def placement_rotation(self) -> np.ndarray:
+        """The joint frame's orientation in the parent frame (3×3): Rz(yaw)·Ry(pitch)·Rx(roll)."""
+        return rpy_rotation(self.rpy)
 
 
 @dataclass(frozen=True)
@@ -150,6 +176,14 @@ class Shapes:
 
 @dataclass(frozen=True)
 class Link:
+    """A beam link, a shell link (``shapes.kind == "shell"``) or a rigid link (``deformation == ()``).
+
+    A rigid link's mass properties are either a uniform slender rod (``linear_density``, ``polar_inertia``;
+    ``mass`` is None) or a body (``mass``, ``center_of_mass``, ``inertia`` = (Ixx, Iyy, Izz, Ixy, Ixz, Iyz)
+    about the centre of mass, all three set, and ``linear_density`` 0); :meth:`rigid_body` gives either as
+    (mass, centre, inertia tensor). A rigid link has ``EI`` None and keeps the defaults of the keys that mean
+    nothing for it (shapes, kinematics, kelvin_voigt)."""
+
     name: str
     length: float
     linear_density: float
@@ -166,10 +200,44 @@ class Link:
     density: float | None = None              # shell links: kg/m³
     E: float | None = None                    # shell links: Young's modulus, Pa
     poisson: float | None = None              # shell links
+    mass: float | None = None                 # rigid link given as a body: kg
+    center_of_mass: Vec3 | None = None        # rigid body: m, in the link frame
+    inertia: tuple[float, ...] | None = None  # rigid body: kg m², (Ixx, Iyy, Izz, Ixy, Ixz, Iyz) about the centre
 
     @property
     def is_shell(self) -> bool:
         return self.shapes.kind == "shell"
+
+    @property
+    def is_rigid(self) -> bool:
+        return self.deformation == ()
+
+    def rigid_body(self) -> tuple[float, np.ndarray, np.ndarray]:
+        """(mass, centre of mass (3,) in the link frame, inertia (3×3) about the centre of mass, link axes) of a
+        rigid link, from whichever form it was given in; the tip payload is not included."""
+        if not self.is_rigid:
+            raise ValueError(f'link "{self.name}" is flexible: rigid_body() is for a rigid link (deformation = [])')
+        if self.mass is not None:
+            ixx, iyy, izz, ixy, ixz, iyz = self.inertia
+            tensor = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+            return self.mass, np.array(self.center_of_mass, dtype=float), tensor
+        rho, length = self.linear_density, self.length
+        mu = self.polar_inertia or 0.0
+        mass = rho * length
+        bend = rho * length**3 / 12.0
+        return mass, np.array([length / 2.0, 0.0, 0.0]), np.diag([mu * length, bend, bend])
+
+
+@dataclass(frozen=True)
+class Tool:
+    """The end-effector frame, placed in the last link's tip frame by ``origin`` (m) and ``rpy`` (rad)."""
+
+    origin: Vec3 = (0.0, 0.0, 0.0)
+    rpy: Vec3 = (0.0, 0.0, 0.0)
+
+    def placement_rotation(self) -> np.ndarray:
+        """The tool frame's orientation in the last link's tip frame (3×3): Rz(yaw)·Ry(pitch)·Rx(roll)."""
+        return rpy_rotation(self.rpy)
 
 
 @dataclass(frozen=True)
@@ -191,6 +259,7 @@ class Scene:
     links: tuple[Link, ...]
     fmu: FmuSettings = FmuSettings()
     path: str | None = None
+    tool: Tool = Tool()
 
     @property
     def has_gravity(self) -> bool:
@@ -215,6 +284,8 @@ REQUIRED = _Marker("required")
 OPTIONAL = _Marker("optional")       # no default value: absent means "not there" (its description says what)
 EMPTY_TABLE: Any = MappingProxyType({})
 NUMBER_BOUNDS = ("", "> 0", "≥ 0")   # the bounds the loader reads itself; any other text is checked in code
+# A number's bounds may also be one of these followed by "; " and a rule in words that code checks on top
+# (e.g. "> 0; required for a flexible link"): the loader applies the part before the semicolon.
 
 
 @dataclass(frozen=True)
@@ -232,7 +303,8 @@ class Key:
 
     ``default`` is the TOML value an absent key stands for (lists as tuples, tables as ``EMPTY_TABLE``),
     or :data:`REQUIRED` / :data:`OPTIONAL`. ``bounds`` is one of :data:`NUMBER_BOUNDS` for the numbers the
-    loader bounds from this table, otherwise the rule in words; ``choices`` are the only strings allowed.
+    loader bounds from this table (optionally followed by "; " and a further rule in words, checked in code),
+    otherwise the rule in words; ``choices`` are the only strings allowed.
     """
 
     section: str
@@ -259,16 +331,19 @@ def _thaw(value: Any) -> Any:
 
 SECTIONS: tuple[Section, ...] = (
     Section("scene", "(top level)", "the scene: its name, gravity, the chain and the export settings"),
-    Section("joint", "[[joint]]", "a revolute joint; joint i drives link i, and sits at the tip of link i − 1"),
+    Section("joint", "[[joint]]", "a revolute joint; joint i drives link i, and sits at the tip of link i − 1 "
+            "(placed there by origin and rpy)"),
     Section("joint.trajectory", "[joint.trajectory]", 'the position law θ(t) of a joint with drive = "position"'),
     Section("joint.trajectory.segments", "[joint.trajectory] segments = [{…}, …]",
             "one piece of the law: θ(t) = Σ poly[k] t^k + Σ amp cos(ω t + phase), t absolute, for t < until"),
-    Section("link", "[[link]]", "a beam link (Euler–Bernoulli), clamped in its joint's frame"),
+    Section("link", "[[link]]", "a beam link (Euler–Bernoulli), clamped in its joint's frame, or a rigid link "
+            "(deformation = []): a uniform rod (linear_density) or a body (mass, center_of_mass, inertia)"),
     Section("link.shapes", "[link.shapes]", "the beam's shape functions or finite elements"),
     Section("link.payload", "[link.payload]", "a rigid body at the link's tip (beam and shell links)"),
     Section("shell_link", '[[link]] with shapes.kind = "shell"',
             "a plate or thin-walled box link of DKT + CST shell elements: material, not section properties"),
     Section("shell_link.shapes", '[link.shapes] with kind = "shell"', "the shell link's section and mesh"),
+    Section("tool", "[tool]", "the end-effector frame, placed in the last link's tip frame"),
     Section("fmu", "[fmu]", "export settings: the SS22 solver and the FMU's interface"),
 )
 
@@ -283,11 +358,19 @@ KEYS: tuple[Key, ...] = (
        description="gravity in the base frame; gravity terms are generated only if it is non-zero"),
     _K("scene", "joint", "array of tables", bounds="as many as [[link]]", description="the joints"),
     _K("scene", "link", "array of tables", bounds="as many as [[joint]]", description="the links, base to tip"),
+    _K("scene", "tool", "table", default=EMPTY_TABLE, description="the end-effector frame, see [tool]"),
     _K("scene", "fmu", "table", default=EMPTY_TABLE, description="export settings"),
     # -------------------------------------------------------------------------------------- joint
     _K("joint", "name", "name", bounds=_NAME_RULE, description="the joint's name, prefix of its FMU variables"),
-    _K("joint", "axis", "[x, y, z]", "", (0.0, 0.0, 1.0), "non-zero, normal to [1, 0, 0]",
-       description="rotation axis in the parent's frame (normalised); the link's x axis is normal to it"),
+    _K("joint", "axis", "[x, y, z]", "", (0.0, 0.0, 1.0),
+       "non-zero; normal to [1, 0, 0] if the joint's link is flexible (beam or shell), any if it is rigid",
+       description="rotation axis in the joint frame (normalised); a flexible link's x axis is normal to it"),
+    _K("joint", "origin", "[x, y, z]", "m", _VEC0,
+       description="the joint frame's origin in the parent frame (the previous link's tip frame; the world "
+                   "frame for the first joint)"),
+    _K("joint", "rpy", "[roll, pitch, yaw]", "rad", _VEC0,
+       description="the joint frame's orientation in the parent frame, URDF convention: "
+                   "R = Rz(yaw)·Ry(pitch)·Rx(roll)"),
     _K("joint", "inertia", "number", "kg m²", 0.0, "≥ 0", description="rotor inertia about the axis"),
     _K("joint", "damping", "number", "N m s/rad", 0.0, "≥ 0", description="viscous damping of the joint"),
     _K("joint", "drive", "string", "", "torque", choices=DRIVES,
@@ -309,29 +392,42 @@ KEYS: tuple[Key, ...] = (
        description="cosine terms amp cos(ω t + phase)"),
     # ---------------------------------------------------------------------------------- beam link
     _K("link", "name", "name", bounds=_NAME_RULE, description="the link's name, prefix of its FMU variables"),
-    _K("link", "length", "number", "m", REQUIRED, "> 0", description="length along the link's x axis"),
+    _K("link", "length", "number", "m", REQUIRED, "> 0; ≥ 0 for a rigid link",
+       description="length along the link's x axis (its tip frame's origin); a rigid link may have length 0"),
     _K("link", "linear_density", "number", "kg/m", OPTIONAL, "> 0",
-       description="mass per length; required unless density and area are given (not both)"),
+       description="mass per length; required unless density and area are given (not both), or, for a rigid "
+                   "link, mass"),
     _K("link", "density", "number", "kg/m³", OPTIONAL, "> 0",
        description="with area, instead of linear_density: mass per length = density·area"),
     _K("link", "area", "number", "m²", OPTIONAL, "> 0", description="cross-section area, with density"),
-    _K("link", "EI", "number", "N m²", REQUIRED, "> 0", description="bending stiffness in the joint's plane (v)"),
+    _K("link", "EI", "number", "N m²", OPTIONAL, "> 0; required for a flexible link, refused for a rigid one",
+       description="bending stiffness in the joint's plane (v)"),
     _K("link", "EI_out", "number", "N m²", OPTIONAL, "> 0",
        description='bending stiffness out of the plane (w); required if deformation includes "w"'),
     _K("link", "GJ", "number", "N m²", OPTIONAL, "> 0",
        description='torsional stiffness; required if deformation includes "alpha"'),
     _K("link", "polar_inertia", "number", "kg m", OPTIONAL, "≥ 0",
-       description='polar mass moment of the section per length; required if deformation includes "alpha"'),
+       description='polar mass moment of the section per length; required if deformation includes "alpha"; '
+                   "a rigid rod's (absent: 0)"),
     _K("link", "kelvin_voigt", "number", "s", 0.0, "≥ 0",
        description="Kelvin–Voigt damping: the stiffness times this is the damping"),
     _K("link", "deformation", "list of strings", "", ("v",), "distinct", DEFORMATIONS,
-       description="deformation fields: v in the joint's plane, w out of it, alpha torsion"),
+       description="deformation fields: v in the joint's plane, w out of it, alpha torsion; [] a rigid link"),
     _K("link", "shapes", "table", default=EMPTY_TABLE, description="the shape family, see [link.shapes]"),
     _K("link", "kinematics", "string", "", "second-order", choices=KINEMATICS,
        description="order of the deformation's kinematics (second-order: the geometric stiffening)"),
     _K("link", "payload", "table", default=EMPTY_TABLE, description="a tip body, see [link.payload]"),
     _K("link", "initial_deformation", "string", "", "undeformed", choices=INITIAL_DEFORMATIONS,
        description="static: start at the deformation that balances the initial loads"),
+    _K("link", "mass", "number", "kg", OPTIONAL, "≥ 0; rigid link only",
+       description="a rigid link given as a body: its mass (instead of linear_density); with center_of_mass "
+                   "and inertia"),
+    _K("link", "center_of_mass", "[x, y, z]", "m", OPTIONAL, "rigid link only, with mass",
+       description="the rigid body's centre of mass in the link frame; absent with mass: [0, 0, 0]"),
+    _K("link", "inertia", "[Ixx, Iyy, Izz] or [Ixx, Iyy, Izz, Ixy, Ixz, Iyz]", "kg m²", OPTIONAL,
+       "rigid link only, with mass; positive semi-definite, Ixx ≤ Iyy + Izz etc.",
+       description="the rigid body's inertia tensor about its centre of mass, link axes; products are the "
+                   "tensor's off-diagonal entries (Ixy = −∫ρxy, URDF); absent with mass: 0"),
     # ------------------------------------------------------------------------------ [link.shapes]
     _K("link.shapes", "kind", "string", "", "clamped-free", choices=SHAPE_KINDS,
        description='clamped-free beam modes, polynomials, Hermite finite elements; "shell": a shell link'),
@@ -376,6 +472,10 @@ KEYS: tuple[Key, ...] = (
        description="the triangles' diagonals: mirrored about the mid-line, or all one way (A, B)"),
     _K("shell_link.shapes", "modes", "integer", "", OPTIONAL, "1 … the mesh's translations off the root",
        description="reduce to the first modes with the joint held; absent: keep every mode"),
+    # ------------------------------------------------------------------------------------- [tool]
+    _K("tool", "origin", "[x, y, z]", "m", _VEC0, description="the tool frame's origin in the last link's tip frame"),
+    _K("tool", "rpy", "[roll, pitch, yaw]", "rad", _VEC0,
+       description="the tool frame's orientation in the last link's tip frame: R = Rz(yaw)·Ry(pitch)·Rx(roll)"),
     # -------------------------------------------------------------------------------------- [fmu]
     _K("fmu", "step", "number", "s", 1e-3, "> 0", description="the SS22 step (the FMU's fixed step)"),
     _K("fmu", "integrator", "string", "", "ss22", choices=INTEGRATORS, description="the integrator"),
