@@ -40,6 +40,15 @@ from flexlink.mechanics.model import SymbolicModel
 # kept and the Newton matrix assembled in C from a forward derivative (compact, but much slower per step).
 FULL_OPTIMISATION_MAX_OPERATIONS = 20_000
 EXPAND_MAX_COORDINATES = 160
+# [fmu] newton_matrix = "auto": up to this many coordinates the Newton matrix is one dense symbolic Jacobian
+# (cheapest to refresh); above, it is assembled in C column by column from the residual's forward derivative
+# and M(q) comes from the Hessian of T (fmu_src/templates/newton_matrix_columns.c.in), so that the generated
+# code grows like the residual's, not n times it.  Measured on examples/fast_two_link.toml (26 coordinates,
+# a whipping arm that refreshes the matrix every 4th step): 254k operations for the dense matrix against
+# 94k for the residual's derivative and M; 53 µs per SS22 step dense, 112 µs by columns (a Newton matrix
+# costs 26 derivative calls, 300 µs); the mild examples refresh it a few times per run, where only the build
+# counts (README "Performance", benchmarks/scaling.py).
+NEWTON_DENSE_MAX_COORDINATES = 12
 # FLEXLINK_OPTIMISE=O0|O1|O2 imposes one level on the CasADi code instead (the generic C stays at -O2): the
 # test suite builds dozens of FMUs and runs each briefly, so it compiles them at O0 (README "Tests").
 OPTIMISE_ENV = "FLEXLINK_OPTIMISE"
@@ -119,12 +128,25 @@ def _template(name: str) -> Template:
     return Template((fmu_src_dir() / "templates" / name).read_text())
 
 
+def dense_newton_matrix(model: SymbolicModel) -> bool:
+    """Whether the Newton matrix is generated as one dense symbolic Jacobian (else assembled by columns):
+    the scene's [fmu] newton_matrix, or for "auto" up to NEWTON_DENSE_MAX_COORDINATES."""
+    form = model.scene.fmu.newton_matrix
+    if form != "auto":
+        return form == "dense"
+    return model.n_q <= min(NEWTON_DENSE_MAX_COORDINATES, EXPAND_MAX_COORDINATES)
+
+
 def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> list[ca.Function]:
-    """Residual, Newton matrix (or, for the matrix graph, the residual's forward derivative it is built
-    from), outputs, and the forward derivatives of residual and outputs, named for the model."""
+    """Residual, outputs, the forward derivatives of residual and outputs, the validity ratios, and either
+    the dense Newton matrix or the mass matrix (the columns of the Newton matrix come from the residual's
+    forward derivative), named for the model."""
 
     def prepare(f: ca.Function) -> ca.Function:
         name = f"{ident}_{f.name()}"    # public symbols carry the model identifier
+        if not all(f.sparsity_out(i).is_dense() for i in range(f.n_out())):
+            # model.c hands the generated code plain arrays: a sparse output would leave entries unwritten
+            raise BuildError(f"{f.name()}: a generated function's outputs must be dense")
         if expanded:
             return f.expand(name)
         args = f.mx_in()
@@ -132,12 +154,10 @@ def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> list[
 
     residual = prepare(model.residual)
     outputs = prepare(model.outputs_function)
-    if expanded:
+    if dense_newton_matrix(model):
         newton = prepare(model.newton_matrix_function())
     else:
-        # a full Jacobian of a large matrix graph generates enormous code: the C side builds the Newton
-        # matrix column by column from one forward directional derivative of the residual instead
-        newton = prepare(model.residual_forward_function())
+        newton = prepare(model.mass_matrix_function())
     residual_fwd, outputs_fwd = (prepare(f) for f in forward_functions(model))
     return [residual, newton, outputs, residual_fwd, outputs_fwd, prepare(model.validity)]
 
@@ -202,7 +222,7 @@ def _model_c(model: SymbolicModel, variables: list[FmuVariable], casadi_name: st
     if model.static_coordinates:
         static = ("const int MODEL_STATIC_COORDS[N_STATIC] = {"
                   + ", ".join(str(i) for i in model.static_coordinates) + "};\n")
-    newton = _template("newton_matrix.c.in" if expanded else "newton_matrix_columns.c.in")
+    newton = _template("newton_matrix.c.in" if dense_newton_matrix(model) else "newton_matrix_columns.c.in")
     return _template("model.c.in").substitute(
         scene=model.scene.name, identifier=ident, casadi_name=casadi_name,
         optimise_push=_optimise_push(level), optimise_pop=OPTIMISE_POP if level != "O2" else "",

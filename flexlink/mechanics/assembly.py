@@ -22,11 +22,13 @@ import numpy as np
 from flexlink.errors import FlexlinkError
 from flexlink.mechanics.kinematics import (
     LinkDeformation,
+    TipKinematics,
     beam_invariants,
     body_invariants,
     body_tip_kinematics,
     link_basis,
     rotation,
+    skew,
     small_rotation,
     tip_kinematics,
     torsion_kinetic,
@@ -45,13 +47,8 @@ def _unsupported(scene: Scene, what: str) -> FlexlinkError:
 
 
 def check_supported(scene: Scene) -> None:
-    kinds = {link.kinematics for link in scene.links}
-    if len(kinds) > 1:
-        raise _unsupported(scene, f"a chain mixing kinematic models {sorted(kinds)} (use one for every link)")
     for link in scene.links:
-        if not link.deformation:
-            raise _unsupported(scene, f'link "{link.name}": a rigid link (deformation = [])')
-        if link.shapes.kind not in ("clamped-free", "polynomial", "fe", "shell"):
+        if not link.is_rigid and link.shapes.kind not in ("clamped-free", "polynomial", "fe", "shell"):
             raise _unsupported(scene, f'link "{link.name}": shapes kind {link.shapes.kind!r}')
 
 
@@ -92,18 +89,41 @@ class LinkParts:
     i_pm: int | None = None
     i_pj: int | list[int] | None = None
     tip: object | None = None      # TipKinematics, once the energies are formed
+    axis: tuple = (0.0, 0.0, 1.0)  # the joint axis in the link frame (z of a beam's basis; any for a rigid link)
+    kinematics: str = "second-order"   # the link's own kinematic model
+    rigid: bool = False
+    i_m: int | None = None         # rigid link: mass, centre of mass (3), inertia about it (6: xx yy zz xy xz yz)
+    i_c: list[int] | None = None
+    i_I: list[int] | None = None
+
+    @property
+    def second_order(self) -> bool:
+        return self.kinematics == "second-order"
 
 
 @dataclass
 class Frame:
-    """A link's floating frame (origin, rotation, angular velocity in it) and its tip frame, world-resolved."""
+    """A link's floating frame and its tip frame: origins and their velocities in the world, rotations to
+    the world, angular velocities resolved in the frame itself (body components).
+
+    Origin velocities are propagated from the parent's, ``V_tip = V + Ṙ s_tip + R ṡ_tip``, with the rotation's
+    own rate Ṙ carried along the chain too, rather than differentiated from the positions: each body adds
+    a constant amount of expression whatever its depth (differentiating body i's origin walks the i bodies
+    before it: n² in all), and the result is still the exact derivative of the position, also across the
+    second-order tip rotation I + [ψ×] + ½[ψ×]², which is orthogonal only to second order (so R(ω×s) would
+    not be).
+    """
 
     origin: ca.MX
     rotation: ca.MX
     omega: ca.MX
+    velocity: ca.MX
+    rotation_rate: ca.MX
     tip_origin: ca.MX
     tip_rotation: ca.MX
     tip_omega: ca.MX
+    tip_velocity: ca.MX
+    tip_rotation_rate: ca.MX
 
 
 def _vee_skew(A):
@@ -136,14 +156,6 @@ class ChainAssembly:
     bodies: list[dict] = field(default_factory=list)   # per body: mass, ∫ρr, ∫ρṙ, ∫ρ r×ṙ (world)
     joint_frames: list[tuple] = field(default_factory=list)   # per joint: origin, rotation (world)
     frames: list[Frame] = field(default_factory=list)
-
-    @property
-    def kinematics(self) -> str:
-        return self.scene.links[0].kinematics
-
-    @property
-    def second_order(self) -> bool:
-        return self.kinematics == "second-order"
 
     def driven(self, i: int) -> int:
         """The coordinate joint i's actuator acts on: the motor angle of an elastic joint, else the joint angle."""
@@ -179,10 +191,10 @@ class ChainAssembly:
         except ValueError as exc:
             raise FlexlinkError(f'{self.scene.path or self.scene.name}: link "{link.name}": {exc}') from None
         eta = [self._new(f"{link.name}.eta[{k + 1}]", "elastic") for k in range(body.n)]
-        self.parts.append(LinkParts(eta, {"modes": eta}, None, None, body))
+        self.parts.append(LinkParts(eta, {"modes": eta}, None, None, body, kinematics=link.kinematics))
         shape = link.shapes
         self.terms.append(f'link "{link.name}": {body.n} modes of a {shape.section} of DKT + CST shell elements '
-                          f"(mesh {'x'.join(map(str, shape.mesh))}, joint held), {self.kinematics} kinematics")
+                          f"(mesh {'x'.join(map(str, shape.mesh))}, joint held), {link.kinematics} kinematics")
 
     def add_beam_coordinates(self, link: Link) -> None:
         bending = torsion = None
@@ -207,15 +219,23 @@ class ChainAssembly:
             fields[name] = [self._new(f"{link.name}.eta[{len(eta) + k + 1}]", "elastic", float(nominal[k]))
                             for k in range(basis.n)]
             eta += fields[name]
-        self.parts.append(LinkParts(eta, fields, bending, torsion))
+        self.parts.append(LinkParts(eta, fields, bending, torsion, kinematics=link.kinematics))
         kind = link.shapes.kind if link.shapes.modes is None else f"{link.shapes.kind} ({link.shapes.modes} modes)"
         self.terms.append(f'link "{link.name}": ' + ", ".join(f"{len(fields[f])} {kind} coordinates for {f}"
-                                                              for f in fields) + f", {self.kinematics} kinematics")
+                                                              for f in fields) + f", {link.kinematics} kinematics")
+
+    def add_rigid_link(self, link: Link) -> None:
+        self.parts.append(LinkParts([], {}, None, None, rigid=True))
+        mass, _, inertia = link.rigid_body()
+        what = "massless connector" if mass == 0 and not np.any(inertia) else "rigid body"
+        self.terms.append(f'link "{link.name}": {what} (deformation = []), no elastic coordinates')
 
     def add_coordinates(self) -> None:
         for joint, link in zip(self.scene.joints, self.scene.links, strict=True):
             self.add_joint_coordinates(joint)
-            if link.is_shell:
+            if link.is_rigid:
+                self.add_rigid_link(link)
+            elif link.is_shell:
                 self.add_shell_coordinates(link)
             else:
                 self.add_beam_coordinates(link)
@@ -223,15 +243,38 @@ class ChainAssembly:
         self.qa, self.va, self.aa = ca.MX.sym("qa", n), ca.MX.sym("va", n), ca.MX.sym("aa", n)
 
     # ---- parameters: a term is in the model only if the scene needs it, or [fmu] tunable asks
+    def add_rigid_parameters(self, link: Link, part: LinkParts) -> None:
+        """A rigid link's ten inertial parameters (as in robot identification), the ones its scene needs:
+        mass and centre of mass if it has mass, the inertia tensor about the centre if it is non-zero."""
+        P = self.P
+        mass, centre, inertia = link.rigid_body()
+        if mass > 0:
+            part.i_m = P.add(f"{link.name}.mass", mass, "kg", "mass of the rigid link", 0.0)
+            part.i_c = [P.add(f"{link.name}.center_of_mass[{k + 1}]", float(centre[k]), "m",
+                              f"centre of mass {c}, link frame") for k, c in enumerate("xyz")]
+        if np.any(inertia):
+            entries = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+            part.i_I = [P.add(f"{link.name}.inertia[{k + 1}]", float(inertia[a, b]), "kg.m2",
+                              f"inertia I{'xyz'[a]}{'xyz'[b]} about the centre of mass, link frame",
+                              0.0 if a == b else -np.inf) for k, (a, b) in enumerate(entries)]
+
     def add_link_parameters(self, link: Link, part: LinkParts, tunable: set[str]) -> None:
         P = self.P
-        if link.is_shell:
+        if link.is_rigid:
+            self.add_rigid_parameters(link, part)
+        elif link.is_shell:
             part.i_rho = P.add(f"{link.name}.density", link.density, "kg/m3", "density of the shell", 0.0, True)
             part.i_EI = P.add(f"{link.name}.E", link.E, "Pa", "Young's modulus of the shell (its modes are kept)",
                               0.0, True)
         else:
             part.i_rho = P.add(f"{link.name}.linear_density", link.linear_density, "kg/m", "mass per unit length",
                                0.0, True)
+        if not link.is_rigid:
+            self.add_elastic_parameters(link, part, tunable)
+        self.add_payload_parameters(link, part, tunable)
+
+    def add_elastic_parameters(self, link: Link, part: LinkParts, tunable: set[str]) -> None:
+        P = self.P
         if "v" in part.fields:
             part.i_EI = P.add(f"{link.name}.EI", link.EI, "N.m2", "bending stiffness in the joint's plane", 0.0, True)
         if "w" in part.fields:
@@ -245,6 +288,9 @@ class ChainAssembly:
             part.i_kv = P.add(f"{link.name}.kelvin_voigt", link.kelvin_voigt, "s", "Kelvin-Voigt damping coefficient",
                               0.0)
             self.terms.append(f'link "{link.name}": Kelvin-Voigt structural damping')
+
+    def add_payload_parameters(self, link: Link, part: LinkParts, tunable: set[str]) -> None:
+        P = self.P
         pay = link.payload
         if pay.is_present or {f"{link.name}.payload.mass", f"{link.name}.payload.inertia"} & tunable:
             part.i_pm = P.add(f"{link.name}.payload.mass", pay.mass, "kg", "tip payload mass", 0.0)
@@ -301,7 +347,7 @@ class ChainAssembly:
     def link_energy(self, i: int, link: Link, part: LinkParts, VL, RL, wL) -> tuple:
         """Kinetic energy of link i's material, its body record and its gravitational energy."""
         qa, va, p = self.qa, self.va, self.p
-        T, record = self.invariant_body(link, part, VL, RL, wL)
+        T, record = self.rigid_body(part, VL, RL, wL) if part.rigid else self.invariant_body(link, part, VL, RL, wL)
         if part.torsion is not None:
             d = self.deformation(part, qa, va)
             T += 0.5 * p[part.i_mu] * torsion_kinetic(part.torsion.integrals, link.length, d, wL[0])
@@ -312,55 +358,79 @@ class ChainAssembly:
         Vg = -ca.dot(self.g_vec, record["moment"]) if self.i_g is not None else 0
         return T, Vg
 
+    def floating_body(self, scale, mass, S1, S1d, J, H, relative, VL, RL, wL) -> tuple:
+        """T = ½ scale (m|V|² + 2 RᵀV·(ω×S1 + Ṡ1) + ωᵀJω + 2ω·H + E) of a body in a floating frame (origin
+        velocity V in the world, rotation R, angular velocity ω in the frame) from its inertia invariants: mass
+        m, first moment S1 and inertia J about the origin, relative angular momentum H and kinetic energy E,
+        all per unit of ``scale`` (the density parameter of a flexible link, 1 for a rigid one)."""
+        T = 0.5 * scale * (mass * ca.dot(VL, VL) + 2 * ca.dot(ca.mtimes(RL.T, VL), ca.cross(wL, S1) + S1d)
+                           + ca.dot(wL, ca.mtimes(J, wL)) + 2 * ca.dot(wL, H) + relative)
+        # ∫ρ ṙ = ρ(m V + R(ω×S1 + Ṡ1));  ∫ρ (s × ṙ) = R ρ(S1 × (RᵀV) + J ω + H)
+        momentum = scale * (mass * VL + ca.mtimes(RL, ca.cross(wL, S1) + S1d))
+        spin = ca.mtimes(RL, scale * (ca.cross(S1, ca.mtimes(RL.T, VL)) + ca.mtimes(J, wL) + H))
+        return T, dict(mass=scale * mass, moment=scale * mass * self.origin + ca.mtimes(RL, scale * S1),
+                       momentum=momentum, spin=spin)
+
     def invariant_body(self, link: Link, part: LinkParts, VL, RL, wL) -> tuple:
         """T = ½∫ρ|V + ω×s + ṡ|² from the link's inertia invariants, exact for every kinematic model."""
         qa, va = self.qa, self.va
         rho = self.p[part.i_rho]
-        Pp = self.origin
-        m_unit = link.length                    # mass per unit of the density parameter
+        zero = ca.DM.zeros(3)
         if part.body is not None:
             inv = body_invariants(part.body, self.eta_of(part, qa), self.eta_of(part, va))
-            m_unit = part.body.volume
+            m_unit = part.body.volume           # mass per unit of the density parameter
         elif part.bending is not None:
-            rule = part.bending.points if self.second_order else None
+            rule = part.bending.points if part.second_order else None
             inv = beam_invariants(part.bending.integrals, link.length, self.deformation(part, qa, va), rule)
+            m_unit = link.length
         else:                                   # torsion only: the link's axis stays straight
-            inv = None
-        if inv is not None:
-            S1, J, H = inv.first_moment, inv.inertia(), inv.angular_momentum
-            S1d = ca.jtimes(S1, qa, va)
-            T = 0.5 * rho * (m_unit * ca.dot(VL, VL) + 2 * ca.dot(ca.mtimes(RL.T, VL), ca.cross(wL, S1) + S1d)
-                             + ca.dot(wL, ca.mtimes(J, wL)) + 2 * ca.dot(wL, H) + inv.relative_kinetic)
-        else:
-            S1 = ca.vertcat(link.length**2 / 2, 0, 0)
-            J = ca.diag(ca.vertcat(0, link.length**3 / 3, link.length**3 / 3))
-            H, S1d = ca.DM.zeros(3), ca.DM.zeros(3)
-            T = 0.5 * rho * (link.length * ca.dot(VL, VL) + 2 * ca.dot(ca.mtimes(RL.T, VL), ca.cross(wL, S1))
-                             + ca.dot(wL, ca.mtimes(J, wL)))
-        # ∫ρ ṙ = ρ(L V + R(ω×S1 + Ṡ1));  ∫ρ (s × ṙ) = R ρ(S1 × (RᵀV) + J ω + H)
-        momentum = rho * (m_unit * VL + ca.mtimes(RL, ca.cross(wL, S1) + S1d))
-        spin = ca.mtimes(RL, rho * (ca.cross(S1, ca.mtimes(RL.T, VL)) + ca.mtimes(J, wL) + H))
-        return T, dict(mass=rho * m_unit, moment=rho * m_unit * Pp + ca.mtimes(RL, rho * S1), momentum=momentum,
-                       spin=spin)
+            L = link.length
+            J = ca.diag(ca.vertcat(0, L**3 / 3, L**3 / 3))
+            return self.floating_body(rho, L, ca.vertcat(L**2 / 2, 0, 0), zero, J, zero, 0, VL, RL, wL)
+        S1 = inv.first_moment
+        return self.floating_body(rho, m_unit, S1, ca.jtimes(S1, qa, va), inv.inertia(), inv.angular_momentum,
+                                  inv.relative_kinetic, VL, RL, wL)
+
+    def rigid_body(self, part: LinkParts, VL, RL, wL) -> tuple:
+        """A rigid link from its ten inertial parameters: S1 = m c, J_O = I_c + m(|c|² 1 − c cᵀ)."""
+        p, zero = self.p, ca.DM.zeros(3)
+        mass = p[part.i_m] if part.i_m is not None else 0
+        centre = ca.vertcat(*[p[k] for k in part.i_c]) if part.i_c is not None else zero
+        J = ca.DM.zeros(3, 3)
+        if part.i_I is not None:
+            xx, yy, zz, xy, xz, yz = (p[k] for k in part.i_I)
+            J = ca.vertcat(ca.horzcat(xx, xy, xz), ca.horzcat(xy, yy, yz), ca.horzcat(xz, yz, zz))
+        if part.i_m is not None:
+            J = J + mass * (ca.dot(centre, centre) * ca.DM.eye(3) - ca.mtimes(centre, centre.T))
+        return self.floating_body(1, mass, mass * centre, zero, J, zero, 0, VL, RL, wL)
 
     def eta_of(self, part: LinkParts, x):
         return ca.vertcat(*[x[k] for k in part.eta])
 
-    def link_tip(self, link: Link, part: LinkParts, RL, wL) -> Frame:
+    def link_tip(self, link: Link, part: LinkParts, VL, RL, RL_dot, wL) -> Frame:
         """The tip frame of a link: position, rotation and angular velocity (world-resolved)."""
         qa, va = self.qa, self.va
+        if part.rigid:
+            part.tip = TipKinematics(ca.DM([link.length, 0.0, 0.0]), ca.DM.zeros(3))
+            self.Rdef = ca.DM.eye(3)
+            tip = part.tip.position
+            return Frame(self.origin, RL, wL, VL, RL_dot, self.origin + ca.mtimes(RL, tip), RL, wL,
+                         VL + ca.mtimes(RL_dot, tip), RL_dot)
         if part.body is not None:
             tip = body_tip_kinematics(part.body, self.eta_of(part, qa))
         else:
             d = self.deformation(part, qa, va)
             tip = tip_kinematics(part.bending.integrals if part.bending else None,
-                                 part.torsion.integrals if part.torsion else None, link.length, d, self.second_order)
+                                 part.torsion.integrals if part.torsion else None, link.length, d, part.second_order)
         part.tip = tip
-        Rdef = small_rotation(tip.rotation_vector, self.second_order)
+        Rdef = small_rotation(tip.rotation_vector, part.second_order)
         Rdef_dot = ca.reshape(ca.jtimes(ca.vec(Rdef), qa, va), 3, 3)
         wt = ca.mtimes(Rdef.T, wL) + _vee_skew(ca.mtimes(Rdef.T, Rdef_dot))
         self.Rdef = Rdef
-        return Frame(self.origin, RL, wL, self.origin + ca.mtimes(RL, tip.position), ca.mtimes(RL, Rdef), wt)
+        s_dot = ca.jtimes(tip.position, qa, va)          # local: the link's own elastic rates
+        return Frame(self.origin, RL, wL, VL, RL_dot, self.origin + ca.mtimes(RL, tip.position),
+                     ca.mtimes(RL, Rdef), wt, VL + ca.mtimes(RL_dot, tip.position) + ca.mtimes(RL, s_dot),
+                     ca.mtimes(RL_dot, Rdef) + ca.mtimes(RL, Rdef_dot))
 
     def payload_energy(self, i: int, link: Link, part: LinkParts, VL, frame: Frame) -> tuple:
         """Kinetic and gravitational energy of link i's tip payload, and its body record."""
@@ -373,8 +443,9 @@ class ChainAssembly:
         rp = Pp + ca.mtimes(RL, sp)
         if isinstance(part.i_pj, list):
             Jp = ca.diag(ca.vertcat(*[p[k] for k in part.i_pj]))
-        else:
-            Jp = ca.diag(ca.vertcat(0, 0, p[part.i_pj]))
+        else:                                   # about the joint axis (the link basis' z for a beam)
+            e = ca.DM(part.axis)
+            Jp = p[part.i_pj] * ca.mtimes(e, e.T)
         wt = frame.tip_omega
         T = 0.5 * p[part.i_pm] * ca.dot(Vp, Vp) + 0.5 * ca.dot(wt, ca.mtimes(Jp, wt))
         Vg = -p[part.i_pm] * ca.dot(self.g_vec, rp) if self.i_g is not None else 0
@@ -383,39 +454,69 @@ class ChainAssembly:
                                 spin=ca.cross(rp, mom_p) + ca.mtimes(frame.tip_rotation, ca.mtimes(Jp, wt))))
         return T, Vg
 
+    def joint_frame(self, joint: Joint, parent: tuple) -> tuple:
+        """Joint i's placed frame on its parent's tip frame (origin self.origin, rotation R, its rate Ṙ,
+        angular velocity w in it, origin velocity V): the fixed placement (origin, rpy).  Moves self.origin
+        to the joint's origin and returns the placed frame's (R, Ṙ, w, V)."""
+        R, R_dot, w, V = parent
+        if not (any(joint.origin) or any(joint.rpy)):
+            return parent
+        offset, Ro = ca.DM(np.asarray(joint.origin, float)), ca.DM(joint.placement_rotation())
+        self.origin = self.origin + ca.mtimes(R, offset)
+        return ca.mtimes(R, Ro), ca.mtimes(R_dot, Ro), ca.mtimes(Ro.T, w), V + ca.mtimes(R_dot, offset)
+
     def add_energies(self) -> None:
         """T and V_gravity of the whole chain, walking the frames from the base."""
         qa, va = self.qa, self.va
         T = Vg = 0
-        self.origin, Rp, wp = ca.DM.zeros(3), ca.DM.eye(3), ca.DM.zeros(3)   # parent frame
+        self.origin = ca.DM.zeros(3)
+        parent = (ca.DM.eye(3), ca.DM.zeros(3, 3), ca.DM.zeros(3), ca.DM.zeros(3))   # R, Ṙ, ω, V of the base
         for i, (joint, link, part) in enumerate(zip(self.scene.joints, self.scene.links, self.parts, strict=True)):
             a = np.asarray(joint.axis, float)
+            R0, R0_dot, w0, VL = self.joint_frame(joint, parent)
             th, thd = qa[self.joint_coord[i]], va[self.joint_coord[i]]
             Rj = rotation(a, th)
-            RL = ca.mtimes(ca.mtimes(Rp, Rj), ca.DM(link_basis(a)))
-            wL = ca.mtimes(ca.DM(link_basis(a)).T, ca.mtimes(Rj.T, wp) + ca.DM(a) * thd)
-            motor_rate = va[self.motor_coord[i]] if self.motor_coord[i] is not None else thd
+            Rj_dot = ca.mtimes(Rj, skew(ca.DM(a / np.linalg.norm(a)))) * thd
+            B = ca.DM.eye(3) if part.rigid else ca.DM(link_basis(a))   # a rigid link's frame is the joint's
+            part.axis = tuple(np.asarray(B.T @ ca.DM(a / np.linalg.norm(a))).ravel())
+            RL = ca.mtimes(ca.mtimes(R0, Rj), B)
+            RL_dot = ca.mtimes(ca.mtimes(R0_dot, Rj) + ca.mtimes(R0, Rj_dot), B)
+            wL = ca.mtimes(B.T, ca.mtimes(Rj.T, w0) + ca.DM(a) * thd)
+            motor_rate = va[self.motor_coord[i]] if self.motor_coord[i] is not None else va[self.joint_coord[i]]
             # the rotor spins about the joint axis with the shaft: angular momentum only (it sits at the joint)
-            rotor_rate = ca.dot(ca.DM(a), wp) + motor_rate
+            rotor_rate = ca.dot(ca.DM(a), w0) + motor_rate
             T += 0.5 * self.P(self.i_Ih[i]) * rotor_rate ** 2
             self.bodies.append(dict(joint=i, mass=0, moment=ca.DM.zeros(3), momentum=ca.DM.zeros(3),
-                                    spin=self.P(self.i_Ih[i]) * rotor_rate * ca.mtimes(Rp, ca.DM(a))))
-            VL = ca.jtimes(self.origin, qa, va) if i > 0 else ca.DM.zeros(3)
+                                    spin=self.P(self.i_Ih[i]) * rotor_rate * ca.mtimes(R0, ca.DM(a))))
             T_link, Vg_link = self.link_energy(i, link, part, VL, RL, wL)
-            frame = self.link_tip(link, part, RL, wL)
+            frame = self.link_tip(link, part, VL, RL, RL_dot, wL)
             T, Vg = T + T_link, Vg + Vg_link
             if part.i_pm is not None:
                 T_pay, Vg_pay = self.payload_energy(i, link, part, VL, frame)
                 T, Vg = T + T_pay, Vg + Vg_pay
-            self.joint_frames.append((self.origin, ca.mtimes(Rp, Rj)))
+            self.joint_frames.append((self.origin, ca.mtimes(R0, Rj)))
             self.frames.append(frame)
-            self.origin, Rp, wp = frame.tip_origin, frame.tip_rotation, frame.tip_omega
-        if self.kinematics == "linear":
-            # T at η = 0, the rates kept (seed 000 eq. 3.7)
-            eta_all = {k for part in self.parts for k in part.eta}
-            mask = ca.DM([0.0 if k in eta_all else 1.0 for k in range(len(self.coordinates))])
+            self.origin = frame.tip_origin
+            parent = (frame.tip_rotation, frame.tip_rotation_rate, frame.tip_omega, frame.tip_velocity)
+        self.tool = self.tool_frame(self.frames[-1])
+        linear = {k for part in self.parts if part.kinematics == "linear" for k in part.eta}
+        if linear:
+            # T at η = 0 for the linear links, the rates kept (seed 000 eq. 3.7)
+            mask = ca.DM([0.0 if k in linear else 1.0 for k in range(len(self.coordinates))])
             T = ca.Function("T", [qa, va, self.p], [T])(qa * mask, va, self.p)
         self.T, self.Vg = T, Vg
+
+    def tool_frame(self, last: Frame) -> Frame:
+        """The end-effector frame ([tool] origin, rpy in the last link's tip frame) as a Frame whose tip_*
+        fields are the tool's; the last tip frame itself without a [tool] table."""
+        tool = self.scene.tool
+        if not (any(tool.origin) or any(tool.rpy)):
+            return last
+        offset, Ro = ca.DM(np.asarray(tool.origin, float)), ca.DM(tool.placement_rotation())
+        R, R_dot = last.tip_rotation, last.tip_rotation_rate
+        return Frame(last.origin, last.rotation, last.omega, last.velocity, last.rotation_rate,
+                     last.tip_origin + ca.mtimes(R, offset), ca.mtimes(R, Ro), ca.mtimes(Ro.T, last.tip_omega),
+                     last.tip_velocity + ca.mtimes(R_dot, offset), ca.mtimes(R_dot, Ro))
 
     # ---- elastic potential, dissipation and generalized forces
     def add_potential_and_dissipation(self) -> None:
@@ -450,8 +551,8 @@ class ChainAssembly:
         for k, j in self.tau_input.items():
             Q[k] = u[j]
         if self.tip_load is not None:
-            last = self.frames[-1]
-            power = (ca.dot(u[self.tip_load:self.tip_load + 3], ca.jtimes(last.tip_origin, self.qa, self.va))
+            last = self.tool
+            power = (ca.dot(u[self.tip_load:self.tip_load + 3], last.tip_velocity)
                      + ca.dot(u[self.tip_load + 3:self.tip_load + 6], ca.mtimes(last.tip_rotation, last.tip_omega)))
             Q += ca.gradient(power, self.va)
         return Q
@@ -463,8 +564,9 @@ class ChainAssembly:
         dL_dv = ca.gradient(Lag, va)
         r_all = (ca.jtimes(dL_dv, va, aa) + ca.jtimes(dL_dv, qa, va) - ca.gradient(Lag, qa)
                  + ca.gradient(self.R, va) - self.generalized_forces())
+        self.r_all_expr = r_all            # the outputs read the prescribed joints' torques from it
         self.r_all = ca.Function("r_all", [qa, va, aa, self.u, self.p], [r_all])
-        if self.second_order:
+        if any(part.second_order for part in self.parts if not part.rigid and part.eta):
             self.terms.append("second-order kinematics: foreshortening; each body's energy to second order in its "
                               "own elastic coordinates, the chain composed exactly (a Lagrangian: M symmetric)")
         n_all = len(self.coordinates)
@@ -480,6 +582,16 @@ class ChainAssembly:
         r_full = self.r_all(self.qa_e, self.va_e, self.aa_e, self.u, self.p)
         self.residual = ca.Function("residual", [self.q, self.v, self.a, self.u, self.p], [r_full[self.free]],
                                     ["q", "v", "a", "u", "p"], ["r"])
+
+    def free_mass_matrix(self) -> ca.Function:
+        """M(q, u, p) = ∂r/∂a of the free coordinates, as the Hessian ∂²T/∂q̇² (r is M a + h and only T
+        holds q̇ quadratically): its scalar code grows with the chain like the residual's, where a
+        Jacobian of the residual repeats the whole residual's derivative for every column."""
+        H = ca.hessian(self.T, self.va)[0]
+        H = ca.substitute(H, self.va, ca.DM.zeros(self.va.numel()))     # T is quadratic in q̇: H has none
+        inner = ca.Function("mass_matrix_all", [self.qa, self.u, self.p], [H])
+        value = inner(self.qa_e, self.u, self.p)[self.free, self.free]
+        return ca.Function("mass_matrix", [self.q, self.u, self.p], [ca.densify(value)], ["q", "u", "p"], ["M"])
 
     def free_function(self, name: str, expressions: list, with_rates: bool = True) -> ca.Function:
         """A Function of the free (q, v, a, u, p) — or (q, u, p) — from expressions in the full coordinates."""

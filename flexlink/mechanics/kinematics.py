@@ -128,7 +128,8 @@ def beam_invariants(g: ShapeIntegrals, length: float, d: LinkDeformation, rule=N
             if eta is not None:
                 x_moment = x_moment - 0.5 * _quad(eta, g.fs)
                 xx = xx - _quad(eta, g.fs_x)
-        p = _foreshortening_points(rule, d)
+        fields = sum(eta is not None for eta in (d.v, d.w))
+        p = _foreshortening_tensors(rule, d) if use_tensors(rule, fields) else _foreshortening_points(rule, d)
         xx = xx + p.dot(p.u, p.u)
         xv = xv + p.dot(p.u, p.v)
         xw = xw + p.dot(p.u, p.w)
@@ -177,6 +178,93 @@ def _foreshortening_points(rule, d: LinkDeformation) -> _PointFields:
         squares, rates = squares + s * s, rates + s * s_dot
         fields[name], fields[f"{name}_dot"] = ca.mtimes(phi, eta), ca.mtimes(phi, eta_dot)
     return _PointFields(ca.DM(rule.w), -0.5 * integral(squares), -integral(rates), **fields)
+
+
+@dataclass(frozen=True)
+class ForeshorteningTensors:
+    """The rule's sums over its points as polynomials in η, for bases with few shape functions.
+
+    With G_k = Σ_j C_kj φ'_j φ'_jᵀ (C: the rule's integration from the root, ``local + start·panel_sums``),
+    u_k = −½ Σ_fields ηᵀ G_k η = −½ g_k·p and u̇_k = −Σ_fields ηᵀ G_k η̇ = −vec(G_k)·r, where p holds the
+    products η_a η_b (a ≤ b; g_k the matching entries of G_k, off-diagonal ones doubled) and r the products
+    η_a η̇_b, each summed over the fields v, w (they share the basis).  Then, exactly as the point sums:
+
+        Σ w u² = pᵀ A p,   Σ w u (φ·y) = pᵀ B y,   Σ w (φ·y) u̇ = yᵀ E r,   Σ w u̇² = rᵀ D r
+
+    with A = ¼ Σ w g gᵀ, B = −½ Σ w g φᵀ, E = −Σ w φ vec(G)ᵀ, D = Σ w vec(G) vec(G)ᵀ: a few hundred operations
+    for three shapes where the points take thousands, the same kinetic energy to rounding.
+    """
+
+    rows: np.ndarray      # the pairs (a, b), a ≤ b, of p
+    cols: np.ndarray
+    A: np.ndarray
+    B: np.ndarray
+    E: np.ndarray
+    D: np.ndarray
+
+
+#: The tensors grow like n⁴ in the number of shape functions n, the point sums like n: past this many the
+#: points are cheaper (measured on clamped-free and modal bases: benchmarks/scaling.py, README "Performance").
+TENSOR_MAX_SHAPES = 6
+
+
+def use_tensors(rule, fields: int) -> bool:
+    """Whether the foreshortening terms are formed from :class:`ForeshorteningTensors` (else from the points)."""
+    return fields > 0 and rule.slope.shape[1] <= TENSOR_MAX_SHAPES
+
+
+def foreshortening_tensors(rule) -> ForeshorteningTensors:
+    """The tensors of a point rule (see :class:`ForeshorteningTensors`)."""
+    C = rule.local + rule.start @ rule.panel_sums
+    G = np.einsum("kj,ja,jb->kab", C, rule.slope, rule.slope)
+    G = 0.5 * (G + G.transpose(0, 2, 1))
+    n = G.shape[1]
+    rows, cols = np.triu_indices(n)
+    g = G[:, rows, cols] * np.where(rows == cols, 1.0, 2.0)
+    vecG = G.reshape(G.shape[0], n * n)
+    w = rule.w
+    return ForeshorteningTensors(rows, cols, 0.25 * g.T @ (w[:, None] * g), -0.5 * g.T @ (w[:, None] * rule.phi),
+                                 -rule.phi.T @ (w[:, None] * vecG), vecG.T @ (w[:, None] * vecG))
+
+
+@dataclass
+class _TensorFields:
+    """u, u̇, v, w, v̇, ẇ of a link as the factors of :class:`ForeshorteningTensors`; ``dot(a, b)`` is the
+    same weighted sum Σ w a b as :class:`_PointFields` gives, formed from the tensors."""
+
+    t: ForeshorteningTensors
+    p: ca.MX
+    r: ca.MX
+    v: ca.MX | None
+    w: ca.MX | None
+    v_dot: ca.MX | None
+    w_dot: ca.MX | None
+    u = "u"
+    u_dot = "u_dot"
+
+    def dot(self, a, b):
+        if a is None or b is None:
+            return 0.0
+        if isinstance(b, str):                  # the sums are symmetric: the named factor first
+            a, b = b, a
+        if isinstance(b, str):
+            if a != b:
+                raise ValueError(f"no tensor for Σ w {a} {b}")
+            return (ca.dot(self.p, ca.mtimes(_dm(self.t.A), self.p)) if a == "u"
+                    else ca.dot(self.r, ca.mtimes(_dm(self.t.D), self.r)))
+        if a == "u":
+            return ca.dot(self.p, ca.mtimes(_dm(self.t.B), b))
+        return ca.dot(b, ca.mtimes(_dm(self.t.E), self.r))
+
+
+def _foreshortening_tensors(rule, d: LinkDeformation) -> _TensorFields:
+    t = foreshortening_tensors(rule)
+    p = r = 0
+    for eta, rate in ((d.v, d.v_dot), (d.w, d.w_dot)):
+        if eta is not None:
+            p = p + eta[t.rows.tolist()] * eta[t.cols.tolist()]
+            r = r + ca.vec(ca.mtimes(rate, eta.T))      # column-major vec(η̇ ηᵀ): entry a·n + b is η_a η̇_b
+    return _TensorFields(t, p, r, d.v, d.w, d.v_dot, d.w_dot)
 
 
 def torsion_kinetic(t: TorsionIntegrals, length: float, d: LinkDeformation, omega_x):

@@ -75,4 +75,5 @@ def build_model(scene: Scene) -> SymbolicModel:
         laws=chain.laws, outputs=signals, start_values=start_values, static_coordinates=static,
         residual=chain.residual, outputs_function=chain.free_function("outputs", expressions),
         linear_in_state=linear, jacobian_constant=constant, terms=chain.terms,
-        coordinate_kinds=[chain.kinds[k] for k in free], validity=validity_function, validity_names=validity_names)
+        coordinate_kinds=[chain.kinds[k] for k in free], validity=validity_function, validity_names=validity_names,
+        mass_matrix=chain.free_mass_matrix())

@@ -33,9 +33,8 @@ def _link_outputs(chain: ChainAssembly, i: int) -> list[tuple[Signal, object]]:
         out.append((Signal(f"{joint.name}.motor_theta", "rad", "motor angle of the elastic joint"),
                     qa[chain.motor_coord[i]]))
     if chain.driven(i) in chain.prescribed:
-        r_full = chain.r_all(qa, va, chain.aa, chain.u, p)
         out.append((Signal(f"{joint.name}.tau", "N.m", "joint torque the prescribed law needs", feedthrough=True),
-                    r_full[chain.driven(i)]))
+                    chain.r_all_expr[chain.driven(i)]))
     tip = part.tip
     if part.body is not None:
         where = "the mid-point of the free edge" if link.shapes.section == "plate" else "the end section"
@@ -63,43 +62,56 @@ def _link_outputs(chain: ChainAssembly, i: int) -> list[tuple[Signal, object]]:
     return out
 
 
-def _joint_reactions(chain: ChainAssembly, i: int) -> list[tuple[Signal, object]]:
-    """The force and moment the parent exerts on everything beyond joint i (seed 001 §2.10).
+def _subtree_sums(chain: ChainAssembly) -> list[dict]:
+    """Mass, first moment, momentum and angular momentum (about the world origin) of everything beyond each
+    joint: suffix sums from the tip, so the n subtrees cost n additions, not n²/2."""
+    n = len(chain.scene.joints)
+    sums: list[dict] = [{}] * n
+    running = dict(mass=0, moment=ca.DM.zeros(3), momentum=ca.DM.zeros(3), spin=ca.DM.zeros(3))
+    for i in reversed(range(n)):
+        for b in (b for b in chain.bodies if b["joint"] == i):
+            running = {k: running[k] + b[k] for k in running}
+        sums[i] = running
+    return sums
+
+
+def _joint_reactions(chain: ChainAssembly) -> list[tuple[Signal, object]]:
+    """The force and moment the parent exerts on everything beyond each joint (seed 001 §2.10).
 
     Newton–Euler on that subtree: F = d/dt Σ∫ṙ − Σ m g − F_tip and
     M_O = d/dt Σ∫(r−O)×ṙ + Ȯ × Σ∫ṙ − Σ (∫r − m O) × g − (P_tip − O) × F_tip − M_tip, in the joint frame.
+    The time derivatives of every subtree's momenta are one forward derivative of their stacked vector.
     """
     qa, va, aa, u, g = chain.qa, chain.va, chain.aa, chain.u, chain.g_vec
-
-    def rate(x):
-        return ca.jtimes(x, qa, va) + ca.jtimes(x, va, aa)
-
-    sub = [b for b in chain.bodies if b["joint"] >= i]
-    O, Rjf = chain.joint_frames[i]
-    mass = sum(b["mass"] for b in sub)
-    moment = sum(b["moment"] for b in sub)
-    momentum = sum(b["momentum"] for b in sub)
-    spin = sum(b["spin"] for b in sub)
-    force = rate(momentum) - mass * g
-    O_dot = ca.jtimes(O, qa, va) if i > 0 else ca.DM.zeros(3)
-    torque = rate(spin - ca.cross(O, momentum)) + ca.cross(O_dot, momentum) - ca.cross(moment - mass * O, g)
-    if chain.tip_load is not None:
-        k0 = chain.tip_load
-        force -= u[k0:k0 + 3]
-        torque -= ca.cross(chain.frames[-1].tip_origin - O, u[k0:k0 + 3]) + u[k0 + 3:k0 + 6]
-    f_local, m_local = ca.mtimes(Rjf.T, force), ca.mtimes(Rjf.T, torque)
-    name = chain.scene.joints[i].name
-    return ([(Signal(f"{name}.reaction.f{c}", "N", f"force transmitted by the joint, joint frame {c}",
-                     feedthrough=True), f_local[k]) for k, c in enumerate("xyz")]
-            + [(Signal(f"{name}.reaction.m{c}", "N.m", f"moment transmitted by the joint about its origin, "
-                       f"joint frame {c}", feedthrough=True), m_local[k]) for k, c in enumerate("xyz")])
+    sums = _subtree_sums(chain)
+    origins = [O for O, _ in chain.joint_frames]
+    stacked = ca.vertcat(*[ca.vertcat(s["momentum"], s["spin"] - ca.cross(O, s["momentum"]))
+                           for s, O in zip(sums, origins, strict=True)])
+    rates = ca.jtimes(stacked, qa, va) + ca.jtimes(stacked, va, aa)
+    out: list[tuple[Signal, object]] = []
+    for i, (s, (O, Rjf)) in enumerate(zip(sums, chain.joint_frames, strict=True)):
+        O_dot = chain.frames[i].velocity
+        force = rates[6 * i:6 * i + 3] - s["mass"] * g
+        torque = (rates[6 * i + 3:6 * i + 6] + ca.cross(O_dot, s["momentum"])
+                  - ca.cross(s["moment"] - s["mass"] * O, g))
+        if chain.tip_load is not None:
+            k0 = chain.tip_load
+            force -= u[k0:k0 + 3]
+            torque -= ca.cross(chain.tool.tip_origin - O, u[k0:k0 + 3]) + u[k0 + 3:k0 + 6]
+        f_local, m_local = ca.mtimes(Rjf.T, force), ca.mtimes(Rjf.T, torque)
+        name = chain.scene.joints[i].name
+        out += ([(Signal(f"{name}.reaction.f{c}", "N", f"force transmitted by the joint, joint frame {c}",
+                         feedthrough=True), f_local[k]) for k, c in enumerate("xyz")]
+                + [(Signal(f"{name}.reaction.m{c}", "N.m", f"moment transmitted by the joint about its origin, "
+                           f"joint frame {c}", feedthrough=True), m_local[k]) for k, c in enumerate("xyz")])
+    return out
 
 
 def _end_effector(chain: ChainAssembly) -> list[tuple[Signal, object]]:
     """Position, absolute acceleration and accelerometer specific force of the last link's tip."""
     qa, va, aa = chain.qa, chain.va, chain.aa
-    last = chain.frames[-1]
-    v_tip = ca.jtimes(last.tip_origin, qa, va)
+    last = chain.tool
+    v_tip = last.tip_velocity
     a_tip = ca.jtimes(v_tip, qa, va) + ca.jtimes(v_tip, va, aa)
     specific = ca.mtimes(last.tip_rotation.T, a_tip - chain.g_vec)
     return ([(Signal(f"tip.{c}", "m", f"end-effector position {c}, inertial frame"), last.tip_origin[k])
@@ -115,8 +127,7 @@ def chain_outputs(chain: ChainAssembly) -> tuple[list[Signal], list]:
     out: list[tuple[Signal, object]] = []
     for i in range(len(chain.scene.joints)):
         out += _link_outputs(chain, i)
-    for i in range(len(chain.scene.joints)):
-        out += _joint_reactions(chain, i)
+    out += _joint_reactions(chain)
     out += _end_effector(chain)
     out.append((Signal("energy.kinetic", "J", "kinetic energy"), chain.T))
     out.append((Signal("energy.potential", "J", "elastic and gravitational potential energy"),

@@ -81,6 +81,7 @@ class SymbolicModel:
     coordinate_kinds: list[str] = field(default_factory=list)   # "joint" | "link_angle" | "elastic"
     validity: ca.Function | None = None   # (q, u, p) -> g: the model's assumptions hold while every g <= 1
     validity_names: list[str] = field(default_factory=list)   # what each entry of g measures
+    mass_matrix: ca.Function | None = None   # (q, u, p) -> M, if the builder forms it more cheaply than ∂r/∂a
 
     @property
     def n_q(self) -> int:
@@ -124,9 +125,13 @@ class SymbolicModel:
                            ["q", "v", "a", "u", "p", "dq", "dv", "da"], ["dr"])
 
     def mass_matrix_function(self) -> ca.Function:
+        """M(q, u, p) = ∂r/∂a: the builder's own form if it gave one, else the residual's Jacobian."""
+        if self.mass_matrix is not None:
+            return self.mass_matrix
         q, v, a, u, p = (ca.MX.sym(n, *self.residual.size_in(i)) for i, n in enumerate("qvaup"))
         M = ca.jacobian(self.residual(q, v, a, u, p), a)
-        return ca.Function("mass_matrix", [q, u, p], [ca.substitute(M, ca.vertcat(v, a), ca.DM.zeros(2 * self.n_q))])
+        M = ca.substitute(M, ca.vertcat(v, a), ca.DM.zeros(2 * self.n_q))
+        return ca.Function("mass_matrix", [q, u, p], [ca.densify(M)], ["q", "u", "p"], ["M"])
 
     def default_inputs(self, t: float = 0.0) -> np.ndarray:
         """Model inputs at time t: input start values, built-in laws evaluated."""

@@ -522,5 +522,6 @@ class _Parser(_Values):
         tolerance = self.number_key(t, "fmu", "tolerance", "fmu")
         tunable = checks.tunable_names(self.source, self.get(t, "fmu", "tunable"), joints, links)
         tip_load_inputs = self.boolean(self.get(t, "fmu", "tip_load_inputs"), "fmu.tip_load_inputs")
+        newton_matrix = self.choice_key(t, "fmu", "newton_matrix", "fmu")
         return FmuSettings(step=step, integrator=integrator, theta=(th1, th2), tolerance=tolerance,
-                           tunable=tunable, tip_load_inputs=tip_load_inputs)
+                           tunable=tunable, tip_load_inputs=tip_load_inputs, newton_matrix=newton_matrix)

@@ -43,6 +43,7 @@ SHELL_KINEMATICS = ("linear", "first-order")
 KINEMATICS = ("linear", "first-order", "second-order")
 INITIAL_DEFORMATIONS = ("undeformed", "static")
 INTEGRATORS = ("ss22",)
+NEWTON_MATRIX_FORMS = ("auto", "dense", "columns")
 AXIS_TOLERANCE = 1e-9
 
 # Names that already start FMU variable names of their own (tip.x, energy.kinetic, solver.step, gravity[1]).
@@ -248,6 +249,7 @@ class FmuSettings:
     tolerance: float = 1e-10
     tunable: tuple[str, ...] = ()
     tip_load_inputs: bool = False
+    newton_matrix: str = "auto"
 
 
 @dataclass(frozen=True)
@@ -488,6 +490,10 @@ KEYS: tuple[Key, ...] = (
                    "<link>.payload.inertia, <joint>.stiffness, <joint>.damping, gravity"),
     _K("fmu", "tip_load_inputs", "boolean", "", False,
        description="add inputs tip.fx … tip.mz: a force and moment at the last link's tip (inertial frame)"),
+    _K("fmu", "newton_matrix", "string", "", "auto", choices=NEWTON_MATRIX_FORMS,
+       description="the SS22 Newton matrix in the generated C: one dense symbolic Jacobian (fastest to refresh, "
+                   "code n times the residual's), columns of the residual's derivative (code like the residual's), "
+                   "or auto (dense up to 12 coordinates)"),
 )
 del _K
 
