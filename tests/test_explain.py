@@ -59,3 +59,23 @@ def test_cli_explain_prints_coordinates_terms_and_step():
     assert out.returncode == 0, out.stderr
     for words in ("coordinates", "gravity", "second-order", "recommended SS22 step", "prescribed"):
         assert words in out.stdout
+
+
+def test_explain_lists_the_robot_bodies_coordinates_and_terms():
+    """Issue 15: the six-axis arm's explanation names every joint and the body it drives (from the scene:
+    the column's 8 kg, the wrist's massless connectors, the shoulder's placement), its 13 coordinates
+    (6 + 6 elastic ones of the two tubes, the elastic elbow's link angle) and a term per link."""
+    from flexlink.tools.explain import format_explanation
+
+    info = explain("examples/six_axis_arm.toml")
+    bodies = info["bodies"]
+    assert [b.split('"')[1] for b in bodies[:6]] == ["base", "shoulder", "elbow", "wrist_roll", "wrist_pitch",
+                                                    "flange"]
+    assert "rigid, 8 kg" in bodies[0] and "massless connector" in bodies[3] and "massless connector" in bodies[4]
+    assert "origin [0, 0, 0.4]" in bodies[1] and "elastic (8000 N m/rad)" in bodies[2]
+    assert bodies[6].startswith("tool frame: origin [0.1, 0, 0]")
+    assert len(info["coordinates"]) == 13 and "elbow.theta" in info["coordinates"]
+    for link in ("column", "upper_arm", "forearm", "wrist_1", "wrist_2", "tool"):
+        assert any(f'link "{link}"' in t for t in info["terms"]), link
+    text = format_explanation(info)
+    assert "joints and the bodies they drive" in text and "13 coordinates" in text

@@ -11,6 +11,36 @@ from flexlink.tools.fidelity import MAX_HALVINGS, recommend, run_ladder
 STEPS_PER_PERIOD = 20     # Θ = ½: phase error per period ≈ (2π/20)²/12 · 2π ≈ 0.5 %
 
 
+def _fmt(vector) -> str:
+    return "[" + ", ".join(f"{x:.4g}" for x in vector) + "]"
+
+
+def body_lines(scene) -> list[str]:
+    """One line per joint and the body it drives, base to tip: the joint's axis, drive and placement, the
+    link's kind, size and mass (what the chain is made of, before any model is built)."""
+    lines = []
+    for joint, link in zip(scene.joints, scene.links, strict=True):
+        where = ""
+        if any(joint.origin) or any(joint.rpy):
+            where = f", at origin {_fmt(joint.origin)} rpy {_fmt(joint.rpy)}"
+        elastic = f", elastic ({joint.stiffness:g} N m/rad)" if joint.is_elastic else ""
+        if link.is_rigid:
+            mass, centre, _ = link.rigid_body()
+            kind = f"rigid, {mass:.4g} kg, centre {_fmt(centre)}" if mass > 0 else "massless"
+            if link.length == 0 and mass == 0:
+                kind = "massless connector: joints at one point"
+        elif link.is_shell:
+            kind = f"{link.shapes.section} shell, {link.kinematics}"
+        else:
+            kind = f"beam {'+'.join(link.deformation)}, {link.kinematics}, {link.linear_density * link.length:.4g} kg"
+        payload = f", payload {link.payload.mass:g} kg" if link.payload.is_present else ""
+        lines.append(f'joint "{joint.name}" (axis {_fmt(joint.axis)}, {joint.drive}{elastic}{where}) -> '
+                     f'link "{link.name}" ({kind}, length {link.length:g} m{payload})')
+    if any(scene.tool.origin) or any(scene.tool.rpy):
+        lines.append(f"tool frame: origin {_fmt(scene.tool.origin)} rpy {_fmt(scene.tool.rpy)} in the last tip frame")
+    return lines
+
+
 def explain(scene_path) -> dict:
     scene = load_scene(scene_path)
     model = build_model(scene)
@@ -19,6 +49,7 @@ def explain(scene_path) -> dict:
     step = 1.0 / (STEPS_PER_PERIOD * f_max) if f_max > 0 else scene.fmu.step
     return {
         "scene": scene.name,
+        "bodies": body_lines(scene),
         "coordinates": model.coordinates,
         "prescribed": [law.joint for law in model.laws],
         "terms": model.terms,
@@ -37,7 +68,9 @@ def explain(scene_path) -> dict:
 
 
 def format_explanation(info: dict) -> str:
-    lines = [f"{info['scene']}: {len(info['coordinates'])} coordinates"]
+    lines = [f"{info['scene']}: joints and the bodies they drive, base to tip"]
+    lines += [f"  {b}" for b in info["bodies"]]
+    lines.append(f"{len(info['coordinates'])} coordinates")
     lines += [f"  {c}" for c in info["coordinates"]]
     if info["prescribed"]:
         lines.append("prescribed (position-driven) joints: " + ", ".join(info["prescribed"]))

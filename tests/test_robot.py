@@ -1,0 +1,175 @@
+"""Robots of rigid and flexible links (issue 15) against Pinocchio, an independent rigid-body library.
+
+The scene of ``examples/six_axis_arm.toml`` is translated here, from the scene's own data, into a Pinocchio
+model: joint placements (the previous link's tip at (L, 0, 0), then the joint's origin and rpy), revolute
+joints about their axes, each link's inertia (a rigid link's ten parameters; a flexible link's rigid limit,
+the uniform rod with its sections' polar inertia), each rotor as an inertia I·a aᵀ turning with its link,
+the tip payload.  flexlink's mass matrix, bias forces and forward dynamics must equal Pinocchio's CRBA,
+RNEA and ABA at random states: for the arm made wholly rigid, and for the flexible arm at zero deflection
+(where a beam link's inertia is its rod's).
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from flexlink.mechanics.model import build_model
+from flexlink.scene.loader import parse_scene
+
+pin = pytest.importorskip("pinocchio")
+
+ROOT = Path(__file__).resolve().parent.parent
+ARM = ROOT / "examples" / "six_axis_arm.toml"
+CHAIN = ROOT / "examples" / "planar_chain_5.toml"
+FLEXIBLE_ONLY = ("EI", "EI_out", "GJ", "kelvin_voigt", "deformation", "shapes", "kinematics", "initial_deformation")
+
+
+def _torque_driven(data: dict, rigid: bool) -> dict:
+    """The arm with every joint torque-driven and stiff (its coordinates are the six joint angles), rotor
+    inertias on every joint, and, if ``rigid``, every flexible link replaced by its rigid limit."""
+    for i, joint in enumerate(data["joint"]):
+        for key in ("trajectory", "stiffness", "damping"):
+            joint.pop(key, None)
+        joint["drive"] = "torque"
+        joint["inertia"] = 0.01 * (i + 1)
+    if rigid:
+        for link in data["link"]:
+            if link.get("deformation", ["v"]):
+                for key in FLEXIBLE_ONLY:
+                    link.pop(key, None)
+                link["deformation"] = []
+    return data
+
+
+def _arm(rigid: bool, path: Path = ARM):
+    data = _torque_driven(tomllib.loads(path.read_text()), rigid)
+    return parse_scene(data, f"{path.stem} (torque-driven)")
+
+
+def _inertia(mass: float, centre, inertia) -> pin.Inertia:
+    return pin.Inertia(float(mass), np.asarray(centre, float), np.asarray(inertia, float))
+
+
+def _link_inertia(link) -> pin.Inertia:
+    """A rigid link's ten parameters, or a beam link's rigid limit: the uniform rod along x."""
+    if link.is_rigid:
+        mass, centre, inertia = link.rigid_body()
+        return _inertia(mass, centre, inertia)
+    rho, L = link.linear_density, link.length
+    polar = (link.polar_inertia or 0.0) * L if "alpha" in link.deformation else 0.0
+    return _inertia(rho * L, (L / 2, 0, 0), np.diag([polar, rho * L**3 / 12, rho * L**3 / 12]))
+
+
+def pinocchio_model(scene) -> pin.Model:
+    """The scene's chain as a Pinocchio model, built from the scene's data alone."""
+    model = pin.Model()
+    model.gravity = pin.Motion(np.asarray(scene.gravity, float), np.zeros(3))
+    parent, tip = 0, 0.0
+    for joint, link in zip(scene.joints, scene.links, strict=True):
+        placement = pin.SE3(joint.placement_rotation(), np.array([tip, 0.0, 0.0]) + np.asarray(joint.origin))
+        axis = np.asarray(joint.axis, float)
+        parent = model.addJoint(parent, pin.JointModelRevoluteUnaligned(axis / np.linalg.norm(axis)), placement,
+                                joint.name)
+        model.appendBodyToJoint(parent, _link_inertia(link), pin.SE3.Identity())
+        model.appendBodyToJoint(parent, _inertia(0.0, np.zeros(3), joint.inertia * np.outer(axis, axis)),
+                                pin.SE3.Identity())
+        pay = link.payload
+        if pay.is_present:
+            J = np.diag(pay.inertia) if isinstance(pay.inertia, tuple) else pay.inertia * np.outer(axis, axis)
+            model.appendBodyToJoint(parent, _inertia(pay.mass, np.zeros(3), J),
+                                    pin.SE3(np.eye(3), np.array([link.length, 0, 0]) + np.asarray(pay.offset)))
+        tip = link.length
+    return model
+
+
+def _states(model, rng, n: int = 5):
+    """Random joint angles (all of them, large), rates and torques; elastic coordinates at zero."""
+    joints = [k for k, kind in enumerate(model.coordinate_kinds) if kind == "joint"]
+    for _ in range(n):
+        q = np.zeros(model.n_q)
+        v = np.zeros(model.n_q)
+        q[joints] = rng.uniform(-np.pi, np.pi, len(joints))
+        v[joints] = rng.normal(0.0, 2.0, len(joints))
+        tau = rng.normal(0.0, 20.0, len(model.inputs))
+        yield q, v, tau, joints
+
+
+def _compare(scene, flexlink_model) -> tuple[float, float, float]:
+    """Largest relative differences of M, h and the joint accelerations against Pinocchio."""
+    pmodel = pinocchio_model(scene)
+    data = pmodel.createData()
+    m = flexlink_model
+    rng = np.random.default_rng(15)
+    worst = np.zeros(3)
+    for q, v, tau, joints in _states(m, rng):
+        qj, vj = q[joints], v[joints]
+        M = np.asarray(m.mass_matrix_function()(q, tau, m.p0))[np.ix_(joints, joints)]
+        M_pin = pin.crba(pmodel, data, qj)
+        M_pin = np.triu(M_pin) + np.triu(M_pin, 1).T
+        h = np.asarray(m.residual(q, v, np.zeros(m.n_q), np.zeros(len(tau)), m.p0)).ravel()[joints]
+        h_pin = pin.rnea(pmodel, data, qj, vj, np.zeros(len(joints)))
+        a_pin = pin.aba(pmodel, data, qj, vj, tau)
+        a = np.linalg.solve(M, tau - h)
+        worst = np.maximum(worst, [np.max(np.abs(M - M_pin)) / np.max(np.abs(M_pin)),
+                                   np.max(np.abs(h - h_pin)) / np.max(np.abs(h_pin)),
+                                   np.max(np.abs(a - a_pin)) / np.max(np.abs(a_pin))])
+    return tuple(worst)
+
+
+def test_rigid_arm_equals_pinocchio():
+    """Every link rigid: M (CRBA), bias forces h = C v + g (RNEA at zero acceleration) and forward dynamics
+    (ABA) at five random states of the six joints, to 1e-10."""
+    scene = _arm(rigid=True)
+    model = build_model(scene)
+    assert model.n_q == 6
+    assert max(_compare(scene, model)) < 1e-10
+
+
+@pytest.mark.parametrize("path, n_q", [(ARM, 6 + 12), (CHAIN, 5 + 15)], ids=["six_axis_arm", "planar_chain_5"])
+def test_flexible_robot_at_zero_deflection_equals_its_rigid_limit_in_pinocchio(path, n_q):
+    """The flexible robot at η = 0, η̇ = 0: the joints' block of M and of the bias forces is the rigid
+    limit's (each beam a uniform rod with its sections' polar inertia)."""
+    scene = _arm(rigid=False, path=path)
+    model = build_model(scene)
+    assert model.n_q == n_q
+    assert max(_compare(scene, model)) < 1e-10
+
+
+def test_pinocchio_translation_is_not_vacuous():
+    """The comparison can fail: a 1 % heavier tool is seen in M, h and the accelerations."""
+    scene = _arm(rigid=True)
+    data = _torque_driven(tomllib.loads(ARM.read_text()), rigid=True)
+    data["link"][-1]["mass"] *= 1.01
+    heavier = build_model(parse_scene(data, "heavier tool"))
+    M_err, h_err, a_err = _compare(scene, heavier)
+    assert M_err > 1e-4 and h_err > 1e-4 and a_err > 1e-4
+
+
+JOINTS = ("base", "shoulder", "elbow", "wrist_roll", "wrist_pitch", "flange")
+
+
+def test_six_axis_arm_manoeuvre_ends_at_pinocchio_gravity_torques(example_fmu):
+    """The example itself through fmpy (Co-Simulation, Θ = ½): 3 s of cycloidal moves on all six joints under
+    gravity, then 2 s of hold.  At the end the torques the laws need are the static gravity torques of the
+    final pose, which Pinocchio gives for the rigid arm (RNEA at zero rate and acceleration; the elbow at its
+    link-side angle, its motor torque being the spring's).  The flexible arm's geometry differs from the
+    rigid one by its deflections, so they agree to a few times tip deflection / length (that ratio is read
+    from the run itself)."""
+    import fmpy
+
+    links = {"upper_arm": 0.6, "forearm": 0.5}
+    outputs = [f"{j}.tau" for j in JOINTS] + ["elbow.theta"] + [f"{k}.tip.{c}" for k in links for c in "vw"]
+    res = fmpy.simulate_fmu(str(example_fmu("six_axis_arm")), fmi_type="CoSimulation", stop_time=5.0,
+                            output_interval=0.01, output=outputs)
+    scene = _arm(rigid=False)
+    pm = pinocchio_model(scene)
+    q = np.array([1.2, -0.6, res["elbow.theta"][-1], 0.8, -0.7, 1.5])     # the laws' end values
+    g = pin.rnea(pm, pm.createData(), q, np.zeros(6), np.zeros(6))
+    tau = np.array([res[f"{j}.tau"][-1] for j in JOINTS])
+    deflection = max(abs(res[f"{k}.tip.{c}"][-1]) / length for k, length in links.items() for c in "vw")
+    assert 1e-5 < deflection < 1e-2                          # the arm sags, a little
+    assert np.max(np.abs(tau - g)) < 3 * deflection * np.max(np.abs(g))
