@@ -437,12 +437,13 @@ def readme_block(data: dict, png: str) -> str:
     return "\n".join(lines)
 
 
-def rewrite_readme(path: Path, block: str) -> None:
+def rewrite_readme(path: Path, block: str, begin: str = BEGIN, end: str = END) -> None:
+    """Replace the README's text from ``begin`` to ``end`` (markers included) by ``block``."""
     text = path.read_text()
-    if BEGIN not in text or END not in text or text.index(BEGIN) > text.index(END):
-        raise SystemExit(f"{path}: no {BEGIN} ... {END} block to rewrite")
-    head, rest = text.split(BEGIN, 1)
-    _, tail = rest.split(END, 1)
+    if begin not in text or end not in text or text.index(begin) > text.index(end):
+        raise SystemExit(f"{path}: no {begin} ... {end} block to rewrite")
+    head, rest = text.split(begin, 1)
+    _, tail = rest.split(end, 1)
     path.write_text(head + block + tail)
 
 

@@ -1,0 +1,203 @@
+"""Build time, generated C and cost per SS22 step against the size of the robot (issue 15's figures).
+
+    python benchmarks/scaling.py                  # full size: 1-8 links, 1-32 modes, 3 builds each; rewrites
+                                                  # README "Performance" between the scaling markers
+    python benchmarks/scaling.py --quick --out DIR   # CI size: a few sizes, one build each, README untouched
+
+Two families of scenes, generated here (second-order kinematics, gravity, torque-driven joints):
+
+* **bodies**: planar chains of 1 ... 8 flexible links, 3 clamped-free modes each (what issue 15 measured:
+  build n^3.4, code n^2.8 before the builder was made to scale);
+* **modes**: one link of 16 Hermite elements reduced to its first 1 ... 32 modes (``shapes.modes``).
+
+and the issue's table: ``examples/six_axis_arm.toml``, ``examples/planar_chain_5.toml`` and the 32-mode link.
+
+For every scene: the build time (``build_fmu``: model, code generation, gcc, packaging; median of
+``--builds``), the bytes of generated C, and the CPU time per internal SS22 step at the scene's step, from
+``benchmarks/step_floor.py``'s driver (compiled with the FMU's own sources, run in one process over issue 6's
+manoeuvre: +τ, −τ, free; median of ``--repeats``).  Growth is reported as the exponent of a least-squares
+fit of log(figure) against log(size).  Writes ``scaling.md``, ``scaling.json`` and ``scaling.png`` into
+``--out`` (default: ``benchmarks/``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(HERE))
+
+TABLE = [("six-axis arm (examples/six_axis_arm.toml)", ROOT / "examples" / "six_axis_arm.toml", (20.0, 1.0, 20.0)),
+         ("planar chain of 5 flexible links, 3 modes (examples/planar_chain_5.toml)",
+          ROOT / "examples" / "planar_chain_5.toml", (10.0, 1.0, 10.0)),
+         ("one link, 32 modes", 32, (10.0, 1.0, 5.0))]
+# issue 15's targets for the growth exponents: build and code, step
+GOAL_LINEAR, GOAL_STEP = 1.2, 2.0
+BEGIN, END = "<!-- scaling:begin -->", "<!-- scaling:end -->"
+
+
+def chain_scene(n_links: int, modes: int = 3) -> dict:
+    """A planar chain hanging along x under gravity (so that it swings, not falls), joints damped."""
+    joints = [dict(name=f"j{i + 1}", axis=[0.0, 0.0, 1.0], inertia=1e-3, damping=0.01) for i in range(n_links)]
+    links = [dict(name=f"l{i + 1}", length=0.4, linear_density=1.5, EI=40.0, deformation=["v"],
+                  shapes=dict(kind="clamped-free", count=modes), kinematics="second-order")
+             for i in range(n_links)]
+    return dict(name=f"chain_{n_links}", gravity=[9.81, 0.0, 0.0], joint=joints, link=links,
+                fmu=dict(step=1e-3))
+
+
+def modes_scene(modes: int) -> dict:
+    """One second-order link of 16 Hermite elements reduced to its first ``modes`` modes."""
+    joint = dict(name="hub", axis=[0.0, 0.0, 1.0], inertia=1e-2)
+    link = dict(name="arm", length=1.0, linear_density=2.0, EI=100.0, deformation=["v"],
+                shapes=dict(kind="fe", count=16, modes=modes), kinematics="second-order")
+    return dict(name=f"modes_{modes}", gravity=[0.0, 0.0, 0.0], joint=[joint], link=[link],
+                fmu=dict(step=1e-4))
+
+
+def measure(scene, *, builds: int, repeats: int) -> dict:
+    """Build ``builds`` times (median), then time the SS22 step with the step-floor driver."""
+    from step_floor import compile_driver
+    from step_floor import measure as measure_step
+
+    from flexlink.export.fmu import build_fmu
+    from flexlink.mechanics.model import build_model
+    from flexlink.tools.bench import default_case
+
+    walls, report = [], None
+    with tempfile.TemporaryDirectory() as tmp:
+        for _ in range(builds):
+            t0 = time.perf_counter()
+            report = build_fmu(scene, Path(tmp) / "scaling.fmu")
+            walls.append(time.perf_counter() - t0)
+        model = build_model(scene)
+        exe = compile_driver(report.fmu, tmp)
+        step = measure_step(exe, report.fmu, default_case(model, stop=3.0), step=scene.fmu.step, repeats=repeats)
+    return {"scene": scene.name, "n_q": model.n_q, "bodies": len(scene.links),
+            "build_s": statistics.median(walls), "build_parts_s": report.seconds,
+            "generated_bytes": report.generated_c_bytes, "operations": report.operations,
+            "step_us": 1e6 * step["step_s"], "residual_us": 1e6 * step["residual_s"],
+            "newton_matrix_us": 1e6 * step["newton_matrix_s"], "factorisations": step["factorisations"],
+            "steps": step["ss22_steps"]}
+
+
+def exponent(sizes, values) -> float:
+    """Slope of the least-squares line through (log size, log value)."""
+    return float(np.polyfit(np.log(np.asarray(sizes, float)), np.log(np.asarray(values, float)), 1)[0])
+
+
+def family(rows: list[dict], size_key: str) -> dict:
+    sizes = [r[size_key] for r in rows]
+    return {k: exponent(sizes, [r[k] for r in rows]) for k in ("build_s", "generated_bytes", "step_us")}
+
+
+def plot(bodies: list[dict], modes: list[dict], fits: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 3, figsize=(13, 7.5))
+    for row, (rows, key, label) in enumerate(((bodies, "bodies", "flexible links (3 modes each)"),
+                                             (modes, "modes", "modes of one link"))):
+        x = [r[key] for r in rows]
+        for col, (fig_key, unit, scale) in enumerate((("build_s", "build [s]", 1.0),
+                                                      ("generated_bytes", "generated C [MB]", 1e-6),
+                                                      ("step_us", "SS22 step [µs]", 1.0))):
+            ax = axes[row, col]
+            ax.loglog(x, [r[fig_key] * scale for r in rows], "o-")
+            ax.set_xlabel(label)
+            ax.set_ylabel(unit)
+            ax.set_title(f"fitted exponent {fits[key][fig_key]:.2f}")
+            ax.grid(True, which="both", alpha=0.3)
+    fig.suptitle("flexlink: cost against robot size (second-order kinematics)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def markdown(table: list[dict], bodies: list[dict], modes: list[dict], fits: dict, info: dict) -> str:
+    lines = [f"Measured {info['date']} on {info['machine']} (`python benchmarks/scaling.py"
+             f"{' --quick' if info['quick'] else ''}`, generated C at {info['optimise']}); builds: median of "
+             f"{info['builds']}, steps: median of {info['repeats']} runs.", "",
+             "| scene | n_q | build [s] (target) | generated C [MB] (target) | µs per SS22 step (target) |",
+             "| --- | --- | --- | --- | --- |"]
+    for r in table:
+        b, c, s = r["targets"]
+        lines.append(f"| {r['label']} | {r['n_q']} | {r['build_s']:.1f} (≤ {b:g}) | "
+                     f"{r['generated_bytes'] / 1e6:.2f} (≤ {c:g}) | {r['step_us']:.1f} (≤ {s:g}) |")
+    lines += ["", "| family | sizes | build exponent | code exponent | step exponent (goals: ≤ 1.2, ≤ 1.2, ≤ 2) |",
+              "| --- | --- | --- | --- | --- |"]
+    for key, rows in (("bodies", bodies), ("modes", modes)):
+        f = fits[key]
+        lines.append(f"| {key} | {', '.join(str(r[key]) for r in rows)} | {f['build_s']:.2f} | "
+                     f"{f['generated_bytes']:.2f} | {f['step_us']:.2f} |")
+    lines += ["", "| scene | n_q | build [s] | model / codegen / gcc [s] | C [MB] | operations | µs/step | "
+              "residual µs | Newton matrix µs |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in [*bodies, *modes]:
+        p = r["build_parts_s"]
+        lines.append(f"| {r['scene']} | {r['n_q']} | {r['build_s']:.1f} | {p['model']:.1f} / {p['codegen']:.1f} / "
+                     f"{p['compile']:.1f} | {r['generated_bytes'] / 1e6:.2f} | {r['operations']} | "
+                     f"{r['step_us']:.1f} | {r['residual_us']:.2f} | {r['newton_matrix_us']:.1f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> None:
+    from flexlink.scene.loader import load_scene, parse_scene
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="CI size: 1-3 links, 2 and 4 modes; no table")
+    ap.add_argument("--builds", type=int, default=None, help="builds per scene (median; default 3, quick 1)")
+    ap.add_argument("--repeats", type=int, default=None, help="step-timing runs (median; default 7, quick 3)")
+    ap.add_argument("--out", type=Path, default=HERE)
+    args = ap.parse_args(argv)
+    builds = args.builds or (1 if args.quick else 3)
+    repeats = args.repeats or (3 if args.quick else 7)
+    link_counts = (1, 2, 3) if args.quick else (1, 2, 3, 4, 5, 6, 8)
+    mode_counts = (2, 4) if args.quick else (1, 2, 4, 8, 16, 32)
+    bodies, modes, table = [], [], []
+    for n in link_counts:
+        bodies.append(measure(parse_scene(chain_scene(n)), builds=builds, repeats=repeats))
+        print(f"bodies {n}: {bodies[-1]}", flush=True)
+    for m in mode_counts:
+        row = measure(parse_scene(modes_scene(m)), builds=builds, repeats=repeats)
+        modes.append({**row, "modes": m})
+        print(f"modes {m}: {row}", flush=True)
+    for label, source, targets in ([] if args.quick else TABLE):
+        scene = parse_scene(modes_scene(source)) if isinstance(source, int) else load_scene(source)
+        table.append({**measure(scene, builds=builds, repeats=repeats), "label": label, "targets": targets})
+        print(f"table {label}: {table[-1]}", flush=True)
+    fits = {"bodies": family(bodies, "bodies"), "modes": family(modes, "modes")}
+    from flexlink.export.codegen import OPTIMISE_ENV
+
+    info = {"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
+            "quick": args.quick, "builds": builds, "repeats": repeats,
+            "optimise": os.environ.get(OPTIMISE_ENV) or "the default level (-O2, -O1 above 20 000 operations)"}
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "scaling.json").write_text(json.dumps({"info": info, "table": table, "bodies": bodies,
+                                                       "modes": modes, "fits": fits}, indent=1))
+    (args.out / "scaling.md").write_text(markdown(table, bodies, modes, fits, info))
+    plot(bodies, modes, fits, args.out / "scaling.png")
+    if not args.quick:
+        from report import rewrite_readme
+
+        block = (f"{BEGIN}\n<!-- generated by `python benchmarks/scaling.py`: edit it, not this block -->\n\n"
+                 + markdown(table, bodies, modes, fits, info)
+                 + "\n![cost against size](benchmarks/scaling.png)\n\n" + END)
+        rewrite_readme(ROOT / "README.md", block, BEGIN, END)
+    print((args.out / "scaling.md").read_text())
+
+
+if __name__ == "__main__":
+    main()
