@@ -140,6 +140,13 @@ int model_outputs_forward(const double *q, const double *v, const double *a, con
 extern const char *const MODEL_VALIDITY_NAMES[N_VALIDITY > 0 ? N_VALIDITY : 1];
 int model_validity(const double *q, const double *u, const double *p, double *g, ModelWork *work);
 
+/* h = model_parameter_check(p): the parameters describe a physical system while every h[i] >= 0 (to
+ * -1e-12: the entries are scaled to be of order one; e.g. a rigid link's inertia tensor is a body's: its second moments positive
+ * semi-definite).  Relations between parameters, which a variable's own min/max cannot state: fmi2SetReal
+ * refuses values that break one.  MODEL_PARAMETER_CHECK_NAMES[i] says what h[i] measures. */
+extern const char *const MODEL_PARAMETER_CHECK_NAMES[N_PARAMETER_CHECKS > 0 ? N_PARAMETER_CHECKS : 1];
+int model_parameter_check(const double *p, double *h, ModelWork *work);
+
 /* MODEL_LINEAR_IN_STATE (config.h): 1 if r is affine in (q, v, a): one linear solve
  * per step, no Newton iteration.  MODEL_JACOBIAN_CONSTANT: 1 if moreover the Newton
  * matrix depends on p (and the step) only: factorised only when they change. */

@@ -8,6 +8,9 @@
 #include "internal.h"
 #include "linalg.h"
 
+/* model_parameter_check's entries are scaled to be O(1): below -1e-12 is a broken relation, not rounding. */
+#define PARAMETER_CHECK_TOLERANCE 1e-12
+
 /* ==================================================================== variables */
 
 double *fmu_slot(FmuData *d, const VarInfo *v) {
@@ -188,6 +191,32 @@ static const char *refuse_value(const Instance *inst, const VarInfo *v, double x
     return why;
 }
 
+#if N_PARAMETER_CHECKS > 0
+/* The relations between parameters (model_parameter_check) with the new values in place: refused before
+ * anything is written, so that a refused call changes nothing. */
+static fmi2Status check_parameter_relations(Instance *inst, const fmi2ValueReference vr[], size_t nvr,
+                                            const fmi2Real value[]) {
+    double p[N_P], h[N_PARAMETER_CHECKS];
+    int any = 0;
+    memcpy(p, inst->d.p, sizeof(p));
+    for (size_t i = 0; i < nvr; i++) {
+        const VarInfo *v = &MODEL_VARS[vr[i]];
+        if (v->kind == VAR_PARAMETER) { p[v->index] = value[i]; any = 1; }
+    }
+    if (!any) return fmi2OK;
+    if (model_parameter_check(p, h, &inst->work)) {
+        return fmu_error(inst, "fmi2SetReal: the relations between the parameters could not be evaluated");
+    }
+    for (int k = 0; k < N_PARAMETER_CHECKS; k++) {
+        if (!(h[k] >= -PARAMETER_CHECK_TOLERANCE)) {
+            return fmu_error(inst, "fmi2SetReal: refused, the parameters would break %s (%.6g); nothing was set",
+                             MODEL_PARAMETER_CHECK_NAMES[k], h[k]);
+        }
+    }
+    return fmi2OK;
+}
+#endif
+
 fmi2Status fmu_set_real(Instance *inst, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) {
     FmuData *d = &inst->d;
     int invalidate = 0;
@@ -200,6 +229,9 @@ fmi2Status fmu_set_real(Instance *inst, const fmi2ValueReference vr[], size_t nv
             return fmu_error(inst, "fmi2SetReal: %s", why);
         }
     }
+#if N_PARAMETER_CHECKS > 0
+    if (check_parameter_relations(inst, vr, nvr, value) != fmi2OK) return fmi2Error;
+#endif
     for (size_t i = 0; i < nvr; i++) {
         const VarInfo *v = &MODEL_VARS[vr[i]];
         if (v->kind == VAR_INPUT) rebase_law(d, v->index);

@@ -173,3 +173,89 @@ def test_six_axis_arm_manoeuvre_ends_at_pinocchio_gravity_torques(example_fmu):
     deflection = max(abs(res[f"{k}.tip.{c}"][-1]) / length for k, length in links.items() for c in "vw")
     assert 1e-5 < deflection < 1e-2                          # the arm sags, a little
     assert np.max(np.abs(tau - g)) < 3 * deflection * np.max(np.abs(g))
+
+
+# ------------------------------------------------------------------ a rigid link's inertia set through the FMU
+
+
+def _rigid_pendulum(inertia=(0.01, 0.02, 0.025, 0.0, 0.0, 0.0)) -> dict:
+    return dict(name="rigid_pendulum", gravity=[0.0, -9.81, 0.0],
+                joint=[dict(name="hub", axis=[0.0, 0.0, 1.0], drive="torque")],
+                link=[dict(name="body", deformation=[], length=0.5, mass=2.0, center_of_mass=[0.3, 0.0, 0.0],
+                           inertia=list(inertia))])
+
+
+def test_inertia_relations_agree_with_the_scene_loader():
+    """The model's parameter check (principal minors of ½tr(J)1 − J, generated into the FMU) accepts exactly
+    the tensors the scene loader accepts (its own test: eigenvalues and the triangle inequalities), on
+    random tensors around the boundary."""
+    from flexlink.errors import SceneError
+
+    model = build_model(parse_scene(_rigid_pendulum()))
+    k = [model.parameter_index(f"body.inertia[{i + 1}]") for i in range(6)]
+    rng = np.random.default_rng(3)
+    decided = {True: 0, False: 0}
+    for _ in range(400):
+        A = rng.normal(size=(3, 3))
+        second = A @ A.T                                    # a body's ∫ρ r rᵀ, then a perturbation
+        J = np.trace(second) * np.eye(3) - second + rng.normal(0.0, 0.1 * np.trace(second), (3, 3))
+        J = 0.5 * (J + J.T)
+        tensor = np.array([J[0, 0], J[1, 1], J[2, 2], J[0, 1], J[0, 2], J[1, 2]])
+        if np.any(tensor[:3] < 0):                          # a negative moment is the variable's own bound
+            continue
+        p = model.p0.copy()
+        p[k] = tensor
+        accepted_by_model = bool(np.all(np.asarray(model.parameter_check(p)) >= -1e-12))
+        try:
+            parse_scene(_rigid_pendulum(tuple(tensor)))
+            accepted_by_loader = True
+        except SceneError:
+            accepted_by_loader = False
+        assert accepted_by_model == accepted_by_loader, tensor
+        decided[accepted_by_model] += 1
+    assert min(decided.values()) > 40          # both sides of the boundary were tried
+
+
+def test_fmu_refuses_an_inertia_that_is_no_body_and_keeps_the_old_one(tmp_path):
+    """fmi2SetReal of Ixx = 0.05 > Iyy + Izz = 0.045: fmi2Error naming the relation, and nothing changed
+    (the other value of the same call, a torque input, included); after the reset fmi2Error asks for, a
+    physical change is taken; a product of inertia beyond its 2×2 minor is refused too."""
+    import fmpy
+    from fmpy.fmi1 import FMICallException
+    from fmpy.fmi2 import FMU2Slave
+
+    from flexlink.export.fmu import build_fmu
+    from flexlink.run.simulate import logging_callbacks
+
+    path = build_fmu(parse_scene(_rigid_pendulum()), tmp_path / "rigid.fmu").fmu
+    md = fmpy.read_model_description(str(path))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=fmpy.extract(str(path)),
+                      modelIdentifier=md.coSimulation.modelIdentifier, instanceName="rigid")
+    messages = []
+    callbacks = logging_callbacks(lambda *args: messages.append(args[-1].decode(errors="replace")))
+    slave.instantiate(loggingOn=False, callbacks=callbacks)
+    with pytest.raises(FMICallException):
+        slave.setReal([vr["body.inertia[1]"], vr["hub.tau"]], [0.05, 1.0])
+    assert "body.inertia: second moment xx >= 0" in messages[-1] and "nothing was set" in messages[-1]
+    assert slave.getReal([vr["body.inertia[1]"], vr["hub.tau"]]) == [0.01, 0.0]
+    slave.reset()                                              # fmi2Error: the instance wants a reset
+    slave.setReal([vr["body.inertia[1]"]], [0.04])            # ≤ 0.045: a body
+    slave.setupExperiment(startTime=0.0)
+    slave.enterInitializationMode()
+    assert slave.getReal([vr["body.inertia[1]"]]) == [0.04]
+    slave.setReal([vr["body.inertia[1]"]], [0.01])
+    with pytest.raises(FMICallException):                      # a product beyond the minor: 0.012² > 0.0175·0.0075
+        slave.setReal([vr["body.inertia[4]"]], [0.012])
+    assert "second moments xy minor" in messages[-1]
+    assert slave.getReal([vr["body.inertia[4]"]]) == [0.0]
+    slave.reset()
+    slave.setReal([vr["body.inertia[4]"]], [0.011])           # within the minor: 0.011² < 0.0175·0.0075
+    slave.setupExperiment(startTime=0.0)
+    slave.enterInitializationMode()
+    assert slave.getReal([vr["body.inertia[4]"]]) == [0.011]
+    slave.freeInstance()
+    _KEEP_ALIVE.append(callbacks)          # fmpy's logger proxy may still call it
+
+
+_KEEP_ALIVE: list = []

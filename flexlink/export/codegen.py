@@ -163,7 +163,10 @@ def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> list[
     else:
         newton = prepare(model.mass_matrix_function())
     residual_fwd, outputs_fwd = (prepare(f) for f in forward_functions(model))
-    return [residual, newton, outputs, residual_fwd, outputs_fwd, prepare(model.validity)]
+    functions = [residual, newton, outputs, residual_fwd, outputs_fwd, prepare(model.validity)]
+    if model.parameter_check is not None:
+        functions.append(prepare(model.parameter_check))
+    return functions
 
 
 def _guid(casadi_c: str, variables: list[FmuVariable], model: SymbolicModel) -> str:
@@ -181,6 +184,7 @@ def _config_h(model: SymbolicModel, guid: str, variables: list[FmuVariable], sz:
         scene=model.scene.name, identifier=model.scene.model_identifier, guid=guid, n_q=model.n_q,
         n_u=len(model.inputs), n_p=len(model.parameters), n_y=len(model.outputs), n_laws=len(model.laws),
         n_static=len(model.static_coordinates), n_vars=len(variables), n_validity=len(model.validity_names),
+        n_parameter_checks=len(model.parameter_check_names),
         linear_in_state=int(model.linear_in_state), jacobian_constant=int(model.jacobian_constant),
         **{f"sz_{k}": v for k, v in sz.items()},
     )
@@ -234,7 +238,18 @@ def _model_c(model: SymbolicModel, variables: list[FmuVariable], casadi_name: st
         static_coordinates=static, laws=_law_tables(model),
         newton_matrix=newton.substitute(identifier=ident).rstrip("\n"),
         validity_names="\n".join(f"    {_c_string(name)}," for name in model.validity_names) or '    ""',
+        parameter_check_names="\n".join(f"    {_c_string(n)}," for n in model.parameter_check_names) or '    ""',
+        parameter_check_body=_parameter_check_body(model),
     )
+
+
+def _parameter_check_body(model: SymbolicModel) -> str:
+    """The body of model_parameter_check: a call of the generated function, or nothing to check."""
+    if model.parameter_check is None:
+        return "    (void)p; (void)h; (void)work;\n    return 0;"
+    ident = model.scene.model_identifier
+    return ("    work->arg[0] = p;\n    work->res[0] = h;\n"
+            f"    return {ident}_parameter_check(work->arg, work->res, work->iw, work->w, 0);")
 
 
 def generate(model: SymbolicModel, directory: Path) -> GeneratedModel:

@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from flexlink.mechanics.assembly import ChainAssembly, check_supported, structure
-from flexlink.mechanics.outputs import chain_outputs, validity
+from flexlink.mechanics.outputs import chain_outputs, parameter_checks, validity
 from flexlink.mechanics.symbolic import Law, Parameter, Signal, StartValue, SymbolicModel
 from flexlink.scene.loader import Scene
 
@@ -66,6 +66,7 @@ def build_model(scene: Scene) -> SymbolicModel:
     chain.add_equations()
     signals, expressions = chain_outputs(chain)
     validity_function, validity_names = validity(chain)
+    check_function, check_names = parameter_checks(chain)
     start_values, static = chain.start_values()
     linear, constant = structure(chain.residual)
     free = chain.free
@@ -76,4 +77,4 @@ def build_model(scene: Scene) -> SymbolicModel:
         residual=chain.residual, outputs_function=chain.free_function("outputs", expressions),
         linear_in_state=linear, jacobian_constant=constant, terms=chain.terms,
         coordinate_kinds=[chain.kinds[k] for k in free], validity=validity_function, validity_names=validity_names,
-        mass_matrix=chain.free_mass_matrix())
+        mass_matrix=chain.free_mass_matrix(), parameter_check=check_function, parameter_check_names=check_names)

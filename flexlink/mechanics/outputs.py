@@ -159,3 +159,34 @@ def validity(chain: ChainAssembly) -> tuple[ca.Function, list[str]]:
             names.append(f"{link.name}.tip.twist / {ROTATION_LIMIT:g} rad")
             ratios.append(ca.fabs(tip.rotation_vector[0]) / ROTATION_LIMIT)
     return chain.free_function("model_validity", ratios, with_rates=False), names
+
+
+def parameter_checks(chain: ChainAssembly) -> tuple[ca.Function | None, list[str]]:
+    """h(p): every rigid link's inertial parameters describe a body while every h ≥ 0.
+
+    A tensor J about the centre of mass is a body's exactly when its second moments Σ = ∫ρ r rᵀ = ½ tr(J) 1 − J
+    are positive semi-definite (J ⪰ 0 and the triangle inequalities J_xx ≤ J_yy + J_zz … follow): all seven
+    principal minors of Σ ≥ 0, each scaled by ½ tr(J) to its power so that the FMU compares them with a
+    relative tolerance.  The bounds of single parameters (mass ≥ 0) are the variables' own ``min``.
+    Returns None when no rigid link has an inertia tensor.
+    """
+    names: list[str] = []
+    checks: list = []
+    p = chain.p
+    for link, part in zip(chain.scene.links, chain.parts, strict=True):
+        if part.i_I is None:
+            continue
+        xx, yy, zz, xy, xz, yz = (p[k] for k in part.i_I)
+        J = ca.vertcat(ca.horzcat(xx, xy, xz), ca.horzcat(xy, yy, yz), ca.horzcat(xz, yz, zz))
+        s = 0.5 * ca.trace(J)
+        S = s * ca.DM.eye(3) - J
+        minors = [(S[k, k], f"second moment {'xyz'[k]}{'xyz'[k]}", 1) for k in range(3)]
+        minors += [(S[a, a] * S[b, b] - S[a, b] ** 2, f"second moments {'xyz'[a]}{'xyz'[b]} minor", 2)
+                   for a, b in ((0, 1), (0, 2), (1, 2))]
+        minors.append((ca.det(S), "second moments determinant", 3))
+        for minor, what, power in minors:
+            names.append(f"{link.name}.inertia: {what} >= 0 (a body's inertia: Ixx <= Iyy + Izz ...)")
+            checks.append(ca.if_else(s > 0, minor / s**power, 0))
+    if not checks:
+        return None, []
+    return ca.Function("parameter_check", [p], [ca.vertcat(*checks)], ["p"], ["h"]), names

@@ -82,6 +82,8 @@ class SymbolicModel:
     validity: ca.Function | None = None   # (q, u, p) -> g: the model's assumptions hold while every g <= 1
     validity_names: list[str] = field(default_factory=list)   # what each entry of g measures
     mass_matrix: ca.Function | None = None   # (q, u, p) -> M, if the builder forms it more cheaply than ∂r/∂a
+    parameter_check: ca.Function | None = None   # p -> h: the parameters are physical while every h >= 0
+    parameter_check_names: list[str] = field(default_factory=list)
 
     @property
     def n_q(self) -> int:

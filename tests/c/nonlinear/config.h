@@ -18,6 +18,7 @@
 #define N_STATIC 1
 #define N_VARS 31
 #define N_VALIDITY 0
+#define N_PARAMETER_CHECKS 0
 #define MODEL_LINEAR_IN_STATE 0
 #define MODEL_JACOBIAN_CONSTANT 0
 #define MODEL_SZ_ARG 8

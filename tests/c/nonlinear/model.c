@@ -119,3 +119,11 @@ int model_validity(const double *q, const double *u, const double *p, double *g,
     (void)q; (void)u; (void)p; (void)g; (void)work;
     return 0;
 }
+
+/* No relations between parameters to check. */
+const char *const MODEL_PARAMETER_CHECK_NAMES[1] = {""};
+
+int model_parameter_check(const double *p, double *h, ModelWork *work) {
+    (void)p; (void)h; (void)work;
+    return 0;
+}

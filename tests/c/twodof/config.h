@@ -14,6 +14,7 @@
 #define N_STATIC 0
 #define N_VARS 16
 #define N_VALIDITY 0
+#define N_PARAMETER_CHECKS 0
 #define MODEL_LINEAR_IN_STATE 1
 #define MODEL_JACOBIAN_CONSTANT 1
 #define MODEL_SZ_ARG 8
