@@ -132,6 +132,10 @@ def dense_newton_matrix(model: SymbolicModel) -> bool:
     """Whether the Newton matrix is generated as one dense symbolic Jacobian (else assembled by columns):
     the scene's [fmu] newton_matrix, or for "auto" up to NEWTON_DENSE_MAX_COORDINATES."""
     form = model.scene.fmu.newton_matrix
+    if form == "dense" and model.n_q > EXPAND_MAX_COORDINATES:
+        raise BuildError(f'[fmu] newton_matrix = "dense": at most {EXPAND_MAX_COORDINATES} coordinates (this '
+                         f'model has {model.n_q}; its dense Jacobian would be n times the residual\'s code); use '
+                         '"auto" or "columns"')
     if form != "auto":
         return form == "dense"
     return model.n_q <= min(NEWTON_DENSE_MAX_COORDINATES, EXPAND_MAX_COORDINATES)

@@ -339,7 +339,8 @@ class ChainAssembly:
             self.tip_load = len(inputs)
             for c, unit, what in (("fx", "N", "force"), ("fy", "N", "force"), ("fz", "N", "force"),
                                   ("mx", "N.m", "moment"), ("my", "N.m", "moment"), ("mz", "N.m", "moment")):
-                inputs.append(Signal(f"tip.{c}", unit, f"external {what} on the tip, inertial frame"))
+                inputs.append(Signal(f"tip.{c}", unit,
+                                     f"external {what} at the tool frame's origin (the last tip), inertial frame"))
             self.terms.append("tip force and moment inputs ([fmu] tip_load_inputs)")
         self.u = ca.MX.sym("u", len(inputs))
 
@@ -472,13 +473,13 @@ class ChainAssembly:
         self.origin = ca.DM.zeros(3)
         parent = (ca.DM.eye(3), ca.DM.zeros(3, 3), ca.DM.zeros(3), ca.DM.zeros(3))   # R, Ṙ, ω, V of the base
         for i, (joint, link, part) in enumerate(zip(self.scene.joints, self.scene.links, self.parts, strict=True)):
-            a = np.asarray(joint.axis, float)
+            a = np.asarray(joint.axis, float) / np.linalg.norm(joint.axis)
             R0, R0_dot, w0, VL = self.joint_frame(joint, parent)
             th, thd = qa[self.joint_coord[i]], va[self.joint_coord[i]]
             Rj = rotation(a, th)
-            Rj_dot = ca.mtimes(Rj, skew(ca.DM(a / np.linalg.norm(a)))) * thd
+            Rj_dot = ca.mtimes(Rj, skew(ca.DM(a))) * thd
             B = ca.DM.eye(3) if part.rigid else ca.DM(link_basis(a))   # a rigid link's frame is the joint's
-            part.axis = tuple(np.asarray(B.T @ ca.DM(a / np.linalg.norm(a))).ravel())
+            part.axis = tuple(np.asarray(B.T @ ca.DM(a)).ravel())
             RL = ca.mtimes(ca.mtimes(R0, Rj), B)
             RL_dot = ca.mtimes(ca.mtimes(R0_dot, Rj) + ca.mtimes(R0, Rj_dot), B)
             wL = ca.mtimes(B.T, ca.mtimes(Rj.T, w0) + ca.DM(a) * thd)
@@ -571,6 +572,10 @@ class ChainAssembly:
                               "own elastic coordinates, the chain composed exactly (a Lagrangian: M symmetric)")
         n_all = len(self.coordinates)
         self.free = [k for k in range(n_all) if k not in self.prescribed]
+        if not self.free:
+            raise _unsupported(self.scene, "a chain with no free coordinate (every joint position-driven and "
+                                           "every link rigid: nothing to integrate; drive a joint by torque or "
+                                           "make a link flexible)")
         n_free = len(self.free)
         self.q, self.v, self.a = ca.MX.sym("q", n_free), ca.MX.sym("v", n_free), ca.MX.sym("a", n_free)
         # the full coordinate vectors seen from the free ones: a prescribed coordinate's value, rate and
@@ -597,11 +602,12 @@ class ChainAssembly:
         """A Function of the free (q, v, a, u, p) — or (q, u, p) — from expressions in the full coordinates."""
         inner = ca.Function(f"{name}_all", [self.qa, self.va, self.aa, self.u, self.p], [ca.vertcat(*expressions)])
         if with_rates:
-            value = inner(self.qa_e, self.va_e, self.aa_e, self.u, self.p)
+            # dense: an entry may be structurally zero (a turntable's tip acceleration), the C wants every one
+            value = ca.densify(inner(self.qa_e, self.va_e, self.aa_e, self.u, self.p))
             return ca.Function(name, [self.q, self.v, self.a, self.u, self.p], [value],
                                ["q", "v", "a", "u", "p"], ["y"])
         zeros = ca.DM.zeros(len(self.coordinates))
-        value = inner(self.qa_e, zeros, zeros, self.u, self.p)
+        value = ca.densify(inner(self.qa_e, zeros, zeros, self.u, self.p))
         return ca.Function(name, [self.q, self.u, self.p], [value], ["q", "u", "p"], ["g"])
 
     # ---- start values and initial deformation

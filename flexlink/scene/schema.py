@@ -341,7 +341,7 @@ SECTIONS: tuple[Section, ...] = (
     Section("link", "[[link]]", "a beam link (Euler–Bernoulli), clamped in its joint's frame, or a rigid link "
             "(deformation = []): a uniform rod (linear_density) or a body (mass, center_of_mass, inertia)"),
     Section("link.shapes", "[link.shapes]", "the beam's shape functions or finite elements"),
-    Section("link.payload", "[link.payload]", "a rigid body at the link's tip (beam and shell links)"),
+    Section("link.payload", "[link.payload]", "a rigid body at the link's tip (beam, shell and rigid links)"),
     Section("shell_link", '[[link]] with shapes.kind = "shell"',
             "a plate or thin-walled box link of DKT + CST shell elements: material, not section properties"),
     Section("shell_link.shapes", '[link.shapes] with kind = "shell"', "the shell link's section and mesh"),
@@ -489,7 +489,8 @@ KEYS: tuple[Key, ...] = (
        description="terms kept as FMU parameters even at zero: <link>.kelvin_voigt, <link>.payload.mass, "
                    "<link>.payload.inertia, <joint>.stiffness, <joint>.damping, gravity"),
     _K("fmu", "tip_load_inputs", "boolean", "", False,
-       description="add inputs tip.fx … tip.mz: a force and moment at the last link's tip (inertial frame)"),
+       description="add inputs tip.fx … tip.mz: a force and moment at the [tool] frame's origin, the last "
+                   "link's tip without one (inertial frame)"),
     _K("fmu", "newton_matrix", "string", "", "auto", choices=NEWTON_MATRIX_FORMS,
        description="the SS22 Newton matrix in the generated C: one dense symbolic Jacobian (fastest to refresh, "
                    "code n times the residual's), columns of the residual's derivative (code like the residual's), "

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from flexlink.mechanics.analysis import natural_frequencies
 from flexlink.mechanics.model import build_model
 from flexlink.scene.loader import load_scene
@@ -25,9 +27,11 @@ def body_lines(scene) -> list[str]:
             where = f", at origin {_fmt(joint.origin)} rpy {_fmt(joint.rpy)}"
         elastic = f", elastic ({joint.stiffness:g} N m/rad)" if joint.is_elastic else ""
         if link.is_rigid:
-            mass, centre, _ = link.rigid_body()
-            kind = f"rigid, {mass:.4g} kg, centre {_fmt(centre)}" if mass > 0 else "massless"
-            if link.length == 0 and mass == 0:
+            mass, centre, inertia = link.rigid_body()
+            kind = f"rigid, {mass:.4g} kg, centre {_fmt(centre)}" if mass > 0 else "rigid, massless"
+            if mass == 0 and np.any(inertia):
+                kind = "rigid rotor (no mass, an inertia)"
+            elif link.length == 0 and mass == 0:
                 kind = "massless connector: joints at one point"
         elif link.is_shell:
             kind = f"{link.shapes.section} shell, {link.kinematics}"
