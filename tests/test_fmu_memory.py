@@ -43,7 +43,6 @@ def built(tmp_path_factory):
         sources = [unzip / "sources" / f.name for f in md.coSimulation.sourceFiles] \
             if hasattr(md.coSimulation, "sourceFiles") and md.coSimulation.sourceFiles \
             else sorted((unzip / "sources").glob("*.c"))
-        sources = [s for s in sources if not s.name.endswith("_casadi.c")]   # included by model.c
         asan = cbuild.compile_shared_library(sources, [unzip / "sources"], d / f"{name}_asan.so", sanitize=True)
         out[name] = (unzip / "binaries" / "linux64" / f"{md.coSimulation.modelIdentifier}.so", asan, md)
     return out

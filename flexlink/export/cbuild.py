@@ -13,7 +13,9 @@ import importlib.util
 import os
 import shlex
 import subprocess
+import tempfile
 from collections.abc import Iterable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from flexlink.errors import BuildError
@@ -110,17 +112,28 @@ def compile_shared_library(
     """
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    command = [
-        *compiler(), *CFLAGS, *(SANITIZE_CFLAGS if sanitize else ()), *extra_cflags,
-        *(f"-I{d}" for d in include_dirs), *(str(s) for s in sources), "-o", str(output), "-lm",
-    ]
+    flags = [*CFLAGS, *(SANITIZE_CFLAGS if sanitize else ()), *extra_cflags, *(f"-I{d}" for d in include_dirs)]
+    sources = [Path(s) for s in sources]
+    with tempfile.TemporaryDirectory(prefix="flexlink-objects-") as tmp:
+        objects = [Path(tmp) / f"{k}_{s.stem}.o" for k, s in enumerate(sources)]
+        # the largest files first, one compiler per core: the units of a large model compile side by side
+        order = sorted(range(len(sources)), key=lambda k: -(sources[k].stat().st_size if sources[k].is_file() else 0))
+        with ThreadPoolExecutor(max_workers=max(1, os.cpu_count() or 1)) as pool:
+            for _ in pool.map(lambda k: _run([*compiler(), *flags, "-c", str(sources[k]), "-o", str(objects[k])],
+                                             output.name), order):
+                pass
+        _run([*compiler(), *flags, *(str(o) for o in objects), "-o", str(output), "-lm"], output.name)
+    return output
+
+
+def _run(command: list[str], what: str) -> None:
+    """One compiler call; a failure is a BuildError with the command line and the compiler's stderr."""
     try:
         result = subprocess.run(command, capture_output=True, text=True, check=False)
     except OSError as error:
         raise BuildError(f"cannot run the C compiler {command[0]!r}: {error}") from error
     if result.returncode != 0:
         raise BuildError(
-            f"compiling {output.name} failed (exit {result.returncode}):\n  {shlex.join(command)}\n"
+            f"compiling {what} failed (exit {result.returncode}):\n  {shlex.join(command)}\n"
             f"{result.stderr.strip()}"
         )
-    return output

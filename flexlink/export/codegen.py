@@ -32,13 +32,13 @@ from flexlink.export.derivatives import forward_functions
 from flexlink.export.variables import FmuVariable, fmu_variables
 from flexlink.mechanics.model import SymbolicModel
 
-# Scalar (SX) code is fast to run; its size grows like n² for a dense Newton matrix (and much faster with
-# the consistent second-order kinematics: 17 coordinates of examples/flexible_pendulum.toml are 270 000
-# operations, 6.3 MB of C).  Up to FULL_OPTIMISATION_MAX_OPERATIONS it is compiled at -O2; above, at -O1:
-# for that pendulum 195 s → 29 s of gcc and the same run time (0.091 s → 0.088 s for 2 s of swing, median
-# of 3; -O0 would be 8 s of gcc but 3.3× slower to run).  Above EXPAND_MAX_COORDINATES the matrix graph is
-# kept and the Newton matrix assembled in C from a forward derivative (compact, but much slower per step).
-FULL_OPTIMISATION_MAX_OPERATIONS = 20_000
+# Scalar (SX) code is fast to run.  Each generated function is its own translation unit (compiled side by
+# side), at -O2 up to FULL_OPTIMISATION_MAX_OPERATIONS and -O1 above: -O1 runs large straight-line code as
+# fast (examples/flexible_pendulum.toml: 0.091 s → 0.088 s for 2 s of swing, median of 3) and compiles it
+# several times faster (that pendulum's 270 000 operations: 195 s → 29 s of gcc; the five-link chain's
+# 15 000-operation residual 3.1 s → 1.5 s; -O0 would be faster still to build but 3.3× slower to run).
+# Above EXPAND_MAX_COORDINATES the matrix graph is kept (compact code, much slower per step).
+FULL_OPTIMISATION_MAX_OPERATIONS = 5_000
 EXPAND_MAX_COORDINATES = 160
 # [fmu] newton_matrix = "auto": up to this many coordinates the Newton matrix is one dense symbolic Jacobian
 # (cheapest to refresh); above, it is assembled in C column by column from the residual's forward derivative
@@ -53,12 +53,11 @@ NEWTON_DENSE_MAX_COORDINATES = 12
 # test suite builds dozens of FMUs and runs each briefly, so it compiles them at O0 (README "Tests").
 OPTIMISE_ENV = "FLEXLINK_OPTIMISE"
 OPTIMISE_LEVELS = ("O0", "O1", "O2")
-OPTIMISE_POP = "#pragma GCC pop_options\n"
 
 
 def generated_code_optimisation(operations: int) -> str:
-    """The gcc optimisation level of the CasADi code: $FLEXLINK_OPTIMISE if set, else O2 or, above
-    FULL_OPTIMISATION_MAX_OPERATIONS, O1."""
+    """The gcc optimisation level of one generated function of ``operations`` operations: $FLEXLINK_OPTIMISE if
+    set, else O2 or, above FULL_OPTIMISATION_MAX_OPERATIONS, O1."""
     level = os.environ.get(OPTIMISE_ENV, "").strip()
     if level:
         if level not in OPTIMISE_LEVELS:
@@ -67,11 +66,11 @@ def generated_code_optimisation(operations: int) -> str:
     return "O1" if operations > FULL_OPTIMISATION_MAX_OPERATIONS else "O2"
 
 
-def _optimise_push(level: str) -> str:
-    """model.c.in's $optimise_push around the CasADi code (nothing for the file's own -O2)."""
+def _optimise_pragma(level: str) -> str:
+    """unit.c.in's $optimise: the unit's level when it is not the build's own -O2."""
     if level == "O2":
         return ""
-    return f'#pragma GCC push_options\n#pragma GCC optimize ("{level}")  /* large straight-line code */\n'
+    return f'#pragma GCC optimize ("{level}")  /* large straight-line code */\n'
 
 
 SOLVER_SETTINGS = ("SOLVER_STEP", "SOLVER_THETA1", "SOLVER_THETA2", "SOLVER_TOLERANCE", "SOLVER_ORDER")
@@ -80,7 +79,7 @@ SOLVER_SETTINGS = ("SOLVER_STEP", "SOLVER_THETA1", "SOLVER_THETA2", "SOLVER_TOLE
 @dataclass
 class GeneratedModel:
     directory: Path
-    sources: list[Path]            # the model half's C files to compile
+    sources: list[Path]            # the model half's C files to compile: model.c and one unit per function
     generated: list[Path]          # every generated file
     variables: list[FmuVariable]
     guid: str
@@ -226,8 +225,7 @@ def _law_tables(model: SymbolicModel) -> str:
     return "\n".join(arrays) + "\nconst KinematicLaw MODEL_LAWS[N_LAWS] = {\n" + "\n".join(law_rows) + "\n};\n"
 
 
-def _model_c(model: SymbolicModel, variables: list[FmuVariable], casadi_name: str, expanded: bool,
-             level: str) -> str:
+def _model_c(model: SymbolicModel, variables: list[FmuVariable], units: list[str]) -> str:
     """``model.c``: the variable table, the kinematic laws and the functions of ``fmu_src/model.h``."""
     ident = model.scene.model_identifier
     static = ""
@@ -236,8 +234,8 @@ def _model_c(model: SymbolicModel, variables: list[FmuVariable], casadi_name: st
                   + ", ".join(str(i) for i in model.static_coordinates) + "};\n")
     newton = _template("newton_matrix.c.in" if dense_newton_matrix(model) else "newton_matrix_columns.c.in")
     return _template("model.c.in").substitute(
-        scene=model.scene.name, identifier=ident, casadi_name=casadi_name,
-        optimise_push=_optimise_push(level), optimise_pop=OPTIMISE_POP if level != "O2" else "",
+        scene=model.scene.name, identifier=ident, casadi_units=", ".join(f"{u}.c" for u in units),
+        casadi_includes="\n".join(f'#include "{u}.h"' for u in units),
         variables=_variable_rows(variables), nominal_q=", ".join(_c(x) for x in model.nominal_q),
         static_coordinates=static, laws=_law_tables(model),
         newton_matrix=newton.substitute(identifier=ident).rstrip("\n"),
@@ -256,27 +254,38 @@ def _parameter_check_body(model: SymbolicModel) -> str:
             f"    return {ident}_parameter_check(work->arg, work->res, work->iw, work->w, 0);")
 
 
+def _write_unit(f: ca.Function, model: SymbolicModel, directory: Path, expanded: bool) -> tuple[Path, int]:
+    """One generated function as its own C file (and header): CasADi's code behind unit.c.in's preamble,
+    at the optimisation level its size calls for.  Returns the file and its operation count."""
+    name = f.name()
+    cg = ca.CodeGenerator(f"{name}.c", {"with_header": True, "prefix": f"{name}_", "casadi_real": "double"})
+    cg.add(f)
+    cg.generate(str(directory) + "/")
+    # elementary operations, counted on the scalar expansion whatever the generated form
+    operations = int((f if expanded else f.expand()).n_instructions())
+    path = directory / f"{name}.c"
+    preamble = _template("unit.c.in").substitute(unit=name, scene=model.scene.name,
+                                                 optimise=_optimise_pragma(generated_code_optimisation(operations)))
+    path.write_text(preamble + path.read_text())
+    return path, operations
+
+
 def generate(model: SymbolicModel, directory: Path) -> GeneratedModel:
-    """Write the model half of the FMU's C sources into ``directory``."""
+    """Write the model half of the FMU's C sources into ``directory``: model.c, and one unit per generated
+    function (compiled side by side, :func:`flexlink.export.cbuild.compile_shared_library`)."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     ident = model.scene.model_identifier
     expanded = model.n_q <= EXPAND_MAX_COORDINATES
     functions = _casadi_functions(model, ident, expanded)
-    cname = f"{ident}_casadi"
-    cg = ca.CodeGenerator(f"{cname}.c", {"with_header": True, "prefix": f"{ident}_", "casadi_real": "double"})
-    for f in functions:
-        cg.add(f)
-    cg.generate(str(directory) + "/")
-    # elementary operations, counted on the scalar expansion whatever the generated form
-    operations = sum(int((f if expanded else f.expand()).n_instructions()) for f in functions)
-
+    units = [_write_unit(f, model, directory, expanded) for f in functions]
+    operations = sum(ops for _, ops in units)
     variables = fmu_variables(model, _feedthrough(model))
     sz = {k: max(int(getattr(f, f"sz_{k}")()) for f in functions) for k in ("arg", "res", "iw", "w")}
-    guid = _guid((directory / f"{cname}.c").read_text(), variables, model)
+    guid = _guid("".join(path.read_text() for path, _ in units), variables, model)
     (directory / "config.h").write_text(_config_h(model, guid, variables, sz))
-    (directory / "model.c").write_text(_model_c(model, variables, cname, expanded,
-                                                     generated_code_optimisation(operations)))
-    sources = [directory / "model.c"]          # includes the CasADi file
-    generated = [directory / "model.c", directory / f"{cname}.c", directory / f"{cname}.h"]
+    names = [f.name() for f in functions]
+    (directory / "model.c").write_text(_model_c(model, variables, names))
+    sources = [directory / "model.c", *(path for path, _ in units)]
+    generated = [*sources, *(directory / f"{n}.h" for n in names)]
     return GeneratedModel(directory, sources, generated, variables, guid, ident, expanded, operations)

@@ -235,7 +235,7 @@ def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, ke
         output.parent.mkdir(parents=True, exist_ok=True)
         tmp = output.with_suffix(f"{output.suffix}.{os.getpid()}.part")   # unique: concurrent builders
         try:
-            with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
+            with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as z:
                 z.write(work / "modelDescription.xml", "modelDescription.xml")
                 z.write(so, f"binaries/linux64/{so.name}")
                 for f in sorted(src.iterdir()):
