@@ -4,10 +4,12 @@ baseline, and closed-loop co-simulation through fmpy.
 One module per concern (python-control's layout):
 
 =====================  ===================================================================================
-``design``             Bryson weights, ``lqr``/``dlqr``, ``lqe``/``dlqe`` from sensors, PD pole placement
+``design``             Bryson weights, ``lqr``/``dlqr`` on every torque-driven joint, ``lqe``/``dlqe`` from
+                       sensors, PD pole placement
 ``trajectory``         quintic reference; minimum-jerk rest-to-rest feedforward of the flexible model
 ``laws``               sampled laws (LQG, PD), stepped against the FMU or as ``control.StateSpace``
 ``closedloop``         python-control closed loop: prediction, loop transfer, margins
+``robustness``         multi-joint: loop-at-a-time margins at each actuator, peak sensitivity, poles
 ``cosim``              ``FmuLoop``: the FMU instantiated once with ``FMU2Slave``, reset between runs
 ``manoeuvre``          design everything on one plant; rest-to-rest runs and SCENE.md's figures
 ``plots``              time responses, closed-loop poles, loop Bode with margins
@@ -32,7 +34,8 @@ import importlib
 
 _EXPORTS = {
     "bryson_weights": "design", "design_kalman": "design", "design_lqr": "design", "design_pd": "design",
-    "rigid_pair": "design", "sensor_set": "design", "SENSOR_NOISE": "design",
+    "rigid_pair": "design", "sensor_set": "design", "SENSOR_NOISE": "design", "DesignError": "design",
+    "loop_at_a_time": "robustness", "lqg_compensator": "robustness",
     "quintic": "trajectory", "min_jerk_feedforward": "trajectory", "min_jerk_reference": "trajectory",
     "LQGLaw": "laws", "PDLaw": "laws",
     "closed_loop": "closedloop", "loop_transfer": "closedloop", "margins": "closedloop", "predict": "closedloop",

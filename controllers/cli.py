@@ -65,19 +65,25 @@ def add_control_parsers(subparsers) -> None:
     p.add_argument("--save", metavar="FILE", help="also save them: FILE.json (as --json) or FILE.npz (arrays)")
     p.set_defaults(func=cmd_linearize)
 
-    p = subparsers.add_parser("control", help="rest-to-rest manoeuvre of the first joint in closed loop (fmpy)")
+    p = subparsers.add_parser("control", help="rest-to-rest manoeuvre of the first joint in closed loop (fmpy); "
+                                              "LQR/Kalman design on every torque-driven joint with its margins")
     p.add_argument("scene")
-    p.add_argument("--target", type=_finite, required=True, metavar="DEG", help="final angle of the first joint")
-    p.add_argument("--duration", type=_finite, required=True, metavar="S", help="manoeuvre time")
+    p.add_argument("--target", type=_finite, metavar="DEG", help="final angle of the first joint (the run)")
+    p.add_argument("--duration", type=_finite, metavar="S", help="manoeuvre time (the run)")
+    p.add_argument("--design-only", action="store_true",
+                   help="design the LQR/Kalman on every torque-driven joint and report its margins, closed-loop "
+                        "poles and peak sensitivity; no FMU, no run (needs --torque-limit or --target/--duration)")
     p.add_argument("--settle", type=_finite, default=1.5, metavar="S",
                    help="window after the manoeuvre for the residual vibration and final error (default 1.5)")
     p.add_argument("--controller", choices=("lqr", "pd"), default="lqr",
                    help="lqr: LQR + Kalman estimator with model feedforward; pd: joint PD baseline")
     p.add_argument("--torque-limit", type=_finite, metavar="NM",
-                   help="saturation and Bryson torque limit (default: 1.5 x the rigid quintic's peak torque)")
+                   help="saturation and Bryson torque limit of every joint (default: 1.5 x the rigid quintic's "
+                        "peak torque of the first joint)")
     p.add_argument("--sample-time", type=_finite, default=1e-3, metavar="S", help="controller sample time (1 ms)")
     p.add_argument("--sensors", choices=("strain", "accelerometer"), default="strain",
-                   help="Kalman sensors besides the hub encoder: root strain gauge or tip accelerometer")
+                   help="Kalman sensors besides the joint encoders: the links' root strain gauges or the tip "
+                        "accelerometer")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="FMU parameter for the run (the design keeps the scene's values)")
     p.add_argument("--noise", action="store_true", help="add the sensors' noise to what the controller reads")
@@ -167,21 +173,29 @@ def cmd_control(args) -> int:
     if args.torque_limit is not None and not args.torque_limit > 0:
         raise FlexlinkError(f"--torque-limit must be positive, got {args.torque_limit}")
     run_params = parse_assignments(args.set)
+    if not args.design_only and (args.target is None or args.duration is None):
+        raise FlexlinkError("--target and --duration are required for the closed-loop run (or give --design-only)")
+    if args.design_only and args.torque_limit is None and (args.target is None or args.duration is None):
+        raise FlexlinkError("--design-only needs --torque-limit (or --target and --duration for the default)")
     model = build_model(load_scene(args.scene))
     check_scene(model)
     plant = linear_plant(model, outputs=[f"{model.scene.joints[0].name}.theta"])
-    target = math.radians(args.target)
-    delta = target - float(plant.x0[0])
-    if not args.duration > 0:
+    target = math.radians(args.target) if args.target is not None else None
+    if args.duration is not None and not args.duration > 0:
         raise FlexlinkError(f"--duration must be a positive number of seconds, got {args.duration}")
-    limit = args.torque_limit if args.torque_limit is not None else default_torque_limit(plant, delta,
-                                                                                          args.duration)
+    limit = args.torque_limit
+    if limit is None:
+        limit = default_torque_limit(plant, target - float(plant.x0[0]), args.duration)
     try:
         d = design(model, torque_limit=limit, dt=args.sample_time, sensors=args.sensors)
     except (ValueError, np.linalg.LinAlgError) as e:
-        # e.g. the Riccati solver on a model with uncontrollable high modes (a symmetric plate's torsion)
-        raise FlexlinkError(f"{args.scene}: the LQR/Kalman design failed ({e}); a model with fewer modes "
-                            "(shapes.modes) may help") from None
+        raise FlexlinkError(f"{args.scene}: the LQR/Kalman design failed ({' '.join(str(e).split())})") from None
+    if args.design_only:
+        return _report_design(args, d)
+    if len(d.actuated_joints) > 1:
+        raise FlexlinkError(f"{args.scene}: {len(d.actuated_joints)} torque-driven joints "
+                            f"({', '.join(d.actuated_joints)}): the closed-loop run drives one joint so far; "
+                            "--design-only gives the multi-joint design and its margins")
     fmu = cached_fmu(args.scene)          # built (or found in the cache) before the timed run
     with FmuLoop(fmu) as loop:
         for name in run_params:
@@ -203,7 +217,8 @@ def cmd_control(args) -> int:
     if args.json:
         m = dict(m)
         m.update({"sensors": d.kalman.sensors if args.controller == "lqr" else d.law("pd").sensors,
-                  "rigid_pair_rad_s": wn, "rigid_pair_zeta": zeta, "parameters": run_params})
+                  "rigid_pair_rad_s": wn, "rigid_pair_zeta": zeta, "parameters": run_params,
+                  "robustness": _robustness_json(d, args.controller)})
         print(json.dumps(m))
         return 0
     print(f"{model.scene.name}: {args.controller.upper()} rest-to-rest {math.degrees(float(plant.x0[0])):g} -> "
@@ -220,4 +235,48 @@ def cmd_control(args) -> int:
     print(f"  realtime factor      {m['realtime_factor']: .1f} (simulated s per wall-clock s)")
     if args.plot:
         print(f"  wrote {args.plot}")
+    return 0
+
+
+def _robustness_json(d, controller: str) -> dict:
+    """The design's margins as JSON values (``controllers.robustness.robustness_figures``); with the PD, its
+    own sampled loop as ``"pd"`` too."""
+    from controllers.closedloop import sampled_plant
+    from controllers.robustness import loop_at_a_time, robustness_figures
+
+    rob = dict(d.robustness())
+    if controller == "pd":
+        law = d.law("pd")
+        rob["pd"] = loop_at_a_time(sampled_plant(d.plant, d.dt, law.sensors), -law.K @ law.S, [law.input])
+    return robustness_figures(rob)
+
+
+def _report_design(args, d) -> int:
+    """``flexlink control --design-only``: gains' shapes, weights, margins, closed-loop poles."""
+    wn, zeta = d.lqr.rigid_pair
+    rob = _robustness_json(d, "lqr")
+    if args.json:
+        print(json.dumps({
+            "actuated_joints": d.actuated_joints, "inputs": d.lqr.inputs, "states": d.plant.states,
+            "sample_time_s": d.dt, "torque_limits_nm": d.lqr.torque_limits, "bryson_limits": d.lqr.limits,
+            "sensors": d.kalman.sensors, "K": d.lqr.K.tolist(), "Kd": d.lqr.Kd.tolist(),
+            "rigid_pair_rad_s": wn, "rigid_pair_zeta": zeta, "robustness": rob}))
+        return 0
+    model = d.plant.model
+    print(f"{model.scene.name}: LQR on {', '.join(d.actuated_joints)} ({d.plant.sys.nstates} states), sample time "
+          f"{d.dt:g} s, torque limits " + ", ".join(f"{j} {v:g} N m" for j, v in d.lqr.torque_limits.items()))
+    print(f"  Kalman sensors: {', '.join(d.kalman.sensors)}; slowest LQR pair {wn:.3g} rad/s (zeta {zeta:.2f})")
+
+    def db(v):
+        return "inf" if v is None else f"{v:.3g}"
+
+    for loop, what in (("lqr", "continuous LQR, full state"), ("lqg", f"sampled LQG at {d.dt:g} s")):
+        r = rob[loop]
+        print(f"  {what}: {'stable' if r['stable'] else 'UNSTABLE'}, peak sensitivity "
+              f"{db(r['peak_sensitivity'])} (all loops)")
+        for a in r["actuators"]:
+            gr = "-inf" if a["gain_reduction_margin_db"] is None else f"{a['gain_reduction_margin_db']:.3g}"
+            print(f"    {a['input']:<16} gain margin {db(a['gain_margin_db'])} dB (down {gr} dB), phase margin "
+                  f"{db(a['phase_margin_deg'])} deg at {db(a['gain_crossover_hz'])} Hz, peak sensitivity "
+                  f"{db(a['peak_sensitivity'])}")
     return 0

@@ -2,17 +2,19 @@
 
 Everything returns python-control objects or plain arrays that python-control produced:
 
-* :func:`bryson_weights` — Q, R from physical limits (max hub error, max tip deflection, max root moment,
-  torque limit), ``Q = C_zᵀ diag(1/z_max²) C_z``, ``R = 1/u_max²``;
+* :func:`bryson_weights` — Q, R from physical limits (max joint error per joint, max tip deflection and
+  root moment per link, torque limit per joint), ``Q = C_zᵀ diag(1/z_max²) C_z``, ``R = diag(1/u_max²)``;
 * :func:`design_lqr` — ``control.lqr`` on the continuous plant and ``control.dlqr`` on the plant sampled
-  (zero-order hold) at the controller's sample time;
-* :func:`design_kalman` — ``control.lqe`` / ``control.dlqe`` from realistic sensors (hub encoder plus
-  root strain gauge or tip accelerometer) and a torque-disturbance process noise;
+  (zero-order hold) at the controller's sample time, on every torque-driven joint;
+* :func:`design_kalman` — ``control.lqe`` / ``control.dlqe`` from realistic sensors (every joint's encoder
+  plus the links' root strain gauges or the tip accelerometer) and a torque-disturbance process noise;
 * :func:`design_pd` — joint PD whose rigid-body closed-loop pair sits at a given natural frequency and
   damping ratio, placed exactly on the flexible model (not only on the rigid inertia);
 * :func:`rigid_pair` — natural frequency and damping of the dominant (slowest) closed-loop pair.
 
 The plant is a :class:`flexlink.run.linearize.LinearPlant` (deviation variables about its operating point).
+A design that cannot be made — no torque-driven joint, a rigid-body or undamped mode the torques cannot move
+or the sensors cannot see, no sensor — raises :class:`DesignError` with one line naming the cause.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from flexlink.run.linearize import LinearPlant
 
 __all__ = [
     "SENSOR_NOISE",
+    "DesignError",
     "KalmanDesign",
     "LQRDesign",
     "PDDesign",
@@ -35,9 +38,12 @@ __all__ = [
     "design_kalman",
     "design_lqr",
     "design_pd",
+    "joint_encoders",
+    "stabilizability",
     "rigid_pair",
     "sample",
     "sensor_set",
+    "torque_inputs",
 ]
 
 #: Default sensor noise, standard deviation per sensor kind (SI): a 16384-count/rev encoder (quantisation
@@ -70,20 +76,65 @@ def _sensor_kind(name: str) -> str:
     raise FlexlinkError(f"{name}: no default noise level for this output; give it in `noise`")
 
 
+def joint_encoders(plant_or_model) -> list[str]:
+    """``<joint>.theta`` of every joint whose angle is a free coordinate (torque-driven or free joints;
+    a position-driven joint's angle is its law), in scene order."""
+    model = plant_or_model.model if isinstance(plant_or_model, LinearPlant) else plant_or_model
+    return [f"{j.name}.theta" for j in model.scene.joints if f"{j.name}.theta" in model.coordinates]
+
+
 def sensor_set(plant_or_model, kind: str) -> list[str]:
-    """FMU names of a sensor set: ``"strain"`` (hub encoder + root strain gauge of the last link) or
-    ``"accelerometer"`` (hub encoder + two-axis tip accelerometer: specific force x and y in the tip frame).
+    """FMU names of a sensor set: the encoders of every joint (:func:`joint_encoders`) plus
+    ``"strain"`` (the root strain gauge of every link that has one) or ``"accelerometer"`` (a two-axis
+    tip accelerometer: specific force x and y in the tip frame).
 
     At rest ``tip.sx`` (centripetal, second order in the rate) has a zero row in the linearised C, so the
     stationary Kalman filter gives it no gain: the information comes from ``tip.sy``.
     """
     model = plant_or_model.model if isinstance(plant_or_model, LinearPlant) else plant_or_model
-    joint, link = model.scene.joints[0].name, model.scene.links[-1].name
+    outputs = [s.name for s in model.outputs]
     if kind == "strain":
-        return [f"{joint}.theta", f"{link}.root.moment"]
-    if kind == "accelerometer":
-        return [f"{joint}.theta", "tip.sx", "tip.sy"]
-    raise FlexlinkError(f'sensors: expected "strain" or "accelerometer", got {kind!r}')
+        extra = [f"{lk.name}.root.moment" for lk in model.scene.links if f"{lk.name}.root.moment" in outputs]
+    elif kind == "accelerometer":
+        extra = [s for s in ("tip.sx", "tip.sy") if s in outputs]
+    else:
+        raise FlexlinkError(f'sensors: expected "strain" or "accelerometer", got {kind!r}')
+    return joint_encoders(model) + extra
+
+
+def torque_inputs(plant: LinearPlant) -> list[int]:
+    """Indices in ``plant.inputs`` of the joint torques (``<joint>.tau`` of the torque-driven joints), in
+    scene order: the actuators of the designs here."""
+    names = [f"{j.name}.tau" for j in plant.model.scene.joints if j.drive == "torque"]
+    return [plant.inputs.index(n) for n in names if n in plant.inputs]
+
+
+def actuated_joints(plant: LinearPlant) -> list[str]:
+    """Names of the torque-driven joints, in the order of :func:`torque_inputs`."""
+    return [plant.inputs[i].removesuffix(".tau") for i in torque_inputs(plant)]
+
+
+def actuated_system(plant: LinearPlant) -> ct.StateSpace:
+    """``plant.sys`` restricted to the joint torques (the whole system when they are all its inputs)."""
+    cols = torque_inputs(plant)
+    if not cols:
+        drives = ", ".join(f'{j.name} (drive = "{j.drive}")' for j in plant.model.scene.joints)
+        raise FlexlinkError(f"no torque-driven joint: nothing to actuate (joints: {drives})")
+    if cols == list(range(len(plant.inputs))):
+        return plant.sys
+    return plant.sys[:, cols]
+
+
+def per_joint(value, joints: Sequence[str], what: str, known: Sequence[str] | None = None) -> dict[str, float]:
+    """A number for every joint (or link) in ``joints``: one number for all, or a mapping by name (the
+    ones it lacks get none: ``nan``).  Names outside ``known`` (default ``joints``) are refused."""
+    if isinstance(value, Mapping):
+        known = list(joints if known is None else known)
+        for k in value:
+            if k not in known:
+                raise FlexlinkError(f"{what}: {k!r} is not one of {known}")
+        return {j: float(value[j]) if j in value else float("nan") for j in joints}
+    return {j: float(value) for j in joints}
 
 
 def sample(plant: LinearPlant, dt: float) -> ct.StateSpace:
@@ -91,8 +142,42 @@ def sample(plant: LinearPlant, dt: float) -> ct.StateSpace:
     return ct.sample_system(plant.sys, dt, method="zoh", name=plant.sys.name + "_d")
 
 
-def bryson_weights(plant: LinearPlant, limits: Mapping[str, float], torque_limit: float):
-    """Bryson's rule: ``Q = C_zᵀ diag(1/z_max²) C_z`` over the outputs named in ``limits``, ``R = 1/u_max²``.
+class DesignError(FlexlinkError):
+    """A design that cannot be made (no actuator, an uncontrollable or unobservable mode, no sensor)."""
+
+
+def _torque_limits(plant: LinearPlant, torque_limit) -> dict[str, float]:
+    """Joint name → torque limit (N m) of every actuated joint, from one number or a mapping by joint
+    (or by its ``<joint>.tau`` input)."""
+    joints = actuated_joints(plant)
+    if isinstance(torque_limit, Mapping):
+        named = {str(k).removesuffix(".tau"): v for k, v in torque_limit.items()}
+        for k in named:
+            if k not in joints:
+                raise DesignError(_no_actuator(plant, k, "a torque limit"))
+        missing = [j for j in joints if j not in named]
+        if missing:
+            raise DesignError(f"torque limit: none given for the actuated joint(s) {missing}")
+        limits = {j: float(named[j]) for j in joints}
+    else:
+        limits = {j: float(torque_limit) for j in joints}
+    for j, v in limits.items():
+        if not (v > 0):
+            raise DesignError(f'joint "{j}": the torque limit must be positive, got {v}')
+    return limits
+
+
+def _no_actuator(plant: LinearPlant, name: str, what: str) -> str:
+    for j in plant.model.scene.joints:
+        if j.name == name:
+            return (f'joint "{name}" is not torque-driven (drive = "{j.drive}"): it has no actuator, so {what} '
+                    f"cannot apply to it")
+    return f"{what}: {name!r} is not a joint of the scene; the actuated joints are {actuated_joints(plant)}"
+
+
+def bryson_weights(plant: LinearPlant, limits: Mapping[str, float], torque_limit):
+    """Bryson's rule: ``Q = C_zᵀ diag(1/z_max²) C_z`` over the outputs named in ``limits``,
+    ``R = diag(1/u_max,i²)`` over the joint torques.
 
     Parameters
     ----------
@@ -100,13 +185,15 @@ def bryson_weights(plant: LinearPlant, limits: Mapping[str, float], torque_limit
         Must have the outputs named in ``limits`` (FMU names).
     limits : dict
         FMU output name → largest acceptable deviation (SI), e.g. ``{"hub.theta": 0.0175,
-        "arm.tip.v": 0.005, "arm.root.moment": 0.8}``.
-    torque_limit : float
-        Largest acceptable torque, N m.
+        "arm.tip.v": 0.005, "arm.root.moment": 0.8}``; the modal coordinates ``<link>.eta[k]`` are outputs
+        too (a weight per mode).
+    torque_limit : float or dict
+        Largest acceptable torque, N m: one for every torque-driven joint, or a mapping joint name (or
+        ``<joint>.tau``) → limit.
 
     Returns
     -------
-    Q : (n, n) ndarray, R : (1, 1) ndarray
+    Q : (n, n) ndarray, R : (m, m) ndarray (m torque-driven joints, in :func:`torque_inputs` order)
     """
     rows = [plant.output_row(name) for name in limits]
     Cz = plant.sys.C[rows]
@@ -114,19 +201,22 @@ def bryson_weights(plant: LinearPlant, limits: Mapping[str, float], torque_limit
         raise FlexlinkError(f"Bryson weights on outputs with feedthrough ({list(limits)}) are not supported")
     w = np.array([1.0 / float(v) ** 2 for v in limits.values()])
     Q = Cz.T @ np.diag(w) @ Cz
-    return 0.5 * (Q + Q.T), np.array([[1.0 / torque_limit**2]])
+    u_max = np.array(list(_torque_limits(plant, torque_limit).values()))
+    return 0.5 * (Q + Q.T), np.diag(1.0 / u_max**2)
 
 
 @dataclass
 class LQRDesign:
-    """Continuous and sampled LQR gains for ``u = u_ff − K (x − x_ref)``.
+    """Continuous and sampled LQR gains for ``u = u_ff − K (x − x_ref)`` on the joint torques.
 
     Attributes
     ----------
-    K, S, poles : continuous ``control.lqr`` results (gain, Riccati solution, closed-loop poles)
+    K, S, poles : continuous ``control.lqr`` results (gain (m, n), Riccati solution, closed-loop poles)
     Kd, Sd, poles_d : sampled ``control.dlqr`` results at ``dt``
-    Q, R : the weights; ``limits`` and ``torque_limit`` the physical values they came from
-    plant_d : the ZOH-sampled plant (``control.StateSpace``, ``dt`` set)
+    Q, R : the weights; ``limits`` and ``torque_limits`` (joint → N m) the physical values they came from;
+        ``torque_limit`` the first actuated joint's (what the single-joint laws saturate at)
+    plant_d : the ZOH-sampled plant (``control.StateSpace``, ``dt`` set), joint torques as its inputs
+    inputs : FMU names of the m joint torques (the rows of K)
     """
 
     plant: LinearPlant
@@ -142,6 +232,8 @@ class LQRDesign:
     plant_d: ct.StateSpace
     limits: dict = field(default_factory=dict)
     torque_limit: float = np.inf
+    torque_limits: dict = field(default_factory=dict)
+    inputs: list = field(default_factory=list)
 
     @property
     def rigid_pair(self) -> tuple[float, float]:
@@ -149,44 +241,169 @@ class LQRDesign:
         return rigid_pair(self.poles)
 
 
-def default_limits(plant: LinearPlant, torque_limit: float, *, hub_error: float = np.radians(1.0),
-                   tip_deflection: float = 5e-3, root_moment: float | None = None) -> dict[str, float]:
-    """The physical limits behind the default weights.
+def default_limits(plant: LinearPlant, torque_limit, *, hub_error: float | Mapping[str, float] = np.radians(1.0),
+                   tip_deflection: float | Mapping[str, float] = 5e-3,
+                   root_moment: float | Mapping[str, float] | None = None) -> dict[str, float]:
+    """The physical limits behind the default weights, per joint and per link.
 
-    Max hub error 1°, max tip deflection 5 mm, max root bending moment 10 % of the torque limit (it damps
-    the higher modes, which the tip deflection alone barely weighs).
+    Every joint with a free angle: max error ``hub_error`` (1°); every link with a tip deflection output:
+    max tip deflection ``tip_deflection`` (5 mm) and max root bending moment ``root_moment`` (default 10 %
+    of the torque limit of the joint that carries the link, else of the largest torque limit: it damps
+    the higher modes, which the tip deflection alone barely weighs).  Each may be one number or a mapping
+    by joint or link name (a name it lacks gets no weight).
     """
     model = plant.model
-    joint, link = model.scene.joints[0].name, model.scene.links[-1].name
-    limits = {f"{joint}.theta": hub_error, f"{link}.tip.v": tip_deflection}
-    root_moment = 0.1 * torque_limit if root_moment is None else root_moment
-    if root_moment and np.isfinite(root_moment):
-        limits[f"{link}.root.moment"] = root_moment
+    outputs = plant.outputs
+    tl = _torque_limits(plant, torque_limit)
+    joints = [e.removesuffix(".theta") for e in joint_encoders(model)]
+    links = [lk.name for lk in model.scene.links if f"{lk.name}.tip.v" in outputs]
+    limits = {f"{j}.theta": v for j, v in per_joint(hub_error, joints, "joint error").items() if np.isfinite(v)}
+    tips = per_joint(tip_deflection, links, "tip deflection", [lk.name for lk in model.scene.links])
+    if root_moment is None:
+        carrier = {lk.name: model.scene.joints[i].name for i, lk in enumerate(model.scene.links)
+                   if i < len(model.scene.joints)}
+        moments = {lk: 0.1 * tl.get(carrier.get(lk), max(tl.values())) for lk in links}
+    else:
+        moments = per_joint(root_moment, links, "root moment", [lk.name for lk in model.scene.links])
+    for lk in links:
+        if np.isfinite(tips[lk]) and tips[lk]:
+            limits[f"{lk}.tip.v"] = tips[lk]
+        if np.isfinite(moments[lk]) and moments[lk] and f"{lk}.root.moment" in outputs:
+            limits[f"{lk}.root.moment"] = moments[lk]
     return limits
 
 
-def design_lqr(plant: LinearPlant, dt: float, torque_limit: float, limits: Mapping[str, float] | None = None,
+def _modes(A: np.ndarray):
+    """Eigenvalues with left and right eigenvectors (scipy), the left ones conjugated for ``wᴴ``."""
+    import scipy.linalg
+
+    lam, wl, vr = scipy.linalg.eig(A, left=True, right=True)
+    return lam, wl, vr
+
+
+def _mode_name(plant: LinearPlant, lam: complex, v: np.ndarray) -> str:
+    n = plant.model.n_q
+    coord = plant.model.coordinates[int(np.argmax(np.abs(v[:n])))]
+    f = abs(lam) / (2 * np.pi)
+    kind = "rigid-body mode (0 Hz)" if f < 1e-6 else f"mode at {f:.4g} Hz"
+    return f"the {kind}, mostly {coord}"
+
+
+def _critical(lam: complex) -> bool:
+    """On or right of the imaginary axis (an undamped flexible mode or a rigid-body mode): what a
+    stabilising design must reach."""
+    return lam.real >= -1e-9 * max(1.0, abs(lam))
+
+
+def _unreachable(A: np.ndarray, B: np.ndarray, vecs: np.ndarray, lam: np.ndarray, tol: float) -> list[tuple]:
+    """Indices k of the critical eigenvalues lam[k] (one of each conjugate pair) at which ``[A − λI, B]``
+    loses rank (PBH), B's columns normalised.  A simple eigenvalue is tested with its eigenvector
+    (``vecs[:, k]``: ``wᴴ B ≈ 0`` relative to ``|w|``); a repeated one — the rigid-body modes, a Jordan
+    block at 0, or a symmetric part's double mode — by the smallest singular value of ``[A − λI, B]``
+    relative to its largest, below ``1e-4 tol`` (the eigenvectors of a cluster are not reliable; on the
+    two-link arm a controllable rigid-body pair has 3e-11 there, an unactuated joint 4e-19).
+
+    Returns (k, w) pairs, w the vector that B misses (for a cluster: the left singular vector)."""
+    Bn = B / np.maximum(np.linalg.norm(B, axis=0), 1e-300)
+    scale = max(1.0, float(np.max(np.abs(lam))))
+    out, seen = [], []
+    for k in range(len(lam)):
+        lk = lam[k]
+        if not _critical(lk) or lk.imag < -1e-9 * max(1.0, abs(lk)):
+            continue
+        cluster = np.abs(lam - lk) < 1e-6 * max(1.0, abs(lk)) + 1e-6 * np.sqrt(scale)
+        if np.count_nonzero(cluster) > 1:
+            lc = complex(np.mean(lam[cluster]))
+            lc = 0.0 if abs(lc) < 1e-6 * np.sqrt(scale) else lc
+            if any(abs(lc - s) < 1e-6 * max(1.0, abs(lc)) + 1e-6 * np.sqrt(scale) for s in seen):
+                continue
+            seen.append(lc)
+            U, sv, _ = np.linalg.svd(np.hstack([A - lc * np.eye(len(A)), Bn]))
+            if sv[-1] < 1e-4 * tol * sv[0]:
+                out.append((k, U[:, -1]))
+        elif np.max(np.abs(vecs[:, k].conj() @ Bn)) < tol * np.linalg.norm(vecs[:, k]):
+            out.append((k, vecs[:, k]))
+    return out
+
+
+def stabilizability(plant: LinearPlant, B: np.ndarray | None = None, tol: float = 1e-8) -> list[tuple[complex, str]]:
+    """Modes the joint torques cannot move (PBH test, :func:`_unreachable`) among those on or right of the
+    imaginary axis — the modes no LQR can stabilise.  Returns (eigenvalue, description) pairs, the
+    description naming the frequency and the coordinate that dominates the mode."""
+    A = np.asarray(plant.sys.A)
+    B = np.asarray(actuated_system(plant).B if B is None else B)
+    lam, wl, _ = _modes(A)
+    n = plant.model.n_q
+    Minv = np.linalg.inv(plant.mechanics.M)
+    # a left vector (w_q, w_v) of A that B misses: the displacement it weighs is M⁻¹ w_v (undamped)
+    return [(lam[k], _mode_name(plant, lam[k], Minv @ w[n:])) for k, w in _unreachable(A, B, wl, lam, tol)]
+
+
+def _detectability(plant: LinearPlant, C: np.ndarray, tol: float = 1e-8) -> list[tuple[complex, str]]:
+    """The dual of :func:`stabilizability`: critical modes the sensors C do not see."""
+    A = np.asarray(plant.sys.A)
+    lam, _, vr = _modes(A)
+    return [(lam[k], _mode_name(plant, lam[k], v.conj())) for k, v in _unreachable(A.T, C.T, vr.conj(), lam, tol)]
+
+
+def _check_stabilizable(plant: LinearPlant, B: np.ndarray) -> None:
+    bad = stabilizability(plant, B)
+    if not bad:
+        return
+    joints = actuated_joints(plant)
+    passive = [j for j in plant.model.scene.joints
+               if j.drive != "torque" and f"{j.name}.theta" in plant.model.coordinates]
+    what = "; ".join(d for _, d in bad)
+    hint = ""
+    if passive and any(abs(lam) < 1e-6 for lam, _ in bad):
+        hint = " — " + ", ".join(f'joint "{j.name}" is not torque-driven (drive = "{j.drive}"): it has no actuator'
+                                 for j in passive)
+    raise DesignError(f"the plant is not controllable from the torques of {', '.join(joints)}: {what}{hint}")
+
+
+def design_lqr(plant: LinearPlant, dt: float, torque_limit, limits: Mapping[str, float] | None = None,
                **limit_kw) -> LQRDesign:
-    """LQR from Bryson's rule, continuous (``control.lqr``) and sampled at ``dt`` (``control.dlqr``).
+    """LQR from Bryson's rule on every torque-driven joint, continuous (``control.lqr``) and sampled at
+    ``dt`` (``control.dlqr``).
 
     Parameters
     ----------
     plant : LinearPlant
     dt : float
         Controller sample time, s.
-    torque_limit : float
-        N m; also the R weight.
+    torque_limit : float or dict
+        N m, one for all torque-driven joints or a mapping by joint; also the R weights.
     limits : dict, optional
         Output limits for :func:`bryson_weights` (default :func:`default_limits` with ``limit_kw``:
-        ``hub_error``, ``tip_deflection``, ``root_moment``).
+        ``hub_error``, ``tip_deflection``, ``root_moment``, each a number or a mapping by joint / link).
+
+    Raises
+    ------
+    DesignError
+        No torque-driven joint; a mode on the imaginary axis (rigid-body or undamped flexible) that the
+        torques cannot move or the limits do not weigh, named by its frequency.
     """
+    sys = actuated_system(plant)
+    tl = _torque_limits(plant, torque_limit)
     limits = dict(limits) if limits is not None else default_limits(plant, torque_limit, **limit_kw)
     Q, R = bryson_weights(plant, limits, torque_limit)
-    K, S, E = ct.lqr(plant.sys, Q, R)
-    plant_d = sample(plant, dt)
-    Kd, Sd, Ed = ct.dlqr(plant_d, Q, R)
+    _check_stabilizable(plant, np.asarray(sys.B))
+    unweighted = _detectability(plant, plant.sys.C[[plant.output_row(z) for z in limits]])
+    if unweighted:
+        raise DesignError(f"the LQR weights (limits on {', '.join(limits)}) do not weigh "
+                          + "; ".join(d for _, d in unweighted) + ": give it a limit")
+    try:
+        K, S, E = ct.lqr(sys, Q, R)
+        plant_d = ct.sample_system(sys, dt, method="zoh", name=plant.sys.name + "_d")
+        Kd, Sd, Ed = ct.dlqr(plant_d, Q, R)
+    except (ValueError, np.linalg.LinAlgError) as e:
+        raise DesignError(f"the LQR Riccati equation has no stabilising solution ({_one_line(e)})") from None
     return LQRDesign(plant, dt, Q, R, np.asarray(K), np.asarray(S), np.asarray(E), np.asarray(Kd), np.asarray(Sd),
-                     np.asarray(Ed), plant_d, limits, float(torque_limit))
+                     np.asarray(Ed), plant_d, limits, next(iter(tl.values())), tl, [f"{j}.tau" for j in tl])
+
+
+def _one_line(e: Exception) -> str:
+    return " ".join(str(e).split())
 
 
 def rigid_pair(poles) -> tuple[float, float]:
@@ -246,15 +463,21 @@ def design_kalman(plant: LinearPlant, dt: float, sensors: Sequence[str] | str = 
     dt : float
         Sample time, s.
     sensors : list of str or {"strain", "accelerometer"}
-        FMU output names, or a named set: hub encoder + root strain gauge, or hub
-        encoder + tip accelerometer (``tip.sx``, ``tip.sy``: specific force in the tip frame); see
+        FMU output names, or a named set: every joint's encoder + every link's root strain gauge, or
+        the encoders + tip accelerometer (``tip.sx``, ``tip.sy``: specific force in the tip frame); see
         :func:`sensor_set`.
     torque_noise : float
-        Standard deviation of the unknown torque disturbance, N m (process noise through B).
+        Standard deviation of the unknown torque disturbance at each joint torque, N m (process noise
+        through B).
     elastic_noise : float
         Standard deviation of an unknown generalized force on each elastic coordinate (model error).
     noise : dict, optional
         Sensor name → standard deviation, overriding :data:`SENSOR_NOISE`.
+
+    Raises
+    ------
+    DesignError
+        No sensor; a mode on the imaginary axis that the sensors do not see (named by its frequency).
 
     Notes
     -----
@@ -265,6 +488,9 @@ def design_kalman(plant: LinearPlant, dt: float, sensors: Sequence[str] | str = 
     if isinstance(sensors, str):
         sensors = sensor_set(plant, sensors)
     sensors = list(sensors)
+    if not sensors:
+        raise DesignError("no sensors: the Kalman estimator needs at least one measured output (the scene has no "
+                          "joint encoder, strain gauge or accelerometer to read)")
     rows = [plant.output_row(s) for s in sensors]
     C, D = plant.sys.C[rows], plant.sys.D[rows]
     noise = dict(noise or {})
@@ -273,19 +499,27 @@ def design_kalman(plant: LinearPlant, dt: float, sensors: Sequence[str] | str = 
     n = plant.sys.nstates
     nq = n // 2
     elastic = [k for k, c in enumerate(plant.model.coordinates) if not c.endswith(".theta")]
-    # generalized forces on the elastic coordinates, through M⁻¹ like the torque
+    # a torque disturbance at every joint torque; generalized forces on the elastic coordinates, through M⁻¹
+    cols_u = torque_inputs(plant)
     Bq = plant.sys.B[nq:]                        # M⁻¹ B_u
     lin_minv = np.linalg.inv(plant.mechanics.M)
-    cols = [Bq[:, 0]] + ([lin_minv[:, k] for k in elastic] if elastic_noise > 0 else [])
+    cols = [Bq[:, i] for i in cols_u] + ([lin_minv[:, k] for k in elastic] if elastic_noise > 0 else [])
     G = np.vstack([np.zeros((nq, len(cols))), np.column_stack(cols)])
-    QN = np.diag([torque_noise**2] + ([elastic_noise**2] * len(elastic) if elastic_noise > 0 else []))
-    # G QN Gᵀ is passed whole (G = I): python-control insists on exact symmetry
-    L, P, E = ct.lqe(plant.sys.A, np.eye(n), C, _sym(G @ QN @ G.T), RN)
-    plant_d = sample(plant, dt)
-    # the disturbance is held over each sample like the torque: G_d = ∫₀^dt e^{Aτ} dτ G; per-sample
-    # covariances QN and RN (the continuous design above uses them as spectral densities: same ratio)
-    Gd = ct.sample_system(ct.ss(plant.sys.A, G, np.zeros((1, n)), 0), dt, method="zoh").B
-    Ld, Pd, Ed = ct.dlqe(plant_d.A, np.eye(n), C, _sym(Gd @ QN @ Gd.T), RN)
+    QN = np.diag([torque_noise**2] * len(cols_u) + ([elastic_noise**2] * len(elastic) if elastic_noise > 0 else []))
+    blind = _detectability(plant, C)
+    if blind:
+        raise DesignError(f"the sensors ({', '.join(sensors)}) do not see " + "; ".join(d for _, d in blind)
+                          + ": no estimator can track it (add an encoder or a strain gauge on that part)")
+    try:
+        # G QN Gᵀ is passed whole (G = I): python-control insists on exact symmetry
+        L, P, E = ct.lqe(plant.sys.A, np.eye(n), C, _sym(G @ QN @ G.T), RN)
+        plant_d = sample(plant, dt)
+        # the disturbance is held over each sample like the torque: G_d = ∫₀^dt e^{Aτ} dτ G; per-sample
+        # covariances QN and RN (the continuous design above uses them as spectral densities: same ratio)
+        Gd = ct.sample_system(ct.ss(plant.sys.A, G, np.zeros((1, n)), 0), dt, method="zoh").B
+        Ld, Pd, Ed = ct.dlqe(plant_d.A, np.eye(n), C, _sym(Gd @ QN @ Gd.T), RN)
+    except (ValueError, np.linalg.LinAlgError) as e:
+        raise DesignError(f"the Kalman Riccati equation has no stabilising solution ({_one_line(e)})") from None
     Md = Pd @ C.T @ np.linalg.inv(C @ Pd @ C.T + RN)
     return KalmanDesign(sensors, dt, C, D, G, QN, RN, np.asarray(L), np.asarray(P), np.asarray(E), np.asarray(Ld),
                         np.asarray(Pd), np.asarray(Ed), Md, {s: float(v) for s, v in sigma.items()})

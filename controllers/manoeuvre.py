@@ -59,8 +59,24 @@ class ControlDesign:
     torque_limit: float
     lqr: LQRDesign
     kalman: KalmanDesign
-    pd: PDDesign
+    pd: PDDesign | None
     _targets: dict = field(default_factory=dict, repr=False)
+    _robustness: dict | None = field(default=None, repr=False)
+
+    @property
+    def actuated_joints(self) -> list[str]:
+        """The torque-driven joints the LQR drives (the rows of ``lqr.K``)."""
+        return [u.removesuffix(".tau") for u in self.lqr.inputs]
+
+    def robustness(self) -> dict:
+        """Loop-at-a-time margins at each actuator, peak sensitivity and closed-loop poles of the continuous
+        LQR state feedback (``"lqr"``) and of the sampled LQG (``"lqg"``): :func:`controllers.robustness.
+        robustness` (computed once)."""
+        if self._robustness is None:
+            from controllers.robustness import robustness
+
+            self._robustness = robustness(self.lqr, self.kalman)
+        return self._robustness
 
     @property
     def joint(self) -> str:
@@ -79,7 +95,11 @@ class ControlDesign:
         return self.plant.model.coordinates.index(f"{self.joint}.theta")
 
     def law(self, controller: str) -> SampledLaw:
-        """A fresh sampled law: ``"lqr"`` (LQR + Kalman) or ``"pd"``."""
+        """A fresh sampled law: ``"lqr"`` (LQR + Kalman) or ``"pd"``; single-joint designs only."""
+        if controller in CONTROLLERS and len(self.lqr.inputs) > 1:
+            raise FlexlinkError(f"the sampled laws and the closed-loop runs drive one joint so far; this design "
+                                f"has {len(self.lqr.inputs)} actuated joints ({', '.join(self.actuated_joints)}): "
+                                "its gains, estimator and margins are in .lqr, .kalman and .robustness()")
         if controller == "lqr":
             return LQGLaw(self.lqr, self.kalman, self.torque_limit)
         if controller == "pd":
@@ -106,26 +126,33 @@ def check_scene(model) -> None:
                             f"{joint.initial_rate} rad/s")
 
 
-def design(scene_or_model, *, torque_limit: float, dt: float = 1e-3, sensors="strain",
-           hub_error: float = math.radians(0.5), tip_deflection: float = 5e-3, root_moment: float | None = None,
+def design(scene_or_model, *, torque_limit: float | Mapping[str, float], dt: float = 1e-3, sensors="strain",
+           hub_error: float | Mapping[str, float] = math.radians(0.5),
+           tip_deflection: float | Mapping[str, float] = 5e-3,
+           root_moment: float | Mapping[str, float] | None = None,
            torque_noise: float | None = None, elastic_noise: float | None = None, pd_zeta: float = 0.7,
            parameters: Mapping[str, float] | None = None) -> ControlDesign:
     """Linearise about the start pose and design LQR, Kalman estimator and PD baseline.
 
+    The LQR and the Kalman estimator act on every torque-driven joint (their encoders and, with
+    ``sensors="strain"``, every link's root strain gauge); the PD baseline and the sampled laws that
+    :func:`rest_to_rest` runs are single-joint (``pd`` is None with several actuated joints).
+
     Parameters
     ----------
     scene_or_model : path, Scene or SymbolicModel
-    torque_limit : float
-        N m: the saturation of both controllers and Bryson's torque limit.
+    torque_limit : float or dict
+        N m: the saturation of both controllers and Bryson's torque limit; a mapping gives one per joint.
     dt : float
         Controller sample time, s (also the communication step with the FMU).
     sensors : {"strain", "accelerometer"} or list of str
         Kalman estimator's sensors (:func:`controllers.design.sensor_set`).
-    hub_error, tip_deflection, root_moment : float
-        Bryson limits: max hub error (rad, default 0.5°), max tip deflection (m, 5 mm), max root bending
-        moment (N m, default 10 % of the torque limit).
+    hub_error, tip_deflection, root_moment : float or dict
+        Bryson limits: max joint error (rad, default 0.5°, per joint), max tip deflection (m, 5 mm, per
+        link), max root bending moment (N m, default 10 % of the torque limit of the joint carrying the link);
+        a mapping by joint / link name gives them one by one.
     torque_noise, elastic_noise : float, optional
-        Kalman process noise (model uncertainty), N m; default 5 % of the torque limit each.
+        Kalman process noise (model uncertainty), N m; default 5 % of the (largest) torque limit each.
     pd_zeta : float
         Damping ratio of the PD's rigid-body pair (its frequency is the LQR's).
     parameters : dict, optional
@@ -135,12 +162,12 @@ def design(scene_or_model, *, torque_limit: float, dt: float = 1e-3, sensors="st
     check_scene(plant.model)
     lqr = design_lqr(plant, dt, torque_limit, hub_error=hub_error, tip_deflection=tip_deflection,
                      root_moment=root_moment)
-    tn = 0.05 * torque_limit if torque_noise is None else torque_noise
+    tn = 0.05 * max(lqr.torque_limits.values()) if torque_noise is None else torque_noise
     en = tn if elastic_noise is None else elastic_noise
     kalman = design_kalman(plant, dt, sensors, torque_noise=tn, elastic_noise=en)
     wn, _ = lqr.rigid_pair
-    pd = design_pd(plant, wn, pd_zeta)
-    return ControlDesign(plant, float(dt), float(torque_limit), lqr, kalman, pd)
+    pd = design_pd(plant, wn, pd_zeta) if len(lqr.inputs) == 1 else None
+    return ControlDesign(plant, float(dt), lqr.torque_limit, lqr, kalman, pd)
 
 
 def _target(d: ControlDesign, target: float) -> float:

@@ -1,0 +1,175 @@
+"""Robustness of a multi-joint design: loop-at-a-time margins at each actuator, peak sensitivity, closed-loop
+poles (python-control).
+
+Two loops are examined, each ``u = K_c(y)`` around the plant with the joint torques as inputs:
+
+* ``"lqr"`` — the continuous LQR as full state feedback, ``u = −K x`` (the textbook loop: at every
+  actuator ≥ 60° phase margin, gain margin unbounded upwards and −6 dB downwards);
+* ``"lqg"`` — what runs: the plant sampled with a zero-order hold at the sample time (outputs at t_k with
+  the previous torque still applied, as the co-simulation master reads them) and the discrete LQR on the
+  Kalman filter's estimate (:func:`lqg_compensator`).
+
+**Loop at a time.** At actuator i the loop is broken with the others closed: with ``T = K_c P`` (torques
+in → torques asked for), closing the other channels gives ``T_cl = T (I − E_o T)⁻¹`` (``control.feedback``,
+positive sign, ``E_o`` the selector of the other channels) and ``L_i = −T_cl[i, i]`` in the
+negative-feedback convention of ``control.stability_margins``, which gives the margins from the frequency
+response on a dense grid (``control.frd``, interpolated: its polynomial method loses the digits on these
+high-order loops).  The peak sensitivity is that of the loop at each actuator, ``1/min|1 + L_i|``, and of
+all loops together at the plant input, ``max_ω σ̄((I − T)⁻¹)``.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import control as ct
+import numpy as np
+
+from controllers.design import KalmanDesign, LQRDesign, torque_inputs
+
+__all__ = ["loop_at_a_time", "lqg_compensator", "lqg_plant", "robustness", "robustness_figures"]
+
+
+def lqg_plant(lqr: LQRDesign, kalman: KalmanDesign) -> ct.StateSpace:
+    """The ZOH-sampled plant from the joint torques to the Kalman sensors, as the master reads it:
+    ``y_k = C x_k + D u_{k−1}`` (with D ≠ 0 the state is augmented with ``u_{k−1}``)."""
+    Ad, Bd = np.asarray(lqr.plant_d.A), np.asarray(lqr.plant_d.B)
+    C, D = kalman.C, kalman.D[:, torque_inputs(lqr.plant)]
+    n, m = Bd.shape
+    if np.any(D != 0):
+        Ad = np.block([[Ad, np.zeros((n, m))], [np.zeros((m, n + m))]])
+        Bd = np.vstack([Bd, np.eye(m)])
+        C = np.hstack([C, D])
+    return ct.ss(Ad, Bd, C, np.zeros((C.shape[0], m)), lqr.dt)
+
+
+def lqg_compensator(lqr: LQRDesign, kalman: KalmanDesign) -> ct.StateSpace:
+    """The discrete LQG from the sensors' deviations to the torques' deviations, ``u = K_c(y)`` (the minus
+    sign of the feedback inside): the current estimator of :class:`controllers.laws.LQGLaw` for any number
+    of joints, ``x̂ = (I − M C) z − M D u_{k−1} + M y``, ``u = −K_d x̂``, ``z⁺ = A_d x̂ + B_d u``."""
+    Ad, Bd, Kd, M, C = (np.asarray(a) for a in (lqr.plant_d.A, lqr.plant_d.B, lqr.Kd, kalman.Md, kalman.C))
+    D = kalman.D[:, torque_inputs(lqr.plant)]
+    n, m = Bd.shape
+    F = np.eye(n) - M @ C
+    if np.any(D != 0):
+        F = np.hstack([F, -M @ D])                  # x̂ from (z, u_prev)
+    Acl = Ad - Bd @ Kd
+    A = Acl @ F
+    B = Acl @ M
+    if np.any(D != 0):
+        A = np.vstack([A, -Kd @ F])
+        B = np.vstack([B, -Kd @ M])
+    return ct.ss(A, B, -Kd @ F, -Kd @ M, lqr.dt)
+
+
+def _grid(T: ct.StateSpace, n_points: int) -> np.ndarray:
+    if T.isdtime():
+        top = np.pi / T.dt
+    else:
+        p = np.abs(T.poles())
+        top = 10.0 * max(float(np.max(p)) if len(p) else 1.0, 1.0)
+    return np.logspace(-3, np.log10(top), n_points)[:-1]
+
+
+def loop_at_a_time(P: ct.StateSpace, Kc, names: list[str] | None = None, n_points: int = 4000) -> dict:
+    """Margins at each actuator and the peak sensitivity of the loop ``u = K_c(P u)``.
+
+    Parameters
+    ----------
+    P : control.StateSpace
+        Plant, m inputs (the actuators).
+    Kc : control.StateSpace or (m, p) array
+        Controller from P's outputs to the m actuators (feedback sign inside: ``u = K_c y``).
+    names : list of str, optional
+        The actuators' names (default ``u[i]``).
+
+    Returns
+    -------
+    dict
+        ``actuators``: per actuator ``input``, ``gain_margin_db`` (smallest gain increase that destabilises,
+        ``inf`` if none), ``gain_reduction_margin_db`` (largest decrease tolerated, ``-inf`` if none),
+        ``phase_margin_deg`` (smallest over the gain crossovers), ``gain_crossover_hz``,
+        ``phase_crossover_hz``, ``peak_sensitivity`` (``1/min|1 + L_i|``); ``peak_sensitivity`` (all loops,
+        at the plant input), ``closed_loop_poles`` (s, or z with ``dt``), ``stable``, ``dt``.
+    """
+    if not isinstance(Kc, ct.StateSpace):
+        Kc = ct.ss([], [], [], np.atleast_2d(np.asarray(Kc, dtype=float)), P.dt)
+    T = ct.series(P, Kc)
+    m = T.ninputs
+    names = list(names) if names is not None else [f"u[{i}]" for i in range(m)]
+    w = _grid(T, n_points)
+    out = []
+    for i in range(m):
+        E = np.diag([0.0 if j == i else 1.0 for j in range(m)])
+        Tcl = ct.feedback(T, E, sign=1) if m > 1 else T
+        L = -Tcl[i, i]
+        out.append({"input": names[i], **siso_margins(L, w)})
+    cl = ct.feedback(T, np.eye(m), sign=1)
+    poles = cl.poles()
+    stable = bool(np.all(np.abs(poles) < 1.0)) if T.isdtime() else bool(np.all(poles.real < 0))
+    Tw = np.asarray(T.frequency_response(w).complex).reshape(m, m, len(w))
+    S = np.linalg.inv(np.eye(m)[None] - np.moveaxis(Tw, -1, 0))
+    S_peak = float(np.max(np.linalg.svd(S, compute_uv=False)[:, 0]))
+    if T.isctime():
+        S_peak = max(S_peak, float(np.linalg.svd(np.linalg.inv(np.eye(m) - np.asarray(T.D)), compute_uv=False)[0]))
+    return {"actuators": out, "peak_sensitivity": S_peak, "closed_loop_poles": poles, "stable": stable,
+            "dt": float(T.dt) if T.isdtime() else 0.0}
+
+
+def siso_margins(L: ct.StateSpace, w: np.ndarray) -> dict:
+    """``control.stability_margins`` (all crossovers) of L's frequency response on the grid w (an
+    interpolating ``control.frd``), split into the gain increase and decrease margins."""
+    frd = ct.frd(L, w, smooth=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        gm, pm, sm, wpc, wgc, wms = ct.stability_margins(frd, returnall=True)
+    gm, pm, sm = np.asarray(gm, dtype=float), np.asarray(pm, dtype=float), np.asarray(sm, dtype=float)
+    up = np.flatnonzero(gm > 1)
+    down = np.flatnonzero(gm < 1)
+    k_up = up[np.argmin(gm[up])] if len(up) else None
+    k_dn = down[np.argmax(gm[down])] if len(down) else None
+    k_pm = int(np.argmin(np.abs(pm))) if len(pm) else None
+    # the distance to −1 on the grid itself as well (stability_margins keeps the local minima inside it)
+    d_min = float(np.min(np.abs(1 + frd.complex.ravel())))
+    if len(sm):
+        d_min = min(d_min, float(np.min(sm)))
+    if L.isctime():                       # the grid's end: |1 + L(j∞)| = |1 + D|
+        d_min = min(d_min, float(abs(1 + np.asarray(L.D).item())))
+    hz = 1 / (2 * np.pi)
+    return {
+        "gain_margin_db": float(20 * np.log10(gm[k_up])) if k_up is not None else float("inf"),
+        "gain_reduction_margin_db": float(20 * np.log10(gm[k_dn])) if k_dn is not None else float("-inf"),
+        "phase_margin_deg": float(pm[k_pm]) if k_pm is not None else float("inf"),
+        "gain_crossover_hz": float(wgc[k_pm] * hz) if k_pm is not None else float("nan"),
+        "phase_crossover_hz": float(wpc[k_up] * hz) if k_up is not None else float("nan"),
+        "peak_sensitivity": 1.0 / d_min if d_min > 0 else float("inf"),
+    }
+
+
+def robustness(lqr: LQRDesign, kalman: KalmanDesign | None = None, n_points: int = 4000) -> dict:
+    """:func:`loop_at_a_time` of the continuous LQR state feedback (``"lqr"``) and, with ``kalman``, of the
+    sampled LQG (``"lqg"``), the actuators named by their FMU inputs."""
+    B = np.asarray(lqr.plant.sys.B)[:, torque_inputs(lqr.plant)]
+    sys = ct.ss(np.asarray(lqr.plant.sys.A), B, np.eye(lqr.plant.sys.nstates), 0)
+    out = {"lqr": loop_at_a_time(sys, -np.asarray(lqr.K), lqr.inputs, n_points)}
+    if kalman is not None:
+        out["lqg"] = loop_at_a_time(lqg_plant(lqr, kalman), lqg_compensator(lqr, kalman), lqr.inputs, n_points)
+    return out
+
+
+def robustness_figures(rob: dict) -> dict:
+    """:func:`robustness` as JSON-ready values: infinite margins as ``null``, poles as ``[re, im]``."""
+
+    def num(v):
+        return float(v) if np.isfinite(v) else None
+
+    out = {}
+    for loop, r in rob.items():
+        out[loop] = {
+            "actuators": [{k: (v if isinstance(v, str) else num(v)) for k, v in a.items()} for a in r["actuators"]],
+            "peak_sensitivity": num(r["peak_sensitivity"]),
+            "stable": r["stable"],
+            "sample_time_s": r["dt"] or None,
+            "closed_loop_poles": [[float(p.real), float(p.imag)] for p in np.sort_complex(r["closed_loop_poles"])],
+        }
+    return out
