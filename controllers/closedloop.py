@@ -98,7 +98,6 @@ def margins(plant: LinearPlant, law: SampledLaw, n_points: int = 20000) -> dict:
     w = np.logspace(-3, np.log10(np.pi / law.dt), n_points)[:-1]
     Lw = np.asarray(L.frequency_response(w).complex).ravel()
     mag = np.abs(Lw)
-    to_hz = 1 / (2 * np.pi)
     # gain crossovers: |L| = 1
     pms, wgcs = [], []
     for i in np.flatnonzero(np.diff(np.sign(np.log(mag))) != 0):
@@ -113,19 +112,26 @@ def margins(plant: LinearPlant, law: SampledLaw, n_points: int = 20000) -> dict:
         re = Lw.real[i] + f * (Lw.real[i + 1] - Lw.real[i])
         gms.append(1.0 / abs(re))
         wpcs.append(w[i] + f * (w[i + 1] - w[i]))
-    pms, gms = np.abs(np.array(pms)), np.array(gms)
-    k_pm = int(np.argmin(pms)) if len(pms) else None
-    up = [k for k in range(len(gms)) if gms[k] > 1]
-    down = [k for k in range(len(gms)) if gms[k] < 1]
-    k_up = min(up, key=lambda k: gms[k]) if up else None
-    k_dn = max(down, key=lambda k: gms[k]) if down else None
     cl = closed_loop(plant, law, [law.sensors[0]])
+    return {**margin_entries(gms, np.abs(np.array(pms)), wpcs, wgcs),
+            "stability_margin": float(np.min(np.abs(1 + Lw))),
+            "stable": bool(np.all(np.abs(cl.poles()) < 1.0))}
+
+
+def margin_entries(gms, pms, wpcs, wgcs) -> dict:
+    """The margins of a loop from all its crossovers (gains 1/|L| at the phase crossovers wpcs [rad/s], phase
+    margins at the gain crossovers wgcs): the smallest gain increase and decrease, the smallest phase margin,
+    and where they are [Hz]; inf/−inf/nan where there is none."""
+    gms, pms = np.asarray(gms, dtype=float), np.asarray(pms, dtype=float)
+    up, down = np.flatnonzero(gms > 1), np.flatnonzero(gms < 1)
+    k_up = up[np.argmin(gms[up])] if len(up) else None
+    k_dn = down[np.argmax(gms[down])] if len(down) else None
+    k_pm = int(np.argmin(np.abs(pms))) if len(pms) else None
+    hz = 1 / (2 * np.pi)
     return {
         "gain_margin_db": float(20 * np.log10(gms[k_up])) if k_up is not None else float("inf"),
         "gain_reduction_margin_db": float(20 * np.log10(gms[k_dn])) if k_dn is not None else float("-inf"),
         "phase_margin_deg": float(pms[k_pm]) if k_pm is not None else float("inf"),
-        "gain_crossover_hz": float(wgcs[k_pm] * to_hz) if k_pm is not None else float("nan"),
-        "phase_crossover_hz": float(wpcs[k_up] * to_hz) if k_up is not None else float("nan"),
-        "stability_margin": float(np.min(np.abs(1 + Lw))),
-        "stable": bool(np.all(np.abs(cl.poles()) < 1.0)),
+        "gain_crossover_hz": float(wgcs[k_pm] * hz) if k_pm is not None else float("nan"),
+        "phase_crossover_hz": float(wpcs[k_up] * hz) if k_up is not None else float("nan"),
     }

@@ -25,6 +25,7 @@ import warnings
 import control as ct
 import numpy as np
 
+from controllers.closedloop import margin_entries
 from controllers.design import KalmanDesign, LQRDesign, torque_inputs
 
 __all__ = ["loop_at_a_time", "lqg_compensator", "lqg_plant", "robustness", "robustness_figures"]
@@ -123,27 +124,15 @@ def siso_margins(L: ct.StateSpace, w: np.ndarray) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         gm, pm, sm, wpc, wgc, wms = ct.stability_margins(frd, returnall=True)
-    gm, pm, sm = np.asarray(gm, dtype=float), np.asarray(pm, dtype=float), np.asarray(sm, dtype=float)
-    up = np.flatnonzero(gm > 1)
-    down = np.flatnonzero(gm < 1)
-    k_up = up[np.argmin(gm[up])] if len(up) else None
-    k_dn = down[np.argmax(gm[down])] if len(down) else None
-    k_pm = int(np.argmin(np.abs(pm))) if len(pm) else None
+    sm = np.asarray(sm, dtype=float)
     # the distance to −1 on the grid itself as well (stability_margins keeps the local minima inside it)
     d_min = float(np.min(np.abs(1 + frd.complex.ravel())))
     if len(sm):
         d_min = min(d_min, float(np.min(sm)))
     if L.isctime():                       # the grid's end: |1 + L(j∞)| = |1 + D|
         d_min = min(d_min, float(abs(1 + np.asarray(L.D).item())))
-    hz = 1 / (2 * np.pi)
-    return {
-        "gain_margin_db": float(20 * np.log10(gm[k_up])) if k_up is not None else float("inf"),
-        "gain_reduction_margin_db": float(20 * np.log10(gm[k_dn])) if k_dn is not None else float("-inf"),
-        "phase_margin_deg": float(pm[k_pm]) if k_pm is not None else float("inf"),
-        "gain_crossover_hz": float(wgc[k_pm] * hz) if k_pm is not None else float("nan"),
-        "phase_crossover_hz": float(wpc[k_up] * hz) if k_up is not None else float("nan"),
-        "peak_sensitivity": 1.0 / d_min if d_min > 0 else float("inf"),
-    }
+    return {**margin_entries(gm, pm, np.asarray(wpc, dtype=float), np.asarray(wgc, dtype=float)),
+            "peak_sensitivity": 1.0 / d_min if d_min > 0 else float("inf")}
 
 
 def robustness(lqr: LQRDesign, kalman: KalmanDesign | None = None, n_points: int = 4000) -> dict:

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from test_scene import _del, _set
 
 from flexlink import cli
 from flexlink.errors import SceneError
@@ -240,26 +241,6 @@ def test_joint_and_tool_placement_rotations() -> None:
 
 
 # ------------------------------------------------------------------------------------------- bad input
-
-
-def _set(*path_and_value):
-    *path, value = path_and_value
-
-    def mutate(d: dict) -> None:
-        node = d
-        for p in path[:-1]:
-            node = node[p]
-        node[path[-1]] = value
-    return mutate
-
-
-def _del(*path):
-    def mutate(d: dict) -> None:
-        node = d
-        for p in path[:-1]:
-            node = node[p]
-        del node[path[-1]]
-    return mutate
 
 
 NOT_USED = "not used by a rigid link (deformation = []); remove it"
