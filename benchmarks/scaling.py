@@ -11,6 +11,8 @@ Two families of scenes, generated here (second-order kinematics, gravity, torque
 * **modes**: one link of 16 Hermite elements reduced to its first 1 ... 32 modes (``shapes.modes``).
 
 and the issue's table: ``examples/six_axis_arm.toml``, ``examples/planar_chain_5.toml`` and the 32-mode link.
+The two families are built with ``newton_matrix = "columns"`` (the form whose code grows like the residual's;
+``auto`` would switch from the dense Jacobian at 12 coordinates and break the families in two).
 
 For every scene: the build time (``build_fmu``: model, code generation, gcc, packaging; median of
 ``--builds``), the bytes of generated C, and the CPU time per internal SS22 step at the scene's step, from
@@ -54,7 +56,7 @@ def chain_scene(n_links: int, modes: int = 3) -> dict:
                   shapes=dict(kind="clamped-free", count=modes), kinematics="second-order")
              for i in range(n_links)]
     return dict(name=f"chain_{n_links}", gravity=[9.81, 0.0, 0.0], joint=joints, link=links,
-                fmu=dict(step=1e-3))
+                fmu=dict(step=1e-3, newton_matrix="columns"))
 
 
 def modes_scene(modes: int) -> dict:
@@ -63,7 +65,7 @@ def modes_scene(modes: int) -> dict:
     link = dict(name="arm", length=1.0, linear_density=2.0, EI=100.0, deformation=["v"],
                 shapes=dict(kind="fe", count=16, modes=modes), kinematics="second-order")
     return dict(name=f"modes_{modes}", gravity=[0.0, 0.0, 0.0], joint=[joint], link=[link],
-                fmu=dict(step=1e-4))
+                fmu=dict(step=1e-4, newton_matrix="columns"))
 
 
 def measure(scene, *, builds: int, repeats: int) -> dict:
@@ -89,7 +91,7 @@ def measure(scene, *, builds: int, repeats: int) -> dict:
             "generated_bytes": report.generated_c_bytes, "operations": report.operations,
             "step_us": 1e6 * step["step_s"], "residual_us": 1e6 * step["residual_s"],
             "newton_matrix_us": 1e6 * step["newton_matrix_s"], "factorisations": step["factorisations"],
-            "steps": step["ss22_steps"]}
+            "steps": step["ss22_steps"], "iterations_per_step": step["newton_iterations"] / step["ss22_steps"]}
 
 
 def exponent(sizes, values) -> float:
@@ -128,9 +130,8 @@ def plot(bodies: list[dict], modes: list[dict], fits: dict, path: Path) -> None:
 
 
 def markdown(table: list[dict], bodies: list[dict], modes: list[dict], fits: dict, info: dict) -> str:
-    lines = [f"Measured {info['date']} on {info['machine']} (`python benchmarks/scaling.py"
-             f"{' --quick' if info['quick'] else ''}`, generated C at {info['optimise']}); builds: median of "
-             f"{info['builds']}, steps: median of {info['repeats']} runs.", "",
+    lines = [f"Measured {info['date']} on {info['machine']} (`{info['command']}`, generated C at "
+             f"{info['optimise']}); builds: median of {info['builds']}, steps: median of {info['repeats']} runs.", "",
              "| scene | n_q | build [s] (target) | generated C [MB] (target) | µs per SS22 step (target) |",
              "| --- | --- | --- | --- | --- |"]
     for r in table:
@@ -144,12 +145,14 @@ def markdown(table: list[dict], bodies: list[dict], modes: list[dict], fits: dic
         lines.append(f"| {key} | {', '.join(str(r[key]) for r in rows)} | {f['build_s']:.2f} | "
                      f"{f['generated_bytes']:.2f} | {f['step_us']:.2f} |")
     lines += ["", "| scene | n_q | build [s] | model / codegen / gcc [s] | C [MB] | operations | µs/step | "
-              "residual µs | Newton matrix µs |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+              "residual µs | Newton matrix µs | iterations / step | factorisations |",
+              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in [*bodies, *modes]:
         p = r["build_parts_s"]
         lines.append(f"| {r['scene']} | {r['n_q']} | {r['build_s']:.1f} | {p['model']:.1f} / {p['codegen']:.1f} / "
                      f"{p['compile']:.1f} | {r['generated_bytes'] / 1e6:.2f} | {r['operations']} | "
-                     f"{r['step_us']:.1f} | {r['residual_us']:.2f} | {r['newton_matrix_us']:.1f} |")
+                     f"{r['step_us']:.1f} | {r['residual_us']:.2f} | {r['newton_matrix_us']:.1f} | "
+                     f"{r['iterations_per_step']:.2f} | {r['factorisations']} |")
     return "\n".join(lines) + "\n"
 
 
@@ -160,12 +163,15 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--quick", action="store_true", help="CI size: 1-3 links, 2 and 4 modes; no table")
     ap.add_argument("--builds", type=int, default=None, help="builds per scene (median; default 3, quick 1)")
     ap.add_argument("--repeats", type=int, default=None, help="step-timing runs (median; default 7, quick 3)")
+    ap.add_argument("--max-modes", type=int, default=32,
+                    help="largest mode count of the modes family (the 32-mode link takes minutes per build; the "
+                         "table measures it once anyway)")
     ap.add_argument("--out", type=Path, default=HERE)
     args = ap.parse_args(argv)
     builds = args.builds or (1 if args.quick else 3)
     repeats = args.repeats or (3 if args.quick else 7)
     link_counts = (1, 2, 3) if args.quick else (1, 2, 3, 4, 5, 6, 8)
-    mode_counts = (2, 4) if args.quick else (1, 2, 4, 8, 16, 32)
+    mode_counts = (2, 4) if args.quick else tuple(m for m in (1, 2, 4, 8, 16, 32) if m <= args.max_modes)
     bodies, modes, table = [], [], []
     for n in link_counts:
         bodies.append(measure(parse_scene(chain_scene(n)), builds=builds, repeats=repeats))
@@ -175,15 +181,21 @@ def main(argv: list[str] | None = None) -> None:
         modes.append({**row, "modes": m})
         print(f"modes {m}: {row}", flush=True)
     for label, source, targets in ([] if args.quick else TABLE):
-        scene = parse_scene(modes_scene(source)) if isinstance(source, int) else load_scene(source)
-        table.append({**measure(scene, builds=builds, repeats=repeats), "label": label, "targets": targets})
+        measured = [r for r in modes if isinstance(source, int) and r["modes"] == source]
+        if measured:                                   # the same scene as a row of the family
+            row = measured[0]
+        else:
+            scene = parse_scene(modes_scene(source)) if isinstance(source, int) else load_scene(source)
+            row = measure(scene, builds=builds, repeats=repeats)
+        table.append({**row, "label": label, "targets": targets})
         print(f"table {label}: {table[-1]}", flush=True)
     fits = {"bodies": family(bodies, "bodies"), "modes": family(modes, "modes")}
     from flexlink.export.codegen import OPTIMISE_ENV
 
     info = {"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
             "quick": args.quick, "builds": builds, "repeats": repeats,
-            "optimise": os.environ.get(OPTIMISE_ENV) or "the default level (-O2, -O1 above 20 000 operations)"}
+            "command": " ".join(["python benchmarks/scaling.py", *(argv if argv is not None else sys.argv[1:])]),
+            "optimise": os.environ.get(OPTIMISE_ENV) or "the default levels (-O2, -O1 above 5 000 operations)"}
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "scaling.json").write_text(json.dumps({"info": info, "table": table, "bodies": bodies,
                                                        "modes": modes, "fits": fits}, indent=1))

@@ -10,7 +10,8 @@
  *
  * usage: step_floor GUID REPEATS TOKENS...
  *   set VR VALUE          fmi2SetReal before initialisation (solver.step, solver.order, ...)
- *   seg UNTIL VR VALUE    hold input VR at VALUE until time UNTIL (segments in order, from t = 0)
+ *   seg UNTIL VR VALUE    hold input VR at VALUE until time UNTIL (segments in order, from t = 0);
+ *                         VR "-": no input (an FMU driven by its built-in laws)
  * Prints one JSON object: medians over REPEATS of CPU seconds, counters of one run, and the parts of
  * the floor timed separately.  Exit 0 on success. */
 #define _POSIX_C_SOURCE 199309L
@@ -45,6 +46,7 @@ static double median(double *x, int n) {
     return n % 2 ? x[n / 2] : 0.5 * (x[n / 2 - 1] + x[n / 2]);
 }
 
+#define NO_INPUT 0xffffffffu   /* a segment that sets no input */
 typedef struct { int n_set, n_seg; unsigned set_vr[MAX_TOKENS]; double set_val[MAX_TOKENS];
                  double until[MAX_TOKENS]; unsigned seg_vr[MAX_TOKENS]; double seg_val[MAX_TOKENS]; } Plan;
 
@@ -65,7 +67,7 @@ static double run(fmi2Component c, const Plan *plan, Counters *cnt) {
     const SS22 before = inst->d.ss22;
     double t = 0.0, cpu = 0.0;
     for (int k = 0; k < plan->n_seg; k++) {
-        fmi2SetReal(c, &plan->seg_vr[k], 1, &plan->seg_val[k]);
+        if (plan->seg_vr[k] != NO_INPUT) fmi2SetReal(c, &plan->seg_vr[k], 1, &plan->seg_val[k]);
         const double t0 = cpu_now();
         if (fmi2DoStep(c, t, plan->until[k] - t, fmi2True) != fmi2OK) { fprintf(stderr, "doStep failed\n"); exit(1); }
         cpu += cpu_now() - t0;
@@ -154,7 +156,7 @@ int main(int argc, char **argv) {
             k += 3;
         } else if (!strcmp(argv[k], "seg") && k + 3 < argc && plan.n_seg < MAX_TOKENS) {
             plan.until[plan.n_seg] = atof(argv[k + 1]);
-            plan.seg_vr[plan.n_seg] = (unsigned)atol(argv[k + 2]);
+            plan.seg_vr[plan.n_seg] = strcmp(argv[k + 2], "-") ? (unsigned)atol(argv[k + 2]) : NO_INPUT;
             plan.seg_val[plan.n_seg++] = atof(argv[k + 3]);
             k += 4;
         } else {

@@ -62,6 +62,8 @@ def manoeuvre_tokens(fmu: str | Path, case, start: dict[str, float]) -> list[str
     for name, value in start.items():
         tokens += ["set", str(vr[name]), repr(float(value))]
     bounds = [0.0, *case.switches, case.stop]
+    if not case.pieces:                          # built-in laws only: one segment, no input
+        return [*tokens, "seg", repr(float(case.stop)), "-", "0"]
     for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
         u = case.inputs_at(lo)
         if len(u) != 1:
