@@ -328,6 +328,12 @@ class _Fuzzer:
         self.inputs = [f.vr[n] for n in f.inputs]
         self.tunable = [f.vr[n] for n in f.tunable]
         self.tunable_start = [float(f.vars[n].start) for n in f.tunable]
+        # an array parameter (name[1], name[2], ...) is scaled as a whole: relations between its entries,
+        # which an FMU may enforce (an inertia tensor must stay a body's), survive a common factor
+        groups: dict[str, list[int]] = {}
+        for k, n in enumerate(f.tunable):
+            groups.setdefault(n.split("[", 1)[0], []).append(k)
+        self.tunable_groups = list(groups.values())
         self.states = [f.vr[n] for n in f.states]
         self.ders = [f.vr[n] for n in f.derivatives]
         self.insts = {k: _instance(f, k, f"fuzz{k}") for k in ("CS", "ME")}
@@ -352,9 +358,10 @@ class _Fuzzer:
             self.expect(legal, _call(inst.enterContinuousTimeMode), "enterContinuousTimeMode")
 
     def _scaled_tunable(self, inst, what: str) -> None:
-        j = int(self.rng.integers(len(self.tunable)))
-        self.expect(self.LEGAL, _call(inst.setReal, [self.tunable[j]],
-                                      [self.tunable_start[j] * self.rng.uniform(0.8, 1.25)]), what)
+        group = self.tunable_groups[int(self.rng.integers(len(self.tunable_groups)))]
+        factor = self.rng.uniform(0.8, 1.25)
+        self.expect(self.LEGAL, _call(inst.setReal, [self.tunable[j] for j in group],
+                                      [self.tunable_start[j] * factor for j in group]), what)
 
     def legal_sequence(self, kind: str) -> None:
         """Instantiate, maybe change a parameter, initialise, 3 to 14 random legal operations, maybe reset,
@@ -795,6 +802,9 @@ def check_importers(f: _Fmu) -> list[CheckResult]:
 def check_fmu(path: str | os.PathLike, *, fuzz: int = CI_FUZZ, seed: int = 0, importers: bool = True,
               stop_time: float | None = None) -> list[CheckResult]:
     """Run every check on the FMU at ``path``; see the module docstring."""
+    # fmpy changes into the binary's folder to load it and does not come back when the load fails (an
+    # unresolved symbol): the caller's working directory is restored whatever happens
+    cwd = os.getcwd()
     f = _Fmu(path)
     try:
         results = [check_model_description(f)]
@@ -806,6 +816,7 @@ def check_fmu(path: str | os.PathLike, *, fuzz: int = CI_FUZZ, seed: int = 0, im
             results += check_importers(f)
     finally:
         f.close()
+        os.chdir(cwd)
     return results
 
 
