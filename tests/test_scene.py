@@ -462,15 +462,20 @@ BAD = [
 
 @pytest.mark.parametrize(("mutate", "key", "expected"), [c[1:] for c in BAD], ids=[c[0] for c in BAD])
 def test_bad_input_is_one_clear_message(mutate, key: str, expected: str) -> None:
-    data = base()
+    one_clear_message(base(), mutate, key, expected)
+
+
+def one_clear_message(data: dict, mutate, key: str, expected: str, source: str = SOURCE) -> SceneError:
+    """``mutate(data)`` makes the scene fail with one SceneError: one line, naming ``key``, saying ``expected``."""
     mutate(data)
     with pytest.raises(SceneError) as info:
-        parse_scene(data, SOURCE)
+        parse_scene(data, source)
     msg = str(info.value)
-    assert msg.startswith(f"{SOURCE}: {key}: "), msg
+    assert msg.startswith(f"{source}: {key}: "), msg
     assert expected in msg, msg
     assert "expected" in msg, msg
     assert "\n" not in msg
+    return info.value
 
 
 def test_base_scene_is_valid() -> None:

@@ -116,16 +116,6 @@ class SymbolicModel:
         return ca.Function("newton_matrix", [q, v, a, u, p, *c], [ca.densify(J)],
                            ["q", "v", "a", "u", "p", "ca", "cv", "cq"], ["J"])
 
-    def residual_forward_function(self) -> ca.Function:
-        """dr = ∂r/∂q dq + ∂r/∂v dv + ∂r/∂a da: one forward directional derivative (compact code for large
-        models, whose Newton matrix the C side assembles column by column)."""
-        q, v, a, u, p = (ca.MX.sym(n, *self.residual.size_in(i)) for i, n in enumerate("qvaup"))
-        dq, dv, da = (ca.MX.sym("d" + n, self.n_q) for n in "qva")
-        r = self.residual(q, v, a, u, p)
-        dr = ca.jtimes(r, ca.vertcat(q, v, a), ca.vertcat(dq, dv, da))
-        return ca.Function("residual_forward", [q, v, a, u, p, dq, dv, da], [ca.densify(dr)],
-                           ["q", "v", "a", "u", "p", "dq", "dv", "da"], ["dr"])
-
     def mass_matrix_function(self) -> ca.Function:
         """M(q, u, p) = ∂r/∂a: the builder's own form if it gave one, else the residual's Jacobian."""
         if self.mass_matrix is not None:
