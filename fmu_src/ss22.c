@@ -50,32 +50,38 @@ static int all_finite(const double *x, int n) {
     return 1;
 }
 
-/* The factorised step matrix for (dt, theta): from the cache when the model's Newton matrix is
- * constant, else evaluated at the current iterate. */
-static SS22Status step_matrix(SS22 *s, double dt, const double *alpha, const double *p, ModelWork *work,
-                              int reuse, SS22Factor **out) {
-    const double cv = s->theta1 * dt, cq = s->theta2 * 0.5 * dt * dt;
-    SS22Factor *f = NULL;
-#if !MODEL_JACOBIAN_CONSTANT
-    if (!reuse) goto evaluate;
-#else
-    (void)reuse;
-#endif
-    /* a constant matrix, or (simplified Newton) the latest one of this step size */
+/* The cache entry of (dt, theta), or NULL.  There is at most one: a refreshed matrix replaces the entry
+ * of its own step size (below), so simplified Newton always continues from the newest matrix, never
+ * from an older one of the same step left in another slot. */
+static SS22Factor *cached_factor(SS22 *s, double dt) {
     for (int k = 0; k < SS22_CACHE; k++) {
         SS22Factor *c = &s->cache[k];
         /* dt comes from differences of absolute times: equal steps may differ in the last bits */
-        if (c->valid && fabs(c->dt - dt) <= 1e-12 * dt && c->theta1 == s->theta1 && c->theta2 == s->theta2) {
-            c->stamp = ++s->clock;
-            *out = c;
-            return SS22_OK;
-        }
+        if (c->valid && fabs(c->dt - dt) <= 1e-12 * dt && c->theta1 == s->theta1 && c->theta2 == s->theta2)
+            return c;
     }
-#if !MODEL_JACOBIAN_CONSTANT
-evaluate:
+    return NULL;
+}
+
+/* The factorised step matrix for (dt, theta): from the cache when the model's Newton matrix is
+ * constant or when simplified Newton reuses the latest one (reuse), else evaluated at the current
+ * iterate into the entry of this step size (or the least recently used one). */
+static SS22Status step_matrix(SS22 *s, double dt, const double *alpha, const double *p, ModelWork *work,
+                              int reuse, SS22Factor **out) {
+    const double cv = s->theta1 * dt, cq = s->theta2 * 0.5 * dt * dt;
+    SS22Factor *f = cached_factor(s, dt);
+#if MODEL_JACOBIAN_CONSTANT
+    reuse = 1;
 #endif
-    f = &s->cache[0];                                   /* replace the least recently used */
-    for (int k = 1; k < SS22_CACHE; k++) if (s->cache[k].stamp < f->stamp) f = &s->cache[k];
+    if (reuse && f != NULL) {
+        f->stamp = ++s->clock;
+        *out = f;
+        return SS22_OK;
+    }
+    if (f == NULL) {                                    /* replace the least recently used */
+        f = &s->cache[0];
+        for (int k = 1; k < SS22_CACHE; k++) if (s->cache[k].stamp < f->stamp) f = &s->cache[k];
+    }
     if (model_newton_matrix(s->q_bar, s->v_bar, alpha, s->u_bar, p, 1.0, cv, cq, f->LU, work)) {
         f->valid = 0;
         return SS22_MODEL_FAILED;
