@@ -1,8 +1,9 @@
 """Export: scene → symbolic model → generated C → modelDescription.xml → compiled, zipped FMU.
 
-The FMU holds ``modelDescription.xml``, ``binaries/linux64/<id>.so`` and ``sources/`` (the generic
-half from ``fmu_src/``, the generated model half, and the FMI headers from the installed fmpy), so
-that it can be rebuilt elsewhere.
+The FMU holds ``modelDescription.xml``, ``binaries/linux64/<id>.so`` (and, on request,
+``binaries/win64/<id>.dll`` cross-compiled with MinGW-w64) and ``sources/`` (the generic half from
+``fmu_src/``, the generated model half, and the FMI headers from the installed fmpy), so that
+it can be rebuilt elsewhere.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import shutil
 import tempfile
 import time
 import zipfile
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
@@ -26,9 +28,12 @@ from flexlink.errors import BuildError
 from flexlink.export.cbuild import (
     GENERIC_HEADERS,
     GENERIC_SOURCES,
+    LIBRARY_SUFFIX,
     compile_shared_library,
+    compiler,
     fmi_headers_dir,
     fmu_src_dir,
+    parse_platforms,
 )
 from flexlink.export.codegen import OPTIMISE_ENV, GeneratedModel, generate
 from flexlink.export.derivatives import structure
@@ -200,10 +205,17 @@ def model_structure(model: SymbolicModel, gen: GeneratedModel) -> list[str]:
 
 
 def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, keep_dir: str | None = None,
-              model: SymbolicModel | None = None) -> BuildReport:
+              model: SymbolicModel | None = None, platforms: str | Sequence[str] = ("linux64",)) -> BuildReport:
     """Export ``scene`` as an FMI 2.0 FMU (Model Exchange and Co-Simulation) at ``output``; an existing
-    folder as ``output`` receives ``<model identifier>.fmu``."""
+    folder as ``output`` receives ``<model identifier>.fmu``.
+
+    ``platforms`` ("linux64", "win64", or both as a sequence or ``"linux64,win64"``) names the binaries
+    compiled from the same sources.  A missing compiler (MinGW-w64 for win64) is a BuildError raised
+    before the model is built, so that the user does not wait for code generation to learn it."""
     t0 = time.perf_counter()
+    platforms = parse_platforms(platforms)
+    for platform in platforms:
+        compiler(platform)
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     output = Path(output)
@@ -226,9 +238,10 @@ def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, ke
         for h in fmi_headers_dir().glob("fmi2*.h"):
             shutil.copyfile(h, src / h.name)
         c_files = [*GENERIC_SOURCES, *(p.name for p in gen.sources)]
-        so = work / "binaries" / "linux64" / f"{gen.identifier}.so"
-        so.parent.mkdir(parents=True, exist_ok=True)
-        compile_shared_library([src / f for f in c_files], [src], so)
+        libraries = [work / "binaries" / platform / f"{gen.identifier}{LIBRARY_SUFFIX[platform]}"
+                     for platform in platforms]
+        for platform, library in zip(platforms, libraries, strict=True):
+            compile_shared_library([src / f for f in c_files], [src], library, platform=platform)
         t3 = time.perf_counter()
         xml = model_description(model, gen, c_files)
         (work / "modelDescription.xml").write_text(xml)
@@ -237,7 +250,8 @@ def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, ke
         try:
             with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as z:
                 z.write(work / "modelDescription.xml", "modelDescription.xml")
-                z.write(so, f"binaries/linux64/{so.name}")
+                for library in libraries:
+                    z.write(library, library.relative_to(work).as_posix())
                 for f in sorted(src.iterdir()):
                     z.write(f, f"sources/{f.name}")
             tmp.replace(output)
