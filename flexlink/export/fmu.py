@@ -2,8 +2,8 @@
 
 The FMU holds ``modelDescription.xml``, ``binaries/linux64/<id>.so`` (and, on request,
 ``binaries/win64/<id>.dll`` cross-compiled with MinGW-w64) and ``sources/`` (the generic half from
-``fmu_src/``, the generated model half, and the FMI headers from the installed fmpy), so that
-it can be rebuilt elsewhere.
+``fmu_src/``, the generated model half, the FMI headers from the installed fmpy and a
+``buildDescription.xml``), so that it can be rebuilt elsewhere.
 """
 
 from __future__ import annotations
@@ -204,6 +204,16 @@ def model_structure(model: SymbolicModel, gen: GeneratedModel) -> list[str]:
     return lines
 
 
+def build_description(identifier: str, c_files: list[str]) -> str:
+    """``sources/buildDescription.xml`` (the FMI 3.0 format, which FMI 2.0.4 adopts for 2.0 FMUs): one
+    build configuration, C99, every source file; the headers sit next to them in ``sources/``."""
+    lines = ['<?xml version="1.0" encoding="UTF-8"?>', '<fmiBuildDescription fmiVersion="3.0">',
+             f'  <BuildConfiguration modelIdentifier="{identifier}">', '    <SourceFileSet language="C99">',
+             *[f'      <SourceFile name="{f}"/>' for f in c_files],
+             '    </SourceFileSet>', '  </BuildConfiguration>', '</fmiBuildDescription>']
+    return "\n".join(lines) + "\n"
+
+
 def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, keep_dir: str | None = None,
               model: SymbolicModel | None = None, platforms: str | Sequence[str] = ("linux64",)) -> BuildReport:
     """Export ``scene`` as an FMI 2.0 FMU (Model Exchange and Co-Simulation) at ``output``; an existing
@@ -238,6 +248,7 @@ def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, ke
         for h in fmi_headers_dir().glob("fmi2*.h"):
             shutil.copyfile(h, src / h.name)
         c_files = [*GENERIC_SOURCES, *(p.name for p in gen.sources)]
+        (src / "buildDescription.xml").write_text(build_description(gen.identifier, c_files))
         libraries = [work / "binaries" / platform / f"{gen.identifier}{LIBRARY_SUFFIX[platform]}"
                      for platform in platforms]
         for platform, library in zip(platforms, libraries, strict=True):
