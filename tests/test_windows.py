@@ -1,9 +1,15 @@
 """win64 binaries (``--platforms linux64,win64``), and the proof that they run: one C host
 (tests/c/cross_host.c) compiled with gcc and cross-compiled with MinGW-w64 drives the linux64 ``.so`` natively
 and the win64 ``.dll`` under Wine through the same Co-Simulation and Model Exchange sequences; the two print
-the bits of every variable at every communication point, which must agree to 1e-12 of each variable's
-largest magnitude in the run.  An FMU state serialised by one platform's library and restored by the other's
-must continue as the original did.
+the bits of every variable at every communication point, which must agree to RTOL of the variable's scale: the
+largest magnitude, over the run, of the variables of its unit (so that a quantity that is zero up to rounding,
+such as an in-plane joint's out-of-plane moment, is compared on the scale of its kind).  An FMU state
+serialised by one platform's library and restored by the other's must continue as the original did.
+
+The two libraries differ in one respect: MinGW-w64 links its own sincos (x87 fsincos), glibc has another, and
+they round a few arguments differently by one unit in the last place.  The 4-coordinate rotating link keeps
+that at 1e-16 (RTOL 1e-12); the 17-coordinate flexible pendulum, whose stiff finite-element coordinates
+amplify it (as any perturbation of the inputs), agrees to about 2e-9 (RTOL 1e-8).
 
 Needs ``x86_64-w64-mingw32-gcc`` (Debian: gcc-mingw-w64-x86-64) and Wine (wine64 and wine); skipped with the
 reason when they are missing, installed by .ci/run in CI.  Wine runs in a private prefix in a temporary
@@ -19,6 +25,7 @@ import subprocess
 import sys
 import tempfile
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 
 import fmpy
@@ -40,11 +47,13 @@ NO_WINE = "Wine is not installed (Debian/Ubuntu: apt-get install wine64 wine)"
 need_mingw = pytest.mark.skipif(MINGW is None, reason=NO_MINGW)
 need_wine = pytest.mark.skipif(WINE is None, reason=NO_WINE)
 
-#: A motion that exercises the nonlinear terms: a hub torque (input) and an initial hub rate (parameter).
-SETTINGS = {"hub.tau": 0.5, "hub.initial_rate": 1.0}
+#: scene → settings (a motion that exercises the nonlinear terms), RTOL, the Model Exchange run (stop time, the
+#: host's Runge-Kutta step), the joint angle and the deflection that show the run is not trivial.
+CASES = {
+    "rotating_link": ({"hub.tau": 0.5, "hub.initial_rate": 1.0}, 1e-12, ("0.2", "0.001"), "hub.theta", "arm.tip.v"),
+    "flexible_pendulum": ({"pivot.initial_angle": -1.2}, 1e-8, ("0.1", "0.0001"), "pivot.theta", "strip.tip.v"),
+}
 CS_RUN = ("0.5", "0.01")     # stop time, communication step
-ME_RUN = ("0.2", "0.001")    # stop time, the host's Runge-Kutta step
-RTOL = 1e-12
 
 
 # ------------------------------------------------------------------------------------- a missing compiler
@@ -74,26 +83,35 @@ def test_unknown_platform_and_missing_cross_compiler_are_build_errors(tmp_path, 
 # ---------------------------------------------------------------------------------------- the win64 FMU
 
 @pytest.fixture(scope="module")
-def fmu(tmp_path_factory) -> dict:
-    """The example built for both platforms, unzipped, with its model description."""
+def built(tmp_path_factory) -> Callable[[str], dict]:
+    """``built(scene)``: the example built for both platforms (once per module), unzipped, with its model
+    description."""
     if MINGW is None:
         pytest.skip(NO_MINGW)
-    d = tmp_path_factory.mktemp("windows")
-    path = build_fmu(SCENE, d / "rotating_link.fmu", platforms="linux64,win64").fmu
-    with zipfile.ZipFile(path) as z:
-        z.extractall(d / "unzipped")
-    md = fmpy.read_model_description(str(path))
-    ident = md.coSimulation.modelIdentifier
-    return {"path": path, "dir": d, "md": md,
-            "linux64": d / "unzipped" / "binaries" / "linux64" / f"{ident}.so",
-            "win64": d / "unzipped" / "binaries" / "win64" / f"{ident}.dll"}
+    root = tmp_path_factory.mktemp("windows")
+    out: dict[str, dict] = {}
+
+    def get(name: str) -> dict:
+        if name not in out:
+            d = root / name
+            path = build_fmu(ROOT / "examples" / f"{name}.toml", d / f"{name}.fmu", platforms="linux64,win64").fmu
+            with zipfile.ZipFile(path) as z:
+                z.extractall(d / "unzipped")
+            md = fmpy.read_model_description(str(path))
+            ident = md.coSimulation.modelIdentifier
+            out[name] = {"name": name, "path": path, "dir": d, "md": md,
+                         "linux64": d / "unzipped" / "binaries" / "linux64" / f"{ident}.so",
+                         "win64": d / "unzipped" / "binaries" / "win64" / f"{ident}.dll"}
+        return out[name]
+    return get
 
 
 @need_mingw
-def test_fmu_with_win64_binary_is_valid_and_exports_the_fmi_interface(fmu):
+def test_fmu_with_win64_binary_is_valid_and_exports_the_fmi_interface(built):
     """fmpy accepts the model description; the DLL exports exactly the 44 functions that the standard's
     fmi2Functions.h declares (a host looks them up by name) and needs no MinGW runtime DLL, only Windows'
     own kernel32 and msvcrt."""
+    fmu = built("rotating_link")
     assert validate_fmu(str(fmu["path"])) == []
     with zipfile.ZipFile(fmu["path"]) as z:
         names = set(z.namelist())
@@ -112,9 +130,12 @@ def test_fmu_with_win64_binary_is_valid_and_exports_the_fmi_interface(fmu):
 # ---------------------------------------------------------------------------------- the host and Wine
 
 @pytest.fixture(scope="module")
-def hosts(fmu) -> dict[str, Path]:
+def hosts(tmp_path_factory) -> dict[str, Path]:
     """cross_host.c for both platforms (the same source, gcc and MinGW-w64)."""
-    out = {"linux64": fmu["dir"] / "cross_host", "win64": fmu["dir"] / "cross_host.exe"}
+    if MINGW is None:
+        pytest.skip(NO_MINGW)
+    d = tmp_path_factory.mktemp("hosts")
+    out = {"linux64": d / "cross_host", "win64": d / "cross_host.exe"}
     flags = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-O1", f"-I{cbuild.fmi_headers_dir()}", str(HOST)]
     for cc, exe, libs in ((cbuild.compiler(), out["linux64"], ["-ldl"]), ([MINGW], out["win64"], [])):
         res = subprocess.run([*cc, *flags, "-o", str(exe), *libs], capture_output=True, text=True, check=False)
@@ -140,19 +161,20 @@ def _windows_path(path: Path) -> str:
     return "Z:" + str(path).replace("/", "\\")
 
 
-def run_host(platform: str, fmu: dict, hosts: dict, wine_env: dict | None, mode: str, run: tuple[str, str],
+def run_host(platform: str, fmu: dict, hosts: dict, wine_env: dict, mode: str, run: tuple[str, str],
              state: tuple[str, Path] | None = None) -> np.ndarray:
-    """One host run on ``platform``; its rows (time, then every variable by value reference) as floats."""
+    """One host run on ``platform`` with the scene's settings; its rows (time, then every variable by value
+    reference) as floats."""
     md = fmu["md"]
     vr = {v.name: v.valueReference for v in md.modelVariables}
-    settings = [f"{vr[name]}={value!r}" for name, value in SETTINGS.items()]
+    settings = [f"{vr[name]}={value!r}" for name, value in CASES[fmu["name"]][0].items()]
     local = platform == "linux64"
-    path = (lambda p: str(p)) if local else _windows_path
+    path = str if local else _windows_path
     extra = [state[0], path(state[1])] if state else []
     args = [mode, path(fmu[platform]), md.guid, str(len(md.modelVariables)), str(len(md.derivatives)), *run,
             *extra, *settings]
     command = [str(hosts["linux64"])] if local else [WINE, str(hosts["win64"])]
-    res = subprocess.run([*command, *args], capture_output=True, text=True, timeout=300, check=False,
+    res = subprocess.run([*command, *args], capture_output=True, text=True, timeout=600, check=False,
                          env=None if local else wine_env)
     assert res.returncode == 0, f"{platform} {mode}: exit {res.returncode}\n{res.stderr[-3000:]}"
     rows = [[struct.unpack(">d", bytes.fromhex(w))[0] for w in line.split()] for line in res.stdout.splitlines()
@@ -160,41 +182,51 @@ def run_host(platform: str, fmu: dict, hosts: dict, wine_env: dict | None, mode:
     return np.array(rows)
 
 
-def assert_same_run(linux: np.ndarray, windows: np.ndarray) -> None:
-    """Equal to RTOL of each column's largest magnitude over the run (the time column included)."""
+def assert_same_run(fmu: dict, linux: np.ndarray, windows: np.ndarray) -> None:
+    """Equal to the scene's RTOL of each variable's scale: the largest magnitude over the run among the
+    variables of its unit (the time column on its own)."""
     assert linux.shape == windows.shape and linux.shape[0] > 2
-    scale = np.max(np.abs(linux), axis=0)
-    worst = np.max(np.abs(linux - windows) - RTOL * scale)
-    assert worst <= 0.0, f"differ by more than {RTOL} of the scale: {np.max(np.abs(linux - windows) / scale)}"
+    units = ["time"] + [v.unit or f"{v.name} (no unit)" for v in fmu["md"].modelVariables]
+    largest = np.max(np.abs(linux), axis=0)
+    scale = np.array([max(largest[k] for k in range(len(units)) if units[k] == u) for u in units])
+    rtol = CASES[fmu["name"]][1]
+    excess = np.abs(linux - windows) - rtol * scale
+    worst = int(np.argmax(np.max(excess, axis=0)))
+    differs = np.max(np.abs(linux - windows)[:, worst])
+    assert np.max(excess) <= 0.0, f"column {worst} ({units[worst]}) differs by {differs} on a scale of {scale[worst]}"
 
 
-def column(fmu: dict, rows: np.ndarray, name: str) -> np.ndarray:
+def assert_moves(fmu: dict, rows: np.ndarray) -> None:
+    """The run is not trivial: the joint turns and the link bends."""
     vr = {v.name: v.valueReference for v in fmu["md"].modelVariables}
-    return rows[:, 1 + vr[name]]
+    _, _, _, angle, deflection = CASES[fmu["name"]]
+    assert np.ptp(rows[:, 1 + vr[angle]]) > 0.01
+    assert np.max(np.abs(rows[:, 1 + vr[deflection]])) > 1e-5
 
 
 @need_mingw
 @need_wine
+@pytest.mark.parametrize("scene", list(CASES))
 @pytest.mark.parametrize("mode", ["cs", "me"])
-def test_win64_under_wine_equals_linux64(fmu, hosts, wine_env, mode):
-    run = CS_RUN if mode == "cs" else ME_RUN
+def test_win64_under_wine_equals_linux64(built, hosts, wine_env, scene, mode):
+    fmu = built(scene)
+    run = CS_RUN if mode == "cs" else CASES[scene][2]
     linux = run_host("linux64", fmu, hosts, wine_env, mode, run)
     windows = run_host("win64", fmu, hosts, wine_env, mode, run)
-    # the run is not trivial: the hub turns and the arm bends
-    assert np.ptp(column(fmu, linux, "hub.theta")) > 0.05
-    assert np.max(np.abs(column(fmu, linux, "arm.tip.v"))) > 1e-5
-    assert_same_run(linux, windows)
+    assert_moves(fmu, linux)
+    assert_same_run(fmu, linux, windows)
 
 
 @need_mingw
 @need_wine
 @pytest.mark.parametrize("saver,loader", [("linux64", "win64"), ("win64", "linux64")])
-def test_fmu_state_serialised_on_one_platform_continues_on_the_other(fmu, hosts, wine_env, saver, loader):
+def test_fmu_state_serialised_on_one_platform_continues_on_the_other(built, hosts, wine_env, saver, loader):
     """The saving run goes on to the end; the loading run starts from the saved bytes (its own settings are
     overwritten by the state) and must print the same rows as the saver's continuation."""
+    fmu = built("rotating_link")
     state = fmu["dir"] / f"state-{saver}.bin"
     whole = run_host(saver, fmu, hosts, wine_env, "cs", CS_RUN, ("save", state))
     assert state.stat().st_size > 0
     continued = run_host(loader, fmu, hosts, wine_env, "cs", CS_RUN, ("load", state))
     assert continued[0, 0] > 0.2          # it started in the middle, not from t = 0
-    assert_same_run(whole[-len(continued):], continued)
+    assert_same_run(fmu, whole[-len(continued):], continued)
