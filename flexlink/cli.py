@@ -15,7 +15,7 @@ from flexlink.errors import FlexlinkError
 def _cmd_build(args) -> int:
     from flexlink.export.fmu import build_fmu
 
-    rep = build_fmu(args.scene, args.output, keep_dir=args.keep_sources)
+    rep = build_fmu(args.scene, args.output, keep_dir=args.keep_sources, platforms=args.platforms)
     total = sum(rep.seconds.values())
     print(f"{rep.fmu}: {rep.n_coordinates} coordinates, {rep.operations} operations, "
           f"{rep.generated_c_bytes / 1024:.0f} KiB generated C, FMU {rep.fmu_bytes / 1024:.0f} KiB, "
@@ -130,6 +130,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("scene")
     p.add_argument("-o", "--output", required=True)
     p.add_argument("--keep-sources", metavar="DIR", help="keep the build directory (generated C) in DIR")
+    p.add_argument("--platforms", default="linux64", metavar="P[,P]",
+                   help="binaries to compile: linux64 (default), win64 (needs MinGW-w64), or linux64,win64")
     p.set_defaults(func=_cmd_build)
 
     p = sub.add_parser("modes", help="natural frequencies about an equilibrium")

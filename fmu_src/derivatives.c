@@ -19,7 +19,7 @@ static fmi2Status read_knowns(Instance *inst, const fmi2ValueReference known[], 
         if (known[i] >= (fmi2ValueReference)N_VARS) return fmu_error(inst, "%s: unknown value reference %u", F,
                                                                      known[i]);
         v = &MODEL_VARS[known[i]];
-        if (!isfinite(dv_known[i])) return fmu_error(inst, "%s: dvKnown[%zu] = %g: must be finite", F, i,
+        if (!isfinite(dv_known[i])) return fmu_error(inst, "%s: dvKnown[%lu] = %g: must be finite", F, (unsigned long)i,
                                                      dv_known[i]);
         switch (v->kind) {
         case VAR_STATE_Q: inst->dd_q[v->index] += dv_known[i]; break;

@@ -51,7 +51,9 @@ fmi2Status fmu_free_state(Instance *inst, fmi2FMUstate *state) {
 }
 
 /* Serialized layout: magic (8 bytes) | MODEL_GUID with its NUL | payload size (uint64) |
- * FNV-1a checksum of the payload (uint64) | the FmuData bytes.  Same machine and build only. */
+ * FNV-1a checksum of the payload (uint64) | the FmuData bytes.  The same build (GUID) only, but across
+ * platforms of one byte order and alignment: FmuData holds no pointer and no `long` (32 bits on win64),
+ * so a state written by the linux64 library restores in the win64 one (tests/test_windows.py). */
 static const char SERIAL_MAGIC[8] = {'F', 'L', 'X', 'S', 'T', 'A', 'T', '1'};
 #define GUID_BYTES sizeof(MODEL_GUID)
 #define HEADER_BYTES (sizeof(SERIAL_MAGIC) + GUID_BYTES + 2 * sizeof(uint64_t))
@@ -78,8 +80,8 @@ fmi2Status fmu_serialize(Instance *inst, fmi2FMUstate state, fmi2Byte buffer[], 
         return fmu_error(inst, "fmi2SerializeFMUstate: not a state of this FMU");
     }
     if (size < fmu_serialized_size()) {
-        return fmu_error(inst, "fmi2SerializeFMUstate: buffer of %zu bytes, %zu needed", size,
-                         fmu_serialized_size());
+        return fmu_error(inst, "fmi2SerializeFMUstate: buffer of %lu bytes, %lu needed", (unsigned long)size,
+                         (unsigned long)fmu_serialized_size());
     }
     sum = checksum((const unsigned char *)&s->d, sizeof(s->d));
     memcpy(b, SERIAL_MAGIC, sizeof(SERIAL_MAGIC));
@@ -126,8 +128,8 @@ fmi2Status fmu_deserialize(Instance *inst, const fmi2Byte buffer[], size_t size,
                          "this FMU");
     }
     if (size != fmu_serialized_size()) {
-        return fmu_error(inst, "fmi2DeSerializeFMUstate: %zu bytes, a state of this FMU has %zu", size,
-                         fmu_serialized_size());
+        return fmu_error(inst, "fmi2DeSerializeFMUstate: %lu bytes, a state of this FMU has %lu",
+                         (unsigned long)size, (unsigned long)fmu_serialized_size());
     }
     if (memcmp(b, SERIAL_MAGIC, sizeof(SERIAL_MAGIC)) != 0) {
         return fmu_error(inst, "fmi2DeSerializeFMUstate: not a serialized flexlink FMU state");

@@ -75,12 +75,12 @@ fmi2Status fmu_error(Instance *inst, const char *format, ...) {
 fmi2Status fmu_set_debug_logging(Instance *inst, fmi2Boolean on, size_t n, const fmi2String categories[]) {
     int wanted[N_LOG_CATEGORIES] = {0};
     if (n > 0 && categories == NULL) {
-        return fmu_error(inst, "fmi2SetDebugLogging: categories is NULL with nCategories = %zu", n);
+        return fmu_error(inst, "fmi2SetDebugLogging: categories is NULL with nCategories = %lu", (unsigned long)n);
     }
     for (size_t i = 0; i < n; i++) {
         int found = 0;
         if (categories[i] == NULL) {
-            return fmu_error(inst, "fmi2SetDebugLogging: category %zu is NULL", i);
+            return fmu_error(inst, "fmi2SetDebugLogging: category %lu is NULL", (unsigned long)i);
         }
         for (int k = 0; k < N_LOG_CATEGORIES; k++) {
             if (strcmp(categories[i], LOG_CATEGORY_NAMES[k]) == 0) { wanted[k] = 1; found = 1; }

@@ -16,7 +16,8 @@ fmi2Status fmu_set_time(Instance *inst, fmi2Real time) {
 
 static fmi2Status check_nx(Instance *inst, const char *function, size_t nx) {
     if (nx != (size_t)N_STATES) {
-        return fmu_error(inst, "%s: nx = %zu, this FMU has %d continuous states", function, nx, N_STATES);
+        return fmu_error(inst, "%s: nx = %lu, this FMU has %d continuous states", function,
+                         (unsigned long)nx, N_STATES);
     }
     return fmi2OK;
 }

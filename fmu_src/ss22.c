@@ -125,7 +125,7 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
 #else
     {
         double delta[N_Q];
-        const unsigned long used = s->factorisations;
+        const uint64_t used = s->factorisations;
         int converged = 0, fresh = 0;
         double previous = INFINITY;
         for (int it = 0; it < s->max_iterations; it++) {

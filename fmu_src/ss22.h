@@ -14,6 +14,7 @@
 #ifndef FLEXLINK_SS22_H
 #define FLEXLINK_SS22_H
 
+#include <stdint.h>
 #include "model.h"
 
 /* A Newton iteration that stalls (a fresh matrix no longer contracts) within this factor of the tolerance
@@ -34,7 +35,7 @@ typedef enum {
 typedef struct {
     double dt, theta1, theta2;   /* key of the cached factorisation */
     int valid;
-    unsigned long stamp;         /* last use, for replacement */
+    uint64_t stamp;              /* last use, for replacement */
     double LU[N_Q * N_Q];
     int piv[N_Q];
 } SS22Factor;
@@ -43,11 +44,11 @@ typedef struct {
     double theta1, theta2, tolerance;
     int max_iterations;
     SS22Factor cache[SS22_CACHE];
-    unsigned long clock;
+    uint64_t clock;              /* fixed-width: an FMU state has one layout on every 64-bit platform */
     /* scratch, kept here so that a step allocates nothing */
     double q_bar[N_Q], v_bar[N_Q], r[N_Q], u_bar[N_U > 0 ? N_U : 1];
     /* counters, for benchmarks and logging */
-    unsigned long steps, newton_iterations, factorisations, residual_evaluations;
+    uint64_t steps, newton_iterations, factorisations, residual_evaluations;
 } SS22;
 
 void ss22_init(SS22 *s, double theta1, double theta2, double tolerance);

@@ -12,6 +12,7 @@ import importlib.resources
 import importlib.util
 import os
 import shlex
+import shutil
 import subprocess
 import tempfile
 from collections.abc import Iterable, Sequence
@@ -39,6 +40,12 @@ GENERIC_HEADERS: tuple[str, ...] = ("model.h", "cosimulation.h", "internal.h", "
 CFLAGS: tuple[str, ...] = (
     "-shared", "-fPIC", "-O2", "-std=c99", "-Wall", "-Wextra", "-Werror", "-fvisibility=hidden",
 )
+#: The platforms an FMU can carry a binary for (FMI 2.0 folder names under ``binaries/``).
+PLATFORMS: tuple[str, ...] = ("linux64", "win64")
+#: The MinGW-w64 cross-compiler of win64 binaries (``$FLEXLINK_MINGW_CC`` overrides it).
+MINGW_CC = "x86_64-w64-mingw32-gcc"
+#: The library suffix of each platform.
+LIBRARY_SUFFIX = {"linux64": ".so", "win64": ".dll"}
 #: Added for a memory-checked build; the later ``-O1`` wins over ``-O2``.
 SANITIZE_CFLAGS: tuple[str, ...] = (
     "-fsanitize=address,undefined", "-fno-omit-frame-pointer", "-g", "-O1",
@@ -76,9 +83,33 @@ def fmu_src_dir() -> Path:
     return path
 
 
-def compiler() -> list[str]:
-    """The C compiler command: ``$CC`` (may carry arguments, e.g. ``ccache gcc``) or ``gcc``."""
-    return shlex.split(os.environ.get("CC", "").strip() or "gcc")
+def compiler(platform: str = "linux64") -> list[str]:
+    """The C compiler command of ``platform``.
+
+    linux64: ``$CC`` (may carry arguments, e.g. ``ccache gcc``) or ``gcc``.  win64: ``$FLEXLINK_MINGW_CC``
+    or the MinGW-w64 cross-compiler ``x86_64-w64-mingw32-gcc``; when it is not installed, a one-line
+    BuildError says which package provides it (checked here, before minutes of code generation)."""
+    if platform == "linux64":
+        return shlex.split(os.environ.get("CC", "").strip() or "gcc")
+    if platform != "win64":
+        raise BuildError(f"unknown platform {platform!r}: choose among {', '.join(PLATFORMS)}")
+    command = shlex.split(os.environ.get("FLEXLINK_MINGW_CC", "").strip() or MINGW_CC)
+    if shutil.which(command[0]) is None:
+        raise BuildError(f"win64 binaries need the MinGW-w64 cross-compiler {command[0]}, which is not installed "
+                         "(Debian/Ubuntu: apt-get install gcc-mingw-w64-x86-64)")
+    return command
+
+
+def parse_platforms(platforms: str | Iterable[str]) -> tuple[str, ...]:
+    """Platform names from ``"linux64,win64"`` or a sequence, in the order given and without repeats; an
+    unknown or missing name is a BuildError naming the choices."""
+    names = platforms.split(",") if isinstance(platforms, str) else list(platforms)
+    names = [n.strip() for n in names]
+    unknown = [n for n in names if n not in PLATFORMS]
+    if unknown or not names:
+        raise BuildError(f"unknown platform {(unknown or [''])[0]!r}: choose among {', '.join(PLATFORMS)} "
+                         "(comma-separated, e.g. linux64,win64)")
+    return tuple(dict.fromkeys(names))
 
 
 def compile_shared_library(
@@ -88,6 +119,7 @@ def compile_shared_library(
     *,
     extra_cflags: Sequence[str] = (),
     sanitize: bool = False,
+    platform: str = "linux64",
 ) -> Path:
     """Compile C sources into one shared library and return its path.
 
@@ -104,6 +136,10 @@ def compile_shared_library(
     sanitize
         Build with AddressSanitizer and UndefinedBehaviorSanitizer (for tests: the program that loads
         the library must be built with them too, or preload their runtime).
+    platform
+        ``"linux64"`` (a ``.so`` with the host's compiler) or ``"win64"`` (a ``.dll`` cross-compiled with
+        MinGW-w64: the same flags but ``-fPIC``, which PE code does not need; the C runtime is the
+        system's ``msvcrt.dll``, so the DLL depends on no MinGW library).
 
     Raises
     ------
@@ -112,17 +148,19 @@ def compile_shared_library(
     """
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    flags = [*CFLAGS, *(SANITIZE_CFLAGS if sanitize else ()), *extra_cflags, *(f"-I{d}" for d in include_dirs)]
+    cc = compiler(platform)
+    base = CFLAGS if platform == "linux64" else tuple(f for f in CFLAGS if f != "-fPIC")
+    flags = [*base, *(SANITIZE_CFLAGS if sanitize else ()), *extra_cflags, *(f"-I{d}" for d in include_dirs)]
     sources = [Path(s) for s in sources]
     with tempfile.TemporaryDirectory(prefix="flexlink-objects-") as tmp:
         objects = [Path(tmp) / f"{k}_{s.stem}.o" for k, s in enumerate(sources)]
         # the largest files first, one compiler per core: the units of a large model compile side by side
         order = sorted(range(len(sources)), key=lambda k: -(sources[k].stat().st_size if sources[k].is_file() else 0))
         with ThreadPoolExecutor(max_workers=max(1, os.cpu_count() or 1)) as pool:
-            for _ in pool.map(lambda k: _run([*compiler(), *flags, "-c", str(sources[k]), "-o", str(objects[k])],
+            for _ in pool.map(lambda k: _run([*cc, *flags, "-c", str(sources[k]), "-o", str(objects[k])],
                                              output.name), order):
                 pass
-        _run([*compiler(), *flags, *(str(o) for o in objects), "-o", str(output), "-lm"], output.name)
+        _run([*cc, *flags, *(str(o) for o in objects), "-o", str(output), "-lm"], output.name)
     return output
 
 

@@ -20,6 +20,6 @@ int main(int argc, char **argv) {
         for (int k = 0; k < N_Q; k++) printf(" %.17g %.17g %.17g", q[k], v[k], alpha[k]);
         printf("\n");
     }
-    printf("# factorisations %lu\n", s.factorisations);
+    printf("# factorisations %lu\n", (unsigned long)s.factorisations);
     return 0;
 }
