@@ -173,7 +173,7 @@ def not_ahead(data: dict) -> list[str]:
     """Where flexlink is not ahead, or only narrowly, read off the measurements (no figure is written by hand)."""
     notes = []
     for key, b in data["bench"].items():
-        rows = b["rows"]
+        rows = [r for r in b["rows"] if r.get("failure") is None]     # a refused setting has no figures
         plain = [r for r in rows if r["method"] == "ss22 (FMU)"]
         others = [m for m in dict.fromkeys(r["method"] for r in rows) if not m.startswith("ss22")]
         if plain:

@@ -45,6 +45,7 @@ typedef enum {
     LOG_STATUS_WARNING,  /* always reported                                            */
     LOG_STATUS_DISCARD,  /* always reported                                            */
     LOG_STATUS_ERROR,    /* always reported                                            */
+    LOG_STATISTICS,      /* the integrator's counters at fmi2Terminate: when switched on */
     LOG_ALL,             /* every FMI call (debugging): only when logging is on        */
     N_LOG_CATEGORIES
 } LogCategory;
@@ -122,7 +123,7 @@ void fmu_reset(Instance *inst);
 const char *fmu_phase_name(int phase);
 
 /* -------------------------------------------------------------------- logging */
-/* Errors, discards and warnings are always reported; LOG_EVENTS / LOG_ALL only when switched on. */
+/* Errors, discards and warnings are always reported; LOG_EVENTS, LOG_STATISTICS and LOG_ALL only when switched on. */
 #ifdef __GNUC__
 __attribute__((format(printf, 4, 5)))
 #endif
@@ -133,6 +134,9 @@ __attribute__((format(printf, 2, 3)))
 #endif
 fmi2Status fmu_error(Instance *inst, const char *format, ...);
 int fmu_logs(const Instance *inst, LogCategory category);
+/* The integrator's counters since initialisation (logStatistics): what a host needs to judge the cost
+ * of its step size, e.g. flexlink bench's factorisations and Newton iterations per step. */
+void fmu_log_statistics(Instance *inst);
 fmi2Status fmu_set_debug_logging(Instance *inst, fmi2Boolean on, size_t n, const fmi2String categories[]);
 
 /* ------------------------------------------------------------ variable access */

@@ -5,6 +5,10 @@
 #include "internal.h"
 
 #define SUBSTEP_MAX 8              /* a failed internal step is retried as 2, 4, ... SUBSTEP_MAX sub-steps */
+/* The most internal steps one fmi2DoStep takes: its time stays bounded (about 10 s at 10 µs a step) and the
+ * step count cannot overflow (solver.step = 1e-300 once made it one step).  A doStep that needs more is
+ * refused (fmi2Discard, the FMU unchanged): a larger solver.step or shorter communication steps. */
+#define DOSTEP_MAX_INTERNAL_STEPS 1000000.0
 
 /* ====================================================================== doStep */
 
@@ -92,6 +96,13 @@ fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h) {
     if (d->stop_time_defined && t_end > d->stop_time + 1e-9 * fmax(1.0, fabs(d->stop_time))) {
         return fmu_error(inst, "fmi2DoStep: the step to t = %.17g goes beyond stopTime = %.17g",
                          t_end, d->stop_time);
+    }
+    if (!(h / step <= DOSTEP_MAX_INTERNAL_STEPS)) {
+        fmu_log(inst, fmi2Discard, LOG_STATUS_DISCARD, "fmi2DoStep: a communication step of %g s needs %.3g "
+                "internal steps of solver.step = %g s; at most %.0f are taken in one fmi2DoStep: use a larger "
+                "solver.step or shorter communication steps (the FMU stays at t = %.17g)", h, h / step, step,
+                DOSTEP_MAX_INTERNAL_STEPS, d->time);
+        return fmi2Discard;
     }
     memcpy(&inst->backup, d, sizeof(*d));
     inst->step_discarded = 1;                          /* until the step below succeeds */

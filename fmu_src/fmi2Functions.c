@@ -111,6 +111,7 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
 
 fmi2Status fmi2Terminate(fmi2Component c) {
     BEGIN("fmi2Terminate", PHASE_STEP | PHASE_EVENT | PHASE_CONTINUOUS);
+    fmu_log_statistics(inst);
     inst->d.phase = PHASE_TERMINATED;
     return fmi2OK;
 }

@@ -6,7 +6,7 @@
 #include "internal.h"
 
 const char *const LOG_CATEGORY_NAMES[N_LOG_CATEGORIES] = {
-    "logEvents", "logStatusWarning", "logStatusDiscard", "logStatusError", "logAll"};
+    "logEvents", "logStatusWarning", "logStatusDiscard", "logStatusError", "logStatistics", "logAll"};
 
 /* ====================================================================== logging */
 
@@ -87,7 +87,7 @@ fmi2Status fmu_set_debug_logging(Instance *inst, fmi2Boolean on, size_t n, const
         }
         if (!found) {
             return fmu_error(inst, "fmi2SetDebugLogging: unknown log category \"%s\" (known: logEvents, "
-                             "logStatusWarning, logStatusDiscard, logStatusError, logAll)", categories[i]);
+                             "logStatusWarning, logStatusDiscard, logStatusError, logStatistics, logAll)", categories[i]);
         }
     }
     inst->logging_on = on ? 1 : 0;
@@ -95,4 +95,13 @@ fmi2Status fmu_set_debug_logging(Instance *inst, fmi2Boolean on, size_t n, const
         if (n == 0 || wanted[k]) inst->category_on[k] = on ? 1 : 0;
     }
     return fmi2OK;
+}
+
+void fmu_log_statistics(Instance *inst) {
+    const SS22 *s = &inst->d.ss22;
+    if (!fmu_logs(inst, LOG_STATISTICS)) return;
+    fmu_log(inst, fmi2OK, LOG_STATISTICS,
+            "statistics at t = %.17g: %.0f SS22 steps, %.0f Newton iterations, %.0f factorisations, "
+            "%.0f residual evaluations", inst->d.time, (double)s->steps, (double)s->newton_iterations,
+            (double)s->factorisations, (double)s->residual_evaluations);   /* %lu is 32 bits on win64 */
 }

@@ -51,7 +51,8 @@ def test_cli_json(tmp_path):
                          capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     rows = json.loads(out.stdout)
-    assert set(rows[0]) == {"method", "setting", "cpu_s_per_simulated_s", "error"}
+    assert set(rows[0]) == {"method", "setting", "cpu_s_per_simulated_s", "error", "lu_per_step",
+                            "iterations_per_step", "failure"}
     assert (tmp_path / "r.md").read_text().startswith("# Speed against error")
 
 
@@ -172,3 +173,57 @@ def test_stiff_case_modal_split_matches_the_model_analysis():
     assert np.allclose(P @ P, P, atol=1e-9 * np.abs(P).max())
     assert np.linalg.matrix_rank(P, tol=1e-9 * np.abs(P).max()) == 1 + int(np.sum(np.array(expected) < 50.0))
     assert np.count_nonzero(c[1:]) == model.n_q - 1 and c[0] == 0.0      # tip deflection: the elastic coordinates
+
+
+# ------------------------------------------------------------------ the integrator's counters (logStatistics)
+
+def test_statistics_count_what_the_integrator_does(example_fmu):
+    """The logStatistics counters against what the run must take: 0.2 s in 10 ms communication steps of ten
+    1 ms SS22 steps is exactly 200 steps; a model linear in its state solves once a step without Newton
+    iterations and factorises its constant matrix once; a nonlinear one evaluates one residual per Newton
+    iteration (fmu_src/ss22.c)."""
+    from flexlink.run.simulate import SlaveRunner
+
+    for name, linear in (("rotating_link_linear", True), ("rotating_link", False)):
+        with SlaveRunner(example_fmu(name)) as runner:
+            runner.run(0.2, 0.01, start={"solver.step": 1e-3}, inputs=lambda t: {"hub.tau": 0.2})
+            first = runner.solver_statistics()
+            runner.run(0.1, 0.01, start={"solver.step": 1e-3}, inputs=lambda t: {"hub.tau": 0.2})
+            second = runner.solver_statistics()           # counted from initialisation: the reset run alone
+        assert first["steps"] == 200 and second["steps"] == 100
+        if linear:
+            assert first["newton_iterations"] == 0 and first["factorisations"] == 1
+            assert first["residual_evaluations"] == first["steps"]
+        else:
+            assert first["newton_iterations"] == first["residual_evaluations"] >= first["steps"]
+
+
+def test_simplified_newton_keeps_its_matrix_on_the_six_axis_arm(example_fmu):
+    """Issue 22's target for chains: at most 0.1 factorisations per SS22 step at the scene's step.  The six-axis
+    arm's Newton matrix changes slowly, so simplified Newton must keep reusing the newest factorisation (it
+    once picked an older matrix of the same step size from the cache and refreshed 1.7 times a step)."""
+    from flexlink.run.simulate import SlaveRunner
+
+    with SlaveRunner(example_fmu("six_axis_arm")) as runner:
+        runner.run(0.3, 0.01)
+        stats = runner.solver_statistics()
+    assert stats["steps"] == 600
+    assert stats["factorisations"] <= 0.1 * stats["steps"], stats
+
+
+def test_a_refused_setting_is_a_failed_row(example_fmu):
+    """bench_ss22 records a setting the FMU refuses as a failed row with the FMU's reason and goes on."""
+    from flexlink.mechanics.model import build_model
+    from flexlink.scene.loader import load_scene
+    from flexlink.tools.bench import bench_ss22, default_case, report_markdown
+
+    model = build_model(load_scene("examples/rotating_link_linear.toml"))
+    case = default_case(model, stop=0.2)
+    ref = {n: np.zeros(len(case.times)) + 1.0 for n in case.outputs}
+    rows = bench_ss22(case, example_fmu("rotating_link_linear"), [1e-300, 1e-3], [(0.5, 0.5)], ref, repeats=1)
+    assert rows[0].failure is not None and "internal steps" in rows[0].failure
+    assert rows[0].as_dict()["error"] is None
+    assert rows[1].failure is None and rows[1].lu_per_step == pytest.approx(1 / 200)
+    assert rows[1].iterations_per_step == 0
+    assert "failed: " in report_markdown(rows, {"scene": "x", "outputs": case.outputs, "stop_time": 0.2,
+                                                "reference": "-", "reference_error": 0.0})

@@ -124,3 +124,24 @@ def test_model_exchange_stops_the_importer_at_the_same_limit(rotating_link):
     t_me = float(re.search(r"at t = ([0-9.eE+-]+)", refusal[-1]).group(1))
     _, t_cs, _ = _run_soft_arm(fmu)
     assert t_cs is not None and abs(t_me - t_cs) < 5e-3
+
+
+@pytest.mark.parametrize("step", [1e-9, 1e-300])
+def test_a_do_step_of_too_many_internal_steps_is_refused_at_once(rotating_link, step):
+    """fmi2DoStep takes at most 10⁶ internal steps (fmu_src/cs_step.c): a 10 ms communication step at
+    solver.step = 1e-9 (10⁷ steps) or 1e-300 (once an overflowed count: one step taken, wrong and fmi2OK) is
+    refused with the count, and the FMU stays where it was, ready for a shorter communication step."""
+    from fmpy.fmi1 import FMICallException
+
+    _, fmu = rotating_link
+    with SlaveRunner(fmu, logging=True) as runner:
+        slave, vr = runner.slave, runner.vr
+        slave.setReal([vr["solver.step"]], [step])
+        slave.setupExperiment(startTime=0.0)
+        slave.enterInitializationMode()
+        slave.exitInitializationMode()
+        with pytest.raises(FMICallException, match="discard"):
+            slave.doStep(currentCommunicationPoint=0.0, communicationStepSize=1e-2)
+        assert f"needs {1e-2 / step:.3g} internal steps" in runner.messages[-1]
+        assert "at most 1000000" in runner.messages[-1]
+        slave.doStep(currentCommunicationPoint=0.0, communicationStepSize=100 * step)   # 100 steps: taken

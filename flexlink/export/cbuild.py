@@ -24,7 +24,7 @@ from flexlink.errors import BuildError
 #: The log categories of the C glue (``LOG_CATEGORY_NAMES`` in fmu_src/logging.c), in its order:
 #: modelDescription.xml must list exactly these in ``<LogCategories>``.
 LOG_CATEGORIES: tuple[str, ...] = (
-    "logEvents", "logStatusWarning", "logStatusDiscard", "logStatusError", "logAll",
+    "logEvents", "logStatusWarning", "logStatusDiscard", "logStatusError", "logStatistics", "logAll",
 )
 
 #: The generic C sources of every FMU, compiled with the generated model half: the FMI API layer, the

@@ -63,6 +63,8 @@ LOG_CATEGORIES = {
     "logStatusWarning": "warnings",
     "logStatusDiscard": "steps that could not be completed",
     "logStatusError": "errors",
+    "logStatistics": "at fmi2Terminate: SS22 steps, Newton iterations, factorisations and residual "
+                     "evaluations since initialisation",
     "logAll": "everything",
 }
 

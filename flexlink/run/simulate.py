@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import itertools
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -195,6 +196,11 @@ def release_logging_callbacks(callbacks) -> None:
     _ROUTES.pop(getattr(callbacks, "route_key", None), None)
 
 
+# fmu_src/logging.c's logStatistics message, and the counters it holds
+STATISTICS = re.compile(r"(\d+) SS22 steps, (\d+) Newton iterations, (\d+) factorisations, (\d+) residual")
+STATISTICS_KEYS = ("steps", "newton_iterations", "factorisations", "residual_evaluations")
+
+
 class SlaveRunner:
     """A step-by-step co-simulation loop with fmpy's ``FMU2Slave``, instantiated once (reset between runs).
 
@@ -249,6 +255,20 @@ class SlaveRunner:
         result = {"time": times}
         result.update({name: rec[:, i] for i, name in enumerate(outputs)})
         return result
+
+    def solver_statistics(self) -> dict[str, int]:
+        """The integrator's counters of the run just made (SS22 steps, Newton iterations, factorisations,
+        residual evaluations), read from the FMU's ``logStatistics`` message at fmi2Terminate; ends the run
+        (the next ``run`` resets the instance).  Empty for an FMU without that category."""
+        self.messages.clear()
+        self.slave.setDebugLogging(True, ["logStatistics"])
+        self.slave.terminate()
+        self.slave.setDebugLogging(False, [])
+        for message in reversed(self.messages):
+            found = STATISTICS.search(message)
+            if found:
+                return {key: int(value) for key, value in zip(STATISTICS_KEYS, found.groups(), strict=True)}
+        return {}
 
     def close(self) -> None:
         try:

@@ -43,14 +43,24 @@ class BenchCase:
 
 @dataclass
 class BenchRow:
+    """One method at one setting.  For the FMU's SS22 rows also the integrator's work per internal step
+    (factorisations and Newton iterations, from its logStatistics counters); a setting the FMU refused
+    (fmi2Discard or fmi2Error) is a failed row: no cost or error, the FMU's reason in ``failure``."""
     method: str
     setting: str
     cpu_s_per_simulated_s: float
     error: float
+    lu_per_step: float | None = None
+    iterations_per_step: float | None = None
+    failure: str | None = None
 
     def as_dict(self) -> dict:
+        failed = self.failure is not None           # no figures (JSON has no NaN)
         return {"method": self.method, "setting": self.setting,
-                "cpu_s_per_simulated_s": self.cpu_s_per_simulated_s, "error": self.error}
+                "cpu_s_per_simulated_s": None if failed else self.cpu_s_per_simulated_s,
+                "error": None if failed else self.error,
+                "lu_per_step": self.lu_per_step, "iterations_per_step": self.iterations_per_step,
+                "failure": self.failure}
 
 
 def default_case(model: SymbolicModel, stop: float = 5.0, torque: float = 0.2, sample: float = 0.01) -> BenchCase:
@@ -117,19 +127,32 @@ def time_slave(slave, vr: dict, case: BenchCase, start: dict, repeats: int) -> f
 
 
 def bench_ss22(case: BenchCase, fmu, steps, thetas, ref, repeats: int = 5, order: int = 2) -> list[BenchRow]:
+    """SS22 through the FMU at each step and Θ: cost, error, and the integrator's work per internal step.
+    A setting the FMU refuses is recorded as a failed row with the FMU's reason, and the study goes on."""
+    from fmpy.fmi1 import FMICallException
+
     from flexlink.run.simulate import SlaveRunner
 
     rows = []
-    with SlaveRunner(fmu) as runner:
-        for theta in thetas:
-            for h in steps:
-                start = {"solver.step": h, "solver.theta1": theta[0], "solver.theta2": theta[1], "solver.order": order}
-                res = runner.run(case.stop, float(case.times[1] - case.times[0]), inputs=case.inputs_at,
-                                 start=start, outputs=case.outputs)
-                cost = time_slave(runner.slave, runner.vr, case, start, repeats)     # after run(): it resets
-                setting = f"step={h:g}" + ("" if theta == (0.5, 0.5) else f", theta={theta[0]:g}/{theta[1]:g}")
-                method = "ss22 (FMU)" if order == 2 else "ss22 order 4 (FMU, Richardson)"
-                rows.append(BenchRow(method, setting, cost, relative_error(case, res, ref)))
+    method = "ss22 (FMU)" if order == 2 else "ss22 order 4 (FMU, Richardson)"
+    for theta in thetas:
+        for h in steps:
+            start = {"solver.step": h, "solver.theta1": theta[0], "solver.theta2": theta[1], "solver.order": order}
+            setting = f"step={h:g}" + ("" if theta == (0.5, 0.5) else f", theta={theta[0]:g}/{theta[1]:g}")
+            with SlaveRunner(fmu) as runner:      # a fresh instance: a refused setting leaves its own broken
+                try:
+                    res = runner.run(case.stop, float(case.times[1] - case.times[0]), inputs=case.inputs_at,
+                                     start=start, outputs=case.outputs)
+                    stats = runner.solver_statistics()
+                    cost = time_slave(runner.slave, runner.vr, case, start, repeats)
+                except FMICallException:
+                    reason = runner.messages[-1] if runner.messages else "the FMU refused the step"
+                    rows.append(BenchRow(method, setting, float("nan"), float("nan"), failure=reason))
+                    continue
+            per_step = {k: stats[k] / stats["steps"] for k in ("factorisations", "newton_iterations")} \
+                if stats.get("steps") else {}
+            rows.append(BenchRow(method, setting, cost, relative_error(case, res, ref),
+                                 per_step.get("factorisations"), per_step.get("newton_iterations")))
     return rows
 
 
@@ -315,7 +338,7 @@ def plot_bench(rows: list[BenchRow], info: dict, path) -> None:
 
     fig, ax = plt.subplots(figsize=(7, 5))
     for method in dict.fromkeys(r.method for r in rows):
-        pts = sorted((r.error, r.cpu_s_per_simulated_s) for r in rows if r.method == method)
+        pts = sorted((r.error, r.cpu_s_per_simulated_s) for r in rows if r.method == method and r.failure is None)
         ax.loglog([p[0] for p in pts], [p[1] for p in pts], "o-", label=method)
     ax.axvline(info["reference_error"], color="gray", ls=":", lw=1, label="reference accuracy")
     ax.set_xlabel("relative RMS error (" + ", ".join(info["outputs"]) + ")")
@@ -332,6 +355,18 @@ def report_markdown(rows: list[BenchRow], info: dict) -> str:
     lines = [f"# Speed against error: {info['scene']}", "",
              f"Outputs {', '.join(info['outputs'])} over {info['stop_time']} s; reference {info['reference']} "
              f"(its own error, against rtol 1e-13: {info['reference_error']:.1e}).", "",
-             "| method | setting | CPU s / simulated s | relative error |", "| --- | --- | --- | --- |"]
-    lines += [f"| {r.method} | {r.setting} | {r.cpu_s_per_simulated_s:.3g} | {r.error:.2e} |" for r in rows]
+             "| method | setting | CPU s / simulated s | relative error | LU / step | Newton iterations / step |",
+             "| --- | --- | --- | --- | --- | --- |"]
+    lines += [_markdown_row(r) for r in rows]
     return "\n".join(lines) + "\n"
+
+
+def _markdown_row(r: BenchRow) -> str:
+    if r.failure is not None:
+        return f"| {r.method} | {r.setting} | failed: {r.failure} | – | – | – |"
+
+    def per_step(x):
+        return "–" if x is None else f"{x:.3g}"
+
+    return (f"| {r.method} | {r.setting} | {r.cpu_s_per_simulated_s:.3g} | {r.error:.2e} | "
+            f"{per_step(r.lu_per_step)} | {per_step(r.iterations_per_step)} |")
