@@ -63,9 +63,11 @@ typedef struct {
     int stop_time_defined;
     int experiment_tolerance_defined;
     int mass_matrix_guarded;          /* M positive definite at the start state (fmu_guard_init) */
+    int omega_max_known;              /* omega_max is that of the current parameters (order 4)  */
     double start_time, stop_time, experiment_tolerance;
     double time;                      /* current communication point                            */
     double last_successful_time;
+    double omega_max;                 /* highest natural frequency, rad/s (richardson.c)        */
     double q[N_Q], v[N_Q];            /* state                                                  */
     double alpha[N_Q];                /* SS22 acceleration of the last step (Newton guess)      */
     double acceleration[N_Q];         /* consistent acceleration at time (outputs)              */

@@ -115,6 +115,10 @@ fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h) {
         const double ratio = h / step;
         long n = (long)ceil(ratio - 1e-9 * fmax(1.0, ratio));
         if (n < 1) n = 1;
+        if (d->solver[SOLVER_ORDER] == 4) {
+            const fmi2Status stable = fmu_check_richardson(inst, h / (double)n);
+            if (stable != fmi2OK) return stable;       /* nothing was attempted: the FMU is where it was */
+        }
         for (long i = 1; i <= n; i++) {
             const double t_next = (i == n) ? t_end : tc + h * ((double)i / (double)n);
             SS22Status status = internal_step(inst, t, t_next);

@@ -104,7 +104,7 @@ static const char *invalid_data(const FmuData *d) {
     for (size_t k = 0; k < sizeof(phases) / sizeof(phases[0]); k++) phase_ok |= d->phase == phases[k];
     if (!phase_ok) return "state machine";
     if ((d->outputs_valid | d->acceleration_ok | d->stop_time_defined | d->experiment_tolerance_defined |
-         d->model_exchange | d->mass_matrix_guarded) & ~1)
+         d->model_exchange | d->mass_matrix_guarded | d->omega_max_known) & ~1)
         return "flags";
     if (d->ss22.max_iterations < 0 || d->ss22.max_iterations > 1000) return "solver settings";
     for (int k = 0; k < SS22_CACHE; k++) {

@@ -8,7 +8,8 @@
  *   model_exchange.c  states, derivatives, nominals and time events of Model Exchange
  *   derivatives.c     directional derivatives
  *   fmu_state.c       FMU states and their serialisation
- *   guards.c          the checks that refuse a state the model cannot stand behind */
+ *   guards.c          the checks that refuse a state the model cannot stand behind
+ *   richardson.c      when the order-4 option is stable: the highest natural frequency against the step */
 #ifndef FLEXLINK_INTERNAL_H
 #define FLEXLINK_INTERNAL_H
 
@@ -37,5 +38,10 @@ fmi2Status fmu_update_outputs(Instance *inst, const char *function);
  * inst->guard_reason. */
 fmi2Status fmu_guard_state(Instance *inst, double t, const double *u, int check_mass_matrix);
 void fmu_guard_init(Instance *inst, const double *u);
+
+/* richardson.c: fmi2OK if order 4 is stable at internal steps of dt (w_max dt <= RICHARDSON_MAX_OMEGA_STEP,
+ * w_max found at the current state and parameters when not known), else fmi2Discard with the reason. */
+#define RICHARDSON_MAX_OMEGA_STEP 0.3
+fmi2Status fmu_check_richardson(Instance *inst, double dt);
 
 #endif /* FLEXLINK_INTERNAL_H */

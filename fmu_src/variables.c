@@ -239,6 +239,7 @@ fmi2Status fmu_set_real(Instance *inst, const fmi2ValueReference vr[], size_t nv
         if (v->kind == VAR_START_Q) d->q[v->index] = value[i];       /* before initialization only */
         if (v->kind == VAR_START_V) d->v[v->index] = value[i];
         if (v->kind == VAR_PARAMETER && d->phase == PHASE_STEP) invalidate = 1;
+        if (v->kind == VAR_PARAMETER) d->omega_max_known = 0;   /* order 4's check looks again */
     }
     if (invalidate) ss22_invalidate(&d->ss22);
     if (nvr > 0) d->outputs_valid = 0;

@@ -15,6 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from flexlink.mechanics.analysis import natural_frequencies
+from flexlink.mechanics.model import build_model
+from flexlink.scene.loader import load_scene
 from flexlink.tools.bench import run_bench
 
 
@@ -27,7 +30,15 @@ def test_rows_and_reference(quick_bench):
     rows, info = quick_bench
     assert info["reference_error"] < 1e-8
     assert {r.method for r in rows} >= {"ss22 (FMU)", "fmpy CVODE (ME)", "cvodes", "idas", "scipy Radau"}
+    # order 4 is refused (a failed row) exactly beyond its stability bound ω_max Δt <= 0.3 (fmu_src/richardson.c)
+    f_max = max(natural_frequencies(build_model(load_scene("examples/rotating_link_linear.toml"))).frequencies_hz)
     for r in rows:
+        if r.method.startswith("ss22 order 4"):
+            h = float(r.setting.split("=")[1])
+            assert (r.failure is not None) == (2 * np.pi * f_max * h > 0.3), (r.setting, r.failure)
+        if r.failure is not None:
+            assert "unstable" in r.failure
+            continue
         assert np.isfinite(r.error) and r.error > 10 * info["reference_error"]
         assert r.cpu_s_per_simulated_s > 0
 

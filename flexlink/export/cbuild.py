@@ -31,7 +31,7 @@ LOG_CATEGORIES: tuple[str, ...] = (
 #: functions behind it (cosimulation.h) by concern, the integrator and dense LU.
 GENERIC_SOURCES: tuple[str, ...] = (
     "fmi2Functions.c", "logging.c", "instance.c", "variables.c", "cs_step.c", "model_exchange.c",
-    "derivatives.c", "fmu_state.c", "guards.c", "ss22.c", "linalg.c",
+    "derivatives.c", "fmu_state.c", "guards.c", "richardson.c", "ss22.c", "linalg.c",
 )
 #: The generic headers they include (copied into an FMU's ``sources/`` with them).
 GENERIC_HEADERS: tuple[str, ...] = ("model.h", "cosimulation.h", "internal.h", "ss22.h", "linalg.h")

@@ -65,7 +65,8 @@ def fmu_variables(model: SymbolicModel, feedthrough: dict[int, tuple[int, ...]] 
                     "Newton tolerance: a step's rate change against the coordinate's nominal scale", min=0.0,
                     min_exclusive=True),
         FmuVariable("solver.order", "VAR_SOLVER", 4, 2.0, "parameter", "fixed", "",
-                    "2: SS22; 4: SS22 (Theta = 1/2) with Richardson extrapolation, for resolved, non-stiff scenes",
+                    "2: SS22; 4: SS22 (Theta = 1/2) with Richardson extrapolation, for resolved scenes: a step with "
+                    "omega_max * dt > 0.3 is refused (fmi2Discard)",
                     min=2.0, max=4.0),
     ]
     for i, sig in enumerate(model.inputs):
