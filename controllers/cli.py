@@ -98,6 +98,10 @@ def add_control_parsers(subparsers) -> None:
     p.add_argument("--noise", action="store_true", help="add the sensors' noise to what the controller reads")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
     p.add_argument("--plot", metavar="OUT.png", help="time responses, closed-loop poles, loop Bode with margins")
+    p.add_argument("--export-fmu", metavar="CTRL.fmu",
+                   help="also write the sampled LQG (Kalman current estimator + discrete LQR, saturation) as a "
+                        "pure-C FMI 2.0 Co-Simulation FMU, its sample time the fixed communication step "
+                        "(docs/control.md)")
     p.set_defaults(func=cmd_control)
 
 
@@ -200,6 +204,8 @@ def cmd_control(args) -> int:
         d = design(model, torque_limit=limit, dt=args.sample_time, sensors=args.sensors)
     except (ValueError, np.linalg.LinAlgError) as e:
         raise FlexlinkError(f"{args.scene}: the LQR/Kalman design failed ({' '.join(str(e).split())})") from None
+    if args.export_fmu:
+        _export(args, d)
     if args.design_only:
         return _report_design(args, d)
     if len(d.actuated_joints) > 1:
@@ -246,6 +252,18 @@ def cmd_control(args) -> int:
     if args.plot:
         print(f"  wrote {args.plot}")
     return 0
+
+
+def _export(args, d) -> None:
+    """``--export-fmu``: the controller FMU (:func:`controllers.export.export_controller_fmu`); one line on
+    stderr (stdout may carry --json)."""
+    import sys
+
+    from controllers.export import export_controller_fmu
+
+    path = export_controller_fmu(d, args.export_fmu)
+    print(f"wrote {path}: sampled LQG of {', '.join(d.actuated_joints)} at {d.dt:g} s (inputs: "
+          f"{', '.join(d.kalman.sensors)}, x_ref, u_ff, w; outputs: {', '.join(d.lqr.inputs)})", file=sys.stderr)
 
 
 def _default_limits(plant, targets, duration, dt):
