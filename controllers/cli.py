@@ -281,7 +281,8 @@ def _run_multijoint(args, d, targets, run_params) -> int:
     """``flexlink control`` with several torque-driven joints: the MIMO LQG and the joint PD through the FMU
     (:func:`controllers.multijoint.compare`), figures printed or as JSON, the plot."""
     from controllers.cosim import FmuLoop
-    from controllers.multijoint import compare, joint_pd_gains
+    from controllers.manoeuvre import _check_times
+    from controllers.multijoint import check_multijoint, compare, joint_pd_gains, plan
     from flexlink.export.fmu import cached_fmu
 
     if args.noise:
@@ -289,6 +290,9 @@ def _run_multijoint(args, d, targets, run_params) -> int:
     if args.controller != "lqr":
         raise FlexlinkError("--controller: with several torque-driven joints the run compares the LQG and the joint "
                             "PD; leave --controller out")
+    check_multijoint(d)                   # the refusals before an FMU is built
+    plan(d.plant, targets)
+    _check_times(args.duration, args.settle, d.dt)
     fmu = cached_fmu(args.scene)
     with FmuLoop(fmu) as loop:
         for name in run_params:

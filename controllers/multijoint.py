@@ -90,7 +90,8 @@ def plan(plant, targets: Sequence[float]) -> Plan:
     q[idx] = targets
     free = [k for k in range(n) if k not in idx]
     u = p.op.u.copy()
-    cols = [model.inputs.index(next(s for s in model.inputs if s.name == f"{j}.tau")) for j in joints]
+    names = [s.name for s in model.inputs]
+    cols = [names.index(f"{j}.tau") for j in joints]
     u[cols] = 0.0
     q = static_deflection(model, q, np.zeros(n), u, p.op.p, free)
     r = np.asarray(model.residual(q, np.zeros(n), np.zeros(n), u, p.op.p), dtype=float).ravel()
@@ -128,8 +129,9 @@ def inverse_dynamics_reference(plant, pl: Plan, dt: float, duration: float, sett
     for k, i in enumerate(free):
         q[i], v[i], a[i] = qf[k], vf[k], af[k]
     u = ca.DM(p.op.u)
+    names = [s_.name for s_ in model.inputs]
     for j in pl.joints:
-        u[[s_.name for s_ in model.inputs].index(f"{j}.tau")] = 0.0
+        u[names.index(f"{j}.tau")] = 0.0
     r = res(q, v, a, u, p.op.p)
     r_free = r[free]
     M = ca.jacobian(r_free, af)
@@ -256,7 +258,7 @@ def _settling_time(t: np.ndarray, outside: np.ndarray) -> float | None:
     return float(t[bad[-1] + 1]) if len(bad) else 0.0
 
 
-def metrics(d, pl: Plan, series: Mapping[str, np.ndarray], duration: float, limits: Sequence[float],
+def metrics(pl: Plan, series: Mapping[str, np.ndarray], duration: float, limits: Sequence[float],
             band_deg: float, band_m: float, wall_time: float | None) -> dict:
     """The run's figures: per joint the final error, peak torque and saturated fraction; per link the
     residual vibration (RMS of ``tip.v`` minus its static value at the targets, over the window after the
@@ -297,7 +299,7 @@ def run(d, loop: FmuLoop, pl: Plan, ref: Reference, law, *, parameters: Mapping[
     series = dict(res.series)
     for k, j in enumerate(pl.joints):
         series[f"{j}.theta_ref"] = ref.x[:, pl.index[k]] + d.plant.x0[pl.index[k]]
-    m = metrics(d, pl, series, ref.duration, law.limits, band_deg, band_m, res.wall_time)
+    m = metrics(pl, series, ref.duration, law.limits, band_deg, band_m, res.wall_time)
     m.update({"controller": law.kind, "torque_limits_nm": dict(zip(pl.joints, law.limits.tolist(), strict=True))})
     settle = float(ref.time[-1]) - ref.duration
     return ManoeuvreResult(law.kind, pl.target, ref.duration, settle, series, ref, m, dict(parameters or {}))
