@@ -217,12 +217,16 @@ class FmuLoop:
         comp = s.component
         get_real, set_real, do_step = s.fmi2GetReal, s.fmi2SetReal, s.fmi2DoStep
         k = 0
+        y = np.frombuffer(val_out, dtype=np.float64)          # a view: fmi2GetReal refills it in place
+        prefix = sensor_idx == list(range(len(sensors)))       # the sensors come first: a slice, not a copy
         try:
             for k in range(n_steps + 1):
                 get_real(comp, vr_out, n_out, val_out)
-                y = np.frombuffer(val_out, dtype=np.float64)
                 Y[k] = y
-                ys = y[sensor_idx] if E is None else y[sensor_idx] + E[k]
+                if E is not None:
+                    ys = y[sensor_idx] + E[k]
+                else:
+                    ys = y[: len(sensors)] if prefix else y[sensor_idx]
                 u = law.step(ys, x_ref[k], u_ff[k])
                 U[k] = u
                 if k == n_steps:
