@@ -12,6 +12,7 @@ One module per concern (python-control's layout):
 ``robustness``         multi-joint: loop-at-a-time margins at each actuator, peak sensitivity, poles
 ``cosim``              ``FmuLoop``: the FMU instantiated once with ``FMU2Slave``, reset between runs
 ``manoeuvre``          design everything on one plant; rest-to-rest runs and SCENE.md's figures
+``multijoint``         every joint's rest-to-rest run: inverse-dynamics feedforward, MIMO LQG against joint PD
 ``plots``              time responses, closed-loop poles, loop Bode with margins
 ``cli``, ``demo``      ``flexlink control`` / ``flexlink linearize``; the README's control job
 =====================  ===================================================================================
@@ -43,7 +44,9 @@ _EXPORTS = {
     "FmuLoop": "cosim",
     "ControlDesign": "manoeuvre", "default_torque_limit": "manoeuvre", "design": "manoeuvre",
     "predict_manoeuvre": "manoeuvre", "rest_to_rest": "manoeuvre", "stability_report": "manoeuvre",
-    "plot_manoeuvre": "plots",
+    "plot_manoeuvre": "plots", "plot_multijoint": "plots",
+    "MimoLQGLaw": "multijoint", "JointPDLaw": "multijoint", "compare": "multijoint",
+    "inverse_dynamics_reference": "multijoint",
     "run_control_demo": "demo",
 }
 

@@ -28,6 +28,11 @@ def _finite(text: str) -> float:
     return v
 
 
+def _angles(text: str) -> list[float]:
+    """``--target``: one angle in degrees, or one per torque-driven joint separated by commas."""
+    return [_finite(v) for v in text.split(",")]
+
+
 def add_commands(subparsers) -> None:
     """The ``flexlink.commands`` entry point (pyproject.toml): this package's sub-commands of ``flexlink``."""
     from controllers.sweep import add_sweep_parser
@@ -65,10 +70,13 @@ def add_control_parsers(subparsers) -> None:
     p.add_argument("--save", metavar="FILE", help="also save them: FILE.json (as --json) or FILE.npz (arrays)")
     p.set_defaults(func=cmd_linearize)
 
-    p = subparsers.add_parser("control", help="rest-to-rest manoeuvre of the first joint in closed loop (fmpy); "
+    p = subparsers.add_parser("control", help="rest-to-rest manoeuvre in closed loop (fmpy): the first joint, or "
+                                              "every joint of a multi-joint arm (MIMO LQG against joint PD); "
                                               "LQR/Kalman design on every torque-driven joint with its margins")
     p.add_argument("scene")
-    p.add_argument("--target", type=_finite, metavar="DEG", help="final angle of the first joint (the run)")
+    p.add_argument("--target", type=_angles, metavar="DEG[,DEG...]",
+                   help="final angle of the first joint (the run); with several torque-driven joints one per joint, "
+                        "comma-separated: the MIMO LQG and the joint PD both run and are compared")
     p.add_argument("--duration", type=_finite, metavar="S", help="manoeuvre time (the run)")
     p.add_argument("--design-only", action="store_true",
                    help="design the LQR/Kalman on every torque-driven joint and report its margins, closed-loop "
@@ -79,7 +87,8 @@ def add_control_parsers(subparsers) -> None:
                    help="lqr: LQR + Kalman estimator with model feedforward; pd: joint PD baseline")
     p.add_argument("--torque-limit", type=_finite, metavar="NM",
                    help="saturation and Bryson torque limit of every joint (default: 1.5 x the rigid quintic's "
-                        "peak torque of the first joint)")
+                        "peak torque of the first joint; with several joints 1.5 x the largest peak of the "
+                        "inverse-dynamics feedforward)")
     p.add_argument("--sample-time", type=_finite, default=1e-3, metavar="S", help="controller sample time (1 ms)")
     p.add_argument("--sensors", choices=("strain", "accelerometer"), default="strain",
                    help="Kalman sensors besides the joint encoders: the links' root strain gauges or the tip "
@@ -89,6 +98,10 @@ def add_control_parsers(subparsers) -> None:
     p.add_argument("--noise", action="store_true", help="add the sensors' noise to what the controller reads")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
     p.add_argument("--plot", metavar="OUT.png", help="time responses, closed-loop poles, loop Bode with margins")
+    p.add_argument("--export-fmu", metavar="CTRL.fmu",
+                   help="also write the sampled LQG (Kalman current estimator + discrete LQR, saturation) as a "
+                        "pure-C FMI 2.0 Co-Simulation FMU, its sample time the fixed communication step "
+                        "(docs/control.md)")
     p.set_defaults(func=cmd_control)
 
 
@@ -161,7 +174,7 @@ def _print_matrix(name: str, M, rows: list[str], cols: list[str]) -> None:
 
 def cmd_control(args) -> int:
     from controllers.cosim import FmuLoop
-    from controllers.manoeuvre import check_scene, default_torque_limit, design, predict_manoeuvre, rest_to_rest
+    from controllers.manoeuvre import check_scene, design, predict_manoeuvre, rest_to_rest
     from flexlink.export.fmu import cached_fmu
     from flexlink.mechanics.model import build_model
     from flexlink.run.linearize import linear_plant
@@ -180,22 +193,25 @@ def cmd_control(args) -> int:
     model = build_model(load_scene(args.scene))
     check_scene(model)
     plant = linear_plant(model, outputs=[f"{model.scene.joints[0].name}.theta"])
-    target = math.radians(args.target) if args.target is not None else None
+    targets = [math.radians(v) for v in args.target] if args.target is not None else None
+    target = targets[0] if targets else None
     if args.duration is not None and not args.duration > 0:
         raise FlexlinkError(f"--duration must be a positive number of seconds, got {args.duration}")
     limit = args.torque_limit
     if limit is None:
-        limit = default_torque_limit(plant, target - float(plant.x0[0]), args.duration)
+        limit = _default_limits(plant, targets, args.duration, args.sample_time)
     try:
         d = design(model, torque_limit=limit, dt=args.sample_time, sensors=args.sensors)
     except (ValueError, np.linalg.LinAlgError) as e:
         raise FlexlinkError(f"{args.scene}: the LQR/Kalman design failed ({' '.join(str(e).split())})") from None
+    if args.export_fmu:
+        _export(args, d)
     if args.design_only:
         return _report_design(args, d)
     if len(d.actuated_joints) > 1:
-        raise FlexlinkError(f"{args.scene}: {len(d.actuated_joints)} torque-driven joints "
-                            f"({', '.join(d.actuated_joints)}): the closed-loop run drives one joint so far; "
-                            "--design-only gives the multi-joint design and its margins")
+        return _run_multijoint(args, d, targets, run_params)
+    if len(targets) > 1:
+        raise FlexlinkError(f"--target: {len(targets)} angles for one torque-driven joint")
     fmu = cached_fmu(args.scene)          # built (or found in the cache) before the timed run
     with FmuLoop(fmu) as loop:
         for name in run_params:
@@ -212,7 +228,7 @@ def cmd_control(args) -> int:
         if not run_params:
             pred = predict_manoeuvre(d, target, args.duration, args.settle, args.controller)
         plot_manoeuvre(args.plot, [res], d, [pred],
-                       title=f"{model.scene.name}: {args.controller.upper()}, {args.target:g} deg in "
+                       title=f"{model.scene.name}: {args.controller.upper()}, {args.target[0]:g} deg in "
                              f"{args.duration:g} s, torque limit {limit:g} N m")
     if args.json:
         m = dict(m)
@@ -222,7 +238,7 @@ def cmd_control(args) -> int:
         print(json.dumps(m))
         return 0
     print(f"{model.scene.name}: {args.controller.upper()} rest-to-rest {math.degrees(float(plant.x0[0])):g} -> "
-          f"{args.target:g} deg in {args.duration:g} s (+ {args.settle:g} s settle), sample time "
+          f"{args.target[0]:g} deg in {args.duration:g} s (+ {args.settle:g} s settle), sample time "
           f"{args.sample_time:g} s, torque limit {limit:g} N m")
     if args.controller == "lqr":
         print(f"  LQR rigid-body pair {wn:.3g} rad/s (zeta {zeta:.2f}); Kalman sensors: {', '.join(d.kalman.sensors)}")
@@ -236,6 +252,112 @@ def cmd_control(args) -> int:
     if args.plot:
         print(f"  wrote {args.plot}")
     return 0
+
+
+def _export(args, d) -> None:
+    """``--export-fmu``: the controller FMU (:func:`controllers.export.export_controller_fmu`); one line on
+    stderr (stdout may carry --json)."""
+    import sys
+
+    from controllers.export import export_controller_fmu
+
+    path = export_controller_fmu(d, args.export_fmu)
+    print(f"wrote {path}: sampled LQG of {', '.join(d.actuated_joints)} at {d.dt:g} s (inputs: "
+          f"{', '.join(d.kalman.sensors)}, x_ref, u_ff, w; outputs: {', '.join(d.lqr.inputs)})", file=sys.stderr)
+
+
+def _default_limits(plant, targets, duration, dt):
+    """One joint: 1.5 x the rigid quintic's peak torque; several: 1.5 x the largest inverse-dynamics peak."""
+    from controllers.design import actuated_joints
+    from controllers.manoeuvre import default_torque_limit
+    from controllers.multijoint import default_torque_limit as multijoint_limit
+
+    if len(actuated_joints(plant)) == 1:
+        return default_torque_limit(plant, targets[0] - float(plant.x0[0]), duration)
+    return multijoint_limit(plant, targets, duration, dt)
+
+
+def _run_multijoint(args, d, targets, run_params) -> int:
+    """``flexlink control`` with several torque-driven joints: the MIMO LQG and the joint PD through the FMU
+    (:func:`controllers.multijoint.compare`), figures printed or as JSON, the plot."""
+    from controllers.cosim import FmuLoop
+    from controllers.manoeuvre import _check_times
+    from controllers.multijoint import check_multijoint, compare, joint_pd_gains, plan
+    from flexlink.export.fmu import cached_fmu
+
+    if args.noise:
+        raise FlexlinkError("--noise: the multi-joint run reads the sensors noise-free so far")
+    if args.controller != "lqr":
+        raise FlexlinkError("--controller: with several torque-driven joints the run compares the LQG and the joint "
+                            "PD; leave --controller out")
+    check_multijoint(d)                   # the refusals before an FMU is built
+    plan(d.plant, targets)
+    _check_times(args.duration, args.settle, d.dt)
+    fmu = cached_fmu(args.scene)
+    with FmuLoop(fmu) as loop:
+        for name in run_params:
+            if name not in loop.variables or loop.variables[name].causality != "parameter":
+                raise FlexlinkError(f"--set {name}: not a parameter of the FMU")
+        runs = compare(d, loop, targets, args.duration, args.settle, parameters=run_params)
+    joints = d.actuated_joints
+    start = {j: math.degrees(float(d.plant.op.q[d.plant.model.coordinates.index(f"{j}.theta")])) for j in joints}
+    move = ", ".join(f"{j} {start[j]:g} -> {math.degrees(t):g} deg" for j, t in zip(joints, targets, strict=True))
+    if args.plot:
+        from controllers.plots import plot_multijoint
+
+        plot_multijoint(args.plot, runs, title=f"{d.plant.model.scene.name}: {move} in {args.duration:g} s; LQG "
+                                               "(MIMO, Kalman) against joint PD with the LQG's peak torques")
+    kp, kd = joint_pd_gains(d)
+    if args.json:
+        rob = _robustness_json(d, "lqr")
+        rob["pd"] = _pd_robustness(d, runs["pd"])
+        print(json.dumps({"lqg": runs["lqr"].metrics, "pd": runs["pd"].metrics, "joints": joints,
+                          "targets_deg": [math.degrees(t) for t in targets], "duration_s": args.duration,
+                          "settle_s": args.settle, "sample_time_s": d.dt, "sensors": d.kalman.sensors,
+                          "pd_gains": {"kp": kp.tolist(), "kd": kd.tolist()}, "parameters": run_params,
+                          "robustness": rob}))
+        return 0
+    _print_comparison(args, d, runs, move, kp, kd)
+    return 0
+
+
+def _pd_robustness(d, pd_run) -> dict:
+    """The joint PD's loop-at-a-time margins and closed-loop poles (sampled plant, encoders and rates)."""
+    from controllers.closedloop import sampled_plant
+    from controllers.design import torque_inputs
+    from controllers.multijoint import JointPDLaw
+    from controllers.robustness import loop_at_a_time, robustness_figures
+
+    law = JointPDLaw(d, list(pd_run.metrics["torque_limits_nm"].values()))
+    P = sampled_plant(d.plant, d.dt, law.sensors)[:, torque_inputs(d.plant)]
+    return robustness_figures({"pd": loop_at_a_time(P, -law.G, law.inputs)})["pd"]
+
+
+def _print_comparison(args, d, runs, move, kp, kd) -> None:
+    lqg, pd = runs["lqr"].metrics, runs["pd"].metrics
+    print(f"{d.plant.model.scene.name}: rest-to-rest {move} in {args.duration:g} s (+ {args.settle:g} s settle), "
+          f"sample time {d.dt:g} s; feedforward: the model's inverse dynamics along the joints' quintics")
+    print(f"  LQG: LQR on {', '.join(d.actuated_joints)} + Kalman ({', '.join(d.kalman.sensors)}), torque limits "
+          + ", ".join(f"{v:g}" for v in lqg["torque_limits_nm"].values()) + " N m")
+    print("  PD:  kp " + ", ".join(f"{v:.4g}" for v in kp) + " N m/rad, kd " + ", ".join(f"{v:.4g}" for v in kd)
+          + " N m s/rad, torque limits = the LQG run's peaks")
+
+    def st(m):
+        return "not settled" if m["settling_time_s"] is None else f"{m['settling_time_s']:.4g} s"
+
+    print(f"  {'':34s}{'LQG':>14s}{'PD':>14s}")
+    print(f"  {'settling time':34s}{st(lqg):>14s}{st(pd):>14s}   (joints within {lqg['settle_band_deg']:g} deg, "
+          f"tips within {1e3 * lqg['settle_band_m']:g} mm)")
+    for lk in lqg["links"]:
+        for key, what in (("residual_vibration_rms_m", "residual vibration RMS"), ("max_tip_deflection_m", "max tip")):
+            print(f"  {lk + '.tip.v ' + what + ' (mm)':34s}{1e3 * lqg['links'][lk][key]:14.4g}"
+                  f"{1e3 * pd['links'][lk][key]:14.4g}")
+    for j in lqg["joints"]:
+        for key, what in (("final_error_deg", "final error (deg)"), ("peak_torque_nm", "peak torque (N m)")):
+            print(f"  {j + ' ' + what:34s}{lqg['joints'][j][key]:14.4g}{pd['joints'][j][key]:14.4g}")
+    print(f"  {'realtime factor':34s}{lqg['realtime_factor']:14.1f}{pd['realtime_factor']:14.1f}")
+    if args.plot:
+        print(f"  wrote {args.plot}")
 
 
 def _robustness_json(d, controller: str) -> dict:

@@ -5,7 +5,7 @@ One :class:`FmuLoop` extracts and instantiates the FMU once; each :meth:`FmuLoop
 
     y_k = getReal(sensors)                 (outputs at t_k, the torque u_{k−1} still applied)
     u_k = law.step(y_k, x_ref[k], u_ff[k]) (saturated)
-    setReal(<joint>.tau, u_k); doStep(t_k, dt)
+    setReal(<joint>.tau, u_k); doStep(t_k, dt)     (every actuated joint's torque: law.inputs)
 
 and returns the recorded outputs as named time series (:class:`LoopResult`).  The value arrays for
 ``fmi2GetReal``/``fmi2SetReal`` are allocated once (fmpy's convenience wrappers allocate per call).
@@ -155,8 +155,9 @@ class FmuLoop:
 
         Parameters
         ----------
-        law : SampledLaw
-            Reset before the run.
+        law : SampledLaw or a multi-joint law (:mod:`controllers.multijoint`)
+            ``sensors``, ``dt``, ``inputs`` (or one ``input``), ``reset()``, ``step(y, x_ref, u_ff)`` → the
+            torque(s); reset before the run.
         reference : Reference
             ``x_ref`` and ``u_ff`` per sample; the run lasts ``reference.time[-1]``.
         parameters : dict, optional
@@ -185,8 +186,11 @@ class FmuLoop:
         n_out = len(names)
         vr_out = (ctypes.c_uint * n_out)(*[self.vr(n) for n in names])
         val_out = (ctypes.c_double * n_out)()
-        vr_in = (ctypes.c_uint * 1)(self.vr(law.input))
-        val_in = (ctypes.c_double * 1)()
+        inputs = list(getattr(law, "inputs", None) or [law.input])
+        m = len(inputs)
+        vr_in = (ctypes.c_uint * m)(*[self.vr(n) for n in inputs])
+        val_in = (ctypes.c_double * m)()
+        u_in = np.frombuffer(val_in, dtype=np.float64)
         sensor_idx = [names.index(n) for n in sensors]
         n_steps = len(reference.time) - 1
         sigma = np.array([float((noise or {}).get(n, 0.0)) for n in sensors])
@@ -195,7 +199,7 @@ class FmuLoop:
             raise FlexlinkError(f"noise on {sorted(unknown)}: not sensors of the law ({sensors})")
         E = np.random.default_rng(seed).standard_normal((n_steps + 1, len(sensors))) * sigma if noise else None
         Y = np.empty((n_steps + 1, n_out))
-        U = np.empty(n_steps + 1)
+        U = np.empty((n_steps + 1, m))
         x_ref, u_ff = reference.x, reference.u_ff
         law.reset()
 
@@ -213,18 +217,22 @@ class FmuLoop:
         comp = s.component
         get_real, set_real, do_step = s.fmi2GetReal, s.fmi2SetReal, s.fmi2DoStep
         k = 0
+        y = np.frombuffer(val_out, dtype=np.float64)          # a view: fmi2GetReal refills it in place
+        prefix = sensor_idx == list(range(len(sensors)))       # the sensors come first: a slice, not a copy
         try:
             for k in range(n_steps + 1):
                 get_real(comp, vr_out, n_out, val_out)
-                y = np.frombuffer(val_out, dtype=np.float64)
                 Y[k] = y
-                ys = y[sensor_idx] if E is None else y[sensor_idx] + E[k]
+                if E is not None:
+                    ys = y[sensor_idx] + E[k]
+                else:
+                    ys = y[: len(sensors)] if prefix else y[sensor_idx]
                 u = law.step(ys, x_ref[k], u_ff[k])
                 U[k] = u
                 if k == n_steps:
                     break
-                val_in[0] = u
-                set_real(comp, vr_in, 1, val_in)
+                u_in[:] = u
+                set_real(comp, vr_in, m, val_in)
                 do_step(comp, k * dt, dt, 1)
         except Exception as e:  # noqa: BLE001
             from fmpy.fmi1 import FMICallException
@@ -240,5 +248,6 @@ class FmuLoop:
         series = {"time": reference.time.copy()}
         for i, name in enumerate(names):
             series[name] = Y[:, i].copy()
-        series[law.input] = U
+        for i, name in enumerate(inputs):
+            series[name] = U[:, i].copy()
         return LoopResult(series, wall, params)

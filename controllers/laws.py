@@ -173,6 +173,16 @@ class LQGLaw(SampledLaw):
         self.M = kalman.Md
         self.has_feedthrough = bool(np.any(self.D != 0))
         self.schedule: MeasurementSchedule | None = None
+        # one sample without a schedule as two products on buffers allocated once (issue 22: the law was
+        # half of the closed loop's time per step): x̂ = [I − MC, M, −MD, −M y₀] (z, y, u_prev, 1),
+        # z⁺ = [A_d, B_d] (x̂, u − u₀)
+        p = len(self.sensors)
+        self._E = np.hstack([np.eye(self.n) - self.M @ self.C, self.M, (-self.M @ self.D)[:, None],
+                             (-self.M @ self.y0)[:, None]])
+        self._P = np.hstack([self.Ad, self.Bd[:, None]])
+        self._zy = np.zeros(self.n + p + 2)
+        self._xu = np.zeros(self.n + 1)
+        self._K0 = self.K[0]
         self.reset()
 
     def reset(self) -> None:
@@ -183,6 +193,26 @@ class LQGLaw(SampledLaw):
 
     def follow(self, reference: Reference | None) -> None:
         self.schedule = None if reference is None else measurement_schedule(self.plant, self.sensors, reference)
+
+    def step(self, y, x_ref: np.ndarray, u_ff: float) -> float:
+        """:meth:`SampledLaw.step`; without a measurement schedule in the composed form (same arithmetic up to
+        rounding)."""
+        if self.schedule is not None and self.k < len(self.schedule.y_ref):
+            return super().step(y, x_ref, u_ff)
+        n, zy, xu = self.n, self._zy, self._xu
+        zy[:n] = self.z
+        zy[n:-2] = y
+        zy[-2] = self.u_prev
+        zy[-1] = 1.0
+        xh = xu[:n]
+        np.dot(self._E, zy, out=xh)
+        self.k += 1
+        u = self.u0 + u_ff - float(self._K0 @ (xh - x_ref))
+        u = min(max(u, -self.torque_limit), self.torque_limit)
+        xu[n] = self.u_prev = u - self.u0
+        self.xh = xh.copy()
+        self.z = self._P @ xu
+        return u
 
     def estimate(self, y: np.ndarray, x_ref: np.ndarray) -> np.ndarray:
         sc, k = self.schedule, self.k

@@ -97,9 +97,9 @@ class ControlDesign:
     def law(self, controller: str) -> SampledLaw:
         """A fresh sampled law: ``"lqr"`` (LQR + Kalman) or ``"pd"``; single-joint designs only."""
         if controller in CONTROLLERS and len(self.lqr.inputs) > 1:
-            raise FlexlinkError(f"the sampled laws and the closed-loop runs drive one joint so far; this design "
-                                f"has {len(self.lqr.inputs)} actuated joints ({', '.join(self.actuated_joints)}): "
-                                "its gains, estimator and margins are in .lqr, .kalman and .robustness()")
+            raise FlexlinkError(f"the sampled laws here drive one joint so far; this design has "
+                                f"{len(self.lqr.inputs)} actuated joints ({', '.join(self.actuated_joints)}): "
+                                "controllers.multijoint runs it (MimoLQGLaw, JointPDLaw, compare)")
         if controller == "lqr":
             return LQGLaw(self.lqr, self.kalman, self.torque_limit)
         if controller == "pd":
@@ -136,7 +136,8 @@ def design(scene_or_model, *, torque_limit: float | Mapping[str, float], dt: flo
 
     The LQR and the Kalman estimator act on every torque-driven joint (their encoders and, with
     ``sensors="strain"``, every link's root strain gauge); the PD baseline and the sampled laws that
-    :func:`rest_to_rest` runs are single-joint (``pd`` is None with several actuated joints).
+    :func:`rest_to_rest` runs are single-joint (``pd`` is None with several actuated joints:
+    :mod:`controllers.multijoint` runs those).
 
     Parameters
     ----------

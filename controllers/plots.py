@@ -9,7 +9,7 @@ import numpy as np
 
 from controllers.closedloop import closed_loop, loop_transfer, margins
 
-__all__ = ["plot_loop_bode", "plot_manoeuvre", "plot_poles", "plot_time_responses"]
+__all__ = ["plot_loop_bode", "plot_manoeuvre", "plot_multijoint", "plot_poles", "plot_time_responses"]
 
 
 def _pyplot():
@@ -116,6 +116,48 @@ def plot_manoeuvre(path: str | os.PathLike, results: Sequence, design, predictio
     shown = names + others
     plot_poles(fig.add_subplot(gs[0, 1]), design, shown)
     plot_loop_bode(fig.add_subplot(gs[1, 1]), fig.add_subplot(gs[2, 1]), design, shown)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_multijoint(path: str | os.PathLike, results: dict, title: str = "") -> None:
+    """The multi-joint comparison (:func:`controllers.multijoint.compare`): joint angles against their
+    references, tracking errors, every link's tip deflection and the torques, LQG and PD, the figures of
+    each run (settling time, residual vibration, peak torque) in the legends."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(2, 2, figsize=(13, 8), sharex=True)
+    (a_th, a_err), (a_tip, a_tau) = axes
+    styles = ["-", "--", ":", "-."]
+    for k, (name, res) in enumerate(results.items()):
+        m, s, c = res.metrics, res.series, f"C{k}"
+        t = s["time"]
+        ts = "not settled" if m["settling_time_s"] is None else f"settles in {m['settling_time_s']:.3g} s"
+        label = f"{'LQG' if name == 'lqr' else 'PD'}: {ts}"
+        for i, j in enumerate(m["joints"]):
+            ls = styles[i % 4]
+            a_th.plot(t, np.degrees(s[f"{j}.theta"]), c, ls=ls, lw=1.1, label=f"{label} ({j})" if i == 0 else j)
+            if k == 0:
+                a_th.plot(t, np.degrees(s[f"{j}.theta_ref"]), "k", ls=ls, lw=0.6)
+            a_err.plot(t, np.degrees(s[f"{j}.theta"] - s[f"{j}.theta_ref"]), c, ls=ls, lw=1.0,
+                       label=f"{name.upper()} {j}: final {m['joints'][j]['final_error_deg']:.2g} deg")
+            a_tau.plot(t, s[f"{j}.tau"], c, ls=ls, lw=0.9,
+                       label=f"{name.upper()} {j}: peak {m['joints'][j]['peak_torque_nm']:.3g} N m")
+        for i, (lk, f) in enumerate(m["links"].items()):
+            a_tip.plot(t, 1e3 * s[f"{lk}.tip.v"], c, ls=styles[i % 4], lw=1.0,
+                       label=f"{name.upper()} {lk}: residual {1e3 * f['residual_vibration_rms_m']:.3g} mm RMS")
+    a_th.set_ylabel("joint angle (deg); black: reference")
+    a_err.set_ylabel("tracking error (deg)")
+    a_tip.set_ylabel("tip.v (mm)")
+    a_tau.set_ylabel("torque (N m)")
+    for ax in axes.ravel():
+        ax.axvline(next(iter(results.values())).duration, color="0.6", lw=0.6)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    for ax in axes[1]:
+        ax.set_xlabel("time (s)")
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()

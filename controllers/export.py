@@ -1,0 +1,213 @@
+"""The sampled MIMO LQG as a standalone FMI 2.0 Co-Simulation FMU in pure C (``flexlink control --export-fmu``).
+
+The FMU is :class:`controllers.multijoint.MimoLQGLaw` — the Kalman current estimator and the discrete LQR
+gains of a :class:`controllers.manoeuvre.ControlDesign`, the torque saturation — with its sample time as the
+one communication step it accepts.  ``controllers/ctrl_fmu.c`` is the generic C; :func:`export_controller_fmu`
+writes the design's numbers as ``ctrl_data.h`` (every double with 17 significant digits: the C computes
+with the very matrices Python does), the model description, compiles and zips.
+
+Inputs (value references in this order): the sensors by their plant names (absolute), ``x_ref[i]`` the
+reference state and ``u_ff[j]`` the feedforward (deviations from the design's operating point), ``w[i]``
+the reference's own step in the estimator's prediction (:class:`MimoLQGLaw`'s ``W``; zero along a plant
+trajectory).  Outputs: the torques by their plant input names, absolute, saturated.  The outputs at a
+communication point depend on the inputs set there (direct feedthrough: the current estimator corrects with
+the measurement before the torque); ``fmi2DoStep`` then advances the estimate.
+
+:class:`FmuLaw` drives such an FMU as a law of :class:`controllers.cosim.FmuLoop`: the plant FMU and the
+controller FMU stepped side by side by fmpy.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import shutil
+import tempfile
+import zipfile
+from pathlib import Path
+from xml.sax.saxutils import escape
+
+import numpy as np
+
+from controllers.design import DesignError, torque_inputs
+
+__all__ = ["FmuLaw", "export_controller_fmu"]
+
+C_SOURCE = Path(__file__).resolve().parent / "ctrl_fmu.c"
+
+
+def _c_array(name: str, a: np.ndarray) -> str:
+    a = np.atleast_1d(np.asarray(a, dtype=float))
+    if a.ndim == 1:
+        return f"static const double {name}[{len(a)}] = {{{', '.join(f'{v:.17g}' for v in a)}}};\n"
+    rows = ",\n    ".join("{" + ", ".join(f"{v:.17g}" for v in r) + "}" for r in a)
+    return f"static const double {name}[{a.shape[0]}][{a.shape[1]}] = {{\n    {rows}}};\n"
+
+
+def _data(d, limits: np.ndarray, guid: str) -> str:
+    """ctrl_data.h: sizes, the estimator's and regulator's matrices, operating point, limits, sample time."""
+    p, kf = d.plant, d.kalman
+    nx, ny, nu = p.sys.nstates, len(kf.sensors), len(d.lqr.inputs)
+    y0 = p.y0[[p.output_row(s) for s in kf.sensors]]
+    return ("/* written by controllers/export.py: the design's numbers (17 significant digits) */\n"
+            f'#define NX {nx}\n#define NY {ny}\n#define NU {nu}\n#define DT {d.dt:.17g}\n#define GUID "{guid}"\n'
+            + _c_array("AD", d.lqr.plant_d.A) + _c_array("BD", np.asarray(d.lqr.plant_d.B).reshape(nx, nu))
+            + _c_array("CY", kf.C) + _c_array("MK", kf.Md) + _c_array("KD", d.lqr.Kd)
+            + _c_array("Y0", y0) + _c_array("U0", p.u0[torque_inputs(p)]) + _c_array("LIM", limits))
+
+
+def _variables(d) -> list[tuple[str, str, str, str]]:
+    """(name, causality, description, start) of every variable, in value-reference order."""
+    p, kf = d.plant, d.kalman
+    y0 = p.y0[[p.output_row(s) for s in kf.sensors]]
+    out = [(s, "input", f"sensor {s} (absolute)", f"{v:.17g}") for s, v in zip(kf.sensors, y0, strict=True)]
+    out += [(f"x_ref[{i}]", "input", f"reference of {s} (deviation from the operating point)", "0")
+            for i, s in enumerate(p.states)]
+    out += [(f"u_ff[{j}]", "input", f"feedforward {u} (deviation)", "0") for j, u in enumerate(d.lqr.inputs)]
+    out += [(f"w[{i}]", "input", f"reference's step in the prediction of {s} (0 along a plant trajectory)", "0")
+            for i, s in enumerate(p.states)]
+    out += [(u, "output", f"torque {u} (absolute, saturated)", "") for u in d.lqr.inputs]
+    return out
+
+
+def _model_description(d, ident: str, guid: str) -> str:
+    vs = _variables(d)
+    ny, nx, nu = len(d.kalman.sensors), d.plant.sys.nstates, len(d.lqr.inputs)
+    lines = []
+    for vr, (name, caus, desc, start) in enumerate(vs):
+        if caus == "input":
+            lines.append(f'    <ScalarVariable name="{escape(name)}" valueReference="{vr}" causality="input" '
+                         f'variability="discrete" description="{escape(desc)}"><Real start="{start}"/>'
+                         "</ScalarVariable>")
+        else:
+            lines.append(f'    <ScalarVariable name="{escape(name)}" valueReference="{vr}" causality="output" '
+                         f'variability="discrete" initial="calculated" description="{escape(desc)}"><Real/>'
+                         "</ScalarVariable>")
+    deps = " ".join(str(k + 1) for k in range(ny + nx + nu))            # y, x_ref, u_ff (not w)
+    first = len(vs) - nu + 1
+    unknowns = "\n".join(f'      <Unknown index="{first + j}" dependencies="{deps}"/>' for j in range(nu))
+    return f"""<?xml version="1.0" encoding="UTF-8"?>
+<fmiModelDescription fmiVersion="2.0" modelName="{escape(ident)}" guid="{guid}"
+  generationTool="flexlink control --export-fmu"
+  description="sampled MIMO LQG (Kalman current estimator + discrete LQR) of {escape(d.plant.model.scene.name)}"
+  variableNamingConvention="flat" numberOfEventIndicators="0">
+  <CoSimulation modelIdentifier="{escape(ident)}" canHandleVariableCommunicationStepSize="false"
+    canInterpolateInputs="false" canBeInstantiatedOnlyOncePerProcess="false" canNotUseMemoryManagementFunctions="false"
+    canGetAndSetFMUstate="false" canSerializeFMUstate="false" providesDirectionalDerivative="false">
+    <SourceFiles><File name="ctrl_fmu.c"/></SourceFiles>
+  </CoSimulation>
+  <DefaultExperiment startTime="0" stepSize="{d.dt:.17g}"/>
+  <ModelVariables>
+{chr(10).join(lines)}
+  </ModelVariables>
+  <ModelStructure>
+    <Outputs>
+{unknowns}
+    </Outputs>
+    <InitialUnknowns>
+{unknowns}
+    </InitialUnknowns>
+  </ModelStructure>
+</fmiModelDescription>
+"""
+
+
+def export_controller_fmu(d, path: str | os.PathLike, limits=None, identifier: str | None = None) -> Path:
+    """Write the design's sampled LQG (:class:`controllers.multijoint.MimoLQGLaw`) as an FMI 2.0 CS FMU.
+
+    ``limits``: the torque saturation per actuated joint (default: the design's torque limits).  The sensors
+    must be linear in the state (encoders, root strain gauges), as for the multi-joint run."""
+    from flexlink.export.cbuild import compile_shared_library, fmi_headers_dir
+
+    if np.any(d.kalman.D != 0) or any(not s.endswith((".theta", ".root.moment")) for s in d.kalman.sensors):
+        raise DesignError(f"--export-fmu: the controller FMU reads encoders and root strain gauges (--sensors strain),"
+                          f" got {d.kalman.sensors}")
+    path = Path(path)
+    if path.suffix != ".fmu":
+        raise DesignError(f"--export-fmu {path}: expected a file name ending in .fmu")
+    limits = np.asarray([d.lqr.torque_limits[j] for j in d.actuated_joints] if limits is None else limits, dtype=float)
+    ident = identifier or "".join(c if c.isalnum() else "_" for c in f"{d.plant.model.scene.name}_lqg")
+    guid = hashlib.sha256(_data(d, limits, "").encode()).hexdigest()[:32]
+    guid = f"{{{guid[:8]}-{guid[8:12]}-{guid[12:16]}-{guid[16:20]}-{guid[20:32]}}}"
+    with tempfile.TemporaryDirectory(prefix="flexlink-ctrl-") as tmp:
+        root = Path(tmp)
+        src = root / "sources"
+        src.mkdir()
+        shutil.copy(C_SOURCE, src / "ctrl_fmu.c")
+        (src / "ctrl_data.h").write_text(_data(d, limits, guid))
+        (root / "modelDescription.xml").write_text(_model_description(d, ident, guid))
+        compile_shared_library([src / "ctrl_fmu.c"], [src, fmi_headers_dir()],
+                               root / "binaries" / "linux64" / f"{ident}.so")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+                for f in sorted(root.rglob("*")):
+                    if f.is_file():
+                        z.write(f, f.relative_to(root).as_posix())
+        except OSError as e:
+            raise DesignError(f"--export-fmu {path}: cannot write the file ({e.strerror})") from None
+    return path
+
+
+class FmuLaw:
+    """A controller FMU written by :func:`export_controller_fmu`, stepped as a law of
+    :class:`controllers.cosim.FmuLoop`: at sample k set (y_k, x_ref,k, u_ff,k, w_k), read the torques,
+    ``fmi2DoStep(t_k, dt)``.  ``W`` is the law's reference correction (:class:`MimoLQGLaw`'s ``W``)."""
+
+    kind = "lqr-fmu"
+
+    def __init__(self, fmu: str | os.PathLike, W: np.ndarray):
+        import fmpy
+        from fmpy.fmi2 import FMU2Slave
+
+        self.md = fmpy.read_model_description(os.fspath(fmu))
+        self.dt = float(self.md.defaultExperiment.stepSize)
+        vs = self.md.modelVariables
+        names = [v.name for v in vs if v.causality == "input"]
+        self.inputs = [v.name for v in vs if v.causality == "output"]
+        n_in, nx = len(names), sum(n.startswith("x_ref[") for n in names)
+        self.sensors = names[: n_in - 2 * nx - len(self.inputs)]
+        self.W = np.asarray(W, dtype=float)
+        self._dir = fmpy.extract(os.fspath(fmu))
+        self.slave = FMU2Slave(guid=self.md.guid, unzipDirectory=self._dir,
+                               modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName="controller")
+        self.slave.instantiate()
+        self.vr_in = (ctypes.c_uint * n_in)(*range(n_in))
+        self.val_in = (ctypes.c_double * n_in)()
+        self.in_ = np.frombuffer(self.val_in, dtype=np.float64)
+        m = len(self.inputs)
+        self.vr_out = (ctypes.c_uint * m)(*range(n_in, n_in + m))
+        self.val_out = (ctypes.c_double * m)()
+        self._fresh = True
+        self.k = 0
+
+    def reset(self) -> None:
+        s = self.slave
+        if not self._fresh:
+            s.reset()
+        self._fresh = False
+        s.setupExperiment(startTime=0.0)
+        s.enterInitializationMode()
+        s.exitInitializationMode()
+        self.k = 0
+
+    def step(self, y, x_ref, u_ff) -> np.ndarray:
+        ny, nx = len(self.sensors), len(x_ref)
+        self.in_[:ny], self.in_[ny:ny + nx] = y, x_ref
+        self.in_[ny + nx:ny + nx + len(self.inputs)] = u_ff
+        self.in_[ny + nx + len(self.inputs):] = self.W[self.k]
+        s = self.slave
+        s.fmi2SetReal(s.component, self.vr_in, len(self.in_), self.val_in)
+        s.fmi2GetReal(s.component, self.vr_out, len(self.inputs), self.val_out)
+        s.fmi2DoStep(s.component, self.k * self.dt, self.dt, 1)
+        self.k += 1
+        return np.frombuffer(self.val_out, dtype=np.float64).copy()
+
+    def close(self) -> None:
+        if self.slave is not None:
+            self.slave.terminate()
+            self.slave.freeInstance()
+            self.slave.freeLibrary()
+            self.slave = None
+        shutil.rmtree(self._dir, ignore_errors=True)

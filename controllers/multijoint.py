@@ -1,0 +1,322 @@
+"""Rest-to-rest manoeuvre of every torque-driven joint through the FMU: the MIMO LQG against a joint PD.
+
+The reference (:func:`inverse_dynamics_reference`) is a quintic (rigid minimum-jerk) path of each joint,
+and the feedforward torque is the model's own inverse dynamics along it: the joints are prescribed, the
+elastic coordinates integrated (CasADi ``cvodes`` on the symbolic residual, the equations the FMU solves),
+and the torque each joint needs read from its residual row — what the FMU's position-driven joints output
+as ``<joint>.tau``, without building a second FMU.  The torque is averaged over each sample (the zero-order
+hold then gives the same impulse).  During the manoeuvre the LQG's reference state is that flexible
+trajectory (joints *and* elastic coordinates); after it, rest at the targets.  A linear design about the
+start pose cannot plan the path itself: the elbow's motion changes the arm's inertia.
+
+Both laws see deviations from that reference:
+
+* :class:`MimoLQGLaw` — the discrete LQR on the Kalman filter's estimate of the deviation ``x − x_ref``
+  (current estimator, encoders and root strain gauges, outputs linear in the state so that the
+  measurement expected on the reference is ``y₀ + C x_ref`` exactly), the saturated torque fed back to the
+  estimator (no wind-up).  Without saturation it is :func:`controllers.robustness.lqg_compensator`, whose
+  loop-at-a-time margins ``flexlink control --design-only`` reports.
+* :class:`JointPDLaw` — one PD per joint on its encoder and rate, the same feedforward, each joint's
+  rigid-body pair at the LQR's slowest pair (locked-arm inertia ``M_jj``); its torque limit is the LQG run's
+  peak torque of that joint (:func:`compare`), so it never uses more torque than the LQG did.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from controllers.cosim import FmuLoop
+from controllers.design import DesignError, torque_inputs
+from controllers.trajectory import Reference, quintic
+from flexlink.errors import FlexlinkError
+
+__all__ = ["JointPDLaw", "MimoLQGLaw", "compare", "default_torque_limit", "inverse_dynamics_reference",
+           "joint_pd_gains", "plan", "run"]
+
+
+def check_multijoint(d) -> None:
+    """What the multi-joint run drives: every joint torque-driven (no built-in law or motor coordinate to
+    carry along the path), starting at rest; sensors whose outputs are linear in the state."""
+    model = d.plant.model
+    for j in model.scene.joints:
+        if j.drive != "torque":
+            raise DesignError(f'joint "{j.name}": the multi-joint run drives every joint by torque, got drive = '
+                              f'"{j.drive}"')
+        if j.initial_rate != 0.0:
+            raise DesignError(f'joint "{j.name}": a rest-to-rest manoeuvre starts at rest; initial_rate = '
+                              f"{j.initial_rate} rad/s")
+    extra = [c for c in model.coordinates if c.endswith(".motor_theta")]
+    if extra:
+        raise DesignError(f"elastic joints ({', '.join(extra)}): the multi-joint run prescribes the link-side angles "
+                          "and cannot plan the motor's")
+    if np.any(d.kalman.D != 0) or any(not s.endswith((".theta", ".root.moment")) for s in d.kalman.sensors):
+        raise DesignError(f"sensors {d.kalman.sensors}: the multi-joint run reads the encoders and root strain gauges "
+                          "(--sensors strain)")
+
+
+@dataclass
+class Plan:
+    """Where the manoeuvre goes: joint coordinate indices, start and target angles (rad), the final rest
+    state (absolute) and its holding torques, and the static ``<link>.tip.v`` there."""
+
+    joints: list[str]
+    index: list[int]
+    start: np.ndarray
+    target: np.ndarray
+    x_end: np.ndarray
+    u_end: np.ndarray
+    tip_static: dict
+
+
+def plan(plant, targets: Sequence[float]) -> Plan:
+    """The final rest state at ``targets`` (rad, one per actuated joint): the elastic coordinates at their
+    static deflection there (zero without gravity), the torques that hold it, the tips' static deflection."""
+    from controllers.design import actuated_joints
+    from flexlink.mechanics.analysis import static_deflection
+    from flexlink.run.linearize import explicit_functions
+
+    p, model = plant, plant.model
+    joints = actuated_joints(plant)
+    if len(targets) != len(joints):
+        raise FlexlinkError(f"--target: one angle per torque-driven joint ({', '.join(joints)}), got {len(targets)}")
+    idx = [model.coordinates.index(f"{j}.theta") for j in joints]
+    n = model.n_q
+    q = p.op.q.copy()
+    q[idx] = targets
+    free = [k for k in range(n) if k not in idx]
+    u = p.op.u.copy()
+    names = [s.name for s in model.inputs]
+    cols = [names.index(f"{j}.tau") for j in joints]
+    u[cols] = 0.0
+    q = static_deflection(model, q, np.zeros(n), u, p.op.p, free)
+    r = np.asarray(model.residual(q, np.zeros(n), np.zeros(n), u, p.op.p), dtype=float).ravel()
+    u_end = r[idx]
+    u[cols] = u_end
+    x_end = np.concatenate([q, np.zeros(n)])
+    _, h = explicit_functions(model)
+    y = np.asarray(h(x_end, u, p.op.p), dtype=float).ravel()
+    names = [s.name for s in model.outputs]
+    tips = {lk.name: float(y[names.index(f"{lk.name}.tip.v")]) for lk in model.scene.links
+            if f"{lk.name}.tip.v" in names}
+    return Plan(joints, idx, p.x0[idx].copy(), np.asarray(targets, dtype=float), x_end, u_end, tips)
+
+
+def inverse_dynamics_reference(plant, pl: Plan, dt: float, duration: float, settle: float) -> Reference:
+    """Quintic path of every joint from its start to its target in ``duration``, the elastic coordinates and
+    the joint torques along it from the model's inverse dynamics (module docstring); then rest at
+    the targets for ``settle``.  Deviations from the design's operating point; ``u_ff`` is (N + 1, m)."""
+    p, model = plant, plant.model
+    n = model.n_q
+    n_move, n_total = int(round(duration / dt)), int(round((duration + settle) / dt))
+    t = np.arange(n_total + 1) * dt
+    idx, free = pl.index, [k for k in range(n) if k not in pl.index]
+    res = model.residual.expand()
+    ts = ca.SX.sym("t")
+    qf, vf, af = ca.SX.sym("qf", len(free)), ca.SX.sym("vf", len(free)), ca.SX.sym("af", len(free))
+    tau = ts / duration
+    s = tau**3 * (10 - 15 * tau + 6 * tau**2)
+    sd = 30 * tau**2 * (1 - tau) ** 2 / duration
+    sdd = 60 * tau * (1 - tau) * (1 - 2 * tau) / duration**2
+    delta = pl.target - pl.start
+    q, v, a = [ca.SX.zeros(n) for _ in range(3)]
+    for k, i in enumerate(idx):
+        q[i], v[i], a[i] = pl.start[k] + delta[k] * s, delta[k] * sd, delta[k] * sdd
+    for k, i in enumerate(free):
+        q[i], v[i], a[i] = qf[k], vf[k], af[k]
+    u = ca.DM(p.op.u)
+    names = [s_.name for s_ in model.inputs]
+    for j in pl.joints:
+        u[names.index(f"{j}.tau")] = 0.0
+    r = res(q, v, a, u, p.op.p)
+    r_free = r[free]
+    M = ca.jacobian(r_free, af)
+    acc = -ca.solve(M, ca.substitute(r_free, af, ca.SX.zeros(len(free))))
+    torque = ca.substitute(r[idx], af, acc)
+    x = ca.vertcat(qf, vf)
+    grid = list(t[1:n_move + 1])
+    F = ca.integrator("inverse_dynamics", "cvodes", {"x": x, "t": ts, "ode": ca.vertcat(vf, acc), "quad": torque},
+                      0.0, grid, {"abstol": 1e-11, "reltol": 1e-10})
+    x0f = np.concatenate([p.op.q[free], p.op.v[free]])
+    out = F(x0=x0f)
+    X = np.hstack([x0f[:, None], np.asarray(out["xf"])]).T              # (n_move + 1, 2 nf)
+    Q = np.hstack([np.zeros((len(idx), 1)), np.asarray(out["qf"])]).T    # ∫ torque, (n_move + 1, m)
+    xs = np.zeros((n_total + 1, 2 * n))
+    th, thd, _ = (np.outer(c, delta) for c in quintic(t[: n_move + 1], 1.0, duration))
+    xs[: n_move + 1, idx] = pl.start + th
+    xs[: n_move + 1, [n + i for i in idx]] = thd
+    xs[: n_move + 1, free] = X[:, : len(free)]
+    xs[: n_move + 1, [n + i for i in free]] = X[:, len(free):]
+    xs[n_move + 1:] = pl.x_end
+    u_ff = np.tile(pl.u_end, (n_total + 1, 1))
+    u_ff[:n_move] = np.diff(Q, axis=0) / dt
+    u0 = p.u0[torque_inputs(p)]
+    return Reference("inverse-dynamics", dt, duration, t, xs - p.x0, u_ff - u0, idx[0])
+
+
+def default_torque_limit(plant, targets: Sequence[float], duration: float, dt: float = 1e-3,
+                         factor: float = 1.5) -> float:
+    """``factor`` × the largest peak of the joints' inverse-dynamics feedforward (coupling included), rounded
+    up to 0.5 N m: the torque limit of every joint (and Bryson's R) of a multi-joint run when none is given.
+    One number for all joints: a smaller limit on the elbow than on the shoulder weighs its torque more and
+    gave an LQG that the elbow's motion destabilised (two_link_payload, 60°/40° in 1 s)."""
+    pl = plan(plant, targets)
+    ref = inverse_dynamics_reference(plant, pl, dt, duration, dt)
+    peak = float(np.max(np.abs(ref.u_ff + plant.u0[torque_inputs(plant)])))
+    return max(math.ceil(2.0 * factor * peak) / 2.0, 0.5)
+
+
+class MimoLQGLaw:
+    """The discrete LQR on the Kalman estimate of the deviation from the reference (module docstring).
+
+    ``step(y, x_ref, u_ff)`` → the saturated torques (absolute, one per actuated joint)."""
+
+    kind = "lqr"
+
+    def __init__(self, d, limits: Sequence[float], reference: Reference):
+        p = d.plant
+        self.dt, self.sensors, self.inputs = d.dt, list(d.kalman.sensors), list(d.lqr.inputs)
+        self.u0 = p.u0[torque_inputs(p)]
+        self.y0 = p.y0[[p.output_row(s) for s in self.sensors]]
+        self.C, self.M, self.K = d.kalman.C, d.kalman.Md, d.lqr.Kd
+        self.Ad, self.Bd = np.asarray(d.lqr.plant_d.A), np.asarray(d.lqr.plant_d.B)
+        self.limits = np.asarray(limits, dtype=float)
+        # where the reference stops being a trajectory of the plant (from the manoeuvre's end: its jump to
+        # rest at the targets), the deviation's prediction carries the reference's own step: e⁺ = A_d e +
+        # B_d (u − u_ff) − w_k, w_k = x_ref,k+1 − A_d x_ref,k − B_d u_ff,k (0 along the inverse dynamics)
+        x, uf = reference.x, reference.u_ff
+        self.W = np.zeros_like(x)
+        n_move = int(round(reference.duration / reference.dt))
+        self.W[n_move:-1] = x[n_move + 1:] - x[n_move:-1] @ self.Ad.T - uf[n_move:-1] @ self.Bd.T
+        self.reset()
+
+    def reset(self) -> None:
+        self.dz = np.zeros(self.Ad.shape[0])      # prior estimate of x − x_ref
+        self.k = 0
+
+    def step(self, y, x_ref, u_ff) -> np.ndarray:
+        dx = self.dz + self.M @ (y - self.y0 - self.C @ (x_ref + self.dz))
+        u = np.clip(self.u0 + u_ff - self.K @ dx, -self.limits, self.limits)
+        self.dz = self.Ad @ dx + self.Bd @ (u - self.u0 - u_ff) - self.W[self.k]
+        self.k += 1
+        return u
+
+
+def joint_pd_gains(d, zeta: float = 0.7) -> tuple[np.ndarray, np.ndarray]:
+    """(kp, kd) per actuated joint: its rigid-body pair at the LQR's slowest pair ω_n with damping ζ on the
+    locked-arm inertia M_jj: ``kp = M_jj ω_n²``, ``kd = 2 ζ ω_n M_jj``."""
+    wn, _ = d.lqr.rigid_pair
+    model = d.plant.model
+    J = np.array([d.plant.mechanics.M[i, i] for i in (model.coordinates.index(f"{j}.theta")
+                                                      for j in d.actuated_joints)])
+    return J * wn**2, 2 * zeta * wn * J
+
+
+class JointPDLaw:
+    """One PD per joint on its encoder and rate, around the same reference and feedforward."""
+
+    kind = "pd"
+
+    def __init__(self, d, limits: Sequence[float], zeta: float = 0.7):
+        p = d.plant
+        self.dt, self.inputs = d.dt, list(d.lqr.inputs)
+        joints = d.actuated_joints
+        self.sensors = [f"{j}.{w}" for j in joints for w in ("theta", "omega")]
+        self.kp, self.kd = joint_pd_gains(d, zeta)
+        self.u0 = p.u0[torque_inputs(p)]
+        self.y0 = p.y0[[p.output_row(s) for s in self.sensors]]
+        n = p.sys.nstates
+        self.rows = [r for j in joints for r in (p.state_index(f"{j}.theta"), n // 2 + p.state_index(f"{j}.theta"))]
+        self.G = self.gain_matrix()
+        self.limits = np.asarray(limits, dtype=float)
+
+    def gain_matrix(self) -> np.ndarray:
+        """The sensor gains, ``u − u₀ − u_ff = −G (y − y_ref)`` (m × 2m)."""
+        m = len(self.kp)
+        G = np.zeros((m, 2 * m))
+        G[range(m), range(0, 2 * m, 2)] = self.kp
+        G[range(m), range(1, 2 * m, 2)] = self.kd
+        return G
+
+    def reset(self) -> None:
+        pass
+
+    def step(self, y, x_ref, u_ff) -> np.ndarray:
+        u = self.u0 + u_ff - self.G @ (y - self.y0 - x_ref[self.rows])
+        return np.clip(u, -self.limits, self.limits)
+
+
+def _settling_time(t: np.ndarray, outside: np.ndarray) -> float | None:
+    """The time from which ``outside`` stays False to the end (0 if never True); None if True at the end."""
+    if outside[-1]:
+        return None
+    bad = np.flatnonzero(outside)
+    return float(t[bad[-1] + 1]) if len(bad) else 0.0
+
+
+def metrics(pl: Plan, series: Mapping[str, np.ndarray], duration: float, limits: Sequence[float],
+            band_deg: float, band_m: float, wall_time: float | None) -> dict:
+    """The run's figures: per joint the final error, peak torque and saturated fraction; per link the
+    residual vibration (RMS of ``tip.v`` minus its static value at the targets, over the window after the
+    manoeuvre) and the largest tip deflection; the settling time (from the start, after which every joint
+    stays within ``band_deg`` of its target and every tip within ``band_m`` of its static deflection)."""
+    t = series["time"]
+    window = t >= duration - 1e-12
+    outside = np.zeros(len(t), dtype=bool)
+    joints, links = {}, {}
+    for k, j in enumerate(pl.joints):
+        err = series[f"{j}.theta"] - pl.target[k]
+        u = series[f"{j}.tau"]
+        outside |= np.abs(err) > math.radians(band_deg)
+        joints[j] = {"final_error_deg": float(np.degrees(err[-1])), "peak_torque_nm": float(np.max(np.abs(u))),
+                     "saturated_fraction": float(np.mean(np.abs(u) >= limits[k] * (1 - 1e-12)))}
+    for lk, static in pl.tip_static.items():
+        dev = series[f"{lk}.tip.v"] - static
+        outside |= np.abs(dev) > band_m
+        links[lk] = {"residual_vibration_rms_m": float(np.sqrt(np.mean(dev[window] ** 2))),
+                     "max_tip_deflection_m": float(np.max(np.abs(dev)))}
+    return {"joints": joints, "links": links,
+            "residual_vibration_rms_m": max(v["residual_vibration_rms_m"] for v in links.values()),
+            "settling_time_s": _settling_time(t, outside), "settle_band_deg": band_deg, "settle_band_m": band_m,
+            "realtime_factor": float((t[-1] - t[0]) / wall_time) if wall_time else None}
+
+
+def run(d, loop: FmuLoop, pl: Plan, ref: Reference, law, *, parameters: Mapping[str, float] | None = None,
+        band_deg: float = 0.1, band_m: float = 1e-3):
+    """One closed-loop run of ``law`` along ``ref`` through the FMU; a
+    :class:`controllers.manoeuvre.ManoeuvreResult` with :func:`metrics` (``series`` also holds each joint's
+    ``theta_ref``)."""
+    from controllers.manoeuvre import ManoeuvreResult
+
+    for name in [f"{j}.theta" for j in pl.joints] + [f"{lk}.tip.v" for lk in pl.tip_static]:
+        if name not in loop.record:
+            loop.record.append(name)
+    res = loop.run(law, ref, parameters=parameters)
+    series = dict(res.series)
+    for k, j in enumerate(pl.joints):
+        series[f"{j}.theta_ref"] = ref.x[:, pl.index[k]] + d.plant.x0[pl.index[k]]
+    m = metrics(pl, series, ref.duration, law.limits, band_deg, band_m, res.wall_time)
+    m.update({"controller": law.kind, "torque_limits_nm": dict(zip(pl.joints, law.limits.tolist(), strict=True))})
+    settle = float(ref.time[-1]) - ref.duration
+    return ManoeuvreResult(law.kind, pl.target, ref.duration, settle, series, ref, m, dict(parameters or {}))
+
+
+def compare(d, loop: FmuLoop, targets: Sequence[float], duration: float, settle: float, *,
+            parameters: Mapping[str, float] | None = None, band_deg: float = 0.1, band_m: float = 1e-3) -> dict:
+    """The MIMO LQG and the joint PD, each through the FMU along the same reference and feedforward, the
+    PD's torque limit the LQG run's peak torque of each joint.  Returns ``{"lqr": result, "pd": result}``."""
+    from controllers.manoeuvre import _check_times
+
+    _check_times(duration, settle, d.dt)
+    check_multijoint(d)
+    pl = plan(d.plant, targets)
+    ref = inverse_dynamics_reference(d.plant, pl, d.dt, duration, settle)
+    kw = {"parameters": parameters, "band_deg": band_deg, "band_m": band_m}
+    lqg = run(d, loop, pl, ref, MimoLQGLaw(d, [d.lqr.torque_limits[j] for j in pl.joints], ref), **kw)
+    peaks = [lqg.metrics["joints"][j]["peak_torque_nm"] for j in pl.joints]
+    pd = run(d, loop, pl, ref, JointPDLaw(d, peaks), **kw)
+    return {"lqr": lqg, "pd": pd}
