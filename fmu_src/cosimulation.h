@@ -80,6 +80,8 @@ typedef struct {
     SS22 ss22;                        /* integrator, with its factorisations and counters        */
 } FmuData;
 
+struct SavedState;
+
 typedef struct {
     unsigned long magic;              /* INSTANCE_MAGIC while alive                              */
     char *name;
@@ -105,14 +107,19 @@ typedef struct {
     double dd_q[N_Q], dd_v[N_Q], dd_a[N_Q], dd_r[N_Q];
     double dd_u[FMU_SZ(N_U)], dd_um[FMU_SZ(N_U)], dd_p[FMU_SZ(N_P)], dd_y[FMU_SZ(N_Y)];
     char message[1024], escaped[2048];
+    struct SavedState *states;        /* the FMU states handed out: freed with the instance     */
 } Instance;
 
 #define INSTANCE_MAGIC 0x464c584cUL  /* "FLXL" */
 
-/* A copy of the state, as handed to the host as fmi2FMUstate. */
-typedef struct {
+/* A copy of the state, as handed to the host as fmi2FMUstate; the instance that made it keeps it in a
+ * list, so that fmi2FreeInstance frees the states the host never freed (fmi2FreeInstance "frees all
+ * memory and other resources allocated by the instance"). */
+typedef struct SavedState {
     unsigned long magic;              /* STATE_MAGIC while alive */
-    FmuData d;
+    struct SavedState *prev, *next;   /* the owner's list of states */
+    Instance *owner;
+    FmuData d;                        /* the state itself: all that is serialised */
 } SavedState;
 
 #define STATE_MAGIC 0x53544154UL     /* "STAT" */

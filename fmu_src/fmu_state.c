@@ -11,18 +11,39 @@ static int state_ok(const SavedState *s) {
     return s != NULL && s->magic == STATE_MAGIC;
 }
 
+/* A new state, zeroed, in inst's list; NULL when out of memory. */
+static SavedState *new_state(Instance *inst) {
+    SavedState *s = (SavedState *)inst->cb.allocateMemory(1, sizeof(SavedState));
+    if (s == NULL) return NULL;
+    memset(s, 0, sizeof(*s));
+    s->magic = STATE_MAGIC;
+    s->owner = inst;
+    s->next = inst->states;
+    if (s->next != NULL) s->next->prev = s;
+    inst->states = s;
+    return s;
+}
+
+/* Out of its owner's list, and freed with the owner's allocator. */
+static void release_state(SavedState *s) {
+    Instance *owner = s->owner;
+    if (s->prev != NULL) s->prev->next = s->next; else owner->states = s->next;
+    if (s->next != NULL) s->next->prev = s->prev;
+    s->magic = 0;
+    owner->cb.freeMemory(s);
+}
+
+void fmu_free_all_states(Instance *inst) {
+    while (inst->states != NULL) release_state(inst->states);
+}
+
 fmi2Status fmu_get_state(Instance *inst, fmi2FMUstate *state) {
     SavedState *s = (SavedState *)*state;
     if (s != NULL && !state_ok(s)) {
         return fmu_error(inst, "fmi2GetFMUstate: *FMUstate is neither NULL nor a state of this FMU");
     }
-    if (s == NULL) {
-        s = (SavedState *)inst->cb.allocateMemory(1, sizeof(SavedState));
-        if (s == NULL) {
-            return fmu_error(inst, "fmi2GetFMUstate: out of memory");
-        }
-        memset(s, 0, sizeof(*s));
-        s->magic = STATE_MAGIC;
+    if (s == NULL && (s = new_state(inst)) == NULL) {
+        return fmu_error(inst, "fmi2GetFMUstate: out of memory");
     }
     memcpy(&s->d, &inst->d, sizeof(s->d));
     *state = s;
@@ -44,8 +65,7 @@ fmi2Status fmu_free_state(Instance *inst, fmi2FMUstate *state) {
     if (!state_ok(s)) {
         return fmu_error(inst, "fmi2FreeFMUstate: not a state of this FMU (already freed?)");
     }
-    s->magic = 0;
-    inst->cb.freeMemory(s);
+    release_state(s);
     *state = NULL;
     return fmi2OK;
 }
@@ -151,22 +171,17 @@ fmi2Status fmu_deserialize(Instance *inst, const fmi2Byte buffer[], size_t size,
     if (checksum(b, sizeof(FmuData)) != sum) {
         return fmu_error(inst, "fmi2DeSerializeFMUstate: the state is corrupted (checksum)");
     }
-    s = (SavedState *)inst->cb.allocateMemory(1, sizeof(SavedState));
+    s = target != NULL ? target : new_state(inst);      /* reuse the host's state, as fmi2GetFMUstate does */
     if (s == NULL) {
         return fmu_error(inst, "fmi2DeSerializeFMUstate: out of memory");
     }
-    memset(s, 0, sizeof(*s));
-    memcpy(&s->d, b, sizeof(s->d));
-    if ((bad = invalid_data(&s->d)) != NULL) {
-        inst->cb.freeMemory(s);
+    /* validated in the doStep backup (scratch outside fmi2DoStep) before it replaces anything */
+    memcpy(&inst->backup, b, sizeof(inst->backup));
+    if ((bad = invalid_data(&inst->backup)) != NULL) {
+        if (target == NULL) release_state(s);
         return fmu_error(inst, "fmi2DeSerializeFMUstate: the state is invalid (%s)", bad);
     }
-    if (target != NULL) {                              /* reuse the host's state, as fmi2GetFMUstate does */
-        memcpy(&target->d, &s->d, sizeof(target->d));
-        inst->cb.freeMemory(s);
-        return fmi2OK;
-    }
-    s->magic = STATE_MAGIC;
+    memcpy(&s->d, &inst->backup, sizeof(s->d));
     *state = s;
     return fmi2OK;
 }

@@ -145,6 +145,7 @@ Instance *fmu_instantiate(fmi2String name, fmi2Type type, fmi2String guid,
 
 void fmu_free(Instance *inst) {
     fmi2CallbackFreeMemory free_memory = inst->cb.freeMemory;
+    fmu_free_all_states(inst);
     inst->magic = 0;
     free_memory(inst->name);
     free_memory(inst);

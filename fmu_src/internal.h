@@ -39,6 +39,9 @@ fmi2Status fmu_update_outputs(Instance *inst, const char *function);
 fmi2Status fmu_guard_state(Instance *inst, double t, const double *u, int check_mass_matrix);
 void fmu_guard_init(Instance *inst, const double *u);
 
+/* fmu_state.c: frees the FMU states inst handed out and the host did not free (fmi2FreeInstance). */
+void fmu_free_all_states(Instance *inst);
+
 /* richardson.c: fmi2OK if order 4 is stable at internal steps of dt (w_max dt <= RICHARDSON_MAX_OMEGA_STEP,
  * w_max found at the current state and parameters when not known), else fmi2Discard with the reason. */
 #define RICHARDSON_MAX_OMEGA_STEP 0.3
