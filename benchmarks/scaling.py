@@ -3,6 +3,8 @@
     python benchmarks/scaling.py                  # full size: 1-8 links, 1-32 modes, 3 builds each; rewrites
                                                   # README "Performance" between the scaling markers
     python benchmarks/scaling.py --quick --out DIR   # CI size: a few sizes, one build each, README untouched
+    python benchmarks/scaling.py --table-only     # the table again; the families kept from the last
+                                                  # full run's scaling.json (the report says which run is which)
 
 Two families of scenes, generated here (second-order kinematics, gravity, torque-driven joints):
 
@@ -138,6 +140,10 @@ def markdown(table: list[dict], bodies: list[dict], modes: list[dict], fits: dic
         b, c, s = r["targets"]
         lines.append(f"| {r['label']} | {r['n_q']} | {r['build_s']:.1f} (≤ {b:g}) | "
                      f"{r['generated_bytes'] / 1e6:.2f} (≤ {c:g}) | {r['step_us']:.1f} (≤ {s:g}) |")
+    if "families_from" in info:
+        f = info["families_from"]
+        lines += ["", f"The families below are from an earlier run: {f['date']}, `{f['command']}` (builds: median of "
+                      f"{f['builds']}, steps: median of {f['repeats']} runs)."]
     lines += ["", "| family | sizes | build exponent | code exponent | step exponent (goals: ≤ 1.2, ≤ 1.2, ≤ 2) |",
               "| --- | --- | --- | --- | --- |"]
     for key, rows in (("bodies", bodies), ("modes", modes)):
@@ -166,6 +172,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--max-modes", type=int, default=32,
                     help="largest mode count of the modes family (the 32-mode link takes minutes per build; the "
                          "table measures it once anyway)")
+    ap.add_argument("--table-only", action="store_true",
+                    help="measure only the issue's table; keep the families of --out/scaling.json")
     ap.add_argument("--out", type=Path, default=HERE)
     args = ap.parse_args(argv)
     builds = args.builds or (1 if args.quick else 3)
@@ -173,6 +181,11 @@ def main(argv: list[str] | None = None) -> None:
     link_counts = (1, 2, 3) if args.quick else (1, 2, 3, 4, 5, 6, 8)
     mode_counts = (2, 4) if args.quick else tuple(m for m in (1, 2, 4, 8, 16, 32) if m <= args.max_modes)
     bodies, modes, table = [], [], []
+    families_from = None
+    if args.table_only:                                # a table row re-measured after a change of the code
+        kept = json.loads((args.out / "scaling.json").read_text())
+        bodies, modes, families_from = kept["bodies"], kept["modes"], kept["info"].get("families_from", kept["info"])
+        link_counts, mode_counts = (), ()
     for n in link_counts:
         bodies.append(measure(parse_scene(chain_scene(n)), builds=builds, repeats=repeats))
         print(f"bodies {n}: {bodies[-1]}", flush=True)
@@ -181,7 +194,7 @@ def main(argv: list[str] | None = None) -> None:
         modes.append({**row, "modes": m})
         print(f"modes {m}: {row}", flush=True)
     for label, source, targets in ([] if args.quick else TABLE):
-        measured = [r for r in modes if isinstance(source, int) and r["modes"] == source]
+        measured = [r for r in modes if isinstance(source, int) and r["modes"] == source and not args.table_only]
         if measured:                                   # the same scene as a row of the family
             row = measured[0]
         else:
@@ -196,6 +209,8 @@ def main(argv: list[str] | None = None) -> None:
             "quick": args.quick, "builds": builds, "repeats": repeats,
             "command": " ".join(["python benchmarks/scaling.py", *(argv if argv is not None else sys.argv[1:])]),
             "optimise": os.environ.get(OPTIMISE_ENV) or "the default levels (-O2, -O1 above 5 000 operations)"}
+    if families_from is not None:
+        info["families_from"] = {k: families_from[k] for k in ("date", "command", "builds", "repeats")}
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "scaling.json").write_text(json.dumps({"info": info, "table": table, "bodies": bodies,
                                                        "modes": modes, "fits": fits}, indent=1))
