@@ -29,6 +29,7 @@ OSCILLATOR = [
     ("u", "Real", 4, 'causality="input" variability="continuous"', 'start="0"'),
     ("k", "Real", 5, 'causality="parameter" variability="tunable"', 'start="4" min="0.1" max="100"'),
     ("y", "Real", 6, 'causality="output" variability="continuous"', ""),
+    ("time", "Real", 7, 'causality="independent" variability="continuous"', ""),
 ]
 TYPED = [
     ("n", "Integer", 0, 'causality="input" variability="discrete"', 'start="1" min="0" max="10"'),
@@ -82,8 +83,9 @@ def _model_description(name: str, variant: str, interfaces, capabilities) -> str
 
 
 def build(directory: str | os.PathLike, name: str, *, variant: str = "oscillator", interfaces=("CS", "ME"),
-          defects: tuple[str, ...] = (), capabilities: tuple[str, ...] = CAPABILITIES) -> Path:
-    """Compile model.c with the variant's and the defects' macros and zip it with its model description."""
+          defects: tuple[str, ...] = (), capabilities: tuple[str, ...] = CAPABILITIES, xml_edit=None) -> Path:
+    """Compile model.c with the variant's and the defects' macros and zip it with its model description
+    (``xml_edit(text) -> text`` changes that first, for a defect in the XML)."""
     import fmpy
 
     d = Path(directory) / name
@@ -93,7 +95,8 @@ def build(directory: str | os.PathLike, name: str, *, variant: str = "oscillator
     flags = [f"-DNX={nx}", *(["-DSTAIR"] if variant == "stair" else []), *(f"-D{x}" for x in defects)]
     headers = Path(fmpy.__file__).parent / "c-code"
     compile_shared_library([SOURCE], [headers], binaries / f"{name}.so", extra_cflags=flags)
-    (d / "modelDescription.xml").write_text(_model_description(name, variant, interfaces, capabilities))
+    xml = _model_description(name, variant, interfaces, capabilities)
+    (d / "modelDescription.xml").write_text(xml_edit(xml) if xml_edit else xml)
     fmu = Path(directory) / f"{name}.fmu"
     with zipfile.ZipFile(fmu, "w", zipfile.ZIP_DEFLATED) as z:
         for p in sorted(d.rglob("*")):

@@ -8,7 +8,8 @@
  *
  * Co-Simulation integrates with fixed explicit Euler steps of FIXED_STEP (as the Reference FMUs do).
  * Each DEFECT_* macro plants one defect that the harness claims to find; without them the model follows
- * the FMI 2.0 state machine and refuses what the standard forbids with fmi2Error.
+ * the FMI 2.0 state machine and refuses what the standard forbids with fmi2Error.  NO_OPTIONAL makes the
+ * FMU-state and directional-derivative functions return fmi2Error (legal when the flags say false).
  */
 #include <math.h>
 #include <signal.h>
@@ -73,6 +74,11 @@ static fmi2Status fail(Inst *s, const char *msg) {
 }
 
 #define IN(s, allowed) do { if (!(s) || !((s)->mode & (allowed))) return (s) ? fail(s, "illegal call") : fmi2Error; } while (0)
+#ifdef NO_OPTIONAL
+#define OPTIONAL(s) return fail(s, "not supported")
+#else
+#define OPTIONAL(s) (void)0
+#endif
 #define ANY (INSTANTIATED | INIT | STEP | EVENT | CONT | TERMINATED)
 #define RUN (STEP | EVENT | CONT)
 
@@ -228,7 +234,7 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 /* ---------------------------------------------------------------- FMU state */
 
 fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *st) {
-    Inst *s = c; IN(s, ANY);
+    Inst *s = c; IN(s, ANY); OPTIONAL(s);
     if (!st) return fail(s, "null state");
     if (!*st) *st = malloc(sizeof(Inst));
     if (!*st) return fail(s, "out of memory");
@@ -237,7 +243,7 @@ fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *st) {
 }
 
 fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate st) {
-    Inst *s = c; IN(s, ANY);
+    Inst *s = c; IN(s, ANY); OPTIONAL(s);
     if (!st) return fail(s, "null state");
     const Inst *from = st;
 #ifdef DEFECT_STATE_RESTORE
@@ -256,18 +262,18 @@ fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *st) {
 }
 
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate st, size_t *size) {
-    Inst *s = c; IN(s, ANY); (void)st; *size = sizeof(Inst); return fmi2OK;
+    Inst *s = c; IN(s, ANY); OPTIONAL(s); (void)st; *size = sizeof(Inst); return fmi2OK;
 }
 
 fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate st, fmi2Byte bytes[], size_t size) {
-    Inst *s = c; IN(s, ANY);
+    Inst *s = c; IN(s, ANY); OPTIONAL(s);
     if (!st || size != sizeof(Inst)) return fail(s, "bad size");
     memcpy(bytes, st, sizeof(Inst));
     return fmi2OK;
 }
 
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte bytes[], size_t size, fmi2FMUstate *st) {
-    Inst *s = c; IN(s, ANY);
+    Inst *s = c; IN(s, ANY); OPTIONAL(s);
     if (size != sizeof(Inst)) return fail(s, "bad size");
     Inst tmp;
     memcpy(&tmp, bytes, sizeof tmp);
@@ -296,7 +302,7 @@ static double partial(const Data *d, unsigned unknown, unsigned known) {
 
 fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference u[], size_t nu,
                                         const fmi2ValueReference kn[], size_t nk, const fmi2Real dv[], fmi2Real du[]) {
-    Inst *s = c; IN(s, INIT | RUN);
+    Inst *s = c; IN(s, INIT | RUN); OPTIONAL(s);
     for (size_t j = 0; j < nk; j++) {
         int ok = kn[j] == R_U || (!s->cs && NX && (kn[j] == R_X || kn[j] == R_V));
         if (!ok || !isfinite(dv[j])) return fail(s, "bad known");
