@@ -197,3 +197,15 @@ def test_the_same_log_line_is_a_warning_when_a_start_is_really_missing(fmus):
     assert r.status == "warn"
     assert {x.rule for x in r.findings} == {"importer-warning"}
     assert any("Start attribute is required" in x.message for x in r.findings)
+
+
+def test_docs_name_every_check_and_rule():
+    """docs/check.md's tables cover every check of the driver and every rule a finding may name."""
+    from pathlib import Path
+
+    from flexlink.tools.check.driver import NAMES
+    from flexlink.tools.check.findings import RULES
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "check.md").read_text()
+    assert [n for n in NAMES if f"| `{n}` |" not in text] == []
+    assert [r for r in RULES if f"| `{r}` |" not in text] == []
