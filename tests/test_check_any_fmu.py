@@ -209,3 +209,20 @@ def test_docs_name_every_check_and_rule():
     text = (Path(__file__).resolve().parents[1] / "docs" / "check.md").read_text()
     assert [n for n in NAMES if f"| `{n}` |" not in text] == []
     assert [r for r in RULES if f"| `{r}` |" not in text] == []
+
+
+def test_an_unreadable_or_unrunnable_fmu_is_one_line_and_exit_2(fmus, tmp_path, capsys):
+    """Broken XML; no binary for this platform (nothing could be run, so no check could pass honestly)."""
+    import zipfile
+
+    bad_xml = fmus("bad_xml", xml_edit=lambda x: x.replace("</ModelVariables>", "</ModelVariable>"))
+    good = fmus("oscillator_CSME", variant="oscillator")
+    no_binary = tmp_path / "no_binary.fmu"
+    with zipfile.ZipFile(good) as zin, zipfile.ZipFile(no_binary, "w") as zout:
+        for item in zin.infolist():
+            if not item.filename.startswith("binaries/"):
+                zout.writestr(item, zin.read(item.filename))
+    for path, message in ((bad_xml, "unreadable modelDescription.xml"), (no_binary, "no binaries/linux64/")):
+        assert main(["check", str(path)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert message in err and len(err.splitlines()) == 1

@@ -31,16 +31,22 @@ def _names(text: str | None, option: str) -> list[str] | None:
 
 def _validate(args) -> tuple[str, ...]:
     """Bad input as one FlexlinkError line; returns the interfaces to check."""
+    import fmpy
+
     if not os.path.exists(args.fmu):
         raise FlexlinkError(f"{args.fmu}: no such file")
     if not zipfile.is_zipfile(args.fmu):
         raise FlexlinkError(f"{args.fmu}: not an FMU (not a zip archive)")
     with zipfile.ZipFile(args.fmu) as z:
-        if "modelDescription.xml" not in z.namelist():
-            raise FlexlinkError(f"{args.fmu}: not an FMU (no modelDescription.xml)")
-        head = z.read("modelDescription.xml")[:2000].decode("utf-8", "replace")
-    if 'fmiVersion="2.0"' not in head.replace("'", '"'):
-        raise FlexlinkError(f"{args.fmu}: not an FMI 2.0 FMU (flexlink check supports FMI 2.0 only)")
+        members = set(z.namelist())
+    if "modelDescription.xml" not in members:
+        raise FlexlinkError(f"{args.fmu}: not an FMU (no modelDescription.xml)")
+    try:
+        md = fmpy.read_model_description(args.fmu, validate=False)
+    except Exception as e:                      # lxml's syntax errors, fmpy's own, ...
+        raise FlexlinkError(f"{args.fmu}: unreadable modelDescription.xml: {str(e).splitlines()[0]}") from None
+    if md.fmiVersion != "2.0":
+        raise FlexlinkError(f"{args.fmu}: FMI {md.fmiVersion}; flexlink check supports FMI 2.0 only")
     for option, value in (("--me-vs-cs-stop", args.me_vs_cs_stop), ("--tolerance", args.tolerance),
                           ("--call-timeout", args.call_timeout)):
         if value is not None and not (0.0 < value < math.inf):
@@ -49,16 +55,15 @@ def _validate(args) -> tuple[str, ...]:
     if args.fuzz < 0:
         raise FlexlinkError(f"--fuzz {args.fuzz}: must be 0 or more")
     wanted = {"cs": ("CS",), "me": ("ME",), "both": ("CS", "ME")}[args.interface]
-    tags = {"CS": "<CoSimulation", "ME": "<ModelExchange"}
-    present = tuple(k for k in wanted if tags[k] in head or _has(args.fmu, tags[k]))
+    declared = {"CS": md.coSimulation, "ME": md.modelExchange}
+    present = tuple(k for k in wanted if declared[k] is not None)
     if not present:
-        raise FlexlinkError(f"{args.fmu}: has no {' or '.join(k for k in wanted)} interface to check")
+        raise FlexlinkError(f"{args.fmu}: has no {' or '.join(wanted)} interface to check")
+    for k in present:
+        binary = f"binaries/{fmpy.platform}/{declared[k].modelIdentifier}{fmpy.sharedLibraryExtension}"
+        if binary not in members:
+            raise FlexlinkError(f"{args.fmu}: no {binary}: flexlink check runs the FMU's binary for this platform")
     return present
-
-
-def _has(fmu: str, tag: str) -> bool:
-    with zipfile.ZipFile(fmu) as z:
-        return tag in z.read("modelDescription.xml").decode("utf-8", "replace")
 
 
 def run_check(args) -> int:
@@ -69,7 +74,7 @@ def run_check(args) -> int:
         results = check_fmu(args.fmu, fuzz=args.fuzz, seed=args.seed, importers=not args.no_importers,
                             stop_time=args.me_vs_cs_stop, tolerance=args.tolerance, interfaces=interfaces,
                             only=only, skip=skip, call_limit=args.call_timeout or CALL_LIMIT)
-    except (OSError, ValueError, zipfile.BadZipFile) as e:          # an unreadable model description, ...
+    except (OSError, zipfile.BadZipFile) as e:          # an FMU that cannot be extracted, ...
         raise FlexlinkError(f"{args.fmu}: {type(e).__name__}: {e}") from None
     ok = passed(results, args.strict)
     if args.json:
