@@ -88,6 +88,8 @@ def run_check(args) -> int:
                 print(f"      {x.line()}")
                 if x.sequence:
                     print(f"        calls: {' ; '.join(x.sequence[-4:])}")
+                if x.reproduce:
+                    print(f"        reproduce: {x.reproduce}")
         errors, warnings = totals(results)
         print(f"{'passed' if ok else 'FAILED'}: {errors} error(s), {warnings} warning(s)"
               + (" (--strict: warnings count)" if args.strict else ""))

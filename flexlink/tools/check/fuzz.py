@@ -219,6 +219,8 @@ def check_fuzz(f: Fmu, n: int = CI_FUZZ, seed: int = 0) -> CheckResult:
     for k in range(n):
         fuzzer.legal_sequence(f.interfaces[k % len(f.interfaces)])
     found = fuzzer.findings
+    for x in found:
+        x.reproduce = f"flexlink check {f.path} --only fuzz --fuzz {n} --seed {seed}"
     res = f"{n} sequences, {fuzzer.calls} calls, {len(found)} finding(s)"
     return CheckResult("fuzz", inp, ref, res, seconds=time.perf_counter() - t0,
                        details=[x.message for x in found], findings=found)

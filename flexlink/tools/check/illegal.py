@@ -132,7 +132,8 @@ def _one(f: Fmu, inst, name: str, kind: str, setup, fn) -> list[Finding]:
     status = call(fn, inst)
     if status != ERROR:
         found.append(Finding(rule, f"illegal call '{name}' ({kind}): expected fmi2Error (3), got {status}",
-                             sequence=isolation.recent(), reproduce=" ; ".join(isolation.recent())))
+                             sequence=isolation.recent(), reproduce=f"on a fresh {kind} instance: "
+                             + " ; ".join(isolation.recent())))
     try:
         inst.reset()
         _init(inst, kind)

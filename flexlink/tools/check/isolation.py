@@ -140,8 +140,7 @@ def _watch(p: subprocess.Popen, trace: str, call_limit: float, deadline: float) 
             p.kill()
             p.wait()
             last = calls[-1] if calls else "an FMI call"
-            return Finding("returns", f"{last} did not return within {now - began:.1f} s", sequence=calls,
-                           reproduce=" ; ".join(calls))
+            return Finding("returns", f"{last} did not return within {now - began:.1f} s", sequence=calls)
         if now > deadline:
             p.kill()
             p.wait()
@@ -152,8 +151,7 @@ def _watch(p: subprocess.Popen, trace: str, call_limit: float, deadline: float) 
         _, _, calls = _read(trace)
         sig = signal.Signals(-p.returncode).name if -p.returncode in signal.valid_signals() else p.returncode
         last = calls[-1] if calls else "no FMI call"
-        return Finding("no-crash", f"the process died of {sig} in {last}", sequence=calls,
-                       reproduce=" ; ".join(calls))
+        return Finding("no-crash", f"the process died of {sig} in {last}", sequence=calls)
     return None
 
 
@@ -183,6 +181,7 @@ def run_isolated(name: str, fmu: str, options: dict, *, call_limit: float, limit
                 bad = Finding("no-crash", f"the check's process ended with exit status {p.returncode}: {tail[0]}")
             found += [Finding.from_dict(json.loads(x[len("FINDING "):])) for x in stdout.splitlines()
                       if x.startswith("FINDING ")]
+            bad.reproduce = f"flexlink check {fmu} --only {name} --call-timeout {call_limit:g}"
             found.append(bad)
             hung_or_crashed += 1
             marker = _read(trace)[1]

@@ -53,7 +53,8 @@ def write_report(results: list[CheckResult], directory: str | os.PathLike, fmu: 
             lines += ["", f"## {r.name}", ""]
             for x in r.findings:
                 lines.append(f"- **{x.severity}**: {x.message}  \n  rule: {x.reference}"
-                             + (f"  \n  calls: `{' ; '.join(x.sequence)}`" if x.sequence else ""))
+                             + (f"  \n  calls: `{' ; '.join(x.sequence)}`" if x.sequence else "")
+                             + (f"  \n  reproduce: `{x.reproduce}`" if x.reproduce else ""))
     m = d / "report.md"
     m.write_text("\n".join(lines) + "\n")
     return j, m
