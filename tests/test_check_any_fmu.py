@@ -8,7 +8,7 @@ import json
 import xml.etree.ElementTree as ET
 
 import pytest
-from check_fmus import build
+from check_fmus import CAPABILITIES, build
 
 from flexlink.cli import main
 from flexlink.tools.check import check_fmu
@@ -64,6 +64,16 @@ def test_what_is_not_declared_is_not_called(fmus):
     assert all(r.status != "fail" for r in res.values()) and not any(r.findings for r in res.values())
     declared = _run(fmus("plain_but_declared", defects=("NO_OPTIONAL",)), only=["fuzz", "fmu-state"])
     assert all(r.status == "fail" for r in declared.values())          # the same binary, flags true
+
+
+def test_a_fixed_communication_step_is_respected(fmus):
+    """Without canHandleVariableCommunicationStepSize every check steps by the default experiment's 0.01 s,
+    which this binary (FIXED_COMM_STEP) insists on; the same binary declaring the flag fails the fuzz."""
+    fixed = _run(fmus("fixed_step", defects=("FIXED_COMM_STEP",), capabilities=CAPABILITIES[1:]))
+    assert all(r.status in ("pass", "skip") for r in fixed.values()), [(r.name, r.result) for r in fixed.values()]
+    assert not any(r.findings for r in fixed.values())
+    variable = _run(fmus("fixed_step_declared_variable", defects=("FIXED_COMM_STEP",)), only=["fuzz"])
+    assert variable["fuzz"].status == "fail"
 
 
 def test_a_call_that_never_returns_is_reported_with_its_seconds(fmus):

@@ -139,6 +139,9 @@ def check_me_vs_cs(f: Fmu, stop_time: float | None = None, tolerance: float | No
     else:
         stop = stop_time or min(FOREIGN_STOP, default or 1.0)
         interval = stop / 500
+        step = f.md.defaultExperiment.stepSize if f.md.defaultExperiment else None
+        if step and not f.can("CS", "canHandleVariableCommunicationStepSize"):
+            interval = float(step)            # fmpy's communication step is the output interval
     start, ramp = _smooth_excitation(f, stop, interval)
     inp = (", ".join(f"{k} 0 → {v}" for k, v in f.excitation().items()) + " (smooth step over the run)"
            if ramp is not None else ", ".join(f"{k} = {v}" for k, v in start.items()) or "no inputs")

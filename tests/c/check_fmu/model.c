@@ -9,7 +9,9 @@
  * Co-Simulation integrates with fixed explicit Euler steps of FIXED_STEP (as the Reference FMUs do).
  * Each DEFECT_* macro plants one defect that the harness claims to find; without them the model follows
  * the FMI 2.0 state machine and refuses what the standard forbids with fmi2Error.  NO_OPTIONAL makes the
- * FMU-state and directional-derivative functions return fmi2Error (legal when the flags say false).
+ * FMU-state and directional-derivative functions return fmi2Error (legal when the flags say false);
+ * FIXED_COMM_STEP refuses communication steps other than the default experiment's 0.01 s (legal when
+ * canHandleVariableCommunicationStepSize is false).
  */
 #include <math.h>
 #include <signal.h>
@@ -341,6 +343,9 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSet
     if (fabs(t - s->d.r[R_TIME]) > 1e-9 * fmax(1.0, fabs(t))) return fail(s, "wrong communication point");
     while (!(s->d.r[R_TIME] >= end - 1e-12)) euler(&s->d, fmin(FIXED_STEP, end - s->d.r[R_TIME]));
 #else
+#ifdef FIXED_COMM_STEP
+    if (fabs(h - 0.01) > 1e-12) return fail(s, "this FMU steps by 0.01 s only");
+#endif
     if (!(h > 0.0) || !isfinite(h)) return fail(s, "step size not positive and finite");
     if (fabs(t - s->d.r[R_TIME]) > 1e-9 * fmax(1.0, fabs(t))) return fail(s, "wrong communication point");
     while (s->d.r[R_TIME] < end - 1e-12) euler(&s->d, fmin(FIXED_STEP, end - s->d.r[R_TIME]));
