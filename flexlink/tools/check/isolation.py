@@ -128,7 +128,10 @@ def _launch(name: str, fmu: str, options: dict, trace: str, out, err) -> subproc
     with open(trace, "wb") as fh:
         fh.write(_HEADER.pack(0.0, -1, 0) + bytes(SIZE - _HEADER.size))
     cmd = [sys.executable, "-m", "flexlink.tools.check", "--child", name, fmu, trace, json.dumps(options)]
-    return subprocess.Popen(cmd, stdout=out, stderr=err, text=True)
+    # the child's temporary files (the unzipped FMU, fmpy's) go under the parent's folder, which is removed
+    # even when the child is killed and cannot clean up after itself
+    env = {**os.environ, "TMPDIR": os.path.dirname(trace)}
+    return subprocess.Popen(cmd, stdout=out, stderr=err, text=True, env=env)
 
 
 def _watch(p: subprocess.Popen, trace: str, call_limit: float, deadline: float) -> Finding | None:
