@@ -244,3 +244,19 @@ def test_an_unreadable_or_unrunnable_fmu_is_one_line_and_exit_2(fmus, tmp_path, 
         assert main(["check", str(path)]) == 2
         err = capsys.readouterr().err.strip()
         assert message in err and len(err.splitlines()) == 1
+
+
+def test_a_value_reference_the_binary_does_not_know_is_caught(fmus, tmp_path):
+    """y's value reference changed to 40 in the XML only (fmpy's validation cannot notice): the read-back
+    through the binary names it, in each interface; the report gives the rule's FMI reference."""
+    from flexlink.tools.check import write_report
+
+    path = fmus("bad_vr", xml_edit=lambda x: x.replace('name="y" valueReference="6"', 'name="y" valueReference="40"'))
+    results = check_fmu(path, only=["model-description"], importers=False)
+    r = results[0]
+    assert r.status == "fail"
+    assert sorted(x.message.split(":")[0] for x in r.findings if x.rule == "value-reference") == ["CS", "ME"]
+    assert all("40 of y (Real)" in x.message for x in r.findings)
+    write_report(results, tmp_path / "report", str(path))
+    md = (tmp_path / "report" / "report.md").read_text()
+    assert "FAILED" in md and "rule: FMI 2.0 §2.2.7" in md

@@ -37,23 +37,34 @@ def _structure(f: Fmu) -> list[Finding]:
     return found
 
 
+def _initialised(f: Fmu, kind: str):
+    inst = f.instance(kind)
+    inst.instantiate(callbacks=quiet_callbacks())
+    inst.setupExperiment(startTime=0.0)
+    inst.enterInitializationMode()
+    inst.exitInitializationMode()
+    return inst
+
+
 def _read_back(f: Fmu, kind: str) -> list[Finding]:
-    """Every variable read through the binary after initialisation, with the getter of its type."""
+    """Every variable read through the binary after initialisation, with the getter of its type; after a
+    refusal (fmi2Error leaves the instance unusable, §2.1.3) the next variable gets a fresh instance."""
     found = []
-    try:
-        inst = f.instance(kind)
-        inst.instantiate(callbacks=quiet_callbacks())
-        inst.setupExperiment(startTime=0.0)
-        inst.enterInitializationMode()
-        inst.exitInitializationMode()
-    except Exception as e:    # a library that does not load, a GUID that differs, ...
-        return [Finding("loads", f"{kind}: {type(e).__name__}: {e}", sequence=isolation.recent())]
+    inst = None
     for name, v in f.vars.items():
+        if inst is None:
+            try:
+                inst = _initialised(f, kind)
+            except Exception as e:    # a library that does not load, a GUID that differs, ...
+                return found + [Finding("loads", f"{kind}: {type(e).__name__}: {e}", sequence=isolation.recent())]
         if call(getattr(inst, _GETTER[v.type]), [v.valueReference]) > WARNING:
             found.append(Finding("value-reference", f"{kind}: value reference {v.valueReference} of {name} "
                                                     f"({v.type}) is refused by the binary",
                                  sequence=isolation.recent(3)))
-    free(inst)
+            free(inst)
+            inst = None
+    if inst is not None:
+        free(inst)
     return found
 
 
