@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from flexlink.run.linearize import fmu_state_space, linear_plant
-from flexlink.tools.check import _Fmu, check_directional_derivatives
+from flexlink.tools.check.derivatives import check_directional_derivatives
+from flexlink.tools.check.fmu import Fmu as _Fmu
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -56,7 +57,7 @@ def test_a_wrong_directional_derivative_is_caught(fmus, monkeypatch, where, erro
     """One entry of the FMU's answer off by 1e-3 (the largest) or 1e-4 (a mid-sized entry) of its row's largest
     entry, 100 and 10 times the check's tolerance: central differences converge to the right value at some
     step, so the check fails on that entry and only there."""
-    import flexlink.tools.check as check
+    import flexlink.tools.check.derivatives as check
 
     honest = check.directional_jacobian
     spoiled = []

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 from fmpy.fmi2 import FMU2Model
 
-from flexlink.tools.check import ME_VS_CS_ACCELERATION_TOLERANCE, ME_VS_CS_TOLERANCE, _Fmu, check_me_vs_cs
+from flexlink.tools.check.fmu import Fmu as _Fmu
+from flexlink.tools.check.me_vs_cs import ME_VS_CS_ACCELERATION_TOLERANCE, ME_VS_CS_TOLERANCE, check_me_vs_cs
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 NAMES = sorted(p.stem for p in EXAMPLES.glob("*.toml"))

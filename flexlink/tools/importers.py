@@ -1,8 +1,10 @@
 """Independent FMI importers from PyPI, run against our FMUs (FMI-NOTES.md).
 
 * libcosimpy (Open Simulation Platform's libcosim, on the Modelica Association's FMI Library): it
-  aborts or crashes when an FMU returns an error, so it runs in a child process, and any
-  ``[error]``/``[warning]`` line it prints counts as a failure.
+  aborts or crashes when an FMU returns an error, so it runs in a child process.  ``ok`` is a completed run
+  without any ``[error]``/``[warning]`` line (flexlink's own FMUs must be that clean); ``completed`` only
+  says the run finished with a result, for callers that judge the log lines themselves
+  (:mod:`flexlink.tools.check.importer_checks` tells an importer's known parser bugs from the FMU's faults).
 * fmu-manipulation-toolbox's ``fmutool -check`` (schema and semantic checks; exit 7 on errors).
 """
 
@@ -33,7 +35,7 @@ refs = {v.name.decode(): v.reference for v in ex.slave_variables(idx)}
 for name, value in start.items():
     ex.real_initial_value(idx, refs[name], value)
 ok = ex.simulate_until(target_time=int(round(stop * 1e9)))
-values = obs.last_real_values(idx, [refs[n] for n in outputs])
+values = obs.last_real_values(idx, [refs[n] for n in outputs]) if outputs else []
 print("RESULT " + json.dumps({"ok": bool(ok), "values": dict(zip(outputs, values))}))
 '''
 
@@ -43,6 +45,8 @@ class ImporterRun:
     ok: bool
     values: dict[str, float] = field(default_factory=dict)
     log: str = ""
+    completed: bool = False        # the run finished and printed its result (whatever it logged)
+    why: str = ""                  # why it did not complete
 
 
 def libcosim_available() -> bool:
@@ -58,14 +62,20 @@ def run_libcosim(fmu: str | os.PathLike, stop_time: float, step: float, outputs:
     """Co-simulate the FMU alone in libcosim and return the outputs' last values."""
     cmd = [sys.executable, "-c", _LIBCOSIM_CHILD, os.fspath(fmu), repr(stop_time), repr(step),
            json.dumps(start_values or {}), json.dumps(outputs)]
-    p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+    try:
+        p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired as e:
+        return ImporterRun(False, {}, str(e.stdout or "") + str(e.stderr or ""), why=f"no result within {timeout} s")
     log = p.stdout + p.stderr
     bad = [line for line in log.splitlines() if "[error]" in line.lower() or "[warning]" in line.lower()]
     result = [line for line in p.stdout.splitlines() if line.startswith("RESULT ")]
-    if p.returncode != 0 or bad or not result:
-        return ImporterRun(False, {}, log)
+    if p.returncode != 0 or not result:
+        why = f"signal {-p.returncode}" if p.returncode < 0 else f"exit status {p.returncode}"
+        return ImporterRun(False, {}, log, why=why if p.returncode else "no result")
     data = json.loads(result[-1][len("RESULT "):])
-    return ImporterRun(bool(data["ok"]), data["values"], log)
+    completed = bool(data["ok"])
+    return ImporterRun(completed and not bad, data["values"], log, completed, "" if completed else
+                       "simulate_until returned false")
 
 
 def fmutool_check(fmu: str | os.PathLike, timeout: float = 120) -> ImporterRun:

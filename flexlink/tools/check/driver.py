@@ -1,0 +1,94 @@
+"""The checks in order, each in its own child process (:mod:`flexlink.tools.check.isolation`).
+
+The parent reads the model description only (to choose checks and arguments); it never loads the FMU's
+binary, so nothing the FMU does can take the harness down.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+from flexlink.tools.check.findings import CheckResult
+from flexlink.tools.check.fuzz import CI_FUZZ
+
+CALL_LIMIT = 10.0        # seconds one FMI call may take before it is reported as not returning
+CHECK_LIMIT = 1800.0     # seconds one check may take in all
+
+
+@dataclass(frozen=True)
+class Check:
+    name: str
+    function: str            # "module:function" under flexlink.tools.check
+    isolated: bool = True    # False: the check starts its own processes (the importers)
+    resumable: bool = False  # marks its progress, so a hang or crash ends one item (see isolation.py)
+
+
+CHECKS = [
+    Check("model-description", "description:check_model_description"),
+    Check("me-vs-cs", "me_vs_cs:check_me_vs_cs"),
+    Check("fuzz", "fuzz:check_fuzz"),
+    Check("fmu-state", "state:check_fmu_state"),
+    Check("directional-derivatives", "derivatives:check_directional_derivatives"),
+    Check("illegal-calls", "illegal:check_illegal_calls", resumable=True),
+    Check("libcosim", "importer_checks:check_libcosim", isolated=False),
+    Check("fmutool", "importer_checks:check_fmutool", isolated=False),
+]
+NAMES = [c.name for c in CHECKS]
+
+
+def function(check: Check):
+    import importlib
+
+    module, name = check.function.split(":")
+    return getattr(importlib.import_module(f"flexlink.tools.check.{module}"), name)
+
+
+def _options(name: str, fuzz: int, seed: int, stop_time: float | None, tolerance: float | None) -> dict:
+    return {"me-vs-cs": {"stop_time": stop_time, "tolerance": tolerance},
+            "fuzz": {"n": fuzz, "seed": seed}}.get(name, {})
+
+
+def run_child(name: str, fmu: str, options: dict) -> CheckResult:
+    """In the child process: one check on the FMU (``options`` hold its arguments and ``interfaces``)."""
+    from flexlink.tools.check.fmu import Fmu
+
+    check = next(c for c in CHECKS if c.name == name)
+    f = Fmu(fmu, tuple(options.pop("interfaces")))
+    try:
+        return function(check)(f, **options)
+    finally:
+        f.close()
+
+
+def check_fmu(path: str | os.PathLike, *, fuzz: int = CI_FUZZ, seed: int = 0, importers: bool = True,
+              stop_time: float | None = None, tolerance: float | None = None,
+              interfaces: tuple[str, ...] = ("CS", "ME"), only: list[str] | None = None,
+              skip: list[str] | None = None, call_limit: float = CALL_LIMIT) -> list[CheckResult]:
+    """Run the checks on the FMU at ``path`` (all, or ``only`` those, less ``skip``); see the package
+    docstring."""
+    from flexlink.tools.check.fmu import Fmu
+    from flexlink.tools.check.isolation import run_isolated
+
+    # fmpy changes into the binary's folder to load it and does not always come back (a library that fails
+    # to load): the caller's working directory is restored whatever happens
+    cwd = os.getcwd()
+    fmu = os.path.abspath(os.fspath(path))
+    f = Fmu(fmu, interfaces)
+    results = []
+    try:
+        for check in CHECKS:
+            if (only and check.name not in only) or check.name in (skip or []):
+                continue
+            if not check.isolated and not importers:
+                continue
+            if not check.isolated:
+                results.append(function(check)(f))
+                continue
+            options = {**_options(check.name, fuzz, seed, stop_time, tolerance), "interfaces": list(interfaces)}
+            results.append(run_isolated(check.name, fmu, options, call_limit=call_limit, limit=CHECK_LIMIT,
+                                        resumable=check.resumable))
+    finally:
+        f.close()
+        os.chdir(cwd)
+    return results

@@ -1,0 +1,200 @@
+"""The FMU under check: unzipped, its model description, what it declares, and values it accepts.
+
+Every check asks this module what the FMU declares before it calls anything: the interfaces present, the
+capability flags of each, the variables by type.  A check of something the FMU does not declare is
+skipped, not failed.
+
+flexlink FMUs are recognised by this rule: the ``generationTool`` attribute starts with "flexlink" *and*
+the FMU has the variables ``solver.step`` and ``solver.theta1`` (flexlink's SS22 solver parameters).
+Only on those do the flexlink-specific parts run (setting ``solver.step``, the catalogue of parameter
+range checks, the CS-solver tolerance of ME vs CS).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import shutil
+import tempfile
+
+import numpy as np
+
+OK, WARNING, DISCARD, ERROR, FATAL = range(5)
+INTERFACES = {"CS": "coSimulation", "ME": "modelExchange"}
+FLEXLINK_VARIABLES = ("solver.step", "solver.theta1")
+
+
+class Fmu:
+    """The unzipped FMU, its model description, capability flags and variables by name."""
+
+    def __init__(self, path: str | os.PathLike, interfaces: tuple[str, ...] = ("CS", "ME")):
+        import fmpy
+
+        self.path = os.fspath(path)
+        self.dir = tempfile.mkdtemp(prefix="flexlink-check-")
+        try:
+            fmpy.extract(self.path, self.dir)
+            self.md = fmpy.read_model_description(self.path, validate=False)
+        except BaseException:
+            shutil.rmtree(self.dir, ignore_errors=True)
+            raise
+        md = self.md
+        self.vars = {v.name: v for v in md.modelVariables}
+        self.vr = {v.name: v.valueReference for v in md.modelVariables}
+        real = [v for v in md.modelVariables if v.type == "Real"]
+        # Real variables by role (the numerical checks work on these); typed_* hold every type
+        self.outputs = [v.name for v in real if v.causality == "output"]
+        self.inputs = [v.name for v in real if v.causality == "input"]
+        self.tunable = [v.name for v in real if v.causality == "parameter" and v.variability == "tunable"]
+        self.typed_inputs = [v for v in md.modelVariables if v.causality == "input"]
+        self.typed_outputs = [v for v in md.modelVariables if v.causality == "output"]
+        self.states = [u.variable.derivative.name for u in md.derivatives]
+        self.derivatives = [u.variable.name for u in md.derivatives]
+        self.nx = len(self.derivatives)
+        self.nz = int(md.numberOfEventIndicators or 0)
+        self.interfaces = [k for k in ("CS", "ME") if k in interfaces and getattr(md, INTERFACES[k]) is not None]
+        first = getattr(md, INTERFACES[self.interfaces[0]]) if self.interfaces else (md.coSimulation or
+                                                                                     md.modelExchange)
+        self.identifier = first.modelIdentifier if first is not None else ""
+        self.is_flexlink = (str(md.generationTool or "").lower().startswith("flexlink")
+                            and all(n in self.vars for n in FLEXLINK_VARIABLES))
+
+    def close(self):
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+    def can(self, kind: str, flag: str) -> bool:
+        """A capability flag of one interface (False if the interface is absent)."""
+        desc = getattr(self.md, INTERFACES[kind], None)
+        return bool(desc is not None and getattr(desc, flag, False))
+
+    def instance(self, kind: str, name: str = "check"):
+        from fmpy.fmi2 import FMU2Model, FMU2Slave
+
+        cls = FMU2Model if kind == "ME" else FMU2Slave
+        inst = cls(guid=self.md.guid, unzipDirectory=self.dir,
+                   modelIdentifier=getattr(self.md, INTERFACES[kind]).modelIdentifier, instanceName=name)
+        inst._vr = self.vr
+        return inst
+
+    # ------------------------------------------------------------------ values
+    def excitation(self) -> dict[str, object]:
+        """A constant, legal excitation of the inputs: flexlink FMUs 0.1 on every Real input but the
+        prescribed-law ones (``*_ref``); other FMUs a value of each input's type within its declaration
+        (``excite_value``)."""
+        if self.is_flexlink:
+            return {n: 0.1 for n in self.inputs if not n.endswith("_ref")}
+        out = {}
+        for v in self.typed_inputs:
+            value = excite_value(v)
+            if value is not None:
+                out[v.name] = value
+        return out
+
+    def real_excitation(self) -> dict[str, float]:
+        return {k: v for k, v in self.excitation().items() if self.vars[k].type == "Real"}
+
+
+def _number(x) -> float | None:
+    try:
+        return float(x)
+    except (TypeError, ValueError):
+        return None
+
+
+def excite_value(v):
+    """A value of the variable's type that moves it away from its start and stays legal: Real start + 0.1
+    clipped to [min, max]; Integer start + 1 within [min, max]; Enumeration another item of its type
+    (or the start when there is only one); Boolean the negated start; String: None (left alone)."""
+    start = v.start
+    if v.type == "Real":
+        x = (_number(start) or 0.0) + 0.1
+        lo, hi = _number(v.min), _number(v.max)
+        return float(np.clip(x, lo if lo is not None else -np.inf, hi if hi is not None else np.inf))
+    if v.type == "Integer":
+        x = int(_number(start) or 0) + 1
+        lo, hi = _number(v.min), _number(v.max)
+        if hi is not None and x > hi:
+            x = int(hi)
+        return max(x, int(lo)) if lo is not None else x
+    if v.type == "Enumeration":
+        items = [int(i.value) for i in (v.declaredType.items if v.declaredType is not None else [])]
+        s = int(_number(start) or (items[0] if items else 1))
+        others = [i for i in items if i != s]
+        return others[0] if others else s
+    if v.type == "Boolean":
+        return str(start).lower() not in ("true", "1")
+    return None
+
+
+def set_value(inst, v, value) -> None:
+    """fmi2Set<type> for one variable, by its type."""
+    vr = [v.valueReference]
+    if v.type == "Real":
+        inst.setReal(vr, [float(value)])
+    elif v.type in ("Integer", "Enumeration"):
+        inst.setInteger(vr, [int(value)])
+    elif v.type == "Boolean":
+        inst.setBoolean(vr, [bool(value)])
+    else:
+        inst.setString(vr, [str(value)])
+
+
+def get_values(inst, variables) -> list:
+    """fmi2Get<type> for each variable, one call per type."""
+    out = []
+    for v in variables:
+        vr = [v.valueReference]
+        if v.type == "Real":
+            out += inst.getReal(vr)
+        elif v.type in ("Integer", "Enumeration"):
+            out += inst.getInteger(vr)
+        elif v.type == "Boolean":
+            out += inst.getBoolean(vr)
+        else:
+            out += inst.getString(vr)
+    return out
+
+
+def quiet_callbacks():
+    """fmi2 callbacks that drop the FMU's messages (the checks read statuses, not log lines), through
+    flexlink's one logger router: fmpy's native logger proxy is process-wide, and a logger of our own
+    registered there would be called after it is freed by whichever FMU logs next (a segfault)."""
+    from flexlink.run.simulate import logging_callbacks
+
+    return logging_callbacks(lambda *message: None)
+
+
+def call(fn, *args) -> int:
+    """Status of an fmpy call (fmpy raises on error and discard)."""
+    from fmpy.fmi1 import FMICallException
+
+    try:
+        fn(*args)
+        return OK
+    except FMICallException as e:
+        return int(e.status)
+
+
+def start(f: Fmu, inst, kind: str, values: dict | None = None, stop: float | None = None) -> None:
+    """Instantiate, set start values (by type), initialise; ME: to continuous-time mode."""
+    inst.instantiate(callbacks=quiet_callbacks())
+    for name, value in (values or {}).items():
+        set_value(inst, f.vars[name], value)
+    inst.setupExperiment(startTime=0.0, stopTime=stop)
+    inst.enterInitializationMode()
+    inst.exitInitializationMode()
+    if kind == "ME":
+        for _ in range(100):                    # event iteration (a tuple; [0]: newDiscreteStatesNeeded)
+            if not inst.newDiscreteStates()[0]:
+                break
+        inst.enterContinuousTimeMode()
+
+
+def free(inst) -> None:
+    """Free the instance but keep the library loaded (fmpy's freeInstance also unloads it)."""
+    inst.fmi2FreeInstance(inst.component)
+    inst.component = None
+
+
+def c_doubles(x: np.ndarray):
+    return x.ctypes.data_as(ctypes.POINTER(ctypes.c_double))

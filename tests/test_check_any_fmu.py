@@ -1,0 +1,262 @@
+"""``flexlink check`` on FMUs that flexlink did not build (tests/check_fmus.py, from tests/c/check_fmu/model.c):
+correct ones of every shape pass with no error, and each planted defect is caught by the check that claims
+it, with the rule it breaks; the command line's options, output formats and exit codes."""
+
+from __future__ import annotations
+
+import json
+import xml.etree.ElementTree as ET
+
+import pytest
+from check_fmus import CAPABILITIES, build
+
+from flexlink.cli import main
+from flexlink.tools.check import check_fmu
+
+CALL_LIMIT = 3.0
+
+
+@pytest.fixture(scope="module")
+def fmus(tmp_path_factory):
+    d = tmp_path_factory.mktemp("check_fmus")
+    cache = {}
+
+    def get(name, **kwargs):
+        if name not in cache:
+            cache[name] = build(d, name, **kwargs)
+        return cache[name]
+
+    return get
+
+
+def _by_name(results):
+    return {r.name: r for r in results}
+
+
+def _run(path, **kwargs):
+    kwargs = {"fuzz": 16, "importers": False, "call_limit": CALL_LIMIT, **kwargs}
+    return _by_name(check_fmu(path, **kwargs))
+
+
+@pytest.mark.parametrize("variant, interfaces", [
+    ("oscillator", ("CS", "ME")), ("oscillator", ("CS",)), ("oscillator", ("ME",)), ("typed", ("CS", "ME")),
+    ("nostates", ("CS", "ME")), ("stair", ("CS", "ME"))])
+def test_a_correct_fmu_passes_with_no_finding(fmus, variant, interfaces):
+    """Every shape the issue names: CS-only, ME-only, Integer/Boolean/Enumeration/String variables, no states
+    and no Real outputs, a discrete model with time events.  No finding at all (not even a warning)."""
+    path = fmus(f"{variant}_{''.join(interfaces)}", variant=variant, interfaces=interfaces)
+    res = _run(path)
+    for r in res.values():
+        assert r.status in ("pass", "skip"), (r.name, r.result, [x.line() for x in r.findings])
+    ran = {n for n, r in res.items() if r.status == "pass"}
+    assert {"model-description", "fuzz", "fmu-state", "illegal-calls"} <= ran
+    assert ("me-vs-cs" in ran) == (len(interfaces) == 2)
+
+
+def test_what_is_not_declared_is_not_called(fmus):
+    """Without providesDirectionalDerivative and FMU state capabilities those checks skip, saying why, and no
+    check calls them: the binary (NO_OPTIONAL) returns fmi2Error from them, as it may."""
+    path = fmus("plain", capabilities=("canHandleVariableCommunicationStepSize",), defects=("NO_OPTIONAL",))
+    res = _run(path)
+    assert res["directional-derivatives"].status == "skip"
+    assert "providesDirectionalDerivative" in res["directional-derivatives"].result
+    assert res["fmu-state"].status == "pass" and "not declared" in res["fmu-state"].input
+    assert all(r.status != "fail" for r in res.values()) and not any(r.findings for r in res.values())
+    declared = _run(fmus("plain_but_declared", defects=("NO_OPTIONAL",)), only=["fuzz", "fmu-state"])
+    assert all(r.status == "fail" for r in declared.values())          # the same binary, flags true
+
+
+def test_a_fixed_communication_step_is_respected(fmus):
+    """Without canHandleVariableCommunicationStepSize every check steps by the default experiment's 0.01 s,
+    which this binary (FIXED_COMM_STEP) insists on; the same binary declaring the flag fails the fuzz."""
+    fixed = _run(fmus("fixed_step", defects=("FIXED_COMM_STEP",), capabilities=CAPABILITIES[1:]))
+    assert all(r.status in ("pass", "skip") for r in fixed.values()), [(r.name, r.result) for r in fixed.values()]
+    assert not any(r.findings for r in fixed.values())
+    variable = _run(fmus("fixed_step_declared_variable", defects=("FIXED_COMM_STEP",)), only=["fuzz"])
+    assert variable["fuzz"].status == "fail"
+
+
+def test_a_call_that_never_returns_is_reported_with_its_seconds(fmus, tmp_path, monkeypatch):
+    """fmi2DoStep(t, NaN) loops for ever: one error naming the call and its seconds, the rest of the
+    catalogue still run (resumed after it); the killed child's temporary files are removed all the same."""
+    import tempfile
+
+    path = fmus("nan_hang", defects=("DEFECT_NAN_HANG",))
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    monkeypatch.setenv("TMPDIR", str(scratch))
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    res = _run(path, only=["illegal-calls"])
+    assert list(scratch.iterdir()) == []
+    r = res["illegal-calls"]
+    assert r.status == "fail"
+    (hang,) = [x for x in r.findings if x.rule == "returns"]
+    assert hang.message.startswith("fmi2DoStep(0.0, nan") and "did not return within" in hang.message
+    assert float(hang.message.split("within ")[1].split(" s")[0]) >= CALL_LIMIT
+    assert hang.sequence[-1].startswith("fmi2DoStep(0.0, nan")
+    assert r.counts() == (1, 0)                        # nothing else is wrong with it
+    assert "1 call(s) that hang or crash" in r.result
+
+
+def test_a_crash_ends_one_item_not_the_harness(fmus):
+    """fmi2GetReal of an unknown value reference segfaults: an error naming the signal and the call; the
+    other checks run and pass."""
+    res = _run(fmus("crash", defects=("DEFECT_CRASH",)))
+    r = res["illegal-calls"]
+    (crash,) = [x for x in r.findings if x.rule == "no-crash"]
+    assert "SIGSEGV" in crash.message and "fmi2GetReal([1000007]" in crash.message
+    assert r.counts() == (1, 0)
+    assert all(res[n].status == "pass" for n in ("model-description", "fuzz", "fmu-state", "me-vs-cs"))
+
+
+def test_a_wrong_directional_derivative_is_caught(fmus):
+    res = _run(fmus("wrong_derivative", defects=("DEFECT_WRONG_DERIVATIVE",)), only=["directional-derivatives"])
+    r = res["directional-derivatives"]
+    assert r.status == "fail"
+    assert {x.rule for x in r.findings} == {"directional-derivative"}
+    assert any("directional 4, differences -4" in x.message for x in r.findings)
+
+
+def test_a_state_restore_that_does_not_restore_is_caught(fmus):
+    res = _run(fmus("state_restore", defects=("DEFECT_STATE_RESTORE",)), only=["fmu-state"])
+    messages = [x.message for x in res["fmu-state"].findings]
+    assert res["fmu-state"].status == "fail"
+    assert any(m.startswith("CS: get/set FMU state does not reproduce") for m in messages)
+    assert any(m.startswith("ME: a serialized FMU state does not restore") for m in messages)
+
+
+def test_an_accepted_illegal_call_is_a_warning_and_counts_with_strict(fmus, tmp_path, capsys):
+    """doStep before initialization returns fmi2OK: a warning (FMI 2.0 leaves the calling sequence to the
+    importer), exit 0; exit 1 with --strict."""
+    path = fmus("accepts_illegal", defects=("DEFECT_ACCEPTS_ILLEGAL",))
+    res = _run(path, only=["illegal-calls"])
+    r = res["illegal-calls"]
+    assert r.status == "warn" and r.counts()[0] == 0
+    assert any("doStep before initialization" in x.message and x.rule == "illegal-call" for x in r.findings)
+    args = [str(path), "--only", "illegal-calls", "--call-timeout", str(CALL_LIMIT)]
+    assert main(["check", *args]) == 0
+    assert main(["check", *args, "--strict"]) == 1
+    assert "warnings count" in capsys.readouterr().out
+
+
+def test_a_wrong_guid_accepted_is_a_warning(fmus):
+    r = _run(fmus("any_guid", defects=("DEFECT_ANY_GUID",)), only=["illegal-calls"])["illegal-calls"]
+    assert [x.rule for x in r.findings] == ["wrong-guid"]
+
+
+def test_me_vs_cs_is_measured_unless_a_tolerance_is_given(fmus):
+    """The oscillator's CS is explicit Euler at 1 ms: ME and CS differ by about 1e-3 of the peak.  Without a
+    tolerance that is reported, not judged; --tolerance 1e-2 passes it and 1e-4 fails it."""
+    path = fmus("oscillator_CSME", variant="oscillator")
+    measured = _run(path, only=["me-vs-cs"])["me-vs-cs"]
+    assert measured.status == "pass" and "not judged" in measured.reference
+    worst = float(measured.result.split(": ")[1].split(" ")[0])
+    assert 1e-4 < worst < 1e-2
+    assert _run(path, only=["me-vs-cs"], tolerance=1e-2)["me-vs-cs"].status == "pass"
+    strict = _run(path, only=["me-vs-cs"], tolerance=1e-4)["me-vs-cs"]
+    assert strict.status == "fail" and {x.rule for x in strict.findings} == {"me-vs-cs"}
+
+
+def test_json_and_junit_output(fmus, tmp_path, capsys):
+    path = fmus("state_restore", defects=("DEFECT_STATE_RESTORE",))
+    junit = tmp_path / "junit.xml"
+    code = main(["check", str(path), "--skip", "fuzz,me-vs-cs,libcosim,fmutool", "--interface", "cs", "--json",
+                 "--junit", str(junit)])
+    assert code == 1
+    data = json.loads(capsys.readouterr().out)
+    assert not data["passed"] and data["errors"] >= 1
+    state = next(c for c in data["checks"] if c["name"] == "fmu-state")
+    assert state["findings"][0]["reference"].startswith("FMI 2.0 §2.1.8")
+    assert {c["name"] for c in data["checks"]} == {"model-description", "fmu-state", "directional-derivatives",
+                                                   "illegal-calls"}
+    suite = ET.parse(junit).getroot().find("testsuite")
+    cases = {c.get("name"): c for c in suite.findall("testcase")}
+    assert cases["fmu-state"].find("failure") is not None
+    assert cases["model-description"].find("failure") is None
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--only", "nonsense"], "unknown check nonsense"),
+    (["--interface", "cs"], "has no CS interface"),
+    (["--tolerance", "0"], "--tolerance 0.0: must be a positive number"),
+    (["--call-timeout", "-1"], "--call-timeout -1.0: must be a positive number of seconds"),
+])
+def test_bad_input_is_one_line_and_exit_2(fmus, capsys, args, message):
+    path = fmus("oscillator_ME", variant="oscillator", interfaces=("ME",))
+    assert main(["check", str(path), *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1
+
+
+def test_not_an_fmu_is_one_line_and_exit_2(tmp_path, capsys):
+    junk = tmp_path / "junk.fmu"
+    junk.write_text("not a zip")
+    assert main(["check", str(junk)]) == 2
+    assert "not an FMU" in capsys.readouterr().err
+
+
+def test_an_importers_known_parser_bug_is_not_a_failure(fmus):
+    """FMI Library (in libcosim) asks for a start value on the independent `time` variable, which FMI 2.0
+    forbids: with every other start present that line is known noise and the run passes."""
+    pytest.importorskip("libcosimpy")
+    r = _run(fmus("oscillator_CSME", variant="oscillator"), only=["libcosim"], importers=True)["libcosim"]
+    assert r.status == "pass", [x.line() for x in r.findings]
+    assert any("Start attribute is required" in d and "(known:" in d for d in r.details)
+
+
+def test_the_same_log_line_is_a_warning_when_a_start_is_really_missing(fmus):
+    """The input u without its start value: the same FMI Library line may now be about u, so it counts."""
+    pytest.importorskip("libcosimpy")
+    path = fmus("no_start", xml_edit=lambda x: x.replace('valueReference="4" causality="input" '
+                                                         'variability="continuous"><Real start="0"/>',
+                                                         'valueReference="4" causality="input" '
+                                                         'variability="continuous"><Real/>'))
+    r = _run(path, only=["libcosim"], importers=True)["libcosim"]
+    assert r.status == "warn"
+    assert {x.rule for x in r.findings} == {"importer-warning"}
+    assert any("Start attribute is required" in x.message for x in r.findings)
+
+
+def test_docs_name_every_check_and_rule():
+    """docs/check.md's tables cover every check of the driver and every rule a finding may name."""
+    from pathlib import Path
+
+    from flexlink.tools.check.driver import NAMES
+    from flexlink.tools.check.findings import RULES
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "check.md").read_text()
+    assert [n for n in NAMES if f"| `{n}` |" not in text] == []
+    assert [r for r in RULES if f"| `{r}` |" not in text] == []
+
+
+def test_an_unreadable_or_unrunnable_fmu_is_one_line_and_exit_2(fmus, tmp_path, capsys):
+    """Broken XML; no binary for this platform (nothing could be run, so no check could pass honestly)."""
+    import zipfile
+
+    bad_xml = fmus("bad_xml", xml_edit=lambda x: x.replace("</ModelVariables>", "</ModelVariable>"))
+    good = fmus("oscillator_CSME", variant="oscillator")
+    no_binary = tmp_path / "no_binary.fmu"
+    with zipfile.ZipFile(good) as zin, zipfile.ZipFile(no_binary, "w") as zout:
+        for item in zin.infolist():
+            if not item.filename.startswith("binaries/"):
+                zout.writestr(item, zin.read(item.filename))
+    for path, message in ((bad_xml, "unreadable modelDescription.xml"), (no_binary, "no binaries/linux64/")):
+        assert main(["check", str(path)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert message in err and len(err.splitlines()) == 1
+
+
+def test_a_value_reference_the_binary_does_not_know_is_caught(fmus, tmp_path):
+    """y's value reference changed to 40 in the XML only (fmpy's validation cannot notice): the read-back
+    through the binary names it, in each interface; the report gives the rule's FMI reference."""
+    from flexlink.tools.check import write_report
+
+    path = fmus("bad_vr", xml_edit=lambda x: x.replace('name="y" valueReference="6"', 'name="y" valueReference="40"'))
+    results = check_fmu(path, only=["model-description"], importers=False)
+    r = results[0]
+    assert r.status == "fail"
+    assert sorted(x.message.split(":")[0] for x in r.findings if x.rule == "value-reference") == ["CS", "ME"]
+    assert all("40 of y (Real)" in x.message for x in r.findings)
+    write_report(results, tmp_path / "report", str(path))
+    md = (tmp_path / "report" / "report.md").read_text()
+    assert "FAILED" in md and "rule: FMI 2.0 §2.2.7" in md
