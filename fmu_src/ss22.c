@@ -126,7 +126,8 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
     {
         double delta[N_Q];
         const uint64_t used = s->factorisations;
-        int converged = 0, fresh = 0;
+        int converged = 0;
+        int fresh = -1;          /* increments made with a matrix evaluated in this step; -1: an older one */
         double previous = INFINITY;
         for (int it = 0; it < s->max_iterations; it++) {
             weighted_state(s, dt, q, v, a);
@@ -136,7 +137,7 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
             if (f == NULL) {
                 /* first iteration: the matrix of an earlier step (simplified Newton across steps) */
                 if ((st = step_matrix(s, dt, a, p, work, it == 0, &f)) != SS22_OK) return st;
-                fresh = it > 0 || s->factorisations != used;
+                if (it > 0 || s->factorisations != used) fresh = 0;
             }
             for (int i = 0; i < N_Q; i++) delta[i] = -s->r[i];
             lu_solve(f->LU, N_Q, f->piv, delta);
@@ -148,23 +149,27 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
                 if (e > err) err = e;
             }
             s->newton_iterations++;
+            if (fresh >= 0) fresh++;
             if (!isfinite(err)) return SS22_NOT_FINITE;
             if (err <= s->tolerance) { converged = 1; break; }
             const double rate = err / previous;
+            previous = err;
             /* linear convergence at rate < 1: what is left is about rate/(1-rate) times this increment */
             if (it > 0 && rate < 0.5 && rate / (1.0 - rate) * err <= s->tolerance) { converged = 1; break; }
-            if (rate > 0.5) {
-                if (fresh && rate >= 0.9) {
-                    /* a fresh matrix no longer contracts: either rounding stops us just above the
-                     * tolerance (accept), or the iteration diverges (fail) */
-                    if (err <= SS22_ROUNDING_FACTOR * s->tolerance) { converged = 1; break; }
-                    return SS22_NOT_CONVERGED;
-                }
-                f = NULL;   /* simplified Newton: refresh the matrix when it contracts poorly */
-            } else {
-                fresh = 0;
+            /* at this rate the tolerance is out of reach within the iterations left */
+            const int too_slow = it > 0 && err * pow(rate, s->max_iterations - 1 - it) > s->tolerance;
+            if (rate <= 0.5 && !too_slow) {
+                fresh = -1;      /* contracting: judged as an older matrix from here on */
+                continue;
             }
-            previous = err;
+            if (fresh == 1) continue;   /* a new matrix's first increment, measured against the old one's */
+            if (fresh >= 2 && rate >= 0.9) {
+                /* a fresh matrix no longer contracts: either rounding stops us just above the
+                 * tolerance (accept), or the iteration diverges (fail) */
+                if (err <= SS22_ROUNDING_FACTOR * s->tolerance) { converged = 1; break; }
+                return SS22_NOT_CONVERGED;
+            }
+            f = NULL;   /* simplified Newton: refresh the matrix when it contracts poorly or too slowly */
         }
         if (!converged) return SS22_NOT_CONVERGED;
     }
