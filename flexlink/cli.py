@@ -90,7 +90,8 @@ def _cmd_explain(args) -> int:
 
     cost = estimate(load_scene(args.scene))
     if args.estimate:
-        print(json.dumps({**dataclasses.asdict(cost), "coordinates": cost.coordinates}) if args.json else "\n".join(cost.lines()))
+        data = {**dataclasses.asdict(cost), "coordinates": cost.coordinates}
+        print(json.dumps(data) if args.json else "\n".join(cost.lines()))
         return 0
     if not args.json:
         print("\n".join(cost.lines()), flush=True)

@@ -212,6 +212,8 @@ MEASURED = {   # scene: (operations, generated C bytes, build wall seconds)
     "plate_raise": (13_037, 339_569, 4.7),
     "six_axis_arm": (75_507, 1_777_168, 28.2),
     "steel_beam_two_links": (120_808, 2_903_654, 39.2),
+    "spatial_cantilever": (117_362, 2_780_097, 36.5),
+    "fast_two_link": (158_097, 3_780_844, 58.1),
 }
 FACTOR = 3.0
 
@@ -222,6 +224,18 @@ def test_cost_model_brackets_measured_builds_within_a_factor(name):
     cost = estimate(load_scene(ROOT / "examples" / f"{name}.toml"))
     for est, real in ((cost.operations, operations), (cost.code_bytes, code), (cost.build_seconds, seconds)):
         assert real / FACTOR <= est <= real * FACTOR, (est, real)
+
+
+def test_a_long_build_is_announced_on_stderr_before_it_starts(capsys):
+    from flexlink.cli import _announce
+
+    long, short = ROOT / "benchmarks/scenes/fe40_second_order.toml", ROOT / "examples/rotating_link.toml"
+    seconds = [estimate(load_scene(path)).build_seconds for path in (long, short)]
+    assert seconds[0] > budget.ANNOUNCE_SECONDS > seconds[1]
+    _announce(long)
+    _announce(short)
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "81 coordinates" in err and "to build" in err
 
 
 def test_coordinate_budget_names_the_link_that_makes_it():

@@ -23,12 +23,21 @@ Build time and code size are a rough model, fitted to builds at the default opti
     rotating_link            4      15 087    0.37       4.7
     two_link_payload         6      23 935    0.55       7.2
     steel_beam_gravity      10      88 946    2.03      21.9
+    planar_chain_5          20      88 096    1.98      30.9
 
-operations ≈ OPERATIONS_PER_TERM · Σ_links (1 + n_i)² · (1 + n_q / 4 if the Newton matrix is dense, n_q ≤ 12)
-(the second-order energy of a link is quadratic in its own coordinates; a dense Newton matrix is n_q
-derivatives of the residual), code ≈ BYTES_PER_OPERATION · operations, build ≈ SECONDS_PER_OPERATION ·
-operations + 1 s.  On scenes not used for the fit it lands within a factor of 3 of the measured figures
-(tests/test_budget.py holds them); treat it as an order of magnitude.
+operations ≈ OPERATIONS_PER_TERM · Σ_links (1 + n_i)^LINK_EXPONENT · (1 + n_q / DENSE_NEWTON_SCALE with a dense
+Newton matrix, n_q ≤ 12; COLUMNS_FACTOR by columns) (a link's energy gathers products of its own coordinates;
+a dense Newton matrix is n_q derivatives of the residual), code ≈ BYTES_PER_OPERATION · operations, build ≈
+SECONDS_PER_OPERATION · operations + 1 s.  Fit: the exponent (1.0 … 2.0) and the dense scale (2, 4, 8, 16)
+that minimise the worst log-error of the operations on these four, the factor their geometric mean (worst fit
+error 7 %); bytes and seconds per operation are the means of the four (22.5 … 24.7 B, 2.4 … 3.4 · 10⁻⁴ s).
+
+On the six other examples timed the same way (elastic_joint, plate_raise, six_axis_arm, steel_beam_two_links,
+spatial_cantilever, fast_two_link) it lands within a factor of 3 of the measured operations, code and time
+(tests/test_budget.py holds them; worst: plate_raise's operations 2.9x over, one link of 30 coordinates 2.8x
+over); benchmarks/scaling.md's one link of 32 modes (265 s, 21 MB) it underestimates about 2.7x.  Treat it as
+an order of magnitude; the timings were taken on 2 cores shared with other sessions, so they are inflated
+(planar_chain_5: 31 s here, 10 s in benchmarks/scaling.md).
 """
 
 from __future__ import annotations
