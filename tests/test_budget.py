@@ -200,7 +200,7 @@ def test_a_size_that_cannot_fit_in_memory_is_a_scene_error_even_when_allowed():
     data["link"][0]["shapes"] = {"kind": "fe", "count": 10**8}
     with pytest.raises(SceneError) as err:
         build_model(parse_scene(data, "fe.toml"), allow_large=True)
-    assert "link[1].shapes.count" in str(err.value) and "memory" in str(err.value)
+    assert "link[1].shapes.count = 100000000: " in str(err.value) and "memory" in str(err.value)
 
 
 # ------------------------------------------------------------------------------------- the rough cost model

@@ -34,7 +34,7 @@ from flexlink.errors import SceneError
 from flexlink.mechanics.assembly import ChainAssembly, check_supported, structure
 from flexlink.mechanics.outputs import chain_outputs, parameter_checks, validity
 from flexlink.mechanics.symbolic import Law, Parameter, Signal, StartValue, SymbolicModel
-from flexlink.scene.budget import allow_large_from_env, check_budget, estimate
+from flexlink.scene.budget import allow_large_from_env, check_budget, estimate, key_value
 from flexlink.scene.loader import Scene
 
 __all__ = ["Law", "Parameter", "Signal", "StartValue", "SymbolicModel", "build_model"]
@@ -78,7 +78,8 @@ def _out_of_memory(scene: Scene, exc: MemoryError) -> SceneError:
     if not cost.links:
         return SceneError(f"{cost.source}: link: the model does not fit in memory ({exc})")
     big = max(cost.links, key=lambda c: c.shape_bytes)
-    return SceneError(f'{cost.source}: {big.key}: the model does not fit in memory ({exc}; link "{big.name}" '
+    where = f"{cost.source}: {big.key}{key_value(scene, big.key)}"
+    return SceneError(f'{where}: the model does not fit in memory ({exc}; link "{big.name}" '
                       f"needs ~{big.shape_bytes / 2**30:.3g} GiB for its shapes); expected a smaller value")
 
 

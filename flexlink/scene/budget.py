@@ -60,6 +60,7 @@ __all__ = [
     "allow_large_from_env",
     "check_budget",
     "estimate",
+    "key_value",
 ]
 
 #: Coordinates of the whole model: above it the generated code is no longer expanded to scalar code
@@ -247,12 +248,12 @@ def check_budget(scene: Scene, cost: SceneCost | None = None) -> SceneCost:
     cost = estimate(scene) if cost is None else cost
     if cost.over:
         key, why = cost.over[0]
-        raise SceneError(f"{cost.source}: {key}{_value(scene, key)}: {why}; "
+        raise SceneError(f"{cost.source}: {key}{key_value(scene, key)}: {why}; "
                          "flexlink --allow-large to build it anyway")
     return cost
 
 
-def _value(scene: Scene, key: str) -> str:
+def key_value(scene: Scene, key: str) -> str:
     """" = VALUE" of a shapes key, as the scene gave it."""
     if ".shapes." not in key:
         return ""
