@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from flexlink.errors import SceneError
 from flexlink.scene.schema import Link, Scene
@@ -216,7 +216,7 @@ def estimate(scene: Scene) -> SceneCost:
     operations = int(OPERATIONS_PER_TERM * terms * ((1 + n_q / DENSE_NEWTON_SCALE) if dense else COLUMNS_FACTOR))
     cost = SceneCost(scene.path or scene.name, links, joints, operations, int(BYTES_PER_OPERATION * operations),
                      1.0 + SECONDS_PER_OPERATION * operations)
-    return SceneCost(**{**cost.__dict__, "over": tuple(_over_budget(cost))})
+    return replace(cost, over=tuple(_over_budget(cost)))
 
 
 def _over_budget(cost: SceneCost):
