@@ -88,13 +88,6 @@ def _cmd_explain(args) -> int:
     from flexlink.scene.loader import load_scene
     from flexlink.tools.explain import explain, fidelity, format_explanation, format_fidelity
 
-    cost = estimate(load_scene(args.scene))
-    if args.estimate:
-        data = {**dataclasses.asdict(cost), "coordinates": cost.coordinates}
-        print(json.dumps(data) if args.json else "\n".join(cost.lines()))
-        return 0
-    if not args.json:
-        print("\n".join(cost.lines()), flush=True)
     target = None
     if args.error_target is not None:
         try:
@@ -104,7 +97,15 @@ def _cmd_explain(args) -> int:
         if target is None or not (math.isfinite(target) and target > 0):
             raise FlexlinkError(f"--error-target must be a positive number (a relative RMS error such as 1e-3), "
                                 f"got {args.error_target!r}")
+    cost = estimate(load_scene(args.scene))
+    data = {**dataclasses.asdict(cost), "coordinates": cost.coordinates}
+    if args.estimate:
+        print(json.dumps(data) if args.json else "\n".join(cost.lines()))
+        return 0
+    if not args.json:
+        print("\n".join(cost.lines()), flush=True)      # before the build, which may take a while
     info = explain(args.scene)
+    info["estimate"] = data
     if target is not None:
         progress = (lambda m: print(m, file=sys.stderr, flush=True)) if sys.stderr.isatty() else None
         info["fidelity"] = fidelity(args.scene, target, quick=args.quick, progress=progress)
