@@ -205,7 +205,7 @@ def test_a_size_that_cannot_fit_in_memory_is_a_scene_error_even_when_allowed():
 
 # ------------------------------------------------------------------------------------- the rough cost model
 
-# Measured with FLEXLINK_OPTIMISE unset (python /tmp/w21_time.py: build_fmu timed, this machine shared by
+# Measured with FLEXLINK_OPTIMISE unset (one build_fmu per scene, wall time, its BuildReport; this machine shared by
 # other sessions, 2026-11-25); none of these scenes was used for the fit in flexlink/scene/budget.py.
 MEASURED = {   # scene: (operations, generated C bytes, build wall seconds)
     "elastic_joint": (75_539, 1_783_495, 21.9),

@@ -17,7 +17,8 @@ panels.  A shell link's reduction (reduction.fixed_interface_modes) makes its st
 6 degrees of freedom of each node off the root, and solves a dense eigenproblem of half that size.
 
 Build time and code size are a rough model, fitted to builds at the default optimisation
-(``FLEXLINK_OPTIMISE`` unset, this machine, 2026-11-25, ``python /tmp/w21_time.py`` = ``build_fmu`` timed):
+(``FLEXLINK_OPTIMISE`` unset, this machine, 2026-11-25: one ``build_fmu(scene, dir)`` per scene, wall time; the
+operations and C bytes are its BuildReport's):
 
     scene                  n_q  operations  C [MB]  build [s]
     rotating_link            4      15 087    0.37       4.7
