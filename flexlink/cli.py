@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -12,9 +14,20 @@ from pathlib import Path
 from flexlink.errors import FlexlinkError
 
 
+def _announce(scene_path) -> None:
+    """A build expected to take long is said on stderr before it starts (the estimate of flexlink.scene.budget)."""
+    from flexlink.scene.budget import ANNOUNCE_SECONDS, estimate
+    from flexlink.scene.loader import load_scene
+
+    cost = estimate(load_scene(scene_path))
+    if cost.build_seconds > ANNOUNCE_SECONDS:
+        print(f"flexlink: {cost.lines()[0]}; building", file=sys.stderr, flush=True)
+
+
 def _cmd_build(args) -> int:
     from flexlink.export.fmu import build_fmu
 
+    _announce(args.scene)
     rep = build_fmu(args.scene, args.output, keep_dir=args.keep_sources, platforms=args.platforms)
     total = sum(rep.seconds.values())
     print(f"{rep.fmu}: {rep.n_coordinates} coordinates, {rep.operations} operations, "
@@ -71,6 +84,8 @@ def _cmd_simulate(args) -> int:
 
 
 def _cmd_explain(args) -> int:
+    from flexlink.scene.budget import estimate
+    from flexlink.scene.loader import load_scene
     from flexlink.tools.explain import explain, fidelity, format_explanation, format_fidelity
 
     target = None
@@ -82,7 +97,15 @@ def _cmd_explain(args) -> int:
         if target is None or not (math.isfinite(target) and target > 0):
             raise FlexlinkError(f"--error-target must be a positive number (a relative RMS error such as 1e-3), "
                                 f"got {args.error_target!r}")
+    cost = estimate(load_scene(args.scene))
+    data = {**dataclasses.asdict(cost), "coordinates": cost.coordinates}
+    if args.estimate:
+        print(json.dumps(data) if args.json else "\n".join(cost.lines()))
+        return 0
+    if not args.json:
+        print("\n".join(cost.lines()), flush=True)      # before the build, which may take a while
     info = explain(args.scene)
+    info["estimate"] = data
     if target is not None:
         progress = (lambda m: print(m, file=sys.stderr, flush=True)) if sys.stderr.isatty() else None
         info["fidelity"] = fidelity(args.scene, target, quick=args.quick, progress=progress)
@@ -124,6 +147,9 @@ def _add_plugin_commands(sub) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="flexlink", description="Flexible-link robots as FMI 2.0 FMUs.")
+    parser.add_argument("--allow-large", action="store_true",
+                        help="build scenes past the size budgets (docs/budget.md); sets FLEXLINK_ALLOW_LARGE=1 "
+                             "for every command")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("build", help="export the FMU of a scene")
@@ -156,6 +182,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--error-target", metavar="E", help="also measure the fidelity ladder (modes, kinematics, "
                    "deformation) and recommend its cheapest level with relative RMS error below E")
     p.add_argument("--quick", action="store_true", help="with --error-target: modes 1-3 and a shorter run (CI size)")
+    p.add_argument("--estimate", action="store_true", help="only the estimate (sizes, rough build time and code "
+                   "size, budgets exceeded), without building the model")
     p.set_defaults(func=_cmd_explain)
 
     p = sub.add_parser("bench", help="speed against error: SS22 against CVODES, IDAS and SciPy on the same equations")
@@ -173,6 +201,8 @@ def main(argv: list[str] | None = None) -> int:
     _add_plugin_commands(sub)
 
     args = parser.parse_args(argv)
+    if args.allow_large:
+        os.environ["FLEXLINK_ALLOW_LARGE"] = "1"
     try:
         return args.func(args)
     except FlexlinkError as e:

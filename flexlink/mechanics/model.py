@@ -30,21 +30,26 @@ from __future__ import annotations
 
 import numpy as np
 
+from flexlink.errors import SceneError
 from flexlink.mechanics.assembly import ChainAssembly, check_supported, structure
 from flexlink.mechanics.outputs import chain_outputs, parameter_checks, validity
 from flexlink.mechanics.symbolic import Law, Parameter, Signal, StartValue, SymbolicModel
+from flexlink.scene.budget import allow_large_from_env, check_budget, estimate, key_value
 from flexlink.scene.loader import Scene
 
 __all__ = ["Law", "Parameter", "Signal", "StartValue", "SymbolicModel", "build_model"]
 
 
-def build_model(scene: Scene) -> SymbolicModel:
+def build_model(scene: Scene, *, allow_large: bool | None = None) -> SymbolicModel:
     """Build the symbolic model of a scene's serial chain (joint i on the tip frame of link i-1 drives link i).
 
     Parameters
     ----------
     scene : Scene
         A validated scene (:func:`flexlink.scene.loader.load_scene`).
+    allow_large : bool, optional
+        Build a scene past the budgets of :mod:`flexlink.scene.budget` (None: ``$FLEXLINK_ALLOW_LARGE``,
+        which ``flexlink --allow-large`` sets).
 
     Returns
     -------
@@ -55,8 +60,31 @@ def build_model(scene: Scene) -> SymbolicModel:
     ------
     FlexlinkError
         If the scene asks for something the builder does not support yet.
+    SceneError
+        If the scene is past a budget (before anything is allocated), or its shapes cannot fit in memory.
     """
+    if not (allow_large_from_env() if allow_large is None else allow_large):
+        check_budget(scene)
     check_supported(scene)
+    try:
+        return _build(scene)
+    except MemoryError as exc:      # numpy's ArrayMemoryError too: past the budgets, a size that cannot fit
+        raise _out_of_memory(scene, exc) from None
+
+
+def _out_of_memory(scene: Scene, exc: MemoryError) -> SceneError:
+    """One line naming the key that sizes the largest shape stage, instead of numpy's traceback."""
+    cost = estimate(scene)
+    if not cost.links:
+        return SceneError(f"{cost.source}: link: the model does not fit in memory ({exc})")
+    big = max(cost.links, key=lambda c: c.shape_bytes)
+    where = f"{cost.source}: {big.key}{key_value(scene, big.key)}"
+    return SceneError(f'{where}: the model does not fit in memory ({exc}; link "{big.name}" '
+                      f"needs ~{big.shape_bytes / 2**30:.3g} GiB for its shapes); expected a smaller value")
+
+
+def _build(scene: Scene) -> SymbolicModel:
+    """The stages in order; split from build_model so that one try covers every allocation."""
     chain = ChainAssembly(scene)
     chain.add_coordinates()
     chain.add_parameters()
