@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from flexlink.errors import FlexlinkError
+from flexlink.paths import SCENE_HELP, output_file, plot_file
 
 __all__ = ["add_control_parsers", "cmd_control", "cmd_linearize"]
 
@@ -55,19 +56,20 @@ def _cmd_demo(args) -> int:
 def add_control_parsers(subparsers) -> None:
     """Add the ``control`` and ``linearize`` sub-commands to ``flexlink``'s sub-parsers."""
     p = subparsers.add_parser("linearize", help="state-space matrices A, B, C, D with named signals")
-    p.add_argument("scene")
+    p.add_argument("scene", help=SCENE_HELP)
     p.add_argument("--rate", type=_finite, default=0.0, help="steady rate of the first joint, rad/s")
     p.add_argument("--angle", type=_finite, metavar="DEG", help="angle of the first joint (default: initial angle)")
     p.add_argument("--output", action="append", metavar="NAME", dest="outputs",
                    help="keep this output (FMU name; repeat; default: all outputs)")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="change a tunable parameter")
     p.add_argument("--json", action="store_true", help="print the matrices and names as JSON")
-    p.add_argument("--save", metavar="FILE", help="also save them: FILE.json (as --json) or FILE.npz (arrays)")
+    p.add_argument("--save", type=output_file, metavar="FILE",
+                   help="also save them: FILE.json (as --json) or FILE.npz (arrays)")
     p.set_defaults(func=cmd_linearize)
 
     p = subparsers.add_parser("control", help="rest-to-rest manoeuvre of the first joint in closed loop (fmpy); "
                                               "LQR/Kalman design on every torque-driven joint with its margins")
-    p.add_argument("scene")
+    p.add_argument("scene", help=SCENE_HELP)
     p.add_argument("--target", type=_finite, metavar="DEG", help="final angle of the first joint (the run)")
     p.add_argument("--duration", type=_finite, metavar="S", help="manoeuvre time (the run)")
     p.add_argument("--design-only", action="store_true",
@@ -88,7 +90,8 @@ def add_control_parsers(subparsers) -> None:
                    help="FMU parameter for the run (the design keeps the scene's values)")
     p.add_argument("--noise", action="store_true", help="add the sensors' noise to what the controller reads")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
-    p.add_argument("--plot", metavar="OUT.png", help="time responses, closed-loop poles, loop Bode with margins")
+    p.add_argument("--plot", type=plot_file, metavar="OUT.png",
+                   help="time responses, closed-loop poles, loop Bode with margins")
     p.set_defaults(func=cmd_control)
 
 

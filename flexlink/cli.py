@@ -5,11 +5,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
 
 from flexlink.errors import FlexlinkError
+from flexlink.paths import SCENE_HELP, check_output_paths, output_file, plot_file
 
 
 def _cmd_build(args) -> int:
@@ -122,45 +124,49 @@ def _add_plugin_commands(sub) -> None:
                   file=sys.stderr)
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The whole ``flexlink`` parser, the applications' sub-commands included: what ``main`` parses, and what
+    the command reference (docs/commands.md) is checked against."""
     parser = argparse.ArgumentParser(prog="flexlink", description="Flexible-link robots as FMI 2.0 FMUs.")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("build", help="export the FMU of a scene")
-    p.add_argument("scene")
-    p.add_argument("-o", "--output", required=True)
+    p.add_argument("scene", help=SCENE_HELP)
+    p.add_argument("-o", "--output", required=True, metavar="OUT",
+                   help="the FMU file to write, or a folder (it receives <model identifier>.fmu)")
     p.add_argument("--keep-sources", metavar="DIR", help="keep the build directory (generated C) in DIR")
     p.set_defaults(func=_cmd_build)
 
     p = sub.add_parser("modes", help="natural frequencies about an equilibrium")
-    p.add_argument("scene")
+    p.add_argument("scene", help=SCENE_HELP)
     p.add_argument("--rate", type=float, default=0.0, help="steady rate of the first joint, rad/s")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print the frequencies (Hz) as JSON")
     p.set_defaults(func=_cmd_modes)
 
     p = sub.add_parser("simulate", help="build (cached) and simulate the FMU with fmpy")
-    p.add_argument("scene")
-    p.add_argument("--stop-time", type=float, required=True)
-    p.add_argument("--step", type=float, help="communication step, s")
-    p.add_argument("--input", help="CSV: time, then one column per input name")
-    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE")
-    p.add_argument("--csv")
-    p.add_argument("--plot")
+    p.add_argument("scene", help=SCENE_HELP)
+    p.add_argument("--stop-time", type=float, required=True, metavar="T", help="end of the run, s")
+    p.add_argument("--step", type=float, metavar="H", help="communication step, s")
+    p.add_argument("--input", metavar="IN.csv", help="CSV: time, then one column per input name")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="start value of a parameter (FMU name, e.g. hub.inertia=0.2; repeat)")
+    p.add_argument("--csv", type=output_file, metavar="OUT.csv", help="write every output at every step")
+    p.add_argument("--plot", type=plot_file, metavar="OUT.png", help="plot the outputs against time")
     p.set_defaults(func=_cmd_simulate)
 
     p = sub.add_parser("explain", help="coordinates, terms and why, frequencies, recommended SS22 step")
-    p.add_argument("scene")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("scene", help=SCENE_HELP)
+    p.add_argument("--json", action="store_true", help="print the explanation as JSON")
     p.add_argument("--error-target", metavar="E", help="also measure the fidelity ladder (modes, kinematics, "
                    "deformation) and recommend its cheapest level with relative RMS error below E")
     p.add_argument("--quick", action="store_true", help="with --error-target: modes 1-3 and a shorter run (CI size)")
     p.set_defaults(func=_cmd_explain)
 
     p = sub.add_parser("bench", help="speed against error: SS22 against CVODES, IDAS and SciPy on the same equations")
-    p.add_argument("scene")
+    p.add_argument("scene", help=SCENE_HELP)
     p.add_argument("--json", action="store_true", help="print the rows as JSON")
-    p.add_argument("--plot", metavar="OUT.png")
-    p.add_argument("--report", metavar="OUT.md")
+    p.add_argument("--plot", type=plot_file, metavar="OUT.png", help="CPU time against error, every method")
+    p.add_argument("--report", type=output_file, metavar="OUT.md", help="write the rows as a Markdown report")
     p.add_argument("--quick", action="store_true", help="fewer settings and a shorter run (CI size)")
     p.add_argument("--repeats", type=int, help="timed runs per setting (median; default 5, quick 2)")
     p.set_defaults(func=_cmd_bench)
@@ -169,13 +175,38 @@ def main(argv: list[str] | None = None) -> int:
 
     add_check_parser(sub)
     _add_plugin_commands(sub)
+    return parser
 
+
+def _option_names(parser: argparse.ArgumentParser, command: str) -> dict[str, str]:
+    """``dest`` → the option's longest spelling (``--plot``), in the sub-command's parser: for messages."""
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return {a.dest: max(a.option_strings, key=len) for a in sub.choices[command]._actions if a.option_strings}
+
+
+def _quiet_stdout() -> None:
+    """After a closed pipe (``flexlink linearize … | head``): point stdout at /dev/null, so that the
+    interpreter's last flush does not raise again at exit."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return args.func(args)
+        check_output_paths(args, _option_names(parser, args.command))
+        status = args.func(args)
+        sys.stdout.flush()          # a closed pipe shows here, inside the handler, not at the interpreter's exit
+        return status
     except FlexlinkError as e:
         print(f"flexlink: error: {e}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # the reader went away (``| head``): stop quietly, as Unix tools do; 128 + SIGPIPE, as a shell reports
+        # a tool that the signal ended
+        _quiet_stdout()
+        return 141
     except KeyboardInterrupt:
         return 130
 

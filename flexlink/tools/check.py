@@ -805,7 +805,14 @@ def check_fmu(path: str | os.PathLike, *, fuzz: int = CI_FUZZ, seed: int = 0, im
     # fmpy changes into the binary's folder to load it and does not come back when the load fails (an
     # unresolved symbol): the caller's working directory is restored whatever happens
     cwd = os.getcwd()
-    f = _Fmu(path)
+    try:
+        f = _Fmu(path)
+    except Exception as e:      # fmpy's parse errors have no common class; the FMU is unusable whichever it is
+        from flexlink.errors import FlexlinkError
+
+        os.chdir(cwd)
+        raise FlexlinkError(f"{os.fspath(path)}: modelDescription.xml cannot be read "
+                            f"({type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''})") from None
     try:
         results = [check_model_description(f)]
         results.append(check_me_vs_cs(f, stop_time))
@@ -843,12 +850,31 @@ def write_report(results: list[CheckResult], directory: str | os.PathLike, fmu: 
     return j, m
 
 
+def _require_fmu(path: str) -> None:
+    """Refuse, in one line, what is not an FMU at all (a missing file, a folder, not a zip archive, a zip
+    without modelDescription.xml): the harness is for FMUs that may be wrong, not for arbitrary files."""
+    import zipfile
+
+    from flexlink.errors import FlexlinkError
+
+    if not os.path.exists(path):
+        raise FlexlinkError(f"{path}: no such file")
+    if not os.path.isfile(path):
+        raise FlexlinkError(f"{path}: is not a file; expected an FMU (.fmu)")
+    if not zipfile.is_zipfile(path):
+        raise FlexlinkError(f"{path}: not an FMU (an FMU is a zip archive; this file is not one)")
+    try:
+        with zipfile.ZipFile(path) as z:
+            names = z.namelist()
+    except (zipfile.BadZipFile, OSError) as e:
+        raise FlexlinkError(f"{path}: not an FMU (unreadable zip archive: {e})") from None
+    if "modelDescription.xml" not in names:
+        raise FlexlinkError(f"{path}: not an FMU (no modelDescription.xml in the archive)")
+
+
 def run_check(args) -> int:
     """``flexlink check`` (cli.py): exit status 1 if anything fails."""
-    if not os.path.exists(args.fmu):
-        from flexlink.errors import FlexlinkError
-
-        raise FlexlinkError(f"{args.fmu}: no such file")
+    _require_fmu(args.fmu)
     if args.me_vs_cs_stop is not None and not (0.0 < args.me_vs_cs_stop < math.inf):
         from flexlink.errors import FlexlinkError
 
@@ -869,11 +895,11 @@ def run_check(args) -> int:
 def add_parser(sub) -> None:
     p = sub.add_parser("check", help="compliance harness: validation, ME vs CS, fuzzing, FMU state, "
                                      "directional derivatives, independent importers")
-    p.add_argument("fmu")
+    p.add_argument("fmu", metavar="FMU", help="the FMU file to check")
     p.add_argument("--report", metavar="DIR", help="write report.md and report.json to DIR")
     p.add_argument("--fuzz", type=int, default=CI_FUZZ, metavar="N",
                    help=f"random legal call sequences (default {CI_FUZZ}; full size: 5000)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the fuzzing (default 0)")
     p.add_argument("--me-vs-cs-stop", type=float, metavar="SECONDS",
                    help="length of the ME vs CS comparison (default: the FMU's stop time, at most 0.5 s)")
     p.add_argument("--no-importers", action="store_true", help="skip libcosim and fmutool")
