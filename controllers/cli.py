@@ -33,7 +33,7 @@ def add_commands(subparsers) -> None:
     """The ``flexlink.commands`` entry point (pyproject.toml): this package's sub-commands of ``flexlink``."""
     from controllers.sweep import add_sweep_parser
 
-    p = subparsers.add_parser("demo", help="the README's main job: build an example FMU, run it in closed loop, "
+    p = subparsers.add_parser("demo", help="the quick start's main job: build an example FMU, run it in closed loop, "
                                            "plot")
     p.add_argument("--out", default="out", help="output folder")
     p.add_argument("--open-loop", action="store_true", help="the open-loop bang-bang run against the reference")
