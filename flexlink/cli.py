@@ -124,10 +124,18 @@ def _add_plugin_commands(sub) -> None:
                   file=sys.stderr)
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its usage errors in one line, like every other bad input (argparse prints the usage,
+    which wraps over several lines for the long commands, then the error); ``--help`` still shows the usage."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The whole ``flexlink`` parser, the applications' sub-commands included: what ``main`` parses, and what
     the command reference (docs/commands.md) is checked against."""
-    parser = argparse.ArgumentParser(prog="flexlink", description="Flexible-link robots as FMI 2.0 FMUs.")
+    parser = _Parser(prog="flexlink", description="Flexible-link robots as FMI 2.0 FMUs.")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("build", help="export the FMU of a scene")

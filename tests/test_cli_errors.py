@@ -149,3 +149,10 @@ def test_build_output_with_a_trailing_slash_is_a_folder(tmp_path):
     (tmp_path / "file").write_text("")
     with pytest.raises(BuildError, match="is a file"):
         fmu_path(f"{tmp_path}/file/", "arm")
+
+
+@pytest.mark.parametrize("args", [[], ["nosuchcommand"], ["control", SCENE, "--target"], ["sweep", SCENE],
+                                  ["modes", SCENE, "--rate", "abc"], ["linearize", SCENE, "--no-such-option"]])
+def test_usage_errors_are_one_line(tmp_path, args):
+    """argparse's own errors too: one line naming the problem and where the help is, not the usage."""
+    one_line(run(args, tmp_path), "error:", "--help")
