@@ -180,6 +180,10 @@ def cmd_control(args) -> int:
         raise FlexlinkError("--target and --duration are required for the closed-loop run (or give --design-only)")
     if args.design_only and args.torque_limit is None and (args.target is None or args.duration is None):
         raise FlexlinkError("--design-only needs --torque-limit (or --target and --duration for the default)")
+    if not args.design_only:
+        from controllers.manoeuvre import _check_times
+
+        _check_times(args.duration, args.settle, args.sample_time)      # before the model and the FMU are built
     model = build_model(load_scene(args.scene))
     check_scene(model)
     plant = linear_plant(model, outputs=[f"{model.scene.joints[0].name}.theta"])

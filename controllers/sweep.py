@@ -670,6 +670,10 @@ def _check_options(*, controller, stop_time, sample_time, settle, settle_band, s
         raise FlexlinkError(f"--settle must be a positive number of seconds, got {settle}")
     if not 0 < settle_band < 1:
         raise FlexlinkError(f"--settle-band must be between 0 and 1, got {settle_band}")
+    if stop_time is not None:
+        from flexlink.run.simulate import check_run
+
+        check_run(stop_time, sample_time, "--stop-time", "--sample-time")      # a run that would not end
     series_every = int(series_every)
     if series_every < 1:
         raise FlexlinkError(f"--series-every must be at least 1, got {series_every}")

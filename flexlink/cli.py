@@ -47,8 +47,9 @@ def _cmd_modes(args) -> int:
 
 def _cmd_simulate(args) -> int:
     from flexlink.export.fmu import cached_fmu
-    from flexlink.run.simulate import parse_assignments, plot_result, read_input_csv, simulate, write_csv
+    from flexlink.run.simulate import check_run, parse_assignments, plot_result, read_input_csv, simulate, write_csv
 
+    check_run(args.stop_time, args.step)        # before the build
     start = parse_assignments(args.set)
     fmu = cached_fmu(args.scene)
     inputs = None
@@ -192,6 +193,15 @@ def _option_names(parser: argparse.ArgumentParser, command: str) -> dict[str, st
     return {a.dest: max(a.option_strings, key=len) for a in sub.choices[command]._actions if a.option_strings}
 
 
+def _quiet_numerics():
+    """numpy's floating-point warnings off (``length = 1e-300`` overflows in the shape functions): a command's
+    answer is its output or its one-line error, which the checks that notice a non-finite result give (the
+    static equilibrium, the guards, the FMU's refusals); a page of RuntimeWarnings before it helps nobody."""
+    import numpy as np
+
+    return np.errstate(all="ignore")
+
+
 def _quiet_stdout() -> None:
     """After a closed pipe (``flexlink linearize … | head``): point stdout at /dev/null, so that the
     interpreter's last flush does not raise again at exit."""
@@ -204,7 +214,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         check_output_paths(args, _option_names(parser, args.command))
-        status = args.func(args)
+        with _quiet_numerics():
+            status = args.func(args)
         sys.stdout.flush()          # a closed pipe shows here, inside the handler, not at the interpreter's exit
         return status
     except FlexlinkError as e:

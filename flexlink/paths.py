@@ -51,6 +51,13 @@ def check_output_path(path: OutputPath, option: str) -> None:
     empty name, a folder, a parent folder that does not exist or is not writable, an unknown figure format."""
     if not path.strip():
         raise FlexlinkError(f"{option}: expected a file name, got an empty one")
+    try:
+        _check_place(path, option)
+    except OSError as e:            # a name too long, a path through a file, …
+        raise FlexlinkError(f"{option} {path}: cannot be written ({e.strerror})") from None
+
+
+def _check_place(path: OutputPath, option: str) -> None:
     p = Path(path)
     if p.is_dir():
         raise FlexlinkError(f"{option} {path}: is a folder; expected a file name")

@@ -156,3 +156,30 @@ def test_build_output_with_a_trailing_slash_is_a_folder(tmp_path):
 def test_usage_errors_are_one_line(tmp_path, args):
     """argparse's own errors too: one line naming the problem and where the help is, not the usage."""
     one_line(run(args, tmp_path), "error:", "--help")
+
+
+@pytest.mark.parametrize("args", [
+    ["simulate", SCENE, "--stop-time", "0.01", "--step", "1e-12"],
+    ["simulate", SCENE, "--stop-time", "1", "--step", "5e-324"],
+    ["control", SCENE, "--target", "10", "--duration", "1", "--sample-time", "1e-9"],
+    ["sweep", SCENE, "--param", "hub.inertia=0.1", "--stop-time", "1", "--sample-time", "1e-9", "--scheduler",
+     "serial", "--out", "{tmp}/s.csv"],
+], ids=["simulate-1e10-steps", "simulate-subnormal-step", "control-1e9-samples", "sweep-1e9-samples"])
+def test_a_run_that_would_not_end_is_refused_before_the_build(tmp_path, args):
+    """``--stop-time 0.01 --step 1e-12`` asks for 10¹⁰ communication steps (and fmpy would keep them all):
+    refused at once, naming the count, before an FMU is built."""
+    result = run([a.format(tmp=tmp_path) for a in args], tmp_path)
+    one_line(result, "communication steps", "more than")
+    assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").rglob("*.fmu"))
+
+
+def test_an_output_name_too_long_for_the_file_system(tmp_path):
+    one_line(run(["linearize", SCENE, "--save", "x" * 300 + ".json"], tmp_path), "--save", "cannot be written")
+
+
+def test_numerical_warnings_do_not_bury_the_message(tmp_path):
+    """A link 1e-300 m long overflows in the shape functions: the answer is the one line that says what failed,
+    not numpy's RuntimeWarnings before it."""
+    scene = tmp_path / "tiny.toml"
+    scene.write_text((ROOT / SCENE).read_text().replace("length = 2.2 ", "length = 1e-300 "))
+    one_line(run(["modes", str(scene)], tmp_path), "did not converge")
