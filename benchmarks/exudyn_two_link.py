@@ -10,7 +10,7 @@ Both sides simulate the arm over [0, stop] with 1 ms outputs:
   coordinates) through fmpy's FMU2Slave (``flexlink.run.simulate.SlaveRunner``), 1 ms communication steps, the
   torques sampled at the middle of each communication step, internal SS22 steps ``solver.step`` with Θ = ½.
   (``solver.order = 4`` is not usable here: its Richardson extrapolation amplifies unresolved modes by up to
-  5/3 a step, README "The order-4 option", and the 6-element chain's top mode, 16.3 kHz, is unresolved at any
+  5/3 a step, docs/fidelity.md, "The order-4 option", and the 6-element chain's top mode, 16.3 kHz, is unresolved at any
   step above ~1e-5 s; it is discarded within 20 ms at every step from 1e-3 to 5e-5 s.)
 * Exudyn: ``tests/references/exudyn_arm.py`` (geometrically exact 2D beams, N linear elements per link,
   generalised-α with ρ∞ = 0.9, step h, sparse solver, the torques as Python user functions).

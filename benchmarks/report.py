@@ -1,8 +1,8 @@
-"""Issue 6's measurements in one command: writes report.md, report.json and report.png, and the README's
-"## Performance" block between ``<!-- perf:begin -->`` and ``<!-- perf:end -->``.
+"""Issue 6's measurements in one command: writes report.md, report.json and report.png, and the block of
+docs/performance.md between ``<!-- perf:begin -->`` and ``<!-- perf:end -->`` (its figure copied to docs/img/).
 
     python benchmarks/report.py                  # full size (about 15 min on the 2-core machine)
-    python benchmarks/report.py --quick --out DIR [--readme README_COPY.md]   # CI size
+    python benchmarks/report.py --quick --out DIR [--page PAGE_COPY.md]   # CI size
 
 Runs, on the one-link 3-mode seed-000 link (``examples/rotating_link_linear.toml``) and its second-order
 version (``examples/rotating_link.toml``):
@@ -15,9 +15,9 @@ version (``examples/rotating_link.toml``):
 5. the build time of the one-link FMU and of the largest example.
 
 Every figure is a median of repeated runs, and every comparison a ratio measured in the same run.  The
-figures of ``benchmarks/fmu_speed.py --large`` and ``benchmarks/closed_loop.py`` are kept apart (README,
-"Performance", above the generated block).  ``--quick`` runs everything at CI size (short runs, one repeat,
-few settings, no largest-example build) and does not touch the README unless ``--readme`` is given.
+figures of ``benchmarks/fmu_speed.py --large`` and ``benchmarks/closed_loop.py`` are kept apart
+(docs/performance.md, above the generated block).  ``--quick`` runs everything at CI size (short runs, one
+repeat, few settings, no largest-example build) and touches no page unless ``--page`` is given.
 """
 
 from __future__ import annotations
@@ -378,7 +378,7 @@ def report_markdown(data: dict) -> str:
                               for r in b["rows"]]), "", "</details>", ""]
     lines += ["Not in this report: `python benchmarks/fmu_speed.py --large` (build, size and per-step cost of the "
               "larger examples and the 81-coordinate FE link) and `python benchmarks/closed_loop.py` (LQR/PD closed "
-              "loop); their figures are in the README's Performance section.", ""]
+              "loop); their figures are in docs/performance.md.", ""]
     return "\n".join(lines)
 
 
@@ -437,14 +437,35 @@ def readme_block(data: dict, png: str) -> str:
     return "\n".join(lines)
 
 
+PAGE = ROOT / "docs" / "performance.md"      # the page whose marked blocks these scripts write
+
+
 def rewrite_readme(path: Path, block: str, begin: str = BEGIN, end: str = END) -> None:
-    """Replace the README's text from ``begin`` to ``end`` (markers included) by ``block``."""
+    """Replace a page's text from ``begin`` to ``end`` (markers included) by ``block``: the measured figures
+    live in their generated block and nowhere else, so a new run cannot leave stale copies (the name is from
+    the days the block sat in the README; the default page is now docs/performance.md)."""
     text = path.read_text()
     if begin not in text or end not in text or text.index(begin) > text.index(end):
         raise SystemExit(f"{path}: no {begin} ... {end} block to rewrite")
     head, rest = text.split(begin, 1)
     _, tail = rest.split(end, 1)
     path.write_text(head + block + tail)
+
+
+def publish_figure(png: Path, page: Path) -> str:
+    """The link from ``page`` to ``png``: a copy in the page's ``img/`` folder when the page is in docs/
+    (MkDocs serves, and its strict build checks, only the files below docs/), else the relative path."""
+    page = Path(page).resolve()
+    if page.parent == PAGE.parent:
+        target = page.parent / "img" / png.name
+        target.parent.mkdir(exist_ok=True)
+        if Path(png).resolve() != target:
+            target.write_bytes(Path(png).read_bytes())
+        return f"img/{png.name}"
+    try:
+        return str(Path(png).resolve().relative_to(page.parent))
+    except ValueError:
+        return str(Path(png).resolve())
 
 
 def plot(data: dict, path: Path) -> None:
@@ -520,9 +541,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="CI size; writes to --out only")
     ap.add_argument("--out", help="folder of report.md, report.json, report.png (default benchmarks/; "
                     "required with --quick)")
-    ap.add_argument("--readme", help="README to rewrite between the perf markers (default README.md, "
-                    "none with --quick)")
-    ap.add_argument("--no-readme", action="store_true")
+    ap.add_argument("--page", "--readme", dest="page", help="page to rewrite between the perf markers "
+                    "(default docs/performance.md, none with --quick)")
+    ap.add_argument("--no-page", "--no-readme", dest="no_page", action="store_true")
     ap.add_argument("--repeats", type=int, help="timed runs per setting (default: each benchmark's own)")
     ap.add_argument("--from-json", help="re-render from a report.json instead of measuring")
     args = ap.parse_args(argv)
@@ -535,15 +556,10 @@ def main(argv: list[str] | None = None) -> int:
     (out / "report.json").write_text(json.dumps(data, indent=1, default=float))
     plot(data, out / "report.png")
     (out / "report.md").write_text(report_markdown(data))
-    readme = None if args.no_readme else (args.readme or (None if args.quick else str(ROOT / "README.md")))
-    if readme:
-        png = Path(out / "report.png").resolve()
-        try:
-            rel = png.relative_to(Path(readme).resolve().parent)
-        except ValueError:
-            rel = png
-        rewrite_readme(Path(readme), readme_block(data, str(rel)))
-    print(f"wrote {out / 'report.md'}, report.json, report.png" + (f"; rewrote {readme}" if readme else ""))
+    page = None if args.no_page else (args.page or (None if args.quick else str(PAGE)))
+    if page:
+        rewrite_readme(Path(page), readme_block(data, publish_figure(out / "report.png", Path(page))))
+    print(f"wrote {out / 'report.md'}, report.json, report.png" + (f"; rewrote {page}" if page else ""))
     for v in data["verdicts"]:
         mark = {True: "met", False: "NOT MET", None: ""}[v["met"]]
         print(f"  {mark:7s} {v['target']}: {v['measured']}")

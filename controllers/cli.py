@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from flexlink.errors import FlexlinkError
+from flexlink.paths import SCENE_HELP, output_file, plot_file
 
 __all__ = ["add_control_parsers", "cmd_control", "cmd_linearize"]
 
@@ -37,7 +38,7 @@ def add_commands(subparsers) -> None:
     """The ``flexlink.commands`` entry point (pyproject.toml): this package's sub-commands of ``flexlink``."""
     from controllers.sweep import add_sweep_parser
 
-    p = subparsers.add_parser("demo", help="the README's main job: build an example FMU, run it in closed loop, "
+    p = subparsers.add_parser("demo", help="the quick start's main job: build an example FMU, run it in closed loop, "
                                            "plot")
     p.add_argument("--out", default="out", help="output folder")
     p.add_argument("--open-loop", action="store_true", help="the open-loop bang-bang run against the reference")
@@ -60,20 +61,21 @@ def _cmd_demo(args) -> int:
 def add_control_parsers(subparsers) -> None:
     """Add the ``control`` and ``linearize`` sub-commands to ``flexlink``'s sub-parsers."""
     p = subparsers.add_parser("linearize", help="state-space matrices A, B, C, D with named signals")
-    p.add_argument("scene")
+    p.add_argument("scene", help=SCENE_HELP)
     p.add_argument("--rate", type=_finite, default=0.0, help="steady rate of the first joint, rad/s")
     p.add_argument("--angle", type=_finite, metavar="DEG", help="angle of the first joint (default: initial angle)")
     p.add_argument("--output", action="append", metavar="NAME", dest="outputs",
                    help="keep this output (FMU name; repeat; default: all outputs)")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="change a tunable parameter")
     p.add_argument("--json", action="store_true", help="print the matrices and names as JSON")
-    p.add_argument("--save", metavar="FILE", help="also save them: FILE.json (as --json) or FILE.npz (arrays)")
+    p.add_argument("--save", type=output_file, metavar="FILE",
+                   help="also save them: FILE.json (as --json) or FILE.npz (arrays)")
     p.set_defaults(func=cmd_linearize)
 
     p = subparsers.add_parser("control", help="rest-to-rest manoeuvre in closed loop (fmpy): the first joint, or "
                                               "every joint of a multi-joint arm (MIMO LQG against joint PD); "
                                               "LQR/Kalman design on every torque-driven joint with its margins")
-    p.add_argument("scene")
+    p.add_argument("scene", help=SCENE_HELP)
     p.add_argument("--target", type=_angles, metavar="DEG[,DEG...]",
                    help="final angle of the first joint (the run); with several torque-driven joints one per joint, "
                         "comma-separated: the MIMO LQG and the joint PD both run and are compared")
@@ -97,8 +99,9 @@ def add_control_parsers(subparsers) -> None:
                    help="FMU parameter for the run (the design keeps the scene's values)")
     p.add_argument("--noise", action="store_true", help="add the sensors' noise to what the controller reads")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
-    p.add_argument("--plot", metavar="OUT.png", help="time responses, closed-loop poles, loop Bode with margins")
-    p.add_argument("--export-fmu", metavar="CTRL.fmu",
+    p.add_argument("--plot", type=plot_file, metavar="OUT.png",
+                   help="time responses, closed-loop poles, loop Bode with margins")
+    p.add_argument("--export-fmu", type=output_file, metavar="CTRL.fmu",
                    help="also write the sampled LQG (Kalman current estimator + discrete LQR, saturation) as a "
                         "pure-C FMI 2.0 Co-Simulation FMU, its sample time the fixed communication step "
                         "(docs/control.md)")
@@ -190,6 +193,10 @@ def cmd_control(args) -> int:
         raise FlexlinkError("--target and --duration are required for the closed-loop run (or give --design-only)")
     if args.design_only and args.torque_limit is None and (args.target is None or args.duration is None):
         raise FlexlinkError("--design-only needs --torque-limit (or --target and --duration for the default)")
+    if not args.design_only:
+        from controllers.manoeuvre import _check_times
+
+        _check_times(args.duration, args.settle, args.sample_time)      # before the model and the FMU are built
     model = build_model(load_scene(args.scene))
     check_scene(model)
     plant = linear_plant(model, outputs=[f"{model.scene.joints[0].name}.theta"])

@@ -247,6 +247,9 @@ def _check_times(duration: float, settle: float, dt: float) -> None:
     for what, v in (("--duration", duration), ("--settle", settle)):
         if abs(round(v / dt) * dt - v) > 1e-9 * max(1.0, v):
             raise FlexlinkError(f"{what} {v} s must be a multiple of the sample time {dt} s")
+    from flexlink.run.simulate import check_run
+
+    check_run(duration + settle, dt, "--duration + --settle", "--sample-time")    # a run that would not end
 
 
 def rest_to_rest(d: ControlDesign, loop: FmuLoop | str | os.PathLike, target: float, duration: float,

@@ -59,6 +59,7 @@ from pathlib import Path
 import numpy as np
 
 from flexlink.errors import FlexlinkError
+from flexlink.paths import SCENE_HELP, output_file, plot_file
 
 __all__ = [
     "CLOSED_LOOP_METRICS",
@@ -669,6 +670,10 @@ def _check_options(*, controller, stop_time, sample_time, settle, settle_band, s
         raise FlexlinkError(f"--settle must be a positive number of seconds, got {settle}")
     if not 0 < settle_band < 1:
         raise FlexlinkError(f"--settle-band must be between 0 and 1, got {settle_band}")
+    if stop_time is not None:
+        from flexlink.run.simulate import check_run
+
+        check_run(stop_time, sample_time, "--stop-time", "--sample-time")      # a run that would not end
     series_every = int(series_every)
     if series_every < 1:
         raise FlexlinkError(f"--series-every must be at least 1, got {series_every}")
@@ -1018,7 +1023,7 @@ def plot_sweep(df, path: str | os.PathLike, title: str = "") -> None:
 def add_sweep_parser(subparsers) -> None:
     """Add ``flexlink sweep`` to ``flexlink``'s sub-parsers."""
     p = subparsers.add_parser("sweep", help="parameter grid or Monte Carlo study of the FMU on Dask")
-    p.add_argument("scene")
+    p.add_argument("scene", help=SCENE_HELP)
     p.add_argument("--param", action="append", default=[], metavar="NAME=LO:HI:N",
                    help="FMU parameter: grid axis LO:HI:N, V1,V2,..., or V (repeat for a full grid); with "
                         "--samples: LO:HI (uniform) or V")
@@ -1036,7 +1041,8 @@ def add_sweep_parser(subparsers) -> None:
     p.add_argument("--settle-band", type=float, default=0.02, metavar="FRACTION",
                    help="settling-time band, fraction of the commanded angle (default 0.02)")
     p.add_argument("--torque-limit", type=float, metavar="NM", help="closed loop: saturation (default as control)")
-    p.add_argument("--sensors", choices=("strain", "accelerometer"), default="strain")
+    p.add_argument("--sensors", choices=("strain", "accelerometer"), default="strain",
+                   help="closed loop: the Kalman sensors, as in flexlink control")
     p.add_argument("--stop-time", type=float, metavar="S", help="open loop: run the scene's default inputs")
     p.add_argument("--sample-time", type=float, default=1e-3, metavar="S",
                    help="controller sample time / communication step (1 ms)")
@@ -1050,11 +1056,13 @@ def add_sweep_parser(subparsers) -> None:
     p.add_argument("--batch-size", type=int, metavar="N", help="cases per Dask task (default: automatic)")
     p.add_argument("--shared-fs", action="store_true",
                    help="send the workers the FMU's path (a shared file system) instead of its bytes")
-    p.add_argument("--out", required=True, metavar="FILE", help="results: FILE.parquet or FILE.csv")
+    p.add_argument("--out", required=True, type=output_file, metavar="FILE",
+                   help="results: FILE.parquet or FILE.csv")
     p.add_argument("--resume", action="store_true",
                    help="resume FILE's sweep (the default whenever FILE or its journal exists)")
     p.add_argument("--overwrite", action="store_true", help="discard FILE and its journal and start again")
-    p.add_argument("--plot", metavar="OUT.png", help="metric vs parameter (grid) or histograms (Monte Carlo)")
+    p.add_argument("--plot", type=plot_file, metavar="OUT.png",
+                   help="metric vs parameter (grid) or histograms (Monte Carlo)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_sweep)
 

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from flexlink.errors import FlexlinkError
+from flexlink.paths import SCENE_HELP, check_output_paths, output_file, plot_file
 
 
 def _announce(scene_path) -> None:
@@ -58,8 +59,9 @@ def _cmd_modes(args) -> int:
 
 def _cmd_simulate(args) -> int:
     from flexlink.export.fmu import cached_fmu
-    from flexlink.run.simulate import parse_assignments, plot_result, read_input_csv, simulate, write_csv
+    from flexlink.run.simulate import check_run, parse_assignments, plot_result, read_input_csv, simulate, write_csv
 
+    check_run(args.stop_time, args.step)        # before the build
     start = parse_assignments(args.set)
     fmu = cached_fmu(args.scene)
     inputs = None
@@ -145,40 +147,52 @@ def _add_plugin_commands(sub) -> None:
                   file=sys.stderr)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="flexlink", description="Flexible-link robots as FMI 2.0 FMUs.")
+class _Parser(argparse.ArgumentParser):
+    """argparse with its usage errors in one line, like every other bad input (argparse prints the usage,
+    which wraps over several lines for the long commands, then the error); ``--help`` still shows the usage."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The whole ``flexlink`` parser, the applications' sub-commands included: what ``main`` parses, and what
+    the command reference (docs/commands.md) is checked against."""
+    parser = _Parser(prog="flexlink", description="Flexible-link robots as FMI 2.0 FMUs.")
     parser.add_argument("--allow-large", action="store_true",
                         help="build scenes past the size budgets (docs/budget.md); sets FLEXLINK_ALLOW_LARGE=1 "
                              "for every command")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("build", help="export the FMU of a scene")
-    p.add_argument("scene")
-    p.add_argument("-o", "--output", required=True)
+    p.add_argument("scene", help=SCENE_HELP)
+    p.add_argument("-o", "--output", required=True, metavar="OUT",
+                   help="the FMU file to write, or a folder (it receives <model identifier>.fmu)")
     p.add_argument("--keep-sources", metavar="DIR", help="keep the build directory (generated C) in DIR")
     p.add_argument("--platforms", default="linux64", metavar="P[,P]",
                    help="binaries to compile: linux64 (default), win64 (needs MinGW-w64), or linux64,win64")
     p.set_defaults(func=_cmd_build)
 
     p = sub.add_parser("modes", help="natural frequencies about an equilibrium")
-    p.add_argument("scene")
+    p.add_argument("scene", help=SCENE_HELP)
     p.add_argument("--rate", type=float, default=0.0, help="steady rate of the first joint, rad/s")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print the frequencies (Hz) as JSON")
     p.set_defaults(func=_cmd_modes)
 
     p = sub.add_parser("simulate", help="build (cached) and simulate the FMU with fmpy")
-    p.add_argument("scene")
-    p.add_argument("--stop-time", type=float, required=True)
-    p.add_argument("--step", type=float, help="communication step, s")
-    p.add_argument("--input", help="CSV: time, then one column per input name")
-    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE")
-    p.add_argument("--csv")
-    p.add_argument("--plot")
+    p.add_argument("scene", help=SCENE_HELP)
+    p.add_argument("--stop-time", type=float, required=True, metavar="T", help="end of the run, s")
+    p.add_argument("--step", type=float, metavar="H", help="communication step, s")
+    p.add_argument("--input", metavar="IN.csv", help="CSV: time, then one column per input name")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="start value of a parameter (FMU name, e.g. hub.inertia=0.2; repeat)")
+    p.add_argument("--csv", type=output_file, metavar="OUT.csv", help="write every output at every step")
+    p.add_argument("--plot", type=plot_file, metavar="OUT.png", help="plot the outputs against time")
     p.set_defaults(func=_cmd_simulate)
 
     p = sub.add_parser("explain", help="coordinates, terms and why, frequencies, recommended SS22 step")
-    p.add_argument("scene")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("scene", help=SCENE_HELP)
+    p.add_argument("--json", action="store_true", help="print the explanation as JSON")
     p.add_argument("--error-target", metavar="E", help="also measure the fidelity ladder (modes, kinematics, "
                    "deformation) and recommend its cheapest level with relative RMS error below E")
     p.add_argument("--quick", action="store_true", help="with --error-target: modes 1-3 and a shorter run (CI size)")
@@ -187,10 +201,10 @@ def main(argv: list[str] | None = None) -> int:
     p.set_defaults(func=_cmd_explain)
 
     p = sub.add_parser("bench", help="speed against error: SS22 against CVODES, IDAS and SciPy on the same equations")
-    p.add_argument("scene")
+    p.add_argument("scene", help=SCENE_HELP)
     p.add_argument("--json", action="store_true", help="print the rows as JSON")
-    p.add_argument("--plot", metavar="OUT.png")
-    p.add_argument("--report", metavar="OUT.md")
+    p.add_argument("--plot", type=plot_file, metavar="OUT.png", help="CPU time against error, every method")
+    p.add_argument("--report", type=output_file, metavar="OUT.md", help="write the rows as a Markdown report")
     p.add_argument("--quick", action="store_true", help="fewer settings and a shorter run (CI size)")
     p.add_argument("--repeats", type=int, help="timed runs per setting (median; default 5, quick 2)")
     p.set_defaults(func=_cmd_bench)
@@ -199,15 +213,50 @@ def main(argv: list[str] | None = None) -> int:
 
     add_check_parser(sub)
     _add_plugin_commands(sub)
+    return parser
 
+
+def _option_names(parser: argparse.ArgumentParser, command: str) -> dict[str, str]:
+    """``dest`` → the option's longest spelling (``--plot``), in the sub-command's parser: for messages."""
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return {a.dest: max(a.option_strings, key=len) for a in sub.choices[command]._actions if a.option_strings}
+
+
+def _quiet_numerics():
+    """numpy's floating-point warnings off (``length = 1e-300`` overflows in the shape functions): a command's
+    answer is its output or its one-line error, which the checks that notice a non-finite result give (the
+    static equilibrium, the guards, the FMU's refusals); a page of RuntimeWarnings before it helps nobody."""
+    import numpy as np
+
+    return np.errstate(all="ignore")
+
+
+def _quiet_stdout() -> None:
+    """After a closed pipe (``flexlink linearize … | head``): point stdout at /dev/null, so that the
+    interpreter's last flush does not raise again at exit."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.allow_large:
         os.environ["FLEXLINK_ALLOW_LARGE"] = "1"
     try:
-        return args.func(args)
+        check_output_paths(args, _option_names(parser, args.command))
+        with _quiet_numerics():
+            status = args.func(args)
+        sys.stdout.flush()          # a closed pipe shows here, inside the handler, not at the interpreter's exit
+        return status
     except FlexlinkError as e:
         print(f"flexlink: error: {e}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # the reader went away (``| head``): stop quietly, as Unix tools do; 128 + SIGPIPE, as a shell reports
+        # a tool that the signal ended
+        _quiet_stdout()
+        return 141
     except KeyboardInterrupt:
         return 130
 

@@ -184,8 +184,8 @@ def test_fmu_cache_key_covers_the_c_sources_and_templates(tmp_path, monkeypatch)
 
 def test_generated_code_optimisation_level(monkeypatch, tmp_path):
     """Without FLEXLINK_OPTIMISE: a generated function is compiled at -O2 up to 5 000 operations, -O1 above
-    (README "Code generation"); the variable imposes a level, a bad value is a BuildError naming it; the level
-    is part of the FMU cache key."""
+    (docs/integrator.md, "Code generation"); the variable imposes a level, a bad value is a BuildError naming it;
+    the level is part of the FMU cache key."""
     from flexlink.errors import BuildError
     from flexlink.export import fmu as fmu_module
     from flexlink.export.codegen import generated_code_optimisation

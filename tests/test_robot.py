@@ -65,7 +65,7 @@ def _link_inertia(link) -> pin.Inertia:
 
 
 def _link_frame(joint, link) -> np.ndarray:
-    """A link's frame in its joint's frame (README "Scene format"): a beam's is (x, a × x, a), so that it bends
+    """A link's frame in its joint's frame (docs/scene.md): a beam's is (x, a × x, a), so that it bends
     in the plane normal to its axis a; a rigid link's is the joint frame itself."""
     if link.is_rigid:
         return np.eye(3)

@@ -47,10 +47,10 @@ EXPAND_MAX_COORDINATES = 160
 # a whipping arm that refreshes the matrix every 4th step): 254k operations for the dense matrix against
 # 94k for the residual's derivative and M; 53 µs per SS22 step dense, 112 µs by columns (a Newton matrix
 # costs 26 derivative calls, 300 µs); the mild examples refresh it a few times per run, where only the build
-# counts (README "Performance", benchmarks/scaling.py).
+# counts (docs/performance.md, benchmarks/scaling.py).
 NEWTON_DENSE_MAX_COORDINATES = 12
 # FLEXLINK_OPTIMISE=O0|O1|O2 imposes one level on the CasADi code instead (the generic C stays at -O2): the
-# test suite builds dozens of FMUs and runs each briefly, so it compiles them at O0 (README "Tests").
+# test suite builds dozens of FMUs and runs each briefly, so it compiles them at O0 (docs/tests.md).
 OPTIMISE_ENV = "FLEXLINK_OPTIMISE"
 OPTIMISE_LEVELS = ("O0", "O1", "O2")
 

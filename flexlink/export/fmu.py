@@ -257,6 +257,23 @@ def build_description(identifier: str, c_files: list[str]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def fmu_path(output: str | os.PathLike, identifier: str) -> Path:
+    """Where ``build_fmu`` writes: ``output`` itself, or ``<identifier>.fmu`` in it when it is an existing
+    folder or ends in a path separator (``-o out/``: a folder, created if missing — pathlib would drop the
+    slash and write a file named ``out``)."""
+    text = os.fspath(output)
+    path = Path(text)
+    if text.endswith(("/", os.sep)):
+        if path.exists() and not path.is_dir():
+            raise BuildError(f"{text}: is a file, not a folder")
+        path.mkdir(parents=True, exist_ok=True)
+    if path.is_dir():
+        path = path / f"{identifier}.fmu"
+    if path.is_dir():
+        raise BuildError(f"{path}: is a folder; give the FMU's file name")
+    return path
+
+
 def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, keep_dir: str | None = None,
               model: SymbolicModel | None = None, platforms: str | Sequence[str] = ("linux64",)) -> BuildReport:
     """Export ``scene`` as an FMI 2.0 FMU (Model Exchange and Co-Simulation) at ``output``; an existing
@@ -271,11 +288,7 @@ def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, ke
         compiler(platform)
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
-    output = Path(output)
-    if output.is_dir():
-        output = output / f"{scene.model_identifier}.fmu"
-    if output.is_dir():
-        raise BuildError(f"{output}: is a folder; give the FMU's file name")
+    output = fmu_path(output, scene.model_identifier)
     model = build_model(scene) if model is None else model
     t1 = time.perf_counter()
     work = Path(keep_dir) if keep_dir else Path(tempfile.mkdtemp(prefix="flexlink-build-"))

@@ -6,7 +6,7 @@ its gravitational and elastic potential and its Rayleigh dissipation; Lagrange's
 CasADi's automatic differentiation.  With ``kinematics = "second-order"`` each body's energy is kept to
 second order in its own elastic coordinates and the bodies are composed exactly along the chain: nothing is
 truncated after differentiation, so ``M = ∂²T/∂q̇²`` stays symmetric and T + V is conserved by the exact
-flow (README "Mechanics", "Why the second-order model is consistent").
+flow (docs/mechanics.md, "Why the second-order model is consistent").
 
 The builder keeps its working state in :class:`ChainAssembly`, which :mod:`flexlink.mechanics.outputs`
 reads to form the outputs; :func:`flexlink.mechanics.model.build_model` runs the stages in order.

@@ -94,7 +94,8 @@ def beam_invariants(g: ShapeIntegrals, length: float, d: LinkDeformation, rule=N
     With a :class:`~flexlink.mechanics.shapes.base.PointRule`: second-order kinematics, s = (x + u, v, w), and
     every invariant still exact: the terms in u beyond second order (∫u², ∫uv, ∫uw, ∫(u v̇ − v u̇),
     ∫(w u̇ − u ẇ), ∫u̇²) as sums over the rule's points.  Nothing is dropped, so the kinetic energy
-    ½∫ρ|V + ω×s + ṡ|² formed from them is a sum of squares (README "Why the second-order model is consistent").
+    ½∫ρ|V + ω×s + ṡ|² formed from them is a sum of squares (docs/mechanics.md, "Why the second-order model is
+    consistent").
     """
     L = float(length)
     zero = 0.0
@@ -204,7 +205,7 @@ class ForeshorteningTensors:
 
 
 #: The tensors grow like n⁴ in the number of shape functions n, the point sums like n: past this many the
-#: points are cheaper (measured on clamped-free and modal bases: benchmarks/scaling.py, README "Performance").
+#: points are cheaper (measured on clamped-free and modal bases: benchmarks/scaling.py, docs/performance.md).
 TENSOR_MAX_SHAPES = 6
 
 

@@ -15,7 +15,7 @@ kinematic models differ only in T and V:
 * ``"second-order"``: foreshortening included; each body's kinetic and potential energy is kept to
   second order in its *own* elastic coordinates (the inertia invariants, seed 000 §3.4.2-3.4.3) and the
   bodies are composed along the chain exactly.  Nothing is truncated after differentiation, so the
-  equations stay Lagrangian: M symmetric, T + V conserved by the exact flow (README "Mechanics").
+  equations stay Lagrangian: M symmetric, T + V conserved by the exact flow (docs/mechanics.md).
 
 Coordinates are split into *free* ones (integrated by the FMU) and *prescribed* ones
 (position-driven joints, whose position, rate and acceleration enter as inputs u); the residual of a

@@ -3,7 +3,7 @@
 Every output is an expression in the full coordinates (q, q̇, q̈) of a :class:`ChainAssembly`; the builder
 turns them into one Function of the free coordinates.  The *validity* function measures, as ratios that must
 stay ≤ 1, how far the state is from what a small-deflection beam model is meant for; the FMU refuses a step
-that leaves this range instead of returning numbers the model cannot stand behind (README "Guards").
+that leaves this range instead of returning numbers the model cannot stand behind (docs/integrator.md, "Guards").
 """
 
 from __future__ import annotations

@@ -63,6 +63,25 @@ def parse_assignments(items: list[str]) -> dict[str, float]:
     return out
 
 
+MAX_POINTS = 1_000_000   # communication points of one run: fmpy keeps them all (100 MB for a dozen outputs)
+
+
+def check_run(stop_time: float, step: float | None, stop_option: str = "--stop-time",
+              step_option: str = "--step") -> None:
+    """Refuse a run that cannot end or cannot be stored before it starts: a stop time or step that is not a
+    positive number, or so many communication steps (``--stop-time 0.01 --step 1e-12``: 10¹⁰) that the run
+    would outlast the user and its results the memory. Without ``step``, fmpy keeps about 1000 points."""
+    if not (np.isfinite(stop_time) and stop_time > 0):
+        raise FlexlinkError(f"{stop_option} must be a positive number, got {stop_time}")
+    if step is None:
+        return
+    if not (np.isfinite(step) and step > 0):
+        raise FlexlinkError(f"{step_option} must be a positive number, got {step}")
+    if stop_time / step > MAX_POINTS:
+        raise FlexlinkError(f"{step_option} {step:g}: {stop_time / step:.3g} communication steps to {stop_time:g} s, "
+                            f"more than {MAX_POINTS:,} (give a larger {step_option} or a shorter {stop_option})")
+
+
 def simulate(fmu: str | os.PathLike, stop_time: float, *, step: float | None = None, inputs: np.ndarray | None = None,
              start_values: dict[str, float] | None = None, outputs: list[str] | None = None):
     """Co-simulate the FMU with fmpy (communication step ``step``) and return fmpy's structured result."""
@@ -77,10 +96,7 @@ def simulate(fmu: str | os.PathLike, stop_time: float, *, step: float | None = N
         if names[name].causality not in ("parameter", "input"):
             raise FlexlinkError(f"--set {name}: only parameters and inputs can be set "
                                 f"(it is an {names[name].causality})")
-    if not (np.isfinite(stop_time) and stop_time > 0):
-        raise FlexlinkError(f"--stop-time must be a positive number, got {stop_time}")
-    if step is not None and not (np.isfinite(step) and step > 0):
-        raise FlexlinkError(f"--step must be a positive number, got {step}")
+    check_run(stop_time, step)
     messages: list[str] = []
     refusals: list[str] = []
 

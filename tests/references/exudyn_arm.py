@@ -16,7 +16,7 @@ The same arm as flexlink's scene, built from Exudyn's own items:
   and −τ₂ on link 1's tip node (the elbow motor reacts on link 1's tip);
 * the payload is an ``ObjectRigidBody2D`` of mass 1.5 kg and inertia 0 on link 2's tip node.
 
-Outputs, as flexlink defines them (README, "Chains"): ``shoulder.theta`` = rotation of link 1's root node;
+Outputs, as flexlink defines them (docs/chains.md): ``shoulder.theta`` = rotation of link 1's root node;
 ``elbow.theta`` = rotation of link 2's root node − rotation of link 1's tip node (the joint sits on link 1's tip
 frame, which turns with its tip slope); ``<link>.tip.v`` = the tip position relative to the link's root node,
 expressed in the root node's frame, its component normal to the root tangent.

@@ -35,6 +35,8 @@ def _validate(args) -> tuple[str, ...]:
 
     if not os.path.exists(args.fmu):
         raise FlexlinkError(f"{args.fmu}: no such file")
+    if not os.path.isfile(args.fmu):
+        raise FlexlinkError(f"{args.fmu}: is not a file; expected an FMU (.fmu)")
     if not zipfile.is_zipfile(args.fmu):
         raise FlexlinkError(f"{args.fmu}: not an FMU (not a zip archive)")
     with zipfile.ZipFile(args.fmu) as z:
@@ -105,7 +107,7 @@ def run_check(args) -> int:
 def add_parser(sub) -> None:
     p = sub.add_parser("check", help="FMU compliance harness: validation, ME vs CS, fuzzing, illegal calls, FMU "
                                      "state, directional derivatives, independent importers (docs/check.md)")
-    p.add_argument("fmu")
+    p.add_argument("fmu", metavar="FMU", help="the FMU file to check")
     p.add_argument("--report", metavar="DIR", help="write report.md and report.json to DIR")
     p.add_argument("--json", action="store_true", help="print the results as JSON instead of text")
     p.add_argument("--junit", metavar="FILE", help="write JUnit XML (one test case per check) to FILE")
@@ -121,7 +123,7 @@ def add_parser(sub) -> None:
                    help=f"an FMI call taking longer is reported as not returning (default {CALL_LIMIT:g})")
     p.add_argument("--fuzz", type=int, default=CI_FUZZ, metavar="N",
                    help=f"random legal call sequences (default {CI_FUZZ}; full size: 5000)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the fuzzing (default 0)")
     p.add_argument("--me-vs-cs-stop", type=float, metavar="SECONDS",
                    help="length of the ME vs CS comparison (default: the FMU's stop time, at most 0.5 s for "
                         "flexlink FMUs, 10 s for others)")

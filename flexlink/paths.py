@@ -1,0 +1,84 @@
+"""Output files named on the command line, checked before the work starts.
+
+A command that simulates for minutes and then cannot write its ``--plot`` (a missing folder, a format
+matplotlib does not know) has wasted the run and ends in a traceback. Every option that names a file to
+write takes its value through :func:`output_file` or :func:`plot_file`; the value is then an
+:class:`OutputPath`, and ``flexlink.cli.main`` calls :func:`check_output_paths` on the parsed arguments
+before it runs the command, so that a bad path is one line and exit status 2, whatever the command.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from flexlink.errors import FlexlinkError
+
+__all__ = ["SCENE_HELP", "OutputPath", "check_output_paths", "output_file", "plot_file"]
+
+
+SCENE_HELP = "the scene file (TOML; docs/scene.md)"
+
+
+class OutputPath(str):
+    """A file the command will write (a ``str``, so that commands use it unchanged)."""
+
+    plot = False
+
+
+class _PlotPath(OutputPath):
+    plot = True
+
+
+def output_file(text: str) -> OutputPath:
+    """argparse ``type`` of an option naming a file the command writes."""
+    return OutputPath(text)
+
+
+def plot_file(text: str) -> OutputPath:
+    """argparse ``type`` of an option naming a figure (matplotlib picks the format from the suffix)."""
+    return _PlotPath(text)
+
+
+def _plot_formats() -> set[str]:
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    return set(FigureCanvasBase.get_supported_filetypes())
+
+
+def check_output_path(path: OutputPath, option: str) -> None:
+    """Raise a :class:`FlexlinkError` naming ``option`` if ``path`` cannot be written where it points: an
+    empty name, a folder, a parent folder that does not exist or is not writable, an unknown figure format."""
+    if not path.strip():
+        raise FlexlinkError(f"{option}: expected a file name, got an empty one")
+    try:
+        _check_place(path, option)
+    except OSError as e:            # a name too long, a path through a file, …
+        raise FlexlinkError(f"{option} {path}: cannot be written ({e.strerror})") from None
+
+
+def _check_place(path: OutputPath, option: str) -> None:
+    p = Path(path)
+    if p.is_dir():
+        raise FlexlinkError(f"{option} {path}: is a folder; expected a file name")
+    parent = p.parent
+    if not parent.is_dir():
+        raise FlexlinkError(f"{option} {path}: the folder {parent} does not exist; create it first")
+    if not os.access(parent, os.W_OK):
+        raise FlexlinkError(f"{option} {path}: the folder {parent} is not writable")
+    if path.plot:
+        suffix = p.suffix.lower().lstrip(".")
+        formats = _plot_formats()
+        if suffix not in formats:
+            raise FlexlinkError(f"{option} {path}: expected a figure file ending in one of "
+                                f"{', '.join('.' + f for f in sorted(formats))}")
+
+
+def check_output_paths(args, options: dict[str, str]) -> None:
+    """Check every :class:`OutputPath` among the parsed ``args``; ``options`` maps an argument's ``dest`` to
+    the option as the user typed it (``--plot``), for the message."""
+    for dest, value in vars(args).items():
+        values = value if isinstance(value, list) else [value]
+        for v in values:
+            if isinstance(v, OutputPath):
+                check_output_path(v, options.get(dest, dest))
