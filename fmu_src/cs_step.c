@@ -102,6 +102,7 @@ fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h) {
                 "internal steps of solver.step = %g s; at most %.0f are taken in one fmi2DoStep: use a larger "
                 "solver.step or shorter communication steps (the FMU stays at t = %.17g)", h, h / step, step,
                 DOSTEP_MAX_INTERNAL_STEPS, d->time);
+        inst->step_discarded = 1;                      /* fmi2Terminated: retrying the same step cannot help */
         return fmi2Discard;
     }
     memcpy(&inst->backup, d, sizeof(*d));

@@ -135,6 +135,7 @@ static const char *invalid_data(const FmuData *d) {
         }
     }
     if (!isfinite(d->time) || !fmu_all_finite(d->q, N_Q) || !fmu_all_finite(d->v, N_Q)) return "time or state";
+    if (d->omega_max_known && !(d->omega_max >= 0.0 && isfinite(d->omega_max))) return "highest frequency";
     return NULL;
 }
 

@@ -152,17 +152,21 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
             if (fresh >= 0) fresh++;
             if (!isfinite(err)) return SS22_NOT_FINITE;
             if (err <= s->tolerance) { converged = 1; break; }
+            if (it == 0 || fresh == 1) {
+                /* no rate yet, or a new matrix's first increment: a ratio to the old matrix's says nothing */
+                previous = err;
+                continue;
+            }
             const double rate = err / previous;
             previous = err;
             /* linear convergence at rate < 1: what is left is about rate/(1-rate) times this increment */
-            if (it > 0 && rate < 0.5 && rate / (1.0 - rate) * err <= s->tolerance) { converged = 1; break; }
-            /* at this rate the tolerance is out of reach within the iterations left */
-            const int too_slow = it > 0 && err * pow(rate, s->max_iterations - 1 - it) > s->tolerance;
+            if (rate < 0.5 && rate / (1.0 - rate) * err <= s->tolerance) { converged = 1; break; }
+            /* at this rate an older matrix cannot reach the tolerance within the iterations left */
+            const int too_slow = fresh < 0 && err * pow(rate, s->max_iterations - 1 - it) > s->tolerance;
             if (rate <= 0.5 && !too_slow) {
                 fresh = -1;      /* contracting: judged as an older matrix from here on */
                 continue;
             }
-            if (fresh == 1) continue;   /* a new matrix's first increment, measured against the old one's */
             if (fresh >= 2 && rate >= 0.9) {
                 /* a fresh matrix no longer contracts: either rounding stops us just above the
                  * tolerance (accept), or the iteration diverges (fail) */

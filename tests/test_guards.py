@@ -145,3 +145,16 @@ def test_a_do_step_of_too_many_internal_steps_is_refused_at_once(rotating_link, 
         assert f"needs {1e-2 / step:.3g} internal steps" in runner.messages[-1]
         assert "at most 1000000" in runner.messages[-1]
         slave.doStep(currentCommunicationPoint=0.0, communicationStepSize=100 * step)   # 100 steps: taken
+
+
+def test_a_host_that_retries_a_discarded_step_is_told_to_stop(rotating_link):
+    """The doStep bound's fmi2Discard also reports fmi2Terminated (retrying the same step cannot help): fmpy's
+    simulate_fmu retries a discarded step while the FMU does not say so, so without it this run never ends."""
+    import subprocess
+    import sys
+
+    path = str(EXAMPLES / "rotating_link.toml")
+    res = subprocess.run([sys.executable, "-m", "flexlink.cli", "simulate", path, "--stop-time", "0.05",
+                          "--step", "0.01", "--set", "solver.step=1e-9"], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2, (res.stdout, res.stderr)
+    assert "internal steps" in res.stderr and "Traceback" not in res.stderr

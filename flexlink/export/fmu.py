@@ -64,7 +64,8 @@ LOG_CATEGORIES = {
     "logStatusDiscard": "steps that could not be completed",
     "logStatusError": "errors",
     "logStatistics": "at fmi2Terminate: SS22 steps, Newton iterations, factorisations and residual "
-                     "evaluations since initialisation",
+                     "evaluations of the accepted steps since initialisation (a discarded step's work is "
+                     "rolled back with its state)",
     "logAll": "everything",
 }
 
