@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
+from test_control_multijoint import LIMIT, SCENE, TARGETS
 
 from controllers.cosim import FmuLoop
 from controllers.design import DesignError
@@ -23,7 +24,6 @@ from controllers.manoeuvre import design
 from controllers.multijoint import MimoLQGLaw, inverse_dynamics_reference, plan
 from flexlink.mechanics.model import build_model
 from flexlink.scene.loader import load_scene
-from tests.test_control_multijoint import LIMIT, SCENE, TARGETS
 
 
 @pytest.fixture(scope="module")

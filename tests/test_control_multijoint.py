@@ -17,6 +17,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import EXAMPLES
 
 from controllers.cosim import FmuLoop
 from controllers.design import DesignError
@@ -26,7 +27,6 @@ from controllers.trajectory import Reference
 from flexlink.errors import FlexlinkError
 from flexlink.mechanics.model import build_model
 from flexlink.scene.loader import load_scene
-from tests.conftest import EXAMPLES
 
 SCENE = EXAMPLES / "two_link_payload.toml"
 TARGETS = [math.radians(60.0), math.radians(20.0)]     # shoulder 0 → 60°, elbow −20° → 20°
