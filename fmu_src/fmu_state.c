@@ -144,6 +144,7 @@ fmi2Status fmu_deserialize(Instance *inst, const fmi2Byte buffer[], size_t size,
     uint64_t payload, sum;
     SavedState *s, *target = (SavedState *)*state;
     const char *bad;
+    char why[512];
     if (target != NULL && !state_ok(target)) {
         return fmu_error(inst, "fmi2DeSerializeFMUstate: *FMUstate is neither NULL nor a state of "
                          "this FMU");
@@ -178,7 +179,8 @@ fmi2Status fmu_deserialize(Instance *inst, const fmi2Byte buffer[], size_t size,
     }
     /* validated in the doStep backup (scratch outside fmi2DoStep) before it replaces anything */
     memcpy(&inst->backup, b, sizeof(inst->backup));
-    if ((bad = invalid_data(&inst->backup)) != NULL) {
+    if ((bad = invalid_data(&inst->backup)) != NULL ||
+        (bad = fmu_invalid_values(inst, &inst->backup, why, sizeof(why))) != NULL) {
         if (target == NULL) release_state(s);
         return fmu_error(inst, "fmi2DeSerializeFMUstate: the state is invalid (%s)", bad);
     }

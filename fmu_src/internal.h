@@ -32,6 +32,10 @@ void fmu_model_inputs(const FmuData *d, double t, double *u);
 /* The consistent acceleration M(q) a = -r(q, v, 0, u, p) at d->time, then the outputs, unless they are
  * up to date; function names the FMI function in messages. */
 fmi2Status fmu_update_outputs(Instance *inst, const char *function);
+/* Why the values of d (parameters, solver settings, start values, inputs) are outside what fmi2SetReal
+ * accepts, in why; NULL if they are all acceptable.  A deserialised FMU state passes the same gate as the
+ * values a host sets one by one (inst lends its work memory to the parameter relations). */
+const char *fmu_invalid_values(Instance *inst, const FmuData *d, char *why, size_t n);
 
 /* guards.c: fmi2OK if the state d (q, v; inputs u at time t) is finite and within the model's validity
  * (and, if check_mass_matrix, its mass matrix positive definite); else fmi2Discard with the reason in

@@ -160,6 +160,23 @@ fmi2Status fmu_get_real(Instance *inst, const fmi2ValueReference vr[], size_t nv
     return status;
 }
 
+/* Why x is outside variable v's domain (finite, not subnormal, within min/max), or NULL. */
+static const char *outside_domain(const VarInfo *v, double x, char *why, size_t n) {
+    if (!isfinite(x)) {
+        snprintf(why, n, "%s = %g: NaN and infinite values are refused", v->name, x);
+    } else if (v->kind != VAR_INPUT && fpclassify(x) == FP_SUBNORMAL) {
+        /* a parameter's products underflow and its quotients overflow; an input may decay that far */
+        snprintf(why, n, "%s = %g: subnormal values are refused (0 or magnitude >= %g)", v->name, x, DBL_MIN);
+    } else if (v->min_exclusive ? !(x > v->min) : !(x >= v->min)) {
+        snprintf(why, n, "%s = %.15g: must be %s %.15g", v->name, x, v->min_exclusive ? ">" : ">=", v->min);
+    } else if (!(x <= v->max)) {
+        snprintf(why, n, "%s = %.15g: must be <= %.15g", v->name, x, v->max);
+    } else {
+        return NULL;
+    }
+    return why;
+}
+
 /* Why value x cannot be given to variable v now, or NULL. */
 static const char *refuse_value(const Instance *inst, const VarInfo *v, double x, char *why, size_t n) {
     const int phase = inst->d.phase;
@@ -176,17 +193,8 @@ static const char *refuse_value(const Instance *inst, const VarInfo *v, double x
     } else if (fixed && !(phase & (PHASE_INSTANTIATED | PHASE_INITIALIZATION))) {
         snprintf(why, n, "%s is fixed after initialization: it cannot be set in %s", v->name,
                  fmu_phase_name(phase));
-    } else if (!isfinite(x)) {
-        snprintf(why, n, "%s = %g: NaN and infinite values are refused", v->name, x);
-    } else if (v->kind != VAR_INPUT && fpclassify(x) == FP_SUBNORMAL) {
-        /* a parameter's products underflow and its quotients overflow; an input may decay that far */
-        snprintf(why, n, "%s = %g: subnormal values are refused (0 or magnitude >= %g)", v->name, x, DBL_MIN);
-    } else if (v->min_exclusive ? !(x > v->min) : !(x >= v->min)) {
-        snprintf(why, n, "%s = %.15g: must be %s %.15g", v->name, x, v->min_exclusive ? ">" : ">=", v->min);
-    } else if (!(x <= v->max)) {
-        snprintf(why, n, "%s = %.15g: must be <= %.15g", v->name, x, v->max);
     } else {
-        return NULL;
+        return outside_domain(v, x, why, n);
     }
     return why;
 }
@@ -216,6 +224,33 @@ static fmi2Status check_parameter_relations(Instance *inst, const fmi2ValueRefer
     return fmi2OK;
 }
 #endif
+
+const char *fmu_invalid_values(Instance *inst, const FmuData *d, char *why, size_t n) {
+    for (int k = 0; k < N_VARS; k++) {
+        const VarInfo *v = &MODEL_VARS[k];
+        if (v->kind != VAR_PARAMETER && v->kind != VAR_SOLVER && v->kind != VAR_START_Q &&
+            v->kind != VAR_START_V && v->kind != VAR_INPUT) continue;
+        if (outside_domain(v, *fmu_slot((FmuData *)d, v), why, n) != NULL) return why;
+    }
+#if N_PARAMETER_CHECKS > 0
+    {
+        double h[N_PARAMETER_CHECKS];
+        if (model_parameter_check(d->p, h, &inst->work)) {
+            snprintf(why, n, "the relations between the parameters could not be evaluated");
+            return why;
+        }
+        for (int k = 0; k < N_PARAMETER_CHECKS; k++) {
+            if (!(h[k] >= -PARAMETER_CHECK_TOLERANCE)) {
+                snprintf(why, n, "the parameters break %s (%.6g)", MODEL_PARAMETER_CHECK_NAMES[k], h[k]);
+                return why;
+            }
+        }
+    }
+#else
+    (void)inst;
+#endif
+    return NULL;
+}
 
 fmi2Status fmu_set_real(Instance *inst, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) {
     FmuData *d = &inst->d;
