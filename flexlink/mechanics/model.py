@@ -34,6 +34,7 @@ from flexlink.errors import SceneError
 from flexlink.mechanics.assembly import ChainAssembly, check_supported, structure
 from flexlink.mechanics.outputs import chain_outputs, parameter_checks, validity
 from flexlink.mechanics.symbolic import Law, Parameter, Signal, StartValue, SymbolicModel
+from flexlink.mechanics.wellposed import check_step_matrix
 from flexlink.scene.budget import allow_large_from_env, check_budget, estimate, key_value
 from flexlink.scene.loader import Scene
 
@@ -61,15 +62,18 @@ def build_model(scene: Scene, *, allow_large: bool | None = None) -> SymbolicMod
     FlexlinkError
         If the scene asks for something the builder does not support yet.
     SceneError
-        If the scene is past a budget (before anything is allocated), or its shapes cannot fit in memory.
+        If the scene is past a budget (before anything is allocated), or its shapes cannot fit in memory, or
+        a coordinate is free of inertia, stiffness and damping (:mod:`flexlink.mechanics.wellposed`).
     """
     if not (allow_large_from_env() if allow_large is None else allow_large):
         check_budget(scene)
     check_supported(scene)
     try:
-        return _build(scene)
+        model = _build(scene)
     except MemoryError as exc:      # numpy's ArrayMemoryError too: past the budgets, a size that cannot fit
         raise _out_of_memory(scene, exc) from None
+    check_step_matrix(model)
+    return model
 
 
 def _out_of_memory(scene: Scene, exc: MemoryError) -> SceneError:

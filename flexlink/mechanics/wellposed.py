@@ -1,0 +1,69 @@
+"""Whether a scene's equations can be stepped at all: the SS22 step matrix at the start state.
+
+SS22 solves (M + θ₁Δt C + θ₂Δt²/2 K) δa = −r for the mean acceleration of every step.  A coordinate that
+nothing resists -- no inertia reaches it (a massless connector at the end of the chain, a rotor of zero
+inertia), no stiffness, no damping -- makes that matrix singular whatever the step, and the FMU can only
+refuse its first step.  That is a property of the scene, so it is refused with the scene: before the C is
+generated and compiled, naming the joint or link whose coordinate is free to take any value.
+
+A mass matrix that is singular while the step matrix is not (a twist without polar inertia, an elastic
+joint without motor inertia: stiffness holds the coordinate) is a valid scene and passes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from flexlink.errors import SceneError
+from flexlink.mechanics.symbolic import SymbolicModel
+
+__all__ = ["check_step_matrix"]
+
+#: A singular value of the step matrix below this fraction of the largest is a direction nothing resists
+#: (the matrix entries of a real scene span at most ~1e10: 1 g of payload against 1e7 N/m·Δt²).
+SINGULAR_RATIO = 1e-13
+
+
+def _where(model: SymbolicModel, coordinate: str) -> str:
+    """The scene key of the joint or link that owns a coordinate ("j2.theta" → 'joint[2] "j2"')."""
+    owner = coordinate.split(".", 1)[0]
+    for kind, items in (("joint", model.scene.joints), ("link", model.scene.links)):
+        for i, item in enumerate(items, start=1):
+            if item.name == owner:
+                return f'{kind}[{i}] "{owner}"'
+    return f'"{owner}"'
+
+
+def _null_direction(J: np.ndarray) -> np.ndarray | None:
+    """|v| of a unit vector J nearly annihilates, or None if J is regular (or not finite: a non-finite model
+    is the loader's and the guards' business)."""
+    if not np.all(np.isfinite(J)):
+        return None
+    _, s, vt = np.linalg.svd(J)
+    if s[0] > 0 and s[-1] > SINGULAR_RATIO * s[0]:
+        return None
+    return np.abs(vt[-1])
+
+
+def check_step_matrix(model: SymbolicModel) -> None:
+    """Raise a SceneError if the SS22 step matrix at the start state (the scene's step and Θ) is singular."""
+    q, v = model.start_state()
+    u, p = model.default_inputs(), model.p0
+    # M first (its Function is built already, an evaluation is cheap): inertia reaches every coordinate, and
+    # what the step terms (O(Δt)) may still do to the matrix is the FMU's run-time check; only a singular M
+    # asks for the step matrix itself, whose Jacobian takes seconds to form on a large chain
+    if _null_direction(np.asarray(model.mass_matrix_function()(q, u, p))) is None:
+        return
+    theta1, theta2 = model.scene.fmu.theta
+    dt = model.scene.fmu.step
+    J = np.asarray(model.newton_matrix_function()(q, v, np.zeros(model.n_q), u, p, 1.0, theta1 * dt,
+                                                  theta2 * 0.5 * dt * dt))
+    direction = _null_direction(J)
+    if direction is None:
+        return
+    names = [model.coordinates[i] for i in np.flatnonzero(direction >= 0.1 * direction.max())]
+    where = model.scene.path or model.scene.name
+    raise SceneError(
+        f"{where}: {_where(model, names[0])}: nothing resists {', '.join(names)} at the start (no inertia reaches "
+        "it, no stiffness, no damping), so no step can be taken; expected a rotor inertia (joint.inertia > 0), a "
+        "mass on the links it moves, or joint damping")
