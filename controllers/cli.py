@@ -105,6 +105,10 @@ def add_control_parsers(subparsers) -> None:
                    help="also write the sampled LQG (Kalman current estimator + discrete LQR, saturation) as a "
                         "pure-C FMI 2.0 Co-Simulation FMU, its sample time the fixed communication step "
                         "(docs/control.md)")
+    p.add_argument("--export-ssp", type=output_file, metavar="SYSTEM.ssp",
+                   help="also write an SSP 1.0 package: the scene's FMU and the controller FMU playing the "
+                        "--target manoeuvre (needs --target and --duration), connected, the sample time as the "
+                        "communication step (docs/control.md)")
     p.set_defaults(func=cmd_control)
 
 
@@ -213,6 +217,8 @@ def cmd_control(args) -> int:
         raise FlexlinkError(f"{args.scene}: the LQR/Kalman design failed ({' '.join(str(e).split())})") from None
     if args.export_fmu:
         _export(args, d)
+    if args.export_ssp:
+        _export_ssp(args, d, targets)
     if args.design_only:
         return _report_design(args, d)
     if len(d.actuated_joints) > 1:
@@ -271,6 +277,29 @@ def _export(args, d) -> None:
     path = export_controller_fmu(d, args.export_fmu)
     print(f"wrote {path}: sampled LQG of {', '.join(d.actuated_joints)} at {d.dt:g} s (inputs: "
           f"{', '.join(d.kalman.sensors)}, x_ref, u_ff, w; outputs: {', '.join(d.lqr.inputs)})", file=sys.stderr)
+
+
+def _export_ssp(args, d, targets) -> None:
+    """``--export-ssp``: the plant FMU and the controller FMU playing the manoeuvre as an SSP package
+    (:func:`controllers.ssp.write_ssp`); one line on stderr."""
+    import sys
+
+    from controllers.manoeuvre import _check_times
+    from controllers.multijoint import check_multijoint, inverse_dynamics_reference, plan
+    from controllers.ssp import write_ssp
+    from flexlink.export.fmu import cached_fmu
+
+    if targets is None or args.duration is None:
+        raise FlexlinkError("--export-ssp: the package runs a manoeuvre; give --target and --duration")
+    if not args.export_ssp.endswith(".ssp"):
+        raise FlexlinkError(f"--export-ssp {args.export_ssp}: expected a file name ending in .ssp")
+    check_multijoint(d)
+    pl = plan(d.plant, targets)
+    _check_times(args.duration, args.settle, d.dt)
+    ref = inverse_dynamics_reference(d.plant, pl, d.dt, args.duration, args.settle)
+    path = write_ssp(d, cached_fmu(args.scene), args.export_ssp, ref)
+    print(f"wrote {path}: {d.plant.model.scene.name}'s FMU and its sampled LQG ({', '.join(d.actuated_joints)}) "
+          f"for {args.duration + args.settle:g} s at a {d.dt:g} s communication step", file=sys.stderr)
 
 
 def _default_limits(plant, targets, duration, dt):

@@ -1,15 +1,25 @@
 /* The sampled MIMO LQG of controllers.multijoint.MimoLQGLaw as a pure-C FMI 2.0 Co-Simulation FMU.
  *
- * controllers/export.py writes ctrl_data.h (the sizes, the matrices, the operating point, the torque limits
- * and the sample time) next to this file and compiles both.  Value references, in this order:
+ * controllers/export.py writes ctrl_data.h (the sizes, the matrices, the operating point, the torque limits,
+ * the sample time and, when the controller plays a manoeuvre itself, the reference tables) next to this file
+ * and compiles both.  Value references, in this order:
  *   inputs   y[NY]      the sensors (absolute)
  *            xref[NX]   the reference state (deviation from the operating point)
  *            uff[NU]    the feedforward torque (deviation)
  *            w[NX]      the reference's own step in the deviation's prediction (0 along a plant trajectory)
  *   outputs  u[NU]      the saturated torques (absolute)
- * At a communication point the outputs follow the inputs set there (current estimator, direct feedthrough):
- *   e = z + M (y − y0 − C (xref + z)),   u = sat(u0 + uff − K e)
- * and fmi2DoStep(t, DT) advances the prior estimate:  z ← Ad e + Bd (u − u0 − uff) − w.
+ * With a built-in reference (NREF > 0) the reference inputs add to its row k (the last row held after its end).
+ *
+ * A sample is taken by fmi2DoStep(t_k, DT), from the inputs set at t_k (current estimator):
+ *   e = z + M (y − y0 − C (xref + z)),   u = sat(u0 + uff − K e),   z ← Ad e + Bd (u − u0 − uff) − w
+ * and u is the output from then on, until the next step: the torque of the sample just taken, held.  The
+ * outputs thus never depend on inputs set at the same communication point (no direct feedthrough), and the
+ * importer decides the delay: one that steps this FMU first at t_k and then the plant with its output (fmpy's
+ * loop in controllers.export.FmuLaw) applies u_k over [t_k, t_k+1], the Python law's timing; one that steps
+ * both in parallel and then exchanges (libcosim's fixed-step algorithm) applies it over [t_k+1, t_k+2], one
+ * sample later.  For such an importer the FMU is built with DELAY 1: it predicts the estimate one sample
+ * ahead with the torque being applied and outputs the torque of the next sample (controllers/ssp.py).
+ * Before the first step the output is u0 + the feedforward of sample 0.
  */
 #include <math.h>
 #include <stdarg.h>
@@ -29,6 +39,7 @@ typedef struct {
     double in[NIN];
     double z[NX], e[NX], u[NU];
     double t;
+    long k;                 /* samples taken since the start: the row of the built-in reference */
     int initialising;
 } Ctrl;
 
@@ -42,9 +53,37 @@ static void say(Ctrl *c, fmi2Status s, const char *fmt, ...) {
     c->cb.logger(c->cb.componentEnvironment, c->name, s, s == fmi2OK ? "logAll" : "logStatusError", "%s", buf);
 }
 
-static void outputs(Ctrl *c) {
-    const double *y = c->in, *xref = c->in + NY, *uff = c->in + NY + NX;
-    double innov[NY];
+/* The reference of sample k: the inputs, plus the built-in table's row k (its last row after its end). */
+static void reference(const Ctrl *c, long k, double *xref, double *uff, double *w) {
+    memcpy(xref, c->in + NY, NX * sizeof(double));
+    memcpy(uff, c->in + NY + NX, NU * sizeof(double));
+    memcpy(w, c->in + NY + NX + NU, NX * sizeof(double));
+#if NREF > 0
+    long r = k < NREF ? k : NREF - 1;
+    for (int i = 0; i < NX; i++) { xref[i] += REFX[r][i]; w[i] += REFW[r][i]; }
+    for (int i = 0; i < NU; i++) uff[i] += REFU[r][i];
+#else
+    (void)c; (void)k;
+#endif
+}
+
+/* u = sat(u0 + uff − K e) */
+static void regulate(Ctrl *c, const double *uff, const double *e) {
+    for (int i = 0; i < NU; i++) {
+        double s = U0[i] + uff[i];
+        for (int j = 0; j < NX; j++) s -= KD[i][j] * e[j];
+        c->u[i] = s < -LIM[i] ? -LIM[i] : (s > LIM[i] ? LIM[i] : s);
+    }
+}
+
+/* One sample: the estimate e from the inputs, the next prior estimate z and the torque to output.  DELAY 0:
+ * the torque of this sample (z predicted with it).  DELAY 1 (for an importer that applies it one sample
+ * later): z predicted with the torque being applied now (the output held), the torque of the next sample
+ * from z and the next row of the reference. */
+static void sample(Ctrl *c) {
+    const double *y = c->in;
+    double xref[NX], uff[NU], w[NX], innov[NY], z[NX];
+    reference(c, c->k, xref, uff, w);
     for (int i = 0; i < NY; i++) {
         double s = y[i] - Y0[i];
         for (int j = 0; j < NX; j++) s -= CY[i][j] * (xref[j] + c->z[j]);
@@ -55,17 +94,30 @@ static void outputs(Ctrl *c) {
         for (int j = 0; j < NY; j++) s += MK[i][j] * innov[j];
         c->e[i] = s;
     }
-    for (int i = 0; i < NU; i++) {
-        double s = U0[i] + uff[i];
-        for (int j = 0; j < NX; j++) s -= KD[i][j] * c->e[j];
-        c->u[i] = s < -LIM[i] ? -LIM[i] : (s > LIM[i] ? LIM[i] : s);
+#if DELAY == 0
+    regulate(c, uff, c->e);
+#endif
+    for (int i = 0; i < NX; i++) {
+        double s = -w[i];
+        for (int j = 0; j < NX; j++) s += AD[i][j] * c->e[j];
+        for (int j = 0; j < NU; j++) s += BD[i][j] * (c->u[j] - U0[j] - uff[j]);
+        z[i] = s;
     }
+    memcpy(c->z, z, sizeof z);
+#if DELAY == 1
+    reference(c, c->k + 1, xref, uff, w);
+    regulate(c, uff, c->z);
+#endif
 }
 
 static void reset(Ctrl *c) {
     memset(c->in, 0, sizeof c->in);
     for (int i = 0; i < NY; i++) c->in[i] = Y0[i];
     memset(c->z, 0, sizeof c->z);
+    double xref[NX], uff[NU], w[NX];
+    c->k = 0;
+    reference(c, 0, xref, uff, w);
+    regulate(c, uff, c->z);             /* u0 + the feedforward of sample 0 */
     c->t = 0.0;
     c->initialising = 0;
 }
@@ -134,7 +186,6 @@ FMI2_Export fmi2Status fmi2Reset(fmi2Component comp) {
 FMI2_Export fmi2Status fmi2GetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t n, fmi2Real value[]) {
     Ctrl *c = comp;
     if (!c) return fmi2Error;
-    outputs(c);
     for (size_t k = 0; k < n; k++) {
         if (vr[k] >= NVAR) {
             say(c, fmi2Error, "fmi2GetReal: no variable with value reference %u", (unsigned)vr[k]);
@@ -171,17 +222,8 @@ FMI2_Export fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real h, fm
         say(c, fmi2Error, "fmi2DoStep: the controller samples at %.17g s; got a step of %.17g s", DT, h);
         return fmi2Error;
     }
-    const double *uff = c->in + NY + NX, *w = c->in + NY + NX + NU;
-    double du[NU], z[NX];
-    outputs(c);
-    for (int i = 0; i < NU; i++) du[i] = c->u[i] - U0[i] - uff[i];
-    for (int i = 0; i < NX; i++) {
-        double s = -w[i];
-        for (int j = 0; j < NX; j++) s += AD[i][j] * c->e[j];
-        for (int j = 0; j < NU; j++) s += BD[i][j] * du[j];
-        z[i] = s;
-    }
-    memcpy(c->z, z, sizeof z);
+    sample(c);
+    c->k++;
     c->t = t + h;
     return fmi2OK;
 }

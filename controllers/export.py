@@ -9,12 +9,15 @@ with the very matrices Python does), the model description, compiles and zips.
 Inputs (value references in this order): the sensors by their plant names (absolute), ``x_ref[i]`` the
 reference state and ``u_ff[j]`` the feedforward (deviations from the design's operating point), ``w[i]``
 the reference's own step in the estimator's prediction (:class:`MimoLQGLaw`'s ``W``; zero along a plant
-trajectory).  Outputs: the torques by their plant input names, absolute, saturated.  The outputs at a
-communication point depend on the inputs set there (direct feedthrough: the current estimator corrects with
-the measurement before the torque); ``fmi2DoStep`` then advances the estimate.
+trajectory).  Outputs: the torques by their plant input names, absolute, saturated.  ``fmi2DoStep(t_k)``
+takes the sample from the inputs set at t_k (the current estimator corrects with the measurement before the
+torque) and holds the torque as the output until the next step: no output depends on an input set at the
+same communication point, and the importer's order of stepping decides the delay (``ctrl_fmu.c``).  With
+``reference`` the FMU also plays a manoeuvre's reference and feedforward itself (its reference inputs then
+add to it): a plant and this controller alone make the closed loop (:mod:`controllers.ssp`).
 
 :class:`FmuLaw` drives such an FMU as a law of :class:`controllers.cosim.FmuLoop`: the plant FMU and the
-controller FMU stepped side by side by fmpy.
+controller FMU stepped side by side by fmpy, the controller first.
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ import numpy as np
 
 from controllers.design import DesignError, torque_inputs
 
-__all__ = ["FmuLaw", "export_controller_fmu"]
+__all__ = ["FmuLaw", "export_controller_fmu", "reference_tables"]
 
 C_SOURCE = Path(__file__).resolve().parent / "ctrl_fmu.c"
 
@@ -45,16 +48,35 @@ def _c_array(name: str, a: np.ndarray) -> str:
     return f"static const double {name}[{a.shape[0]}][{a.shape[1]}] = {{\n    {rows}}};\n"
 
 
-def _data(d, limits: np.ndarray, guid: str) -> str:
-    """ctrl_data.h: sizes, the estimator's and regulator's matrices, operating point, limits, sample time."""
+def _data(d, limits: np.ndarray, guid: str, tables=None, delay: int = 0) -> str:
+    """ctrl_data.h: sizes, the estimator's and regulator's matrices, operating point, limits, sample time;
+    with ``tables`` (x_ref, u_ff, w per sample) the built-in reference; the delay it compensates."""
     p, kf = d.plant, d.kalman
     nx, ny, nu = p.sys.nstates, len(kf.sensors), len(d.lqr.inputs)
     y0 = p.y0[[p.output_row(s) for s in kf.sensors]]
+    ref = "#define NREF 0\n"
+    if tables is not None:
+        x, u, w = tables
+        ref = (f"#define NREF {len(x)}\n" + _c_array("REFX", np.reshape(x, (-1, nx)))
+               + _c_array("REFU", np.reshape(u, (-1, nu))) + _c_array("REFW", np.reshape(w, (-1, nx))))
     return ("/* written by controllers/export.py: the design's numbers (17 significant digits) */\n"
             f'#define NX {nx}\n#define NY {ny}\n#define NU {nu}\n#define DT {d.dt:.17g}\n#define GUID "{guid}"\n'
+            f"#define DELAY {int(delay)}\n"
             + _c_array("AD", d.lqr.plant_d.A) + _c_array("BD", np.asarray(d.lqr.plant_d.B).reshape(nx, nu))
             + _c_array("CY", kf.C) + _c_array("MK", kf.Md) + _c_array("KD", d.lqr.Kd)
-            + _c_array("Y0", y0) + _c_array("U0", p.u0[torque_inputs(p)]) + _c_array("LIM", limits))
+            + _c_array("Y0", y0) + _c_array("U0", p.u0[torque_inputs(p)]) + _c_array("LIM", limits) + ref)
+
+
+def reference_tables(d, reference, limits) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The built-in reference of a controller FMU: ``x_ref``, ``u_ff`` and the prediction's correction ``w``
+    of :class:`controllers.multijoint.MimoLQGLaw` per sample; its last row, held after the end, is rest at
+    the reference's final state (``w`` there: what keeps the prediction at rest, 0 at an equilibrium)."""
+    from controllers.multijoint import MimoLQGLaw
+
+    law = MimoLQGLaw(d, limits, reference)
+    x, u, w = reference.x.copy(), reference.u_ff.copy(), law.W.copy()
+    w[-1] = x[-1] - law.Ad @ x[-1] - law.Bd @ u[-1]
+    return x, u, w
 
 
 def _variables(d) -> list[tuple[str, str, str, str]]:
@@ -73,7 +95,7 @@ def _variables(d) -> list[tuple[str, str, str, str]]:
 
 def _model_description(d, ident: str, guid: str) -> str:
     vs = _variables(d)
-    ny, nx, nu = len(d.kalman.sensors), d.plant.sys.nstates, len(d.lqr.inputs)
+    nu = len(d.lqr.inputs)
     lines = []
     for vr, (name, caus, desc, start) in enumerate(vs):
         if caus == "input":
@@ -84,9 +106,8 @@ def _model_description(d, ident: str, guid: str) -> str:
             lines.append(f'    <ScalarVariable name="{escape(name)}" valueReference="{vr}" causality="output" '
                          f'variability="discrete" initial="calculated" description="{escape(desc)}"><Real/>'
                          "</ScalarVariable>")
-    deps = " ".join(str(k + 1) for k in range(ny + nx + nu))            # y, x_ref, u_ff (not w)
-    first = len(vs) - nu + 1
-    unknowns = "\n".join(f'      <Unknown index="{first + j}" dependencies="{deps}"/>' for j in range(nu))
+    first = len(vs) - nu + 1             # the torque of the last sample taken: no input of the same instant
+    unknowns = "\n".join(f'      <Unknown index="{first + j}" dependencies=""/>' for j in range(nu))
     return f"""<?xml version="1.0" encoding="UTF-8"?>
 <fmiModelDescription fmiVersion="2.0" modelName="{escape(ident)}" guid="{guid}"
   generationTool="flexlink control --export-fmu"
@@ -113,11 +134,15 @@ def _model_description(d, ident: str, guid: str) -> str:
 """
 
 
-def export_controller_fmu(d, path: str | os.PathLike, limits=None, identifier: str | None = None) -> Path:
+def export_controller_fmu(d, path: str | os.PathLike, limits=None, identifier: str | None = None,
+                          reference=None, delay: int = 0) -> Path:
     """Write the design's sampled LQG (:class:`controllers.multijoint.MimoLQGLaw`) as an FMI 2.0 CS FMU.
 
     ``limits``: the torque saturation per actuated joint (default: the design's torque limits).  The sensors
-    must be linear in the state (encoders, root strain gauges), as for the multi-joint run."""
+    must be linear in the state (encoders, root strain gauges), as for the multi-joint run.  ``reference``
+    (a :class:`controllers.trajectory.Reference` at the design's sample time): built in
+    (:func:`reference_tables`).  ``delay=1``: for an importer that applies the output one sample later
+    (Jacobi; :class:`controllers.ssp.PredictiveLQGLaw`)."""
     from flexlink.export.cbuild import compile_shared_library, fmi_headers_dir
 
     if np.any(d.kalman.D != 0) or any(not s.endswith((".theta", ".root.moment")) for s in d.kalman.sensors):
@@ -128,14 +153,22 @@ def export_controller_fmu(d, path: str | os.PathLike, limits=None, identifier: s
         raise DesignError(f"--export-fmu {path}: expected a file name ending in .fmu")
     limits = np.asarray([d.lqr.torque_limits[j] for j in d.actuated_joints] if limits is None else limits, dtype=float)
     ident = identifier or "".join(c if c.isalnum() else "_" for c in f"{d.plant.model.scene.name}_lqg")
-    guid = hashlib.sha256(_data(d, limits, "").encode()).hexdigest()[:32]
+    tables = None
+    if reference is not None:
+        if abs(reference.dt - d.dt) > 1e-12 * d.dt:
+            raise DesignError(f"the reference samples at {reference.dt} s, the controller at {d.dt} s")
+        tables = reference_tables(d, reference, limits)
+    if delay not in (0, 1):
+        raise DesignError(f"delay: 0 or 1 sample, got {delay}")
+    data = _data(d, limits, "{GUID}", tables, delay)
+    guid = hashlib.sha256(data.encode()).hexdigest()[:32]
     guid = f"{{{guid[:8]}-{guid[8:12]}-{guid[12:16]}-{guid[16:20]}-{guid[20:32]}}}"
     with tempfile.TemporaryDirectory(prefix="flexlink-ctrl-") as tmp:
         root = Path(tmp)
         src = root / "sources"
         src.mkdir()
         shutil.copy(C_SOURCE, src / "ctrl_fmu.c")
-        (src / "ctrl_data.h").write_text(_data(d, limits, guid))
+        (src / "ctrl_data.h").write_text(data.replace('"{GUID}"', f'"{guid}"', 1))
         (root / "modelDescription.xml").write_text(_model_description(d, ident, guid))
         compile_shared_library([src / "ctrl_fmu.c"], [src, fmi_headers_dir()],
                                root / "binaries" / "linux64" / f"{ident}.so")
@@ -152,12 +185,14 @@ def export_controller_fmu(d, path: str | os.PathLike, limits=None, identifier: s
 
 class FmuLaw:
     """A controller FMU written by :func:`export_controller_fmu`, stepped as a law of
-    :class:`controllers.cosim.FmuLoop`: at sample k set (y_k, x_ref,k, u_ff,k, w_k), read the torques,
-    ``fmi2DoStep(t_k, dt)``.  ``W`` is the law's reference correction (:class:`MimoLQGLaw`'s ``W``)."""
+    :class:`controllers.cosim.FmuLoop`: at sample k set (y_k, x_ref,k, u_ff,k, w_k), ``fmi2DoStep(t_k, dt)``,
+    read the torques (the plant steps after it with them).  ``W`` is the law's reference correction
+    (:class:`MimoLQGLaw`'s ``W``); ``builtin=True``: the FMU plays its own reference, the reference inputs
+    stay 0."""
 
     kind = "lqr-fmu"
 
-    def __init__(self, fmu: str | os.PathLike, W: np.ndarray):
+    def __init__(self, fmu: str | os.PathLike, W: np.ndarray | None = None, builtin: bool = False):
         import fmpy
         from fmpy.fmi2 import FMU2Slave
 
@@ -168,7 +203,8 @@ class FmuLaw:
         self.inputs = [v.name for v in vs if v.causality == "output"]
         n_in, nx = len(names), sum(n.startswith("x_ref[") for n in names)
         self.sensors = names[: n_in - 2 * nx - len(self.inputs)]
-        self.W = np.asarray(W, dtype=float)
+        self.builtin = builtin
+        self.W = None if W is None else np.asarray(W, dtype=float)
         self._dir = fmpy.extract(os.fspath(fmu))
         self.slave = FMU2Slave(guid=self.md.guid, unzipDirectory=self._dir,
                                modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName="controller")
@@ -194,13 +230,15 @@ class FmuLaw:
 
     def step(self, y, x_ref, u_ff) -> np.ndarray:
         ny, nx = len(self.sensors), len(x_ref)
-        self.in_[:ny], self.in_[ny:ny + nx] = y, x_ref
-        self.in_[ny + nx:ny + nx + len(self.inputs)] = u_ff
-        self.in_[ny + nx + len(self.inputs):] = self.W[self.k]
+        self.in_[:ny] = y
+        if not self.builtin:
+            self.in_[ny:ny + nx] = x_ref
+            self.in_[ny + nx:ny + nx + len(self.inputs)] = u_ff
+            self.in_[ny + nx + len(self.inputs):] = self.W[self.k]
         s = self.slave
         s.fmi2SetReal(s.component, self.vr_in, len(self.in_), self.val_in)
-        s.fmi2GetReal(s.component, self.vr_out, len(self.inputs), self.val_out)
         s.fmi2DoStep(s.component, self.k * self.dt, self.dt, 1)
+        s.fmi2GetReal(s.component, self.vr_out, len(self.inputs), self.val_out)
         self.k += 1
         return np.frombuffer(self.val_out, dtype=np.float64).copy()
 

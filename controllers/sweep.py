@@ -12,6 +12,9 @@ A case is either
   values (the sweep tests the nominal controller against the varied plant), or
 * **open loop** (``stop_time``): the scene's default inputs (start values) for ``stop_time`` seconds.
 
+With several torque-driven joints a closed-loop case is the MIMO LQG's manoeuvre of every joint
+(``target_deg`` one angle per joint; :mod:`controllers.montecarlo`: its figures and stability verdict).
+
 Each case gives one row of named scalar metrics (:data:`CLOSED_LOOP_METRICS`, :data:`OPEN_LOOP_METRICS`),
 ``failed``/``error`` (an FMU error, a refused parameter, ``fmi2Discard``, a divergence: recorded, the sweep
 goes on), optional decimated time series (list columns), the wall time and the worker.
@@ -358,6 +361,10 @@ def _closed_loop_case(job: _WorkerJob, params: dict[str, float]) -> tuple[dict, 
     from controllers.manoeuvre import rest_to_rest
 
     s, d = job.spec.settings, job.design
+    if s.get("multijoint"):
+        from controllers.montecarlo import case
+
+        return case(job, params)
     loop = job.instance()
     res = rest_to_rest(d, loop, s["target"], s["duration"], s["settle"], s["controller"], parameters=params)
     m = {k: res.metrics[k] for k in CLOSED_LOOP_METRICS if k in res.metrics}
@@ -704,6 +711,17 @@ def _sweep_settings(sc, scene_path: Path, variables: dict, *, controller, target
     loop the deferred controller design: ``(mode, metric_names, settings, make_design or None)``."""
     joint, link = sc.joints[0].name, sc.links[-1].name
     settings: dict = {"sample_time": float(sample_time), "settle": float(settle)}
+    if controller is not None and target_deg is not None and duration is not None:
+        from controllers import montecarlo
+
+        if len(montecarlo.torque_joints(sc)) > 1:
+            settings.update(montecarlo.settings(sc, controller, target_deg, duration, settle, sample_time,
+                                                torque_limit, sensors))
+            make_design = functools.partial(_closed_loop_design, sc, scene_path, settings, controller=controller,
+                                            target_deg=target_deg, duration=duration, sample_time=sample_time,
+                                            torque_limit=torque_limit, sensors=sensors)
+            return "closed", montecarlo.MULTIJOINT_METRICS, settings, make_design
+        target_deg = _one_angle(target_deg)
     if controller is not None:
         from controllers.manoeuvre import CONTROLLERS, _check_times
 
@@ -735,6 +753,13 @@ def _sweep_settings(sc, scene_path: Path, variables: dict, *, controller, target
     return "open", OPEN_LOOP_METRICS, settings, None
 
 
+def _one_angle(target_deg) -> float:
+    angles = [float(v) for v in np.atleast_1d(target_deg)]
+    if len(angles) != 1:
+        raise FlexlinkError(f"--target: one angle for the scene's one torque-driven joint, got {len(angles)}")
+    return angles[0]
+
+
 def _closed_loop_design(sc, scene_path: Path, settings: dict, *, controller, target_deg, duration, sample_time,
                         torque_limit, sensors) -> tuple[dict, bytes]:
     """Linearisation and design (seconds): only when there are cases to run; reused in this process."""
@@ -742,11 +767,17 @@ def _closed_loop_design(sc, scene_path: Path, settings: dict, *, controller, tar
 
     from flexlink.mechanics.model import build_model
 
-    dkey = json.dumps([hashlib.sha256(scene_path.read_bytes()).hexdigest(), controller, float(target_deg),
-                       float(duration), float(sample_time), torque_limit, sensors])
+    dkey = json.dumps([hashlib.sha256(scene_path.read_bytes()).hexdigest(), controller,
+                       [float(v) for v in np.atleast_1d(target_deg)], float(duration), float(sample_time),
+                       torque_limit, sensors])
     if dkey not in _DESIGNS:
-        d = _design(build_model(sc), controller=controller, target=math.radians(target_deg),
-                    duration=duration, sample_time=sample_time, torque_limit=torque_limit, sensors=sensors)
+        if settings.get("multijoint"):
+            from controllers.montecarlo import design
+
+            d = design(build_model(sc), settings, sample_time)
+        else:
+            d = _design(build_model(sc), controller=controller, target=math.radians(target_deg),
+                        duration=duration, sample_time=sample_time, torque_limit=torque_limit, sensors=sensors)
         while len(_DESIGNS) >= 4:
             _DESIGNS.pop(next(iter(_DESIGNS)))
         _DESIGNS[dkey] = (d, cloudpickle.dumps(d))
@@ -940,7 +971,9 @@ def _run_on_dask(spec: SweepSpec, todo, collect, *, client, scheduler, n_workers
 # ============================================================================ summary and plots
 def summary_table(df) -> str:
     """A plain-text summary: cases, failures (grouped by message), and per metric count/mean/std/min/max."""
-    metrics = [c for c in (*CLOSED_LOOP_METRICS, *OPEN_LOOP_METRICS) if c in df.columns]
+    from controllers.montecarlo import MULTIJOINT_METRICS
+
+    metrics = [c for c in (*CLOSED_LOOP_METRICS, *OPEN_LOOP_METRICS, *MULTIJOINT_METRICS) if c in df.columns]
     metrics = list(dict.fromkeys(metrics))
     ok = df[~df["failed"]]
     lines = [f"{len(df)} cases ({df.attrs.get('kind', 'sweep')}): {len(ok)} ok, {int(df['failed'].sum())} failed"
@@ -1033,7 +1066,9 @@ def add_sweep_parser(subparsers) -> None:
                    help="Monte Carlo parameter: uniform:LO:HI, normal:MEAN:STD[:LO:HI], loguniform:LO:HI")
     p.add_argument("--controller", choices=("lqr", "pd"),
                    help="closed loop: the rest-to-rest manoeuvre of `flexlink control` with this controller")
-    p.add_argument("--target", type=float, metavar="DEG", help="closed loop: final angle of the first joint")
+    p.add_argument("--target", type=_angles, metavar="DEG[,DEG...]",
+                   help="closed loop: final angle of the first joint; with several torque-driven joints one per "
+                        "joint, comma-separated (the MIMO LQG's manoeuvre, its stability verdict)")
     p.add_argument("--duration", type=float, metavar="S", help="closed loop: manoeuvre time")
     p.add_argument("--settle", type=float, default=1.5, metavar="S",
                    help="window after the manoeuvre (closed loop) / at the end (open loop) for the residual "
@@ -1065,6 +1100,12 @@ def add_sweep_parser(subparsers) -> None:
                    help="metric vs parameter (grid) or histograms (Monte Carlo)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_sweep)
+
+
+def _angles(text: str) -> list[float]:
+    from controllers.cli import _angles as angles
+
+    return angles(text)
 
 
 def _parse_named(items: list[str], option: str) -> dict[str, str]:
@@ -1104,6 +1145,10 @@ def cmd_sweep(args) -> int:
     wall = df.attrs["wall_s"]
     rate = df.attrs["computed"] / wall if wall > 0 else math.nan
     print(summary_table(df))
+    if df.attrs["settings"].get("multijoint"):
+        from controllers.montecarlo import stability_summary
+
+        print(stability_summary(df))
     print(f"wrote {args.out} ({len(df)} rows; journal {df.attrs['journal']}); {df.attrs['computed']} cases in "
           f"{wall:.1f} s ({rate:.1f} cases/s including start-up)")
     if args.plot:

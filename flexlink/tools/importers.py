@@ -40,6 +40,30 @@ print("RESULT " + json.dumps({"ok": bool(ok), "values": dict(zip(outputs, values
 '''
 
 
+_LIBCOSIM_SSP_CHILD = r'''
+import json, sys
+from libcosimpy.CosimExecution import CosimExecution
+from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+from libcosimpy.CosimObserver import CosimObserver
+
+log_output_level(CosimLogLevel.WARNING)
+ssp, n_steps, record = sys.argv[1], int(sys.argv[2]), json.loads(sys.argv[3])
+ex = CosimExecution.from_ssp_file(ssp)
+obs = CosimObserver.create_last_value()
+ex.add_observer(obs)
+idx = {el: ex.slave_index_from_instance_name(el) for el in record}
+refs = {el: {v.name.decode(): v.reference for v in ex.slave_variables(i)} for el, i in idx.items()}
+rows, ok = [], True
+for k in range(n_steps):
+    if not ex.step():
+        ok = False
+        break
+    rows.append([v for el, names in record.items()
+                 for v in obs.last_real_values(idx[el], [refs[el][n] for n in names])])
+print("RESULT " + json.dumps({"ok": ok, "rows": rows}))
+'''
+
+
 @dataclass
 class ImporterRun:
     ok: bool
@@ -62,20 +86,46 @@ def run_libcosim(fmu: str | os.PathLike, stop_time: float, step: float, outputs:
     """Co-simulate the FMU alone in libcosim and return the outputs' last values."""
     cmd = [sys.executable, "-c", _LIBCOSIM_CHILD, os.fspath(fmu), repr(stop_time), repr(step),
            json.dumps(start_values or {}), json.dumps(outputs)]
+    run, data = _child(cmd, timeout)
+    if data is not None:
+        run.values = data["values"]
+    return run
+
+
+def run_libcosim_ssp(ssp: str | os.PathLike, n_steps: int, record: dict[str, list[str]],
+                     timeout: float = 300) -> ImporterRun:
+    """Load an SSP package in libcosim (``CosimExecution.from_ssp_file``: its fixed-step algorithm and step
+    size from the package) and take ``n_steps`` steps; ``values`` holds, per element and variable of
+    ``record`` (``{"element:variable": [...]}``), the value after each step (times t_1 … t_n)."""
+    cmd = [sys.executable, "-c", _LIBCOSIM_SSP_CHILD, os.fspath(ssp), str(int(n_steps)), json.dumps(record)]
+    run, data = _child(cmd, timeout)
+    if data is not None:
+        names = [f"{el}:{n}" for el, ns in record.items() for n in ns]
+        cols = list(zip(*data["rows"], strict=True)) if data["rows"] else [[] for _ in names]
+        run.values = {n: list(c) for n, c in zip(names, cols, strict=True)}
+        if len(data["rows"]) != n_steps:
+            run.ok, run.completed, run.why = False, False, f"stopped after {len(data['rows'])} of {n_steps} steps"
+    return run
+
+
+def _child(cmd: list[str], timeout: float) -> tuple[ImporterRun, dict | None]:
+    """Run a libcosim child process: the run (``ok``: completed without an ``[error]``/``[warning]`` line)
+    and its ``RESULT`` document (None without one)."""
     try:
         p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired as e:
-        return ImporterRun(False, {}, str(e.stdout or "") + str(e.stderr or ""), why=f"no result within {timeout} s")
+        return ImporterRun(False, {}, str(e.stdout or "") + str(e.stderr or ""),
+                           why=f"no result within {timeout} s"), None
     log = p.stdout + p.stderr
     bad = [line for line in log.splitlines() if "[error]" in line.lower() or "[warning]" in line.lower()]
     result = [line for line in p.stdout.splitlines() if line.startswith("RESULT ")]
     if p.returncode != 0 or not result:
         why = f"signal {-p.returncode}" if p.returncode < 0 else f"exit status {p.returncode}"
-        return ImporterRun(False, {}, log, why=why if p.returncode else "no result")
+        return ImporterRun(False, {}, log, why=why if p.returncode else "no result"), None
     data = json.loads(result[-1][len("RESULT "):])
     completed = bool(data["ok"])
-    return ImporterRun(completed and not bad, data["values"], log, completed, "" if completed else
-                       "simulate_until returned false")
+    return ImporterRun(completed and not bad, {}, log, completed, "" if completed else
+                       "the execution reported a failed step"), data
 
 
 def fmutool_check(fmu: str | os.PathLike, timeout: float = 120) -> ImporterRun:
