@@ -269,30 +269,44 @@ def bench_scipy(case: BenchCase, method: str, tolerances, ref, repeats: int = 3)
     return rows
 
 
+def model_exchange_inputs(case: BenchCase) -> np.ndarray | None:
+    """fmpy's input table of a case: a switch is two rows at the same time (fmpy's discontinuity), the value
+    before and after; the last row holds the value of the last interval (fmpy interpolates linearly between
+    rows: a switch at the stop time itself would otherwise ramp the whole last interval)."""
+    names = [s.name for s in case.model.inputs if s.fmu_variable]
+    if not names:
+        return None
+    rows_in = []
+    for t in [0.0, *case.switches, case.stop]:
+        for side in ((t - 1e-6, t) if 0 < t < case.stop else (t - 1e-6,) if t == case.stop else (t,)):
+            u = case.inputs_at(side)
+            rows_in.append((t, *[u.get(n, 0.0) for n in names]))
+    return np.array(rows_in, dtype=[("time", float), *[(n, float) for n in names]])
+
+
+def run_model_exchange(case: BenchCase, fmu, *, solver: str = "CVode", relative_tolerance: float | None = None,
+                       step_size: float | None = None) -> tuple[dict[str, np.ndarray], float]:
+    """The case's outputs on its sample grid from the FMU's Model Exchange interface under one of fmpy's
+    solvers (CVode, or its explicit Euler at ``step_size``), and the CPU seconds it took."""
+    import fmpy
+
+    sample = float(case.times[1] - case.times[0])
+    t0 = time.process_time()
+    res = fmpy.simulate_fmu(str(fmu), fmi_type="ModelExchange", solver=solver, relative_tolerance=relative_tolerance,
+                            step_size=step_size, stop_time=case.stop, output_interval=sample,
+                            input=model_exchange_inputs(case), output=case.outputs)
+    cpu = time.process_time() - t0
+    return {n: np.interp(case.times, res["time"], res[n]) for n in case.outputs}, cpu
+
+
 def bench_model_exchange(case: BenchCase, fmu, tolerances, ref, repeats: int = 3) -> list[BenchRow]:
     """The same FMU's Model Exchange interface under fmpy's CVODE (what an FMI host would run), restarted at
     the input switches by fmpy's input handling; the time includes fmpy's Python loop around the FMU calls."""
-    import fmpy
-
-    names = [s.name for s in case.model.inputs if s.fmu_variable]
-    rows_in = []
-    for t in [0.0, *case.switches, case.stop]:
-        # a switch is two rows at the same time (fmpy's discontinuity), the value before and after
-        for side in ((t - 1e-6, t) if 0 < t < case.stop else (t,)):
-            u = case.inputs_at(side)
-            rows_in.append((t, *[u.get(n, 0.0) for n in names]))
-    inputs = np.array(rows_in, dtype=[("time", float), *[(n, float) for n in names]]) if names else None
     rows = []
-    sample = float(case.times[1] - case.times[0])
     for tol in tolerances:
-        cpu = []
-        for _ in range(repeats):
-            t0 = time.process_time()
-            res = fmpy.simulate_fmu(str(fmu), fmi_type="ModelExchange", solver="CVode", relative_tolerance=tol,
-                                    stop_time=case.stop, output_interval=sample, input=inputs, output=case.outputs)
-            cpu.append(time.process_time() - t0)
-        y = {n: np.interp(case.times, res["time"], res[n]) for n in case.outputs}
-        rows.append(BenchRow("fmpy CVODE (ME)", f"rtol={tol:g}", statistics.median(cpu) / case.stop,
+        runs = [run_model_exchange(case, fmu, relative_tolerance=tol) for _ in range(repeats)]
+        y = runs[-1][0]
+        rows.append(BenchRow("fmpy CVODE (ME)", f"rtol={tol:g}", statistics.median(c for _, c in runs) / case.stop,
                              relative_error(case, y, ref)))
     return rows
 
