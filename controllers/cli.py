@@ -91,6 +91,10 @@ def add_control_parsers(subparsers) -> None:
                    help="saturation and Bryson torque limit of every joint (default: 1.5 x the rigid quintic's "
                         "peak torque of the first joint; with several joints 1.5 x the largest peak of the "
                         "inverse-dynamics feedforward)")
+    p.add_argument("--root-moment", type=_finite, metavar="NM",
+                   help="Bryson limit of every link's root bending moment in the LQR weights (default: 10 %% of the "
+                        "torque limit of the joint carrying the link; the torque limit itself gives the two-link "
+                        "example >= 6 dB and >= 30 deg at each actuator, docs/control.md)")
     p.add_argument("--sample-time", type=_finite, default=1e-3, metavar="S", help="controller sample time (1 ms)")
     p.add_argument("--sensors", choices=("strain", "accelerometer"), default="strain",
                    help="Kalman sensors besides the joint encoders: the links' root strain gauges or the tip "
@@ -194,6 +198,8 @@ def cmd_control(args) -> int:
 
     if not (args.sample_time > 0):
         raise FlexlinkError(f"--sample-time must be positive, got {args.sample_time}")
+    if args.root_moment is not None and not args.root_moment > 0:
+        raise FlexlinkError(f"--root-moment must be positive, got {args.root_moment}")
     if args.torque_limit is not None and not args.torque_limit > 0:
         raise FlexlinkError(f"--torque-limit must be positive, got {args.torque_limit}")
     run_params = parse_assignments(args.set)
@@ -219,7 +225,7 @@ def cmd_control(args) -> int:
     if limit is None:
         limit = _default_limits(plant, targets, args.duration, args.sample_time)
     try:
-        d = design(model, torque_limit=limit, dt=args.sample_time, sensors=args.sensors)
+        d = design(model, torque_limit=limit, dt=args.sample_time, sensors=args.sensors, root_moment=args.root_moment)
     except (ValueError, np.linalg.LinAlgError) as e:
         raise FlexlinkError(f"{args.scene}: the LQR/Kalman design failed ({' '.join(str(e).split())})") from None
     if args.schedule is not None and (args.design_only or len(d.actuated_joints) < 2):
