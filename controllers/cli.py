@@ -91,6 +91,10 @@ def add_control_parsers(subparsers) -> None:
                    help="saturation and Bryson torque limit of every joint (default: 1.5 x the rigid quintic's "
                         "peak torque of the first joint; with several joints 1.5 x the largest peak of the "
                         "inverse-dynamics feedforward)")
+    p.add_argument("--root-moment", type=_finite, metavar="NM",
+                   help="Bryson limit of every link's root bending moment in the LQR weights (default: 10 %% of the "
+                        "torque limit of the joint carrying the link; the torque limit itself gives the two-link "
+                        "example >= 6 dB and >= 30 deg at each actuator, docs/control.md)")
     p.add_argument("--sample-time", type=_finite, default=1e-3, metavar="S", help="controller sample time (1 ms)")
     p.add_argument("--sensors", choices=("strain", "accelerometer"), default="strain",
                    help="Kalman sensors besides the joint encoders: the links' root strain gauges or the tip "
@@ -101,6 +105,10 @@ def add_control_parsers(subparsers) -> None:
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
     p.add_argument("--plot", type=plot_file, metavar="OUT.png",
                    help="time responses, closed-loop poles, loop Bode with margins")
+    p.add_argument("--schedule", type=int, metavar="N",
+                   help="with several torque-driven joints: gain scheduling over the path, the LQG designed at N "
+                        "poses along it (N >= 2, start and target included) and interpolated; the run compares it "
+                        "with the fixed LQG designed at the start (docs/control.md)")
     p.add_argument("--export-fmu", type=output_file, metavar="CTRL.fmu",
                    help="also write the sampled LQG (Kalman current estimator + discrete LQR, saturation) as a "
                         "pure-C FMI 2.0 Co-Simulation FMU, its sample time the fixed communication step "
@@ -190,9 +198,14 @@ def cmd_control(args) -> int:
 
     if not (args.sample_time > 0):
         raise FlexlinkError(f"--sample-time must be positive, got {args.sample_time}")
+    if args.root_moment is not None and not args.root_moment > 0:
+        raise FlexlinkError(f"--root-moment must be positive, got {args.root_moment}")
     if args.torque_limit is not None and not args.torque_limit > 0:
         raise FlexlinkError(f"--torque-limit must be positive, got {args.torque_limit}")
     run_params = parse_assignments(args.set)
+    if args.schedule is not None and args.schedule < 2:
+        raise FlexlinkError(f"--schedule: at least 2 design points along the path (start and target), got "
+                            f"{args.schedule}")
     if not args.design_only and (args.target is None or args.duration is None):
         raise FlexlinkError("--target and --duration are required for the closed-loop run (or give --design-only)")
     if args.design_only and args.torque_limit is None and (args.target is None or args.duration is None):
@@ -212,9 +225,12 @@ def cmd_control(args) -> int:
     if limit is None:
         limit = _default_limits(plant, targets, args.duration, args.sample_time)
     try:
-        d = design(model, torque_limit=limit, dt=args.sample_time, sensors=args.sensors)
+        d = design(model, torque_limit=limit, dt=args.sample_time, sensors=args.sensors, root_moment=args.root_moment)
     except (ValueError, np.linalg.LinAlgError) as e:
         raise FlexlinkError(f"{args.scene}: the LQR/Kalman design failed ({' '.join(str(e).split())})") from None
+    if args.schedule is not None and (args.design_only or len(d.actuated_joints) < 2):
+        raise FlexlinkError("--schedule: gain scheduling over the path is part of the multi-joint run (several "
+                            "torque-driven joints, --target and --duration, no --design-only)")
     if args.export_fmu:
         _export(args, d)
     if args.export_ssp:
@@ -316,7 +332,6 @@ def _default_limits(plant, targets, duration, dt):
 def _run_multijoint(args, d, targets, run_params) -> int:
     """``flexlink control`` with several torque-driven joints: the MIMO LQG and the joint PD through the FMU
     (:func:`controllers.multijoint.compare`), figures printed or as JSON, the plot."""
-    from controllers.cosim import FmuLoop
     from controllers.manoeuvre import _check_times
     from controllers.multijoint import check_multijoint, compare, joint_pd_gains, plan
     from flexlink.export.fmu import cached_fmu
@@ -330,14 +345,11 @@ def _run_multijoint(args, d, targets, run_params) -> int:
     plan(d.plant, targets)
     _check_times(args.duration, args.settle, d.dt)
     fmu = cached_fmu(args.scene)
-    with FmuLoop(fmu) as loop:
-        for name in run_params:
-            if name not in loop.variables or loop.variables[name].causality != "parameter":
-                raise FlexlinkError(f"--set {name}: not a parameter of the FMU")
+    if args.schedule is not None:
+        return _run_scheduled(args, d, targets, run_params, fmu)
+    with _loop(fmu, run_params) as loop:
         runs = compare(d, loop, targets, args.duration, args.settle, parameters=run_params)
-    joints = d.actuated_joints
-    start = {j: math.degrees(float(d.plant.op.q[d.plant.model.coordinates.index(f"{j}.theta")])) for j in joints}
-    move = ", ".join(f"{j} {start[j]:g} -> {math.degrees(t):g} deg" for j, t in zip(joints, targets, strict=True))
+    move = _move(d, targets)
     if args.plot:
         from controllers.plots import plot_multijoint
 
@@ -347,7 +359,7 @@ def _run_multijoint(args, d, targets, run_params) -> int:
     if args.json:
         rob = _robustness_json(d, "lqr")
         rob["pd"] = _pd_robustness(d, runs["pd"])
-        print(json.dumps({"lqg": runs["lqr"].metrics, "pd": runs["pd"].metrics, "joints": joints,
+        print(json.dumps({"lqg": runs["lqr"].metrics, "pd": runs["pd"].metrics, "joints": d.actuated_joints,
                           "targets_deg": [math.degrees(t) for t in targets], "duration_s": args.duration,
                           "settle_s": args.settle, "sample_time_s": d.dt, "sensors": d.kalman.sensors,
                           "pd_gains": {"kp": kp.tolist(), "kd": kd.tolist()}, "parameters": run_params,
@@ -355,6 +367,90 @@ def _run_multijoint(args, d, targets, run_params) -> int:
         return 0
     _print_comparison(args, d, runs, move, kp, kd)
     return 0
+
+
+def _loop(fmu, run_params):
+    """The FMU's closed loop, the ``--set`` names checked against its parameters."""
+    from controllers.cosim import FmuLoop
+
+    loop = FmuLoop(fmu)
+    for name in run_params:
+        if name not in loop.variables or loop.variables[name].causality != "parameter":
+            loop.close()
+            raise FlexlinkError(f"--set {name}: not a parameter of the FMU")
+    return loop
+
+
+def _move(d, targets) -> str:
+    joints = d.actuated_joints
+    start = {j: math.degrees(float(d.plant.op.q[d.plant.model.coordinates.index(f"{j}.theta")])) for j in joints}
+    return ", ".join(f"{j} {start[j]:g} -> {math.degrees(t):g} deg" for j, t in zip(joints, targets, strict=True))
+
+
+def _run_scheduled(args, d, targets, run_params, fmu) -> int:
+    """``--schedule N``: the LQG scheduled over the path against the fixed one (:mod:`controllers.schedule`),
+    the frozen-pose spectral radius of both at the design points and halfway between them."""
+    from controllers.multijoint import inverse_dynamics_reference, plan
+    from controllers.schedule import compare_schedule, design_schedule, radius_along_path
+
+    pl = plan(d.plant, targets)
+    schedule = design_schedule(d, pl, args.schedule)
+    ref = inverse_dynamics_reference(d.plant, pl, d.dt, args.duration, args.settle)
+    with _loop(fmu, run_params) as loop:
+        runs = compare_schedule(d, schedule, loop, pl, ref, parameters=run_params)
+    radius = radius_along_path(d, schedule, pl, np.linspace(0.0, 1.0, 2 * args.schedule - 1))
+    move = _move(d, targets)
+    done = {k: r for k, r in runs.items() if not isinstance(r, str)}
+    if args.plot:
+        from controllers.plots import plot_multijoint
+
+        plot_multijoint(args.plot, done, title=f"{d.plant.model.scene.name}: {move} in {args.duration:g} s; LQG "
+                                               f"scheduled at {args.schedule} poses against the fixed LQG")
+    if args.json:
+        print(json.dumps({**{k: (r if isinstance(r, str) else r.metrics) for k, r in runs.items()},
+                          "joints": d.actuated_joints, "targets_deg": [math.degrees(t) for t in targets],
+                          "duration_s": args.duration, "settle_s": args.settle, "sample_time_s": d.dt,
+                          "schedule": {"points": args.schedule, "sigma": schedule.sigma.tolist(),
+                                       "poses_deg": [{j: math.degrees(v) for j, v in p.items()}
+                                                     for p in schedule.poses]},
+                          "frozen_spectral_radius": radius, "parameters": run_params}))
+        return 0
+    print(f"{d.plant.model.scene.name}: rest-to-rest {move} in {args.duration:g} s (+ {args.settle:g} s settle), "
+          f"sample time {d.dt:g} s; feedforward: the model's inverse dynamics along the joints' quintics")
+    print(f"  scheduled LQG: designed at {args.schedule} poses along the path ("
+          + "; ".join(", ".join(f"{v:.4g}" for v in np.degrees(list(p.values()))) for p in schedule.poses)
+          + " deg), interpolated by the path parameter; fixed LQG: designed at the start pose")
+    print("  frozen-pose spectral radius (sampled loop, < 1 holds the pose), fixed / scheduled: "
+          + ", ".join(f"{r['fixed']:.4f}/{r['scheduled']:.4f}" for r in radius))
+    for k, r in runs.items():
+        if isinstance(r, str):
+            print(f"  {k} LQG: left the beam model's validity: {r}")
+    _print_table({("scheduled LQG" if k == "scheduled" else "fixed LQG"): r.metrics for k, r in done.items()})
+    if args.plot:
+        print(f"  wrote {args.plot}")
+    return 0
+
+
+def _print_table(columns: dict) -> None:
+    """The figures of several runs side by side (label → metrics)."""
+    first = next(iter(columns.values()))
+
+    def st(m):
+        return "not settled" if m["settling_time_s"] is None else f"{m['settling_time_s']:.4g} s"
+
+    def row(label, values, fmt="14.4g", suffix=""):
+        print(f"  {label:34s}" + "".join(f"{v:{fmt}}" for v in values) + suffix)
+
+    row("", list(columns), ">14s")
+    row("settling time", [st(m) for m in columns.values()], ">14s",
+        f"   (joints within {first['settle_band_deg']:g} deg, tips within {1e3 * first['settle_band_m']:g} mm)")
+    for lk in first["links"]:
+        for key, what in (("residual_vibration_rms_m", "residual vibration RMS"), ("max_tip_deflection_m", "max tip")):
+            row(f"{lk}.tip.v {what} (mm)", [1e3 * m["links"][lk][key] for m in columns.values()])
+    for j in first["joints"]:
+        for key, what in (("final_error_deg", "final error (deg)"), ("peak_torque_nm", "peak torque (N m)")):
+            row(f"{j} {what}", [m["joints"][j][key] for m in columns.values()])
+    row("realtime factor", [m["realtime_factor"] for m in columns.values()], "14.1f")
 
 
 def _pd_robustness(d, pd_run) -> dict:
@@ -378,20 +474,7 @@ def _print_comparison(args, d, runs, move, kp, kd) -> None:
     print("  PD:  kp " + ", ".join(f"{v:.4g}" for v in kp) + " N m/rad, kd " + ", ".join(f"{v:.4g}" for v in kd)
           + " N m s/rad, torque limits = the LQG run's peaks")
 
-    def st(m):
-        return "not settled" if m["settling_time_s"] is None else f"{m['settling_time_s']:.4g} s"
-
-    print(f"  {'':34s}{'LQG':>14s}{'PD':>14s}")
-    print(f"  {'settling time':34s}{st(lqg):>14s}{st(pd):>14s}   (joints within {lqg['settle_band_deg']:g} deg, "
-          f"tips within {1e3 * lqg['settle_band_m']:g} mm)")
-    for lk in lqg["links"]:
-        for key, what in (("residual_vibration_rms_m", "residual vibration RMS"), ("max_tip_deflection_m", "max tip")):
-            print(f"  {lk + '.tip.v ' + what + ' (mm)':34s}{1e3 * lqg['links'][lk][key]:14.4g}"
-                  f"{1e3 * pd['links'][lk][key]:14.4g}")
-    for j in lqg["joints"]:
-        for key, what in (("final_error_deg", "final error (deg)"), ("peak_torque_nm", "peak torque (N m)")):
-            print(f"  {j + ' ' + what:34s}{lqg['joints'][j][key]:14.4g}{pd['joints'][j][key]:14.4g}")
-    print(f"  {'realtime factor':34s}{lqg['realtime_factor']:14.1f}{pd['realtime_factor']:14.1f}")
+    _print_table({"LQG": lqg, "PD": pd})
     if args.plot:
         print(f"  wrote {args.plot}")
 

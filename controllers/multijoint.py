@@ -185,25 +185,35 @@ class MimoLQGLaw:
         self.C, self.M, self.K = d.kalman.C, d.kalman.Md, d.lqr.Kd
         self.Ad, self.Bd = np.asarray(d.lqr.plant_d.A), np.asarray(d.lqr.plant_d.B)
         self.limits = np.asarray(limits, dtype=float)
-        # where the reference stops being a trajectory of the plant (from the manoeuvre's end: its jump to
-        # rest at the targets), the deviation's prediction carries the reference's own step: e⁺ = A_d e +
-        # B_d (u − u_ff) − w_k, w_k = x_ref,k+1 − A_d x_ref,k − B_d u_ff,k (0 along the inverse dynamics)
-        x, uf = reference.x, reference.u_ff
-        self.W = np.zeros_like(x)
-        n_move = int(round(reference.duration / reference.dt))
-        self.W[n_move:-1] = x[n_move + 1:] - x[n_move:-1] @ self.Ad.T - uf[n_move:-1] @ self.Bd.T
+        self.W = reference_step(reference, self.Ad, self.Bd)
         self.reset()
 
     def reset(self) -> None:
         self.dz = np.zeros(self.Ad.shape[0])      # prior estimate of x − x_ref
         self.k = 0
 
+    def matrices(self, k: int) -> tuple[np.ndarray, ...]:
+        """(M, C, K, A_d, B_d) that sample ``k`` uses: the one design's (a scheduled law overrides this)."""
+        return self.M, self.C, self.K, self.Ad, self.Bd
+
     def step(self, y, x_ref, u_ff) -> np.ndarray:
-        dx = self.dz + self.M @ (y - self.y0 - self.C @ (x_ref + self.dz))
-        u = np.clip(self.u0 + u_ff - self.K @ dx, -self.limits, self.limits)
-        self.dz = self.Ad @ dx + self.Bd @ (u - self.u0 - u_ff) - self.W[self.k]
+        M, C, K, Ad, Bd = self.matrices(self.k)
+        dx = self.dz + M @ (y - self.y0 - C @ (x_ref + self.dz))
+        u = np.clip(self.u0 + u_ff - K @ dx, -self.limits, self.limits)
+        self.dz = Ad @ dx + Bd @ (u - self.u0 - u_ff) - self.W[self.k]
         self.k += 1
         return u
+
+
+def reference_step(reference: Reference, Ad: np.ndarray, Bd: np.ndarray) -> np.ndarray:
+    """Where the reference stops being a trajectory of the plant (from the manoeuvre's end: its jump to rest
+    at the targets), the deviation's prediction carries the reference's own step: ``e⁺ = A_d e + B_d (u −
+    u_ff) − w_k``, ``w_k = x_ref,k+1 − A_d x_ref,k − B_d u_ff,k`` (0 along the inverse dynamics)."""
+    x, uf = reference.x, reference.u_ff
+    W = np.zeros_like(x)
+    n_move = int(round(reference.duration / reference.dt))
+    W[n_move:-1] = x[n_move + 1:] - x[n_move:-1] @ Ad.T - uf[n_move:-1] @ Bd.T
+    return W
 
 
 def joint_pd_gains(d, zeta: float = 0.7) -> tuple[np.ndarray, np.ndarray]:

@@ -123,6 +123,10 @@ def plot_manoeuvre(path: str | os.PathLike, results: Sequence, design, predictio
     plt.close(fig)
 
 
+#: The legend's name of each run of a multi-joint comparison.
+LABELS = {"lqr": "LQG", "pd": "PD", "fixed": "fixed LQG", "scheduled": "scheduled LQG"}
+
+
 def plot_multijoint(path: str | os.PathLike, results: dict, title: str = "") -> None:
     """The multi-joint comparison (:func:`controllers.multijoint.compare`): joint angles against their
     references, tracking errors, every link's tip deflection and the torques, LQG and PD, the figures of
@@ -135,7 +139,7 @@ def plot_multijoint(path: str | os.PathLike, results: dict, title: str = "") -> 
         m, s, c = res.metrics, res.series, f"C{k}"
         t = s["time"]
         ts = "not settled" if m["settling_time_s"] is None else f"settles in {m['settling_time_s']:.3g} s"
-        label = f"{'LQG' if name == 'lqr' else 'PD'}: {ts}"
+        label = f"{LABELS.get(name, name)}: {ts}"
         for i, j in enumerate(m["joints"]):
             ls = styles[i % 4]
             a_th.plot(t, np.degrees(s[f"{j}.theta"]), c, ls=ls, lw=1.1, label=f"{label} ({j})" if i == 0 else j)

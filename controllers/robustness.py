@@ -28,7 +28,7 @@ import numpy as np
 from controllers.closedloop import margin_entries
 from controllers.design import KalmanDesign, LQRDesign, torque_inputs
 
-__all__ = ["loop_at_a_time", "lqg_compensator", "lqg_plant", "robustness", "robustness_figures"]
+__all__ = ["compensator", "loop_at_a_time", "lqg_compensator", "lqg_plant", "robustness", "robustness_figures"]
 
 
 def lqg_plant(lqr: LQRDesign, kalman: KalmanDesign) -> ct.StateSpace:
@@ -48,8 +48,13 @@ def lqg_compensator(lqr: LQRDesign, kalman: KalmanDesign) -> ct.StateSpace:
     """The discrete LQG from the sensors' deviations to the torques' deviations, ``u = K_c(y)`` (the minus
     sign of the feedback inside): the current estimator of :class:`controllers.laws.LQGLaw` for any number
     of joints, ``x̂ = (I − M C) z − M D u_{k−1} + M y``, ``u = −K_d x̂``, ``z⁺ = A_d x̂ + B_d u``."""
-    Ad, Bd, Kd, M, C = (np.asarray(a) for a in (lqr.plant_d.A, lqr.plant_d.B, lqr.Kd, kalman.Md, kalman.C))
-    D = kalman.D[:, torque_inputs(lqr.plant)]
+    return compensator(lqr.plant_d.A, lqr.plant_d.B, lqr.Kd, kalman.Md, kalman.C,
+                       kalman.D[:, torque_inputs(lqr.plant)], lqr.dt)
+
+
+def compensator(Ad, Bd, Kd, M, C, D, dt: float) -> ct.StateSpace:
+    """:func:`lqg_compensator` from its matrices (a scheduled law's, interpolated between designs)."""
+    Ad, Bd, Kd, M, C, D = (np.asarray(a, dtype=float) for a in (Ad, Bd, Kd, M, C, D))
     n, m = Bd.shape
     F = np.eye(n) - M @ C
     if np.any(D != 0):
@@ -60,7 +65,7 @@ def lqg_compensator(lqr: LQRDesign, kalman: KalmanDesign) -> ct.StateSpace:
     if np.any(D != 0):
         A = np.vstack([A, -Kd @ F])
         B = np.vstack([B, -Kd @ M])
-    return ct.ss(A, B, -Kd @ F, -Kd @ M, lqr.dt)
+    return ct.ss(A, B, -Kd @ F, -Kd @ M, dt)
 
 
 def _grid(T: ct.StateSpace, n_points: int) -> np.ndarray:

@@ -1,0 +1,184 @@
+"""Gain scheduling over the planned path: the MIMO LQG designed at several poses along the manoeuvre.
+
+A two-link arm's linearisation changes with the elbow angle (the forearm's inertia seen from the shoulder,
+the coupling of the two joints): an LQG designed about the start pose can be unstable about a pose the
+path reaches (on ``examples/two_link_payload.toml``, designed at elbow −20°: from about 35° on).  The
+schedule here:
+
+* **Design points.** ``points`` poses along the path, equally spaced in the path parameter σ ∈ [0, 1]
+  (every joint at ``start + σ (target − start)``: the quintic moves all joints in step, so σ is the
+  fraction of each joint's travel).  At each, the arm is linearised at rest at that pose
+  (:func:`model_at_pose`: the model's start values moved there, the static deflection and holding torques
+  of :func:`flexlink.run.linearize.linear_plant`) and the *same* design is made on it
+  (:func:`redesign`: the same Bryson limits and torque limits, the same sensors and noise levels) — the
+  frozen-pose linearisations; the velocity terms of the moving arm are left to the feedback.
+* **Rule.** At sample k the law takes the reference's σ(t_k) (the quintic's s(t/T), 1 after the
+  manoeuvre) and interpolates every matrix it uses — the LQR gain K_d, the Kalman filter gain M, the
+  sampled plant A_d, B_d and the sensor rows C — linearly between the two neighbouring design points.
+  The schedule is a known function of time: no measured signal enters it.
+* **Observer consistency.** The estimator's state is the deviation from the reference, in the same
+  coordinates (the model's states) at every pose, and the reference, its feedforward and the measurement
+  expected on it (``y₀ + C x_ref``, outputs linear in the state) do not depend on the design point; so
+  switching matrices moves no state and needs no reset: only the prediction ``A_d, B_d`` and the gains
+  change under the estimate.
+
+:func:`frozen_radius` is the check: the spectral radius of the sampled loop of the scheduled (or the fixed)
+LQG with the plant linearised at a pose of the path.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import control as ct
+import numpy as np
+
+from controllers.design import DesignError, design_kalman, design_lqr, torque_inputs
+from controllers.multijoint import MimoLQGLaw, Plan, reference_step
+from controllers.robustness import compensator, lqg_plant
+from controllers.trajectory import Reference
+from flexlink.run.linearize import linear_plant
+
+__all__ = ["Schedule", "ScheduledLQGLaw", "design_schedule", "frozen_radius", "model_at_pose", "path_fraction",
+           "redesign"]
+
+
+def model_at_pose(model, pose: Mapping[str, float]):
+    """The model with its joints' start angles at ``pose`` (joint name → rad): what a scene with those
+    ``initial_angle`` values builds, without building it again; :func:`linear_plant` linearises it there."""
+    names = {f"{j.name}.theta": j.name for j in model.scene.joints}
+    unknown = set(pose) - set(names.values())
+    if unknown:
+        raise DesignError(f"pose: {sorted(unknown)} are not joints of the scene")
+    values = []
+    for s in model.start_values:
+        joint = names.get(model.coordinates[s.coordinate])
+        values.append(dataclasses.replace(s, value=float(pose[joint])) if not s.rate and joint in pose else s)
+    return dataclasses.replace(model, start_values=values)
+
+
+def redesign(d, plant):
+    """The design ``d`` made again on another linearisation ``plant`` of the same model: the same Bryson
+    limits and torque limits (LQR), the same sensors, sensor noise and process noise (Kalman), the same
+    sample time.  A :class:`controllers.manoeuvre.ControlDesign` (no PD)."""
+    from controllers.manoeuvre import ControlDesign
+
+    lqr = design_lqr(plant, d.dt, d.lqr.torque_limits, limits=d.lqr.limits)
+    m = len(d.lqr.inputs)
+    qn = np.diag(d.kalman.QN)
+    kalman = design_kalman(plant, d.dt, d.kalman.sensors, torque_noise=float(np.sqrt(qn[0])),
+                           elastic_noise=float(np.sqrt(qn[m])) if len(qn) > m else 0.0, noise=d.kalman.noise)
+    return ControlDesign(plant, d.dt, lqr.torque_limit, lqr, kalman, None)
+
+
+@dataclass
+class Schedule:
+    """Design points along the path: ``sigma`` (path parameter, ascending from 0 to 1), the pose of each
+    (joint → rad) and its design; ``designs[0]`` is the design about the start pose."""
+
+    sigma: np.ndarray
+    poses: list[dict]
+    designs: list
+
+    def matrices(self, s: float) -> tuple[np.ndarray, ...]:
+        """(M, C, K_d, A_d, B_d) at path parameter ``s``: linear between the neighbouring design points."""
+        i = int(np.clip(np.searchsorted(self.sigma, s, side="right") - 1, 0, len(self.sigma) - 2))
+        lam = float(np.clip((s - self.sigma[i]) / (self.sigma[i + 1] - self.sigma[i]), 0.0, 1.0))
+        return tuple((1 - lam) * a + lam * b for a, b in zip(_matrices(self.designs[i]),
+                                                             _matrices(self.designs[i + 1]), strict=True))
+
+
+def _matrices(d) -> tuple[np.ndarray, ...]:
+    return (d.kalman.Md, d.kalman.C, d.lqr.Kd, np.asarray(d.lqr.plant_d.A), np.asarray(d.lqr.plant_d.B))
+
+
+def _pose(pl: Plan, s: float) -> dict:
+    return {j: float(a + s * (b - a)) for j, a, b in zip(pl.joints, pl.start, pl.target, strict=True)}
+
+
+def plant_at(d, pose: Mapping[str, float]):
+    """The plant of design ``d`` linearised at rest at ``pose`` (same parameters, same outputs)."""
+    params = {par.name: float(v) for par, v in zip(d.plant.model.parameters, d.plant.op.p, strict=True)}
+    return linear_plant(model_at_pose(d.plant.model, pose), parameters=params)
+
+
+def design_schedule(d, pl: Plan, points: int) -> Schedule:
+    """``points`` ≥ 2 design points equally spaced in the path parameter; ``d`` (the design about the start
+    pose) is the first, :func:`redesign` on :func:`plant_at` the others."""
+    if not (isinstance(points, int) and points >= 2):
+        raise DesignError(f"--schedule: at least 2 design points along the path (start and target), got {points}")
+    sigma = np.linspace(0.0, 1.0, points)
+    poses = [_pose(pl, s) for s in sigma]
+    designs = [d] + [redesign(d, plant_at(d, pose)) for pose in poses[1:]]
+    return Schedule(sigma, poses, designs)
+
+
+def path_fraction(reference: Reference) -> np.ndarray:
+    """σ at every sample of ``reference``: the quintic's ``s = τ³(10 − 15τ + 6τ²)``, τ = t/T, 1 after T."""
+    tau = np.clip(reference.time / reference.duration, 0.0, 1.0)
+    return tau**3 * (10 - 15 * tau + 6 * tau**2)
+
+
+class ScheduledLQGLaw(MimoLQGLaw):
+    """:class:`controllers.multijoint.MimoLQGLaw` with the matrices of :class:`Schedule` at the
+    reference's path parameter (module docstring); its operating point (u₀, y₀) and reference are the
+    start design's, as the fixed law's."""
+
+    kind = "scheduled"
+
+    def __init__(self, schedule: Schedule, limits: Sequence[float], reference: Reference):
+        super().__init__(schedule.designs[0], limits, reference)
+        sigma = path_fraction(reference)
+        self._at = [schedule.matrices(float(s)) for s in sigma]
+        _, _, _, Ad, Bd = self._at[-1]                 # after the manoeuvre: the target's design
+        self.W = reference_step(reference, Ad, Bd)
+
+    def matrices(self, k: int) -> tuple[np.ndarray, ...]:
+        return self._at[k]
+
+
+def frozen_radius(law_matrices: tuple[np.ndarray, ...], plant_design) -> float:
+    """Spectral radius of the sampled LQG with matrices ``(M, C, K_d, A_d, B_d)`` in loop with the plant of
+    ``plant_design`` (its own sampled linearisation, :func:`controllers.robustness.lqg_plant`): < 1 is a
+    loop that holds that pose."""
+    M, C, K, Ad, Bd = law_matrices
+    p = plant_design
+    D = p.kalman.D[:, torque_inputs(p.lqr.plant)]
+    Kc = compensator(Ad, Bd, K, M, C, D, p.dt)
+    cl = ct.feedback(ct.series(lqg_plant(p.lqr, p.kalman), Kc), np.eye(len(p.lqr.inputs)), sign=1)
+    return float(np.max(np.abs(cl.poles())))
+
+
+def radius_along_path(d, schedule: Schedule, pl: Plan, samples: Sequence[float]) -> list[dict]:
+    """At each path parameter in ``samples``: the pose (deg), and the frozen-pose spectral radius of the
+    fixed design ``d`` and of the schedule there (the plant designed on at that pose: :func:`redesign`)."""
+    out = []
+    for s in samples:
+        pose = _pose(pl, float(s))
+        here = redesign(d, plant_at(d, pose))
+        out.append({"sigma": float(s), "pose_deg": {j: math.degrees(v) for j, v in pose.items()},
+                    "fixed": frozen_radius(_matrices(d), here),
+                    "scheduled": frozen_radius(schedule.matrices(float(s)), here)})
+    return out
+
+
+def compare_schedule(d, schedule: Schedule, loop, pl: Plan, ref: Reference, **kw) -> dict:
+    """The scheduled LQG and the fixed one (``d``), each through the FMU along the same reference, feedforward
+    and torque limits (:func:`controllers.multijoint.run`; ``kw`` its keywords).  The fixed run comes last:
+    where it leaves the beam model's validity (the FMU refuses the step) its entry is the message
+    instead of a result.  Returns ``{"scheduled": result, "fixed": result or str}``."""
+    from controllers.cosim import FmuLoopError
+    from controllers.multijoint import run
+
+    limits = [d.lqr.torque_limits[j] for j in pl.joints]
+    out = {"scheduled": run(d, loop, pl, ref, ScheduledLQGLaw(schedule, limits, ref), **kw)}
+    try:
+        out["fixed"] = run(d, loop, pl, ref, MimoLQGLaw(d, limits, ref), **kw)
+    except FmuLoopError as e:
+        if "validity" not in str(e):
+            raise
+        out["fixed"] = str(e)
+    return out
