@@ -7,9 +7,10 @@ Co-Simulation at the scene's step.
     python benchmarks/me_importers.py                   # every example, writes me_importers.{md,json}
     python benchmarks/me_importers.py --quick SCENE...  # CI size: the given scenes, 1 s manoeuvres
 
-Each run is a child process with a wall-clock limit (``--timeout``, default 120 s): a solver that stalls is a
-row that says so, not a hung benchmark.  The manoeuvre is ``flexlink bench``'s (a torque pulse on the first
-joint, or the built-in laws), 2 s long.  The Euler step is the scene's SS22 step and a tenth of it.
+Each scene runs in a child process, and each importer run under fmpy's wall-clock limit (``--timeout``,
+default 120 s): a solver that stalls or a crash is a row that says so, not a hung benchmark.  The manoeuvre
+is ``flexlink bench``'s (a torque pulse on the first joint, or the built-in laws), 2 s long.  The Euler step
+is the scene's SS22 step and a tenth of it.
 """
 
 from __future__ import annotations
@@ -26,8 +27,11 @@ ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = sorted((ROOT / "examples").glob("*.toml"))
 
 
-def _one(scene_path: str, method: str, stop: float) -> dict:
-    """One (scene, method) run in this process: relative RMS error against the reference, CPU s per s."""
+def _scene(scene_path: str, stop: float, timeout: float) -> dict:
+    """Every method on one scene in this process: relative RMS error against the reference and CPU s per
+    simulated s, or the reason a method gave none."""
+    import time
+
     import numpy as np
 
     from flexlink.errors import FlexlinkError
@@ -42,42 +46,49 @@ def _one(scene_path: str, method: str, stop: float) -> dict:
     try:
         case = default_case(model, stop=stop)
     except FlexlinkError as exc:              # no torque on the first joint and no built-in law to follow
-        return {"na": str(exc)}
-    fmu = cached_fmu(scene)
+        return {m: {"na": str(exc)} for m in METHODS}
+    fmu = cached_fmu(scene, model=model)
     ref = reference_outputs(case)
-    h = scene.fmu.step
-    if method == "ss22":
-        import time
+    h, sample = scene.fmu.step, float(case.times[1] - case.times[0])
 
+    def ss22():
         t0 = time.process_time()
         with SlaveRunner(fmu) as runner:
-            sample = float(case.times[1] - case.times[0])
             res = runner.run(case.stop, sample, inputs=case.inputs_at, outputs=case.outputs)
-        cpu = time.process_time() - t0
-        y = {n: np.interp(case.times, res["time"], res[n]) for n in case.outputs}
-    elif method == "cvode":
-        y, cpu = run_model_exchange(case, fmu, solver="CVode", relative_tolerance=1e-6)
-    else:
-        step = h if method == "euler" else h / 10
-        y, cpu = run_model_exchange(case, fmu, solver="Euler", step_size=step)
-    error = relative_error(case, y, ref)
-    return {"error": error if math.isfinite(error) else None, "cpu_s_per_s": cpu / case.stop}
+        return {n: np.interp(case.times, res["time"], res[n]) for n in case.outputs}, time.process_time() - t0
+
+    runs = {"ss22": ss22,
+            "cvode": lambda: run_model_exchange(case, fmu, relative_tolerance=1e-6, timeout=timeout),
+            "euler": lambda: run_model_exchange(case, fmu, solver="Euler", step_size=h, timeout=timeout),
+            "euler10": lambda: run_model_exchange(case, fmu, solver="Euler", step_size=h / 10, timeout=timeout)}
+    row = {}
+    for method, run in runs.items():
+        try:
+            y, cpu = run()
+        except Exception as exc:             # the importer's own error or the FMU's refusal, as a row
+            row[method] = {"failure": f"{type(exc).__name__}: {exc}"[:200]}
+            continue
+        error = relative_error(case, y, ref)
+        row[method] = {"error": error if math.isfinite(error) else None, "cpu_s_per_s": cpu / case.stop}
+    return row
 
 
 METHODS = {"ss22": "SS22 (CS, scene step)", "cvode": "fmpy CVode (ME, rtol 1e-6)",
            "euler": "fmpy Euler (ME, scene step)", "euler10": "fmpy Euler (ME, step/10)"}
 
 
-def measure(scene: Path, method: str, stop: float, timeout: float) -> dict:
-    """``_one`` in a child process under ``timeout``: its figures, or the reason it gave none."""
+def measure(scene: Path, stop: float, timeout: float) -> dict:
+    """``_scene`` in a child process (a crash or a stall ends one row, not the benchmark)."""
+    limit = 4 * timeout + 600                 # the reference and the build come first
     try:
-        out = subprocess.run([sys.executable, __file__, "--one", str(scene), method, "--stop", str(stop)],
-                             capture_output=True, text=True, timeout=timeout, check=False)
+        out = subprocess.run([sys.executable, __file__, "--one", str(scene), "--stop", str(stop),
+                              "--timeout", str(timeout)], capture_output=True, text=True, timeout=limit,
+                             check=False)
     except subprocess.TimeoutExpired:
-        return {"failure": f"no result within {timeout:g} s"}
+        return {m: {"failure": f"no result within {limit:g} s"} for m in METHODS}
     if out.returncode != 0:
         last = (out.stderr.strip().splitlines() or [f"exit status {out.returncode}"])[-1]
-        return {"failure": last[:160]}
+        return {m: {"failure": last[:200]} for m in METHODS}
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -107,17 +118,17 @@ def main() -> None:
     ap.add_argument("scenes", nargs="*", type=Path)
     ap.add_argument("--quick", action="store_true", help="1 s manoeuvres, no files written")
     ap.add_argument("--stop", type=float, default=None)
-    ap.add_argument("--timeout", type=float, default=120.0)
-    ap.add_argument("--one", nargs=2, metavar=("SCENE", "METHOD"), help=argparse.SUPPRESS)
+    ap.add_argument("--timeout", type=float, default=120.0, help="wall-clock seconds per importer run")
+    ap.add_argument("--one", metavar="SCENE", help=argparse.SUPPRESS)
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parent)
     args = ap.parse_args()
     stop = args.stop or (1.0 if args.quick else 2.0)
     if args.one:
-        print(json.dumps(_one(args.one[0], args.one[1], stop)))
+        print(json.dumps(_scene(args.one, stop, args.timeout)))
         return
     rows = []
     for scene in args.scenes or EXAMPLES:
-        row = {"scene": scene.stem, **{m: measure(scene, m, stop, args.timeout) for m in METHODS}}
+        row = {"scene": scene.stem, **measure(scene, stop, args.timeout)}
         print(json.dumps(row), flush=True)
         rows.append(row)
     if not args.quick:

@@ -285,17 +285,21 @@ def model_exchange_inputs(case: BenchCase) -> np.ndarray | None:
 
 
 def run_model_exchange(case: BenchCase, fmu, *, solver: str = "CVode", relative_tolerance: float | None = None,
-                       step_size: float | None = None) -> tuple[dict[str, np.ndarray], float]:
+                       step_size: float | None = None, timeout: float | None = None
+                       ) -> tuple[dict[str, np.ndarray], float]:
     """The case's outputs on its sample grid from the FMU's Model Exchange interface under one of fmpy's
-    solvers (CVode, or its explicit Euler at ``step_size``), and the CPU seconds it took."""
+    solvers (CVode, or its explicit Euler at ``step_size``), and the CPU seconds it took.  Past ``timeout``
+    wall-clock seconds fmpy stops early: a TimeoutError, not a short result."""
     import fmpy
 
     sample = float(case.times[1] - case.times[0])
     t0 = time.process_time()
     res = fmpy.simulate_fmu(str(fmu), fmi_type="ModelExchange", solver=solver, relative_tolerance=relative_tolerance,
                             step_size=step_size, stop_time=case.stop, output_interval=sample,
-                            input=model_exchange_inputs(case), output=case.outputs)
+                            input=model_exchange_inputs(case), output=case.outputs, timeout=timeout)
     cpu = time.process_time() - t0
+    if res["time"][-1] < case.stop - 0.5 * sample:
+        raise TimeoutError(f"stopped at t = {res['time'][-1]:g} s after {timeout:g} s of wall-clock time")
     return {n: np.interp(case.times, res["time"], res[n]) for n in case.outputs}, cpu
 
 
