@@ -38,6 +38,11 @@ fmi2Status fmu_update_outputs(Instance *inst, const char *function);
  * inst->guard_reason. */
 fmi2Status fmu_guard_state(Instance *inst, double t, const double *u, int check_mass_matrix);
 void fmu_guard_init(Instance *inst, const double *u);
+/* The energy balance of a communication step: the energies and the inputs' power at its ends (outputs
+ * brought up to date at the current time), then fmi2OK or fmi2Discard with the reason in inst->guard_reason. */
+typedef struct { int available; double time, kinetic, potential, power; } EnergyPoint;
+fmi2Status fmu_energy_point(Instance *inst, EnergyPoint *e);
+fmi2Status fmu_guard_energy(Instance *inst, const EnergyPoint *e0, const EnergyPoint *e1);
 
 /* fmu_state.c: frees the FMU states inst handed out and the host did not free (fmi2FreeInstance). */
 void fmu_free_all_states(Instance *inst);
