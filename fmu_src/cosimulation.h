@@ -68,6 +68,7 @@ typedef struct {
     double time;                      /* current communication point                            */
     double last_successful_time;
     double omega_max;                 /* highest natural frequency, rad/s (richardson.c)        */
+    double energy_scale;              /* the most energy one step has moved so far (guards.c)   */
     double q[N_Q], v[N_Q];            /* state                                                  */
     double alpha[N_Q];                /* SS22 acceleration of the last step (Newton guess)      */
     double acceleration[N_Q];         /* consistent acceleration at time (outputs)              */
@@ -102,6 +103,10 @@ typedef struct {
     /* guards.c: validity ratios, mass matrix and the reason of a refused state */
     double guard_g[FMU_SZ(N_VALIDITY)], guard_M[N_Q * N_Q];
     char guard_reason[512];
+    /* guards.c, energy balance: where the model's energies and prescribed-law torques sit among its outputs
+     * (-1: the model has none; found at the first step), and scratch for the inputs with the force inputs removed */
+    int energy_known, energy_kinetic, energy_potential, law_torque[FMU_SZ(N_LAWS)], n_force_inputs;
+    double energy_u[FMU_SZ(N_U)], energy_y[FMU_SZ(N_Y)], energy_r[N_Q];
     int step_discarded;               /* 1 after fmi2DoStep returned fmi2Discard (fmi2Terminated status) */
     /* directional derivatives: seeds and results */
     double dd_q[N_Q], dd_v[N_Q], dd_a[N_Q], dd_r[N_Q];

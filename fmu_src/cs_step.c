@@ -105,6 +105,11 @@ fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h) {
         inst->step_discarded = 1;                      /* fmi2Terminated: retrying the same step cannot help */
         return fmi2Discard;
     }
+    EnergyPoint e0, e1;
+    {
+        const fmi2Status status = fmu_energy_point(inst, &e0);   /* the host may have read these outputs */
+        if (status > fmi2Warning) return status;
+    }
     memcpy(&inst->backup, d, sizeof(*d));
     inst->step_discarded = 1;                          /* until the step below succeeds */
     t = d->time;
@@ -141,8 +146,21 @@ fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h) {
         }
     }
     d->time = t_end;
-    d->last_successful_time = t_end;
     d->outputs_valid = 0;
+    {   /* the outputs at t_end, which the host reads next, and with them the step's energy balance */
+        fmi2Status status = fmu_energy_point(inst, &e1);
+        if (status > fmi2Warning) {
+            memcpy(d, &inst->backup, sizeof(*d));
+            return status;
+        }
+        if (fmu_guard_energy(inst, &e0, &e1) != fmi2OK) {
+            memcpy(d, &inst->backup, sizeof(*d));
+            fmu_log(inst, fmi2Discard, LOG_STATUS_DISCARD, "fmi2DoStep: %s; the step is discarded and the FMU is "
+                    "back at t = %.17g", inst->guard_reason, d->time);
+            return fmi2Discard;
+        }
+    }
+    d->last_successful_time = t_end;
     inst->step_discarded = 0;
     return fmi2OK;
 }

@@ -5,6 +5,7 @@
  * number can reach the importer. */
 #include <math.h>
 #include <stdio.h>
+#include <string.h>
 #include "internal.h"
 #include "linalg.h"
 
@@ -57,6 +58,7 @@ fmi2Status fmu_guard_state(Instance *inst, double t, const double *u, int check_
  * A constant M (linear kinematics) cannot lose definiteness. */
 void fmu_guard_init(Instance *inst, const double *u) {
     FmuData *d = &inst->d;
+    d->energy_scale = 0.0;
     d->mass_matrix_guarded = 0;
     if (MODEL_JACOBIAN_CONSTANT) return;
     if (model_newton_matrix(d->q, d->v, d->alpha, u, d->p, 1.0, 0.0, 0.0, inst->guard_M, &inst->work) == 0 &&
@@ -66,4 +68,185 @@ void fmu_guard_init(Instance *inst, const double *u) {
         fmu_log(inst, fmi2OK, LOG_EVENTS, "the mass matrix is singular at the start state (massless "
                 "directions): its definiteness is not guarded");
     }
+}
+
+/* ====================================================================== energy balance
+ *
+ * Over a communication step [t0, t1] the mechanical energy E = T + V of the chain (its outputs
+ * energy.kinetic and energy.potential) changes by the work the inputs do minus what dissipation takes:
+ *     E(t1) - E(t0) = ∫ P dt - ∫ 2 R dt,   R >= 0 the Rayleigh dissipation function,
+ * P the power of the inputs: every force input (a joint torque, a tip load) through the generalized force
+ * Q it exerts on the free coordinates, Q = r(q, v, a, u with the force inputs zeroed) - r(q, v, a, u) (r
+ * is affine in them), and every prescribed law through the torque it needs, τ, times its rate.  Its work
+ * over the step is taken along the path, ½(Q0 + Q1)·(q1 - q0) + Σ ½(τ0 + τ1)(θ1 - θ0) -- exact for
+ * constant forces, and blind to the velocity of a massless coordinate (an elastic joint's motor without
+ * inertia), which SS22 leaves oscillating from step to step while its position follows the spring; the
+ * trapezoid of Q·v in time counted that oscillation as work (-0.12 J for 0.14 mJ of energy on
+ * benchmarks/hard_cases/massless_motor.toml).  A step whose
+ * energy grows by more than that work plus the integrator's and the quadrature's error (the
+ * tolerance below, docs/integrator.md "Energy balance") has gained energy from nowhere: SS22 went unstable
+ * (order 4 beyond its bound, pumped unresolved modes) or the state is corrupt.  A negative kinetic energy
+ * is never physical. */
+
+/* The relative tolerance of the balance, against the energy that moved during the step (T0 + T1 + |ΔV| +
+ * the work's magnitude) or, if more, the most any step of the run has moved: SS22's own energy error and
+ * the trapezoid's quadrature error of the work over a communication step, (ω h)²/12 of it for power
+ * oscillating at ω, stay below it for ω h <= 1.7; the examples' bench manoeuvres need at most 0.07
+ * (docs/integrator.md "Energy balance").  The first step out of rest is not judged: its energy is all
+ * truncation error of a motion that just started (SS22's O(h³) against T ~ t⁴), and an instability can
+ * only amplify energy that is there. */
+#define ENERGY_GROWTH_TOLERANCE 0.25
+/* Rounding: the energies are sums of many terms of size |T| + |V|. */
+#define ENERGY_ROUNDING 1e-10
+
+static int is_law_slot(int i) {
+#if N_LAWS > 0
+    for (int k = 0; k < N_LAWS; k++) {
+        if (i >= MODEL_LAWS[k].u_offset && i < MODEL_LAWS[k].u_offset + 3) return 1;
+    }
+#endif
+    (void)i;
+    return 0;
+}
+
+static int output_named(const char *name) {
+    for (int k = 0; k < N_VARS; k++) {
+        if (MODEL_VARS[k].kind == VAR_OUTPUT && strcmp(MODEL_VARS[k].name, name) == 0) return MODEL_VARS[k].index;
+    }
+    return -1;
+}
+
+/* The energy outputs and, law by law, the output of the torque it needs ("<joint>.tau", in the order of the
+ * laws: both follow the joints).  A model without them (a hand-written one) is not energy-guarded. */
+static void energy_init(Instance *inst) {
+    int n_torques = 0;
+    inst->energy_known = 1;
+    inst->energy_kinetic = output_named("energy.kinetic");
+    inst->energy_potential = output_named("energy.potential");
+    for (int k = 0; k < N_VARS; k++) {
+        const size_t n = strlen(MODEL_VARS[k].name);
+        if (MODEL_VARS[k].kind == VAR_OUTPUT && n > 4 && strcmp(MODEL_VARS[k].name + n - 4, ".tau") == 0) {
+            if (n_torques < N_LAWS) inst->law_torque[n_torques] = MODEL_VARS[k].index;
+            n_torques++;
+        }
+    }
+    if (n_torques != N_LAWS) inst->energy_kinetic = -1;
+    inst->n_force_inputs = 0;
+    for (int i = 0; i < N_U; i++) inst->n_force_inputs += !is_law_slot(i);
+    if (inst->energy_kinetic < 0 || inst->energy_potential < 0) {
+        inst->energy_kinetic = -1;
+        fmu_log(inst, fmi2OK, LOG_EVENTS, "the model has no energy outputs: its energy balance is not guarded");
+    }
+}
+
+/* The generalized forces of the force inputs and the laws' torques at the current state, with the outputs
+ * d->y up to date. */
+static int input_forces(Instance *inst, EnergyPoint *e) {
+    FmuData *d = &inst->d;
+    const double *y = d->y;
+    memset(e->force, 0, sizeof(e->force));
+    memcpy(e->q, d->q, sizeof(d->q));
+    fmu_model_inputs(d, d->time, inst->u0);
+    if (inst->n_force_inputs > 0) {
+        memcpy(inst->energy_u, inst->u0, sizeof(inst->energy_u));
+        for (int i = 0; i < N_U; i++) {
+            if (!is_law_slot(i)) inst->energy_u[i] = 0.0;
+        }
+        if (model_residual(d->q, d->v, d->acceleration, inst->u0, d->p, inst->r, &inst->work) ||
+            model_residual(d->q, d->v, d->acceleration, inst->energy_u, d->p, inst->energy_r, &inst->work)) {
+            return 1;
+        }
+        for (int i = 0; i < N_Q; i++) e->force[i] = inst->energy_r[i] - inst->r[i];
+        /* a law's torque includes the reaction of the force inputs on its joint: its work is τ's without them */
+        if (N_LAWS > 0) {
+            if (model_outputs(d->q, d->v, d->acceleration, inst->energy_u, d->p, inst->energy_y, &inst->work)) {
+                return 1;
+            }
+            y = inst->energy_y;
+        }
+    }
+#if N_LAWS > 0
+    for (int k = 0; k < N_LAWS; k++) {
+        e->law_torque[k] = y[inst->law_torque[k]];
+        e->law_angle[k] = inst->u0[MODEL_LAWS[k].u_offset];
+        e->law_rate[k] = inst->u0[MODEL_LAWS[k].u_offset + 1];
+    }
+#else
+    (void)y;
+#endif
+    return 0;
+}
+
+/* The inputs' work from e0 to e1 and its magnitude (the sum of its terms' absolute values).  Force inputs:
+ * along the path, the trapezoid in the forces.  Laws: their angle and rate are known exactly at both ends, so
+ * Simpson's rule on τ θ' with τ linear in time and θ the cubic Hermite of its ends, exact for both (a law
+ * starting from rest, τ ~ t and θ ~ t³, is where the trapezoids are 7-20 % off). */
+static double input_work(const EnergyPoint *e0, const EnergyPoint *e1, double *magnitude) {
+    double work = 0.0, size = 0.0;
+    for (int i = 0; i < N_Q; i++) {
+        const double w = 0.5 * (e0->force[i] + e1->force[i]) * (e1->q[i] - e0->q[i]);
+        work += w;
+        size += fabs(w);
+    }
+#if N_LAWS > 0
+    for (int k = 0; k < N_LAWS; k++) {
+        const double h = e1->time - e0->time;
+        const double rate_mid = 1.5 * (e1->law_angle[k] - e0->law_angle[k]) / h -
+                                0.25 * (e0->law_rate[k] + e1->law_rate[k]);
+        const double w = h / 6.0 * (e0->law_torque[k] * e0->law_rate[k] +
+                                    2.0 * (e0->law_torque[k] + e1->law_torque[k]) * rate_mid +
+                                    e1->law_torque[k] * e1->law_rate[k]);
+        work += w;
+        size += fabs(w);
+    }
+#endif
+    *magnitude = size;
+    return work;
+}
+
+fmi2Status fmu_energy_point(Instance *inst, EnergyPoint *e) {
+    FmuData *d = &inst->d;
+    e->available = 0;
+    if (!inst->energy_known) energy_init(inst);
+    if (inst->energy_kinetic < 0) return fmi2OK;
+    const fmi2Status status = fmu_update_outputs(inst, "fmi2DoStep");
+    if (status > fmi2Warning) return status;
+    e->time = d->time;
+    e->kinetic = d->y[inst->energy_kinetic];
+    e->potential = d->y[inst->energy_potential];
+    if (input_forces(inst, e)) {
+        return fmu_error(inst, "fmi2DoStep: the model failed to evaluate at t = %.17g", d->time);
+    }
+    e->available = 1;
+    return fmi2OK;
+}
+
+fmi2Status fmu_guard_energy(Instance *inst, const EnergyPoint *e0, const EnergyPoint *e1) {
+    if (!e0->available || !e1->available) return fmi2OK;
+    const double growth = (e1->kinetic + e1->potential) - (e0->kinetic + e0->potential);
+    double work_size;
+    const double work = input_work(e0, e1, &work_size);
+    const double moved = fabs(e0->kinetic) + fabs(e1->kinetic) + fabs(e1->potential - e0->potential) + work_size;
+    const double rounding = ENERGY_ROUNDING * (fabs(e0->kinetic) + fabs(e1->kinetic) + fabs(e0->potential) +
+                                               fabs(e1->potential));
+    FmuData *d = &inst->d;
+    const double scale = fmax(moved, d->energy_scale);
+    const double bound = work + ENERGY_GROWTH_TOLERANCE * scale + rounding;
+    const int from_rest = d->energy_scale == 0.0;
+    d->energy_scale = scale;
+    if (!(e1->kinetic >= -rounding)) {
+        snprintf(inst->guard_reason, sizeof(inst->guard_reason), "at t = %.17g the kinetic energy is negative "
+                 "(energy.kinetic = %.6g J): the mass matrix is no longer a body's; use a smaller solver.step, "
+                 "order 2 or fewer shape functions", e1->time, e1->kinetic);
+        return fmi2Discard;
+    }
+    if (!from_rest && !(growth <= bound)) {
+        snprintf(inst->guard_reason, sizeof(inst->guard_reason), "the energy balance failed over [%.17g, %.17g]: "
+                 "the energy energy.kinetic + energy.potential grew by %.6g J where the inputs did %.6g J of work "
+                 "(bound %.6g J, tolerance %g of the %.6g J that moved): the integrator gained energy; use a "
+                 "smaller solver.step, solver.order = 2 or fewer shape functions", e0->time, e1->time, growth,
+                 work, bound, ENERGY_GROWTH_TOLERANCE, moved);
+        return fmi2Discard;
+    }
+    return fmi2OK;
 }
