@@ -1,13 +1,24 @@
-"""Realtime factor of the closed loop through fmpy (issue: controllers), at 1 ms sample time by default.
+"""Realtime factor of the closed loop through fmpy (issue 22), at 1 ms sample time by default.
 
     python benchmarks/closed_loop.py [SCENE.toml ...] [--sample-time S] [--repeats N] [--json]
+    python benchmarks/closed_loop.py --startup N [SCENE.toml]
 
 For each scene: the FMU is built (cached, not timed), the controllers designed (not timed), then a 90°
 rest-to-rest manoeuvre in 1.5 s plus 1.5 s settle is run ``--repeats`` times on one instance (``fmi2Reset``
-between runs) with the LQR + Kalman law and with the PD.  The realtime factor is simulated seconds per
+between runs) with the LQR + Kalman law and with the PD, each time by both loops of
+:class:`controllers.cosim.FmuLoop` in turn: the fast one (``fast=True``: the law's affine form, raw ctypes
+calls) and the reference loop (``fast=False``: ``law.step`` per sample), whose runs must agree to 1e-9 of
+the torque's scale (the tests hold them to 1e-12 relative).  The realtime factor is simulated seconds per
 wall-clock second of the loop (reset, initialisation and every sample's getReal / law / setReal / doStep);
-each figure is the median over the repeats.  The per-sample split separates the FMU calls from the law:
-the FMU alone is the same loop with a constant torque and no law.
+each figure is the median over the repeats, the speed-up the median of the per-repeat ratios.  "CPU" is the
+same factor on the process's CPU time: on a loaded machine the wall clock also counts the time the loop
+waited for a core.  The per-sample split gives the FMU alone: the same three calls through ctypes with a
+constant torque and no law.
+
+``--startup N``: the fixed start-up of ``flexlink control SCENE --target 90 --duration 1.5`` (issue 22: ≤ 1 s),
+N fresh processes after one that fills the FMU cache: the wall time from starting the process to its first
+FMU call (``FmuLoop`` instantiating the FMU), median and spread; and where it goes, from ``python -X
+importtime`` of one more run (the heaviest imports, cumulative).
 """
 
 from __future__ import annotations
@@ -26,41 +37,100 @@ ROOT = Path(__file__).resolve().parent.parent
 DEFAULT = ["rotating_link.toml", "rotating_link_payload.toml"]
 
 
-def fmu_only(loop, names: list[str], n_steps: int, dt: float, repeats: int) -> float:
-    """Median wall time per sample of getReal + setReal + doStep alone (constant torque, no law)."""
+def fmu_only(loop, names: list[str], torque: str, n_steps: int, dt: float, repeats: int) -> float:
+    """Median wall time per sample of getReal + setReal + doStep alone (constant torque, no law), called as
+    the fast loop calls them."""
+    from controllers.cosim import _raw
+
     s = loop.slave
+    get_real, set_real, do_step = (_raw(s, f) for f in ("fmi2GetReal", "fmi2SetReal", "fmi2DoStep"))
     vr_out = (ctypes.c_uint * len(names))(*[loop.vr(n) for n in names])
     val_out = (ctypes.c_double * len(names))()
-    vr_in = (ctypes.c_uint * 1)(loop.vr("hub.tau"))
+    vr_in = (ctypes.c_uint * 1)(loop.vr(torque))
     val_in = (ctypes.c_double * 1)(0.1)
+    a_out, a_vr_out, a_in, a_vr_in = (ctypes.addressof(x) for x in (val_out, vr_out, val_in, vr_in))
     walls = []
     for _ in range(repeats):
         s.reset()
         s.setupExperiment(startTime=0.0)
         s.enterInitializationMode()
         s.exitInitializationMode()
+        comp = s.component
         t0 = time.perf_counter()
         for k in range(n_steps):
-            s.fmi2GetReal(s.component, vr_out, len(names), val_out)
-            s.fmi2SetReal(s.component, vr_in, 1, val_in)
-            s.fmi2DoStep(s.component, k * dt, dt, 1)
+            get_real(comp, a_vr_out, len(names), a_out)
+            set_real(comp, a_vr_in, 1, a_in)
+            if do_step(comp, k * dt, dt, 1) > 1:
+                raise RuntimeError(f"fmi2DoStep failed at step {k}")
         walls.append((time.perf_counter() - t0) / n_steps)
         s.terminate()
     loop._fresh = False
     return statistics.median(walls)
 
 
-def law_only(law, reference, p: int, repeats: int) -> float:
-    """Median wall time per sample of the law alone (fixed measurements)."""
-    y = np.zeros(p) + law.y0
-    walls = []
-    for _ in range(repeats):
-        law.reset()
+_FIRST_CALL = """
+import sys, time
+import controllers.cosim as cosim
+init = cosim.FmuLoop.__init__
+def first(self, *a, **k):
+    print("FIRST_FMU_CALL", flush=True, file=sys.stderr)
+    cosim.FmuLoop.__init__ = init
+    init(self, *a, **k)
+cosim.FmuLoop.__init__ = first
+from flexlink.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def startup(scene: str, n: int) -> dict:
+    """Seconds from process start to the first FMU call of ``flexlink control`` (median of ``n`` fresh
+    processes) and the heaviest imports of one run (``-X importtime``, cumulative seconds)."""
+    import subprocess
+    import sys
+
+    argv = [sys.executable, "-c", _FIRST_CALL, "control", scene, "--target", "90", "--duration", "1.5"]
+    subprocess.run(argv, check=True, capture_output=True)           # the FMU cache filled, not timed
+    times = []
+    for _ in range(n):
         t0 = time.perf_counter()
-        for k in range(len(reference.time)):
-            law.step(y, reference.x[k], reference.u_ff[k])
-        walls.append((time.perf_counter() - t0) / len(reference.time))
-    return statistics.median(walls)
+        proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        for line in proc.stderr:
+            if line.startswith("FIRST_FMU_CALL"):
+                times.append(time.perf_counter() - t0)
+        proc.wait()
+    out = subprocess.run([argv[0], "-X", "importtime", *argv[1:]], capture_output=True, text=True).stderr
+    cumulative = {}
+    for line in out.splitlines():
+        parts = line.split("|")
+        if line.startswith("import time:") and parts[1].strip().isdigit():
+            name = parts[2].strip()
+            cumulative[name] = max(cumulative.get(name, 0.0), int(parts[1]) * 1e-6)
+    heavy = ("control", "scipy.signal", "scipy.stats", "matplotlib.pyplot", "scipy.optimize", "casadi",
+             "flexlink.mechanics.model", "flexlink.run.linearize", "controllers.manoeuvre", "numpy")
+    return {"median_s": statistics.median(times), "min_s": min(times), "max_s": max(times), "runs": len(times),
+            "imports_s": {k: cumulative[k] for k in heavy if k in cumulative}}
+
+
+def compare_loops(loop, law, ref, repeats: int) -> dict:
+    """The fast loop against the reference loop, alternated, ``repeats`` times each: median realtime factors
+    (wall and CPU), median speed-up, and the largest torque difference between the two."""
+    fast, slow, ratios, diff = [], [], [], 0.0
+    for _ in range(repeats):
+        a = loop.run(law, ref, fast=False)
+        b = loop.run(law, ref, fast=True)
+        fast.append(b)
+        slow.append(a.realtime_factor)
+        ratios.append(a.wall_time / b.wall_time)
+        diff = max(diff, float(np.max(np.abs(a[law.input] - b[law.input]))))
+        scale = float(np.max(np.abs(a[law.input])))
+        if diff > 1e-9 * scale:
+            raise RuntimeError(f"the fast loop differs from the reference loop by {diff:g} N m")
+    span = float(ref.time[-1] - ref.time[0])
+    return {"realtime_factor": statistics.median(r.realtime_factor for r in fast),
+            "realtime_factor_min": min(r.realtime_factor for r in fast),
+            "realtime_factor_cpu": statistics.median(span / r.cpu_time for r in fast),
+            "realtime_factor_reference_loop": statistics.median(slow),
+            "speed_up": statistics.median(ratios), "max_torque_difference_nm": diff}
 
 
 def main() -> None:
@@ -69,10 +139,22 @@ def main() -> None:
     ap.add_argument("--sample-time", type=float, default=1e-3)
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--startup", type=int, metavar="N", help="measure the start-up of flexlink control instead")
     args = ap.parse_args()
+    if args.startup:
+        scene = args.scenes[0] if args.scenes else str(ROOT / "examples" / DEFAULT[0])
+        res = startup(scene, args.startup)
+        if args.json:
+            print(json.dumps(res))
+            return
+        print(f"flexlink control {Path(scene).name} --target 90: process start to first FMU call "
+              f"{res['median_s']:.2f} s (median of {res['runs']}, {res['min_s']:.2f}-{res['max_s']:.2f} s)")
+        print("heaviest imports (cumulative, one run, -X importtime): "
+              + ", ".join(f"{k} {v:.2f} s" for k, v in res["imports_s"].items()))
+        return
 
     from controllers.cosim import FmuLoop
-    from controllers.manoeuvre import default_torque_limit, design, reference, rest_to_rest
+    from controllers.manoeuvre import default_torque_limit, design, reference
     from flexlink.export.fmu import cached_fmu
     from flexlink.mechanics.model import build_model
     from flexlink.run.linearize import linear_plant
@@ -86,31 +168,30 @@ def main() -> None:
         fmu = cached_fmu(path)
         limit = default_torque_limit(linear_plant(model), target, duration)
         d = design(model, torque_limit=limit, dt=dt)
-        with FmuLoop(fmu) as loop:
+        with FmuLoop(fmu, record=[f"{d.joint}.theta", f"{d.link}.tip.v"]) as loop:
             for controller in ("lqr", "pd"):
-                rtf = [rest_to_rest(d, loop, target, duration, settle, controller).metrics["realtime_factor"]
-                       for _ in range(args.repeats)]
                 law = d.law(controller)
                 ref = reference(d, controller, target, duration, settle)
                 law.follow(ref)
                 n_steps = len(ref.time) - 1
-                per_law = law_only(law, ref, len(law.sensors), args.repeats)
-                per_fmu = fmu_only(loop, list(dict.fromkeys([*law.sensors, *loop.record])), n_steps, dt,
+                row = compare_loops(loop, law, ref, args.repeats)
+                per_fmu = fmu_only(loop, list(dict.fromkeys([*law.sensors, *loop.record])), law.input, n_steps, dt,
                                    args.repeats)
                 rows.append({"scene": Path(path).stem, "controller": controller, "sample_time_s": dt,
-                             "simulated_s": duration + settle, "realtime_factor": statistics.median(rtf),
-                             "realtime_factor_min": min(rtf), "us_per_sample_fmu": 1e6 * per_fmu,
-                             "us_per_sample_law": 1e6 * per_law})
+                             "simulated_s": duration + settle, **row,
+                             "us_per_sample": 1e6 * (duration + settle) / n_steps / row["realtime_factor"],
+                             "us_per_sample_fmu": 1e6 * per_fmu})
     if args.json:
         print(json.dumps(rows))
         return
     print(f"closed loop through fmpy, sample time {dt * 1e3:g} ms, {duration + settle:g} s simulated, "
-          f"median of {args.repeats}")
-    print(f"{'scene':28s} {'ctrl':>5s} {'realtime x':>11s} {'(min)':>7s} {'us/sample FMU':>14s} "
-          f"{'us/sample law':>14s}")
+          f"median of {args.repeats} (fast loop and reference loop alternated in the same run)")
+    print(f"{'scene':24s} {'ctrl':>4s} {'realtime x':>10s} {'(min)':>6s} {'x on CPU':>9s} {'ref. loop x':>11s} "
+          f"{'speed-up':>8s} {'us/sample':>9s} {'FMU alone':>9s}")
     for r in rows:
-        print(f"{r['scene']:28s} {r['controller']:>5s} {r['realtime_factor']:11.1f} {r['realtime_factor_min']:7.1f} "
-              f"{r['us_per_sample_fmu']:14.1f} {r['us_per_sample_law']:14.1f}")
+        print(f"{r['scene']:24s} {r['controller']:>4s} {r['realtime_factor']:10.1f} {r['realtime_factor_min']:6.1f} "
+              f"{r['realtime_factor_cpu']:9.1f} {r['realtime_factor_reference_loop']:11.1f} {r['speed_up']:8.2f} "
+              f"{r['us_per_sample']:9.1f} {r['us_per_sample_fmu']:9.1f}")
 
 
 if __name__ == "__main__":

@@ -3,12 +3,20 @@
 One :class:`FmuLoop` extracts and instantiates the FMU once; each :meth:`FmuLoop.run` resets it
 (``fmi2Reset``) when it has run before, sets the parameters, initialises, then at every sample::
 
-    y_k = getReal(sensors)                 (outputs at t_k, the torque u_{k−1} still applied)
+    y_k = getReal(outputs)                 (outputs at t_k, the torque u_{k−1} still applied)
     u_k = law.step(y_k, x_ref[k], u_ff[k]) (saturated)
     setReal(<joint>.tau, u_k); doStep(t_k, dt)     (every actuated joint's torque: law.inputs)
 
-and returns the recorded outputs as named time series (:class:`LoopResult`).  The value arrays for
-``fmi2GetReal``/``fmi2SetReal`` are allocated once (fmpy's convenience wrappers allocate per call).
+and returns the recorded outputs as named time series (:class:`LoopResult`).  Two loops do this, the same
+run up to rounding (tests/test_control_fmu.py):
+
+* :meth:`FmuLoop._run_affine` — for a law with an :class:`~controllers.laws.AffineForm` (the LQG without a
+  measurement schedule, the PD) and no sensor noise: one ``numpy.dot`` per sample and the FMU's own
+  functions called through ctypes on addresses (issue 22: fmpy's wrappers and numpy on tiny arrays were
+  most of a sample's time);
+* :meth:`FmuLoop._run_stepped` — any law (multi-joint, scheduled, noisy): ``law.step`` per sample on fmpy's
+  ctypes functions and value arrays allocated once.
+
 Errors the FMU reports reach the caller as :class:`FmuLoopError` with the FMU's own log messages.
 """
 
@@ -23,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from controllers.laws import SampledLaw
+from controllers.laws import AffineForm, SampledLaw
 from controllers.trajectory import Reference
 from flexlink.errors import FlexlinkError
 
@@ -42,6 +50,8 @@ class LoopResult:
     series: dict[str, np.ndarray]
     wall_time: float
     parameters: dict[str, float] = field(default_factory=dict)
+    cpu_time: float | None = None       # this process's CPU time over the same span (a loaded machine's
+                                        # wall time includes the time the loop waited for a core)
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.series[name]
@@ -150,7 +160,7 @@ class FmuLoop:
     # -------------------------------------------------------------------------------------- a run
     def run(self, law: SampledLaw, reference: Reference, parameters: Mapping[str, float] | None = None,
             solver_step: float | None = None, noise: Mapping[str, float] | None = None,
-            seed: int = 0) -> LoopResult:
+            seed: int = 0, fast: bool = True) -> LoopResult:
         """Run ``law`` against the FMU along ``reference`` (its time grid, its sample time).
 
         Parameters
@@ -169,8 +179,11 @@ class FmuLoop:
             recorded outputs stay noise-free), e.g. :data:`controllers.design.SENSOR_NOISE` levels.
         seed : int
             Seed of the noise generator.
+        fast : bool
+            Run a law that has an :meth:`~controllers.laws.SampledLaw.affine` form (and no noise) as one
+            matrix product per sample on raw ctypes calls (:meth:`_run_affine`); False: always the reference
+            loop that calls ``law.step`` (:meth:`_run_stepped`), the same run up to rounding.
         """
-        s = self.slave
         dt = reference.dt
         if abs(law.dt - dt) > 1e-12:
             raise ValueError(f"the law samples at {law.dt} s but the reference at {dt} s")
@@ -182,28 +195,37 @@ class FmuLoop:
             if v is None or v.causality != "parameter":
                 raise FlexlinkError(f"{name}: not a parameter of {os.path.basename(self.path)}")
         sensors = list(law.sensors)
-        names = list(dict.fromkeys([*sensors, *self.record]))
-        n_out = len(names)
-        vr_out = (ctypes.c_uint * n_out)(*[self.vr(n) for n in names])
-        val_out = (ctypes.c_double * n_out)()
-        inputs = list(getattr(law, "inputs", None) or [law.input])
-        m = len(inputs)
-        vr_in = (ctypes.c_uint * m)(*[self.vr(n) for n in inputs])
-        val_in = (ctypes.c_double * m)()
-        u_in = np.frombuffer(val_in, dtype=np.float64)
-        sensor_idx = [names.index(n) for n in sensors]
-        n_steps = len(reference.time) - 1
-        sigma = np.array([float((noise or {}).get(n, 0.0)) for n in sensors])
         unknown = set(noise or {}) - set(sensors)
         if unknown:
             raise FlexlinkError(f"noise on {sorted(unknown)}: not sensors of the law ({sensors})")
-        E = np.random.default_rng(seed).standard_normal((n_steps + 1, len(sensors))) * sigma if noise else None
-        Y = np.empty((n_steps + 1, n_out))
-        U = np.empty((n_steps + 1, m))
-        x_ref, u_ff = reference.x, reference.u_ff
+        names = list(dict.fromkeys([*sensors, *self.record]))
+        inputs = list(getattr(law, "inputs", None) or [law.input])
         law.reset()
+        form = law.affine(reference) if fast and not noise and hasattr(law, "affine") else None
+        vr_out = (ctypes.c_uint * len(names))(*[self.vr(n) for n in names])
+        vr_in = (ctypes.c_uint * len(inputs))(*[self.vr(n) for n in inputs])
 
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
+        self._initialise(params)
+        try:
+            if form is not None:
+                Y, U = self._run_affine(form, [names.index(n) for n in sensors], vr_out, vr_in, reference)
+            else:
+                Y, U = self._run_stepped(law, [names.index(n) for n in sensors], vr_out, vr_in, reference,
+                                         noise, seed)
+        finally:
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        self._call("fmi2Terminate", self.slave.terminate)
+        series = {"time": reference.time.copy()}
+        for i, name in enumerate(names):
+            series[name] = Y[:, i].copy()
+        for i, name in enumerate(inputs):
+            series[name] = U[:, i].copy()
+        return LoopResult(series, wall, params, cpu)
+
+    def _initialise(self, params: Mapping[str, float]) -> None:
+        """Reset (after a first run), set up, set the parameters, initialise."""
+        s = self.slave
         if not self._fresh:
             self._call("fmi2Reset", s.reset)
         self._fresh = False
@@ -214,11 +236,30 @@ class FmuLoop:
                                                                      [float(params[n]) for n in pvr]))
         self._call("fmi2EnterInitializationMode", s.enterInitializationMode)
         self._call("fmi2ExitInitializationMode", s.exitInitializationMode)
+
+    def _step_failed(self, k: int, dt: float, e: Exception) -> FmuLoopError:
+        detail = "; ".join(self.messages[-3:]) or "no message from the FMU"
+        return FmuLoopError(f"{os.path.basename(self.path)}: step {k} (t = {k * dt:.6g} s) failed ({e}): {detail}")
+
+    def _run_stepped(self, law, sensor_idx: list[int], vr_out, vr_in, reference: Reference, noise, seed: int):
+        """The reference loop: fmpy's ctypes functions on arrays allocated once, ``law.step`` per sample."""
+        from fmpy.fmi1 import FMICallException
+
+        s, dt = self.slave, reference.dt
+        n_out, m, p = len(vr_out), len(vr_in), len(sensor_idx)
+        val_out, val_in = (ctypes.c_double * n_out)(), (ctypes.c_double * m)()
+        u_in = np.frombuffer(val_in, dtype=np.float64)
+        n_steps = len(reference.time) - 1
+        sensors = list(law.sensors)
+        sigma = np.array([float((noise or {}).get(n, 0.0)) for n in sensors])
+        E = np.random.default_rng(seed).standard_normal((n_steps + 1, p)) * sigma if noise else None
+        Y, U = np.empty((n_steps + 1, n_out)), np.empty((n_steps + 1, m))
+        x_ref, u_ff = reference.x, reference.u_ff
         comp = s.component
         get_real, set_real, do_step = s.fmi2GetReal, s.fmi2SetReal, s.fmi2DoStep
         k = 0
         y = np.frombuffer(val_out, dtype=np.float64)          # a view: fmi2GetReal refills it in place
-        prefix = sensor_idx == list(range(len(sensors)))       # the sensors come first: a slice, not a copy
+        prefix = sensor_idx == list(range(p))                 # the sensors come first: a slice, not a copy
         try:
             for k in range(n_steps + 1):
                 get_real(comp, vr_out, n_out, val_out)
@@ -226,7 +267,7 @@ class FmuLoop:
                 if E is not None:
                     ys = y[sensor_idx] + E[k]
                 else:
-                    ys = y[: len(sensors)] if prefix else y[sensor_idx]
+                    ys = y[:p] if prefix else y[sensor_idx]
                 u = law.step(ys, x_ref[k], u_ff[k])
                 U[k] = u
                 if k == n_steps:
@@ -234,20 +275,63 @@ class FmuLoop:
                 u_in[:] = u
                 set_real(comp, vr_in, m, val_in)
                 do_step(comp, k * dt, dt, 1)
-        except Exception as e:  # noqa: BLE001
-            from fmpy.fmi1 import FMICallException
+        except FMICallException as e:
+            raise self._step_failed(k, dt, e) from None
+        return Y, U
 
-            if not isinstance(e, FMICallException):
-                raise
-            detail = "; ".join(self.messages[-3:]) or "no message from the FMU"
-            raise FmuLoopError(f"{os.path.basename(self.path)}: step {k} (t = {k * dt:.6g} s) failed ({e}): "
-                               f"{detail}") from None
-        finally:
-            wall = time.perf_counter() - t0
-        self._call("fmi2Terminate", s.terminate)
-        series = {"time": reference.time.copy()}
-        for i, name in enumerate(names):
-            series[name] = Y[:, i].copy()
-        for i, name in enumerate(inputs):
-            series[name] = U[:, i].copy()
-        return LoopResult(series, wall, params)
+    def _run_affine(self, form: AffineForm, sensor_idx: list[int], vr_out, vr_in, reference: Reference):
+        """The fast loop (issue 22): per sample three raw ctypes calls and one ``numpy.dot``.
+
+        Everything of a sample lives in one row of ``H`` = (outputs y_k, law state s_k, u_{k−1}, 1):
+        ``fmi2GetReal`` writes y_k straight into row k, ``G @ H[k]`` writes (s_{k+1}, v_k) into row k+1,
+        the clipped torque overwrites v_k there and ``fmi2SetReal`` reads it from there.  The recorded
+        outputs and torques are columns of ``H``: nothing is copied or allocated per sample.
+        """
+        from fmpy.fmi1 import FMICallException
+
+        dt, n_out, ns = reference.dt, len(vr_out), form.n_state
+        n_steps = len(reference.time) - 1
+        iu = n_out + ns                                        # column of u_{k−1}
+        G = np.zeros((ns + 1, iu + 2))
+        G[:, sensor_idx] = form.Gy
+        G[:, n_out:iu] = form.Gs
+        G[:, iu], G[:, iu + 1] = form.gu, form.g1
+        H = np.zeros((n_steps + 2, iu + 2))
+        H[:, iu + 1] = 1.0
+        H[0, iu] = form.u0
+        get_real, set_real, do_step = (_raw(self.slave, f) for f in ("fmi2GetReal", "fmi2SetReal", "fmi2DoStep"))
+        comp, base, rb = self.slave.component, H.ctypes.data, H.strides[0]
+        u_addr = base + rb + 8 * iu                           # &H[k + 1, iu] = u_addr + k rb
+        n_vr_out, p_vr_out, p_vr_in = len(vr_out), ctypes.addressof(vr_out), ctypes.addressof(vr_in)
+        r, hi = form.r.tolist(), form.limit
+        lo, dot = -hi, np.dot
+        rows, outs = list(H), list(H[1:, n_out:iu + 1])      # views made in C once, not per sample
+        k = 0
+        try:
+            for k in range(n_steps + 1):
+                st = get_real(comp, p_vr_out, n_vr_out, base + k * rb)
+                if st > 1:
+                    raise FMICallException("fmi2GetReal", st)
+                out = outs[k]
+                dot(G, rows[k], out=out)
+                u = out[ns] + r[k]
+                out[ns] = hi if u > hi else (lo if u < lo else u)
+                if k == n_steps:
+                    break
+                st = set_real(comp, p_vr_in, 1, u_addr + k * rb)
+                if st > 1:
+                    raise FMICallException("fmi2SetReal", st)
+                st = do_step(comp, k * dt, dt, 1)
+                if st > 1:
+                    raise FMICallException("fmi2DoStep", st)
+        except FMICallException as e:
+            raise self._step_failed(k, dt, e) from None
+        return H[:-1, :n_out], H[1:, iu:iu + 1]
+
+
+def _raw(slave, name: str):
+    """The FMU's own ``name`` as a ctypes function taking addresses (ints): the call without fmpy's Python
+    wrapper and its status check, and without ctypes converting arrays (the caller checks the status)."""
+    proto = {"fmi2DoStep": (ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int)}.get(
+        name, (ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p))
+    return ctypes.CFUNCTYPE(ctypes.c_int, *proto)((name, slave.dll))

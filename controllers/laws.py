@@ -40,7 +40,8 @@ from controllers.design import KalmanDesign, LQRDesign, PDDesign
 from controllers.trajectory import Reference
 from flexlink.run.linearize import LinearPlant, signal_name
 
-__all__ = ["LQGLaw", "MeasurementSchedule", "PDLaw", "SampledLaw", "measurement_schedule", "reference_names"]
+__all__ = ["AffineForm", "LQGLaw", "MeasurementSchedule", "PDLaw", "SampledLaw", "measurement_schedule",
+           "reference_names"]
 
 
 def reference_names(n: int) -> list[str]:
@@ -109,6 +110,35 @@ def measurement_schedule(plant: LinearPlant, sensors: list[str], reference: Refe
     return MeasurementSchedule(np.asarray(Y, dtype=float).T, Cs, np.asarray(Ds, dtype=float).T, u_prev)
 
 
+@dataclass
+class AffineForm:
+    """A law along one reference as one matrix product per sample (issue 22: the closed loop through fmpy
+    spends its time in Python, so a sample must be as few calls as possible).
+
+    With ``w_k = (y_k, s_k, u_{k−1}, 1)`` — the measurements (FMU values), the law's state, the torque
+    applied at the previous sample (absolute; ``u0`` before the first) and 1 — one sample is::
+
+        (s_{k+1}, v_k) = G w_k,   G = [Gy, Gs, gu, g1]
+        u_k = clip(v_k + r[k], −limit, limit)
+
+    ``r[k]`` carries everything that depends on the reference (``u0 + u_ff[k] + K x_ref[k]``), so nothing of
+    the reference is copied into ``w`` during the run.  Same arithmetic as :meth:`SampledLaw.step` up to
+    rounding (the estimator's correction and prediction folded into one matrix).
+    """
+
+    Gy: np.ndarray      # (ns + 1, p) on the sensors, in ``sensors`` order
+    Gs: np.ndarray      # (ns + 1, ns) on the law's state
+    gu: np.ndarray      # (ns + 1,) on the previous torque (absolute)
+    g1: np.ndarray      # (ns + 1,) constant
+    r: np.ndarray       # (N,) torque offset per sample (absolute)
+    u0: float           # torque before the first sample (the operating point's)
+    limit: float
+
+    @property
+    def n_state(self) -> int:
+        return self.Gs.shape[1]
+
+
 class SampledLaw:
     """Common part: sensors, operating point, gain, saturation."""
 
@@ -149,6 +179,15 @@ class SampledLaw:
 
     def applied(self, du: float) -> None:
         """Told the deviation torque actually applied (after saturation)."""
+
+    def affine(self, reference: Reference) -> AffineForm | None:
+        """This law along ``reference`` as an :class:`AffineForm`, or None when it has none (then the loop
+        calls :meth:`step`).  Call after :meth:`follow`."""
+        return None
+
+    def _offsets(self, reference: Reference) -> np.ndarray:
+        """``u0 + u_ff[k] + K x_ref[k]`` for every sample: the reference's part of the torque."""
+        return self.u0 + reference.u_ff + reference.x @ self.K[0]
 
     def statespace(self) -> ct.StateSpace:
         raise NotImplementedError
@@ -214,6 +253,20 @@ class LQGLaw(SampledLaw):
         self.z = self._P @ xu
         return u
 
+    def affine(self, reference: Reference) -> AffineForm | None:
+        """Without a measurement schedule: the state is ``s = A_d x̂`` (the prediction without the torque's
+        part, which comes in through ``u_{k−1}``), so ``x̂_k = X (y_k, s_k, u_{k−1}, 1)`` with
+        ``X = [M, I − MC, (I − MC) B_d − MD, −M y₀ − ((I − MC) B_d − MD) u₀]``; ``v = −K x̂``, ``s⁺ = A_d x̂``."""
+        if self.schedule is not None:
+            return None
+        IMC = np.eye(self.n) - self.M @ self.C
+        xu = IMC @ self.Bd - self.M @ self.D
+        X = np.hstack([self.M, IMC, xu[:, None], (-self.M @ self.y0 - xu * self.u0)[:, None]])
+        G = np.vstack([self.Ad @ X, -self.K[0] @ X])
+        p, n = len(self.sensors), self.n
+        return AffineForm(G[:, :p], G[:, p:p + n], G[:, p + n], G[:, p + n + 1], self._offsets(reference),
+                          self.u0, self.torque_limit)
+
     def estimate(self, y: np.ndarray, x_ref: np.ndarray) -> np.ndarray:
         sc, k = self.schedule, self.k
         if sc is None or k >= len(sc.y_ref):
@@ -269,6 +322,12 @@ class PDLaw(SampledLaw):
 
     def estimate(self, y: np.ndarray, x_ref: np.ndarray) -> np.ndarray:
         return self.S @ (y - self.y0)
+
+    def affine(self, reference: Reference) -> AffineForm:
+        """No state: ``v = −K S (y − y₀)``."""
+        KS = self.K[0] @ self.S
+        return AffineForm(-KS[None, :], np.zeros((1, 0)), np.zeros(1), np.array([KS @ self.y0]),
+                          self._offsets(reference), self.u0, self.torque_limit)
 
     def statespace(self) -> ct.StateSpace:
         """Static law u − u0 = u_ff − K (S (y − y0) − x_ref), as a state-less discrete system."""
