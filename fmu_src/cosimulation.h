@@ -69,6 +69,7 @@ typedef struct {
     double last_successful_time;
     double omega_max;                 /* highest natural frequency, rad/s (richardson.c)        */
     double energy_scale;              /* the most energy one step has moved so far (guards.c)   */
+    double energy_steps;              /* communication steps since the motion started (guards.c) */
     double q[N_Q], v[N_Q];            /* state                                                  */
     double alpha[N_Q];                /* SS22 acceleration of the last step (Newton guess)      */
     double acceleration[N_Q];         /* consistent acceleration at time (outputs)              */
