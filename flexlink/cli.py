@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import math
@@ -58,31 +59,49 @@ def _cmd_modes(args) -> int:
 
 
 def _cmd_simulate(args) -> int:
+    import fmpy
+
     from flexlink.export.fmu import cached_fmu
-    from flexlink.run.simulate import check_run, parse_assignments, plot_result, read_input_csv, simulate, write_csv
+    from flexlink.run import progress
+    from flexlink.run import simulate as run
 
-    check_run(args.stop_time, args.step)        # before the build
-    start = parse_assignments(args.set)
+    run.check_run(args.stop_time, args.step)        # before the build
+    start = run.parse_assignments(args.set)
     fmu = cached_fmu(args.scene)
-    inputs = None
-    if args.input:
-        import fmpy
-
-        md = fmpy.read_model_description(str(fmu))
-        inputs = read_input_csv(args.input, [v.name for v in md.modelVariables if v.causality == "input"])
+    md = fmpy.read_model_description(str(fmu))
+    outputs = run.choose_outputs(md, args.output)
+    input_names = [v.name for v in md.modelVariables if v.causality == "input"]
+    inputs = run.read_input_csv(args.input, input_names) if args.input else None
     t0 = time.perf_counter()
-    result = simulate(fmu, args.stop_time, step=args.step, inputs=inputs, start_values=start)
+    with progress.RunProgress(args.stop_time, force=args.progress is True) if progress.wanted(args.progress) \
+            else contextlib.nullcontext() as bar:
+        result = run.simulate(fmu, args.stop_time, step=args.step, inputs=inputs, start_values=start,
+                              outputs=list(dict.fromkeys(input_names + outputs)), interpolation=args.interpolation,
+                              step_finished=bar)
     wall = time.perf_counter() - t0
+    _warn_unset_inputs(md, input_names, inputs, start)     # after the run: a refused run's error stays one line
     if args.csv:
-        write_csv(result, args.csv)
+        run.write_csv(result, args.csv, outputs)
     if args.plot:
-        plot_result(result, args.plot, title=Path(args.scene).stem)
+        shown = list(dict.fromkeys(input_names + (outputs if args.output else outputs[:6])))
+        run.plot_result(result, args.plot, shown, title=Path(args.scene).stem, units=run.variable_units(md))
     last = result[-1]
-    shown = [n for n in result.dtype.names if n != "time"][:8]
     print(f"simulated {args.stop_time} s in {wall:.3f} s wall ({len(result)} points); at t = {last['time']:.6g}:")
-    for n in shown:
+    for n in outputs[:8] if not args.output else outputs:
         print(f"  {n:24s} {last[n]: .6g}")
     return 0
+
+
+def _warn_unset_inputs(md, input_names: list[str], inputs, start: dict[str, float]) -> None:
+    """One line on stderr for each run whose inputs nobody gives: they keep their start values throughout,
+    which is rarely what a user who forgot ``--input`` meant (an arm that never moves)."""
+    given = set(inputs.dtype.names[1:]) if inputs is not None else set()
+    unset = [v for v in md.modelVariables if v.name in input_names and v.name not in given and v.name not in start]
+    if unset:
+        held = ", ".join(f"{v.name} = {v.start}" for v in unset)
+        how = "not among --input's columns" if inputs is not None else "no --input given"
+        print(f"flexlink: warning: {how}: the input(s) keep their start values for the whole run ({held})",
+              file=sys.stderr)
 
 
 def _cmd_explain(args) -> int:
@@ -158,6 +177,8 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     """The whole ``flexlink`` parser, the applications' sub-commands included: what ``main`` parses, and what
     the command reference (docs/commands.md) is checked against."""
+    from flexlink.run.simulate import INTERPOLATIONS
+
     parser = _Parser(prog="flexlink", description="Flexible-link robots as FMI 2.0 FMUs.")
     parser.add_argument("--allow-large", action="store_true",
                         help="build scenes past the size budgets (docs/budget.md); sets FLEXLINK_ALLOW_LARGE=1 "
@@ -183,11 +204,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", help=SCENE_HELP)
     p.add_argument("--stop-time", type=float, required=True, metavar="T", help="end of the run, s")
     p.add_argument("--step", type=float, metavar="H", help="communication step, s")
-    p.add_argument("--input", metavar="IN.csv", help="CSV: time, then one column per input name")
+    p.add_argument("--input", metavar="IN.csv", help="CSV: time, then one column per input name (two rows at "
+                   "the same time make a jump); an input without a column keeps its start value, with a warning")
+    p.add_argument("--interpolation", choices=INTERPOLATIONS, default="linear",
+                   help="--input between its rows: linear (default; fmpy's own, for a sampled continuous signal) "
+                        "or hold (each value until the next row, for piecewise-constant commands); the FMU gets "
+                        "the value at each communication point and holds it over the step")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="start value of a parameter (FMU name, e.g. hub.inertia=0.2; repeat)")
-    p.add_argument("--csv", type=output_file, metavar="OUT.csv", help="write every output at every step")
-    p.add_argument("--plot", type=plot_file, metavar="OUT.png", help="plot the outputs against time")
+    p.add_argument("--output", nargs="+", action="extend", metavar="NAME",
+                   help="outputs (or inputs) to write, plot and print (FMU names, e.g. hub.theta arm.tip.v; "
+                        "default: every output written, the first six plotted; the inputs are always plotted)")
+    p.add_argument("--csv", type=output_file, metavar="OUT.csv", help="write time and the outputs at every step")
+    p.add_argument("--plot", type=plot_file, metavar="OUT.png", help="plot the inputs and outputs against time, "
+                   "with their units")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="a progress bar with the remaining time on stderr for runs over 2 s (default: only when "
+                        "stderr is a terminal; --progress shows it at once, even into a file)")
     p.set_defaults(func=_cmd_simulate)
 
     p = sub.add_parser("explain", help="coordinates, terms and why, frequencies, recommended SS22 step")
