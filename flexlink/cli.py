@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 from flexlink.errors import FlexlinkError
-from flexlink.paths import SCENE_HELP, check_output_paths, output_file, plot_file
+from flexlink.paths import SCENE_HELP, check_output_paths, film_file, output_file, plot_file
 
 
 def _announce(scene_path) -> None:
@@ -104,6 +104,57 @@ def _warn_unset_inputs(md, input_names: list[str], inputs, start: dict[str, floa
               file=sys.stderr)
 
 
+def _cmd_animate(args) -> int:
+    import fmpy
+
+    from flexlink.export.fmu import cached_fmu
+    from flexlink.mechanics.centreline import centreline
+    from flexlink.run import animate, progress
+    from flexlink.run import simulate as run
+    from flexlink.scene.loader import load_scene
+
+    if not (math.isfinite(args.fps) and 0 < args.fps <= 100):
+        raise FlexlinkError(f"--fps must lie in (0, 100], got {args.fps}")
+    if args.magnify is not None and not (math.isfinite(args.magnify) and args.magnify > 0):
+        raise FlexlinkError(f"--magnify must be a positive number, got {args.magnify}")
+    step = 1.0 / args.fps
+    run.check_run(args.stop_time, step, step_option="--fps")
+    if args.stop_time * args.fps > animate.MAX_FRAMES:
+        raise FlexlinkError(f"{args.stop_time * args.fps:.0f} frames (--stop-time × --fps), more than "
+                            f"{animate.MAX_FRAMES}: give a lower --fps or a shorter --stop-time")
+    start = run.parse_assignments(args.set)
+    line = centreline(load_scene(args.scene))
+    fmu = cached_fmu(args.scene)
+    md = fmpy.read_model_description(str(fmu))
+    input_names = [v.name for v in md.modelVariables if v.causality == "input"]
+    inputs = run.read_input_csv(args.input, input_names) if args.input else None
+    with progress.RunProgress(args.stop_time) if progress.wanted(None) else contextlib.nullcontext() as bar:
+        result = run.simulate(fmu, args.stop_time, step=step, inputs=inputs, start_values=start,
+                              outputs=line.coordinates, interpolation=args.interpolation, step_finished=bar)
+    _warn_unset_inputs(md, input_names, inputs, start)
+    film = animate.arm_film(line, result, args.magnify)
+    figure = animate.write_film(film, args.output, fps=args.fps, title=Path(args.scene).stem, view=args.view,
+                                still=args.still)
+    print(f"{args.output}: {len(film.times)} frames at {args.fps:g} per second, {figure.view} view, deflection "
+          f"× {film.magnification:g} (largest true deflection {film.deflection * 1e3:.3g} mm)"
+          + (f"; still frame {args.still}" if args.still else ""))
+    return 0
+
+
+def _add_input_options(p) -> None:
+    """--input, --interpolation and --set: how a run of the FMU is driven (simulate, animate)."""
+    from flexlink.run.simulate import INTERPOLATIONS
+
+    p.add_argument("--input", metavar="IN.csv", help="CSV: time, then one column per input name (two rows at "
+                   "the same time make a jump); an input without a column keeps its start value, with a warning")
+    p.add_argument("--interpolation", choices=INTERPOLATIONS, default="linear",
+                   help="--input between its rows: linear (default; fmpy's own, for a sampled continuous signal) "
+                        "or hold (each value until the next row, for piecewise-constant commands); the FMU gets "
+                        "the value at each communication point and holds it over the step")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="start value of a parameter (FMU name, e.g. hub.inertia=0.2; repeat)")
+
+
 def _cmd_explain(args) -> int:
     from flexlink.scene.budget import estimate
     from flexlink.scene.loader import load_scene
@@ -177,8 +228,6 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     """The whole ``flexlink`` parser, the applications' sub-commands included: what ``main`` parses, and what
     the command reference (docs/commands.md) is checked against."""
-    from flexlink.run.simulate import INTERPOLATIONS
-
     parser = _Parser(prog="flexlink", description="Flexible-link robots as FMI 2.0 FMUs.")
     parser.add_argument("--allow-large", action="store_true",
                         help="build scenes past the size budgets (docs/budget.md); sets FLEXLINK_ALLOW_LARGE=1 "
@@ -204,14 +253,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", help=SCENE_HELP)
     p.add_argument("--stop-time", type=float, required=True, metavar="T", help="end of the run, s")
     p.add_argument("--step", type=float, metavar="H", help="communication step, s")
-    p.add_argument("--input", metavar="IN.csv", help="CSV: time, then one column per input name (two rows at "
-                   "the same time make a jump); an input without a column keeps its start value, with a warning")
-    p.add_argument("--interpolation", choices=INTERPOLATIONS, default="linear",
-                   help="--input between its rows: linear (default; fmpy's own, for a sampled continuous signal) "
-                        "or hold (each value until the next row, for piecewise-constant commands); the FMU gets "
-                        "the value at each communication point and holds it over the step")
-    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                   help="start value of a parameter (FMU name, e.g. hub.inertia=0.2; repeat)")
+    _add_input_options(p)
     p.add_argument("--output", nargs="+", action="extend", metavar="NAME",
                    help="outputs (or inputs) to write, plot and print (FMU names, e.g. hub.theta arm.tip.v; "
                         "default: every output written, the first six plotted; the inputs are always plotted)")
@@ -222,6 +264,23 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a progress bar with the remaining time on stderr for runs over 2 s (default: only when "
                         "stderr is a terminal; --progress shows it at once, even into a file)")
     p.set_defaults(func=_cmd_simulate)
+
+    p = sub.add_parser("animate", help="a film of the deformed arm over time (gif or mp4) from an FMU run")
+    p.add_argument("scene", help=SCENE_HELP)
+    p.add_argument("--stop-time", type=float, required=True, metavar="T", help="end of the run, s")
+    _add_input_options(p)
+    p.add_argument("-o", "--output", type=film_file, required=True, metavar="OUT.gif",
+                   help="the film: .gif (Pillow) or .mp4 (needs ffmpeg)")
+    p.add_argument("--magnify", type=float, metavar="K", help="deflection magnification (the elastic coordinates' "
+                   "effect only; joint angles true); default: 1, 2 or 5 × 10ⁿ making the largest deflection "
+                   "about 8 %% of the arm's reach; drawn in every frame")
+    p.add_argument("--view", choices=("auto", "3d", "xy", "xz", "yz"), default="auto",
+                   help="projection: auto (the plane of a planar arm, else 3d), 3d, or a world plane")
+    p.add_argument("--fps", type=float, default=25.0, help="frames per simulated second (also the communication "
+                   "step, 1/fps); the film plays in real time (default 25)")
+    p.add_argument("--still", type=plot_file, metavar="OUT.png", help="also write the frame of the largest "
+                   "deflection as a figure")
+    p.set_defaults(func=_cmd_animate)
 
     p = sub.add_parser("explain", help="coordinates, terms and why, frequencies, recommended SS22 step")
     p.add_argument("scene", help=SCENE_HELP)
