@@ -286,7 +286,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", help=SCENE_HELP)
     p.add_argument("--json", action="store_true", help="print the explanation as JSON")
     p.add_argument("--error-target", metavar="E", help="also measure the fidelity ladder (modes, kinematics, "
-                   "deformation) and recommend its cheapest level with relative RMS error below E")
+                   "deformation) and recommend its cheapest level with relative RMS error below E, checked "
+                   "directly (its FMU against the truth on a second manoeuvre)")
     p.add_argument("--quick", action="store_true", help="with --error-target: modes 1-3 and a shorter run (CI size)")
     p.add_argument("--estimate", action="store_true", help="only the estimate (sizes, rough build time and code "
                    "size, budgets exceeded), without building the model")
