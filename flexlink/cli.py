@@ -132,7 +132,7 @@ def _cmd_animate(args) -> int:
         result = run.simulate(fmu, args.stop_time, step=step, inputs=inputs, start_values=start,
                               outputs=line.coordinates, interpolation=args.interpolation, step_finished=bar)
     _warn_unset_inputs(md, input_names, inputs, start)
-    film = animate.arm_film(line, result, args.magnify)
+    film = animate.arm_film(line, result, args.magnify, frame_step=step)
     figure = animate.write_film(film, args.output, fps=args.fps, title=Path(args.scene).stem, view=args.view,
                                 still=args.still)
     print(f"{args.output}: {len(film.times)} frames at {args.fps:g} per second, {figure.view} view, deflection "

@@ -103,13 +103,13 @@ def test_cli_writes_a_gif_and_a_still(tmp_path, example_fmu):
 
     example_fmu("rotating_link")                        # the shared cache holds the FMU
     cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
-    (tmp_path / "in.csv").write_text("time,hub.tau\n0,0.5\n1,0.5\n")
+    (tmp_path / "in.csv").write_text("time,hub.tau\n0,0.5\n0.13,0.5\n0.13,-0.5\n1,-0.5\n")   # a jump between frames
     done = flexlink("animate", "examples/rotating_link.toml", "--stop-time", "0.4", "--input", str(tmp_path / "in.csv"),
                     "-o", str(tmp_path / "arm.gif"), "--still", str(tmp_path / "arm.png"), cache=cache)
     assert done.returncode == 0, done.stderr
     assert "Traceback" not in done.stderr
     with Image.open(tmp_path / "arm.gif") as gif:
-        assert gif.n_frames == round(0.4 * 25) + 1                 # one frame per communication point
+        assert gif.n_frames == round(0.4 * 25) + 1         # one frame per 1/25 s (fmpy's sample at the jump is not)
     assert (tmp_path / "arm.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "deflection ×" in done.stdout
 

@@ -52,8 +52,14 @@ def nice_floor(x: float) -> float:
     return float(10**exponent)
 
 
-def arm_film(line: Centreline, result, magnify: float | None = None) -> ArmFilm:
-    """The film of an fmpy result that holds every coordinate of ``line`` (the FMU outputs of those names)."""
+def arm_film(line: Centreline, result, magnify: float | None = None, frame_step: float | None = None) -> ArmFilm:
+    """The film of an fmpy result that holds every coordinate of ``line`` (the FMU outputs of those names);
+    with ``frame_step``, only its samples on that grid (fmpy adds one at each input jump, between frames)."""
+    times = np.asarray(result["time"], float)
+    keep = np.append(np.diff(times) > 0, True)       # a time sampled twice (an input jump): the later sample
+    if frame_step is not None:
+        keep &= np.abs(times / frame_step - np.round(times / frame_step)) < 1e-6
+    result, times = result[keep], times[keep]
     qa = np.column_stack([result[name] for name in line.coordinates])
     deformed = np.stack([line.points(q) for q in qa])
     rigid = np.stack([line.points(np.where(line.elastic, 0.0, q)) for q in qa])
@@ -65,7 +71,7 @@ def arm_film(line: Centreline, result, magnify: float | None = None) -> ArmFilm:
     if not (math.isfinite(magnify) and magnify > 0):
         raise FlexlinkError(f"--magnify must be a positive number, got {magnify}")
     drawn = rigid + magnify * (deformed - rigid)
-    return ArmFilm(line, np.asarray(result["time"], float), drawn, rigid, float(magnify), deflection)
+    return ArmFilm(line, times, drawn, rigid, float(magnify), deflection)
 
 
 def _projection(points: np.ndarray, view: str) -> str:
