@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 from flexlink.errors import FlexlinkError
-from flexlink.paths import SCENE_HELP, check_output_paths, film_file, output_file, plot_file
+from flexlink.paths import SCENE_HELP, check_output_paths, film_file, output_file, plot_file, stream_file
 
 
 def _announce(scene_path) -> None:
@@ -86,9 +86,11 @@ def _cmd_simulate(args) -> int:
         shown = list(dict.fromkeys(input_names + (outputs if args.output else outputs[:6])))
         run.plot_result(result, args.plot, shown, title=Path(args.scene).stem, units=run.variable_units(md))
     last = result[-1]
-    print(f"simulated {args.stop_time} s in {wall:.3f} s wall ({len(result)} points); at t = {last['time']:.6g}:")
+    summary = sys.stderr if args.csv == "-" else sys.stdout      # stdout holds nothing but the CSV then
+    print(f"simulated {args.stop_time} s in {wall:.3f} s wall ({len(result)} points); at t = {last['time']:.6g}:",
+          file=summary)
     for n in outputs[:8] if not args.output else outputs:
-        print(f"  {n:24s} {last[n]: .6g}")
+        print(f"  {n:24s} {last[n]: .6g}", file=summary)
     return 0
 
 
@@ -257,7 +259,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--output", nargs="+", action="extend", metavar="NAME",
                    help="outputs (or inputs) to write, plot and print (FMU names, e.g. hub.theta arm.tip.v; "
                         "default: every output written, the first six plotted; the inputs are always plotted)")
-    p.add_argument("--csv", type=output_file, metavar="OUT.csv", help="write time and the outputs at every step")
+    p.add_argument("--csv", type=stream_file, metavar="OUT.csv", help="write time and the outputs at every step "
+                   "(- : to standard output, the summary then goes to stderr)")
     p.add_argument("--plot", type=plot_file, metavar="OUT.png", help="plot the inputs and outputs against time, "
                    "with their units")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,

@@ -14,7 +14,8 @@ from pathlib import Path
 
 from flexlink.errors import FlexlinkError
 
-__all__ = ["FILM_WRITERS", "SCENE_HELP", "OutputPath", "check_output_paths", "film_file", "output_file", "plot_file"]
+__all__ = ["FILM_WRITERS", "SCENE_HELP", "OutputPath", "check_output_paths", "film_file", "output_file", "plot_file",
+           "stream_file"]
 
 
 SCENE_HELP = "the scene file (TOML; docs/scene.md)"
@@ -35,6 +36,10 @@ class _FilmPath(OutputPath):
     film = True
 
 
+class _StreamPath(OutputPath):
+    """A file, or ``-`` for standard output."""
+
+
 #: a film's suffix → the matplotlib animation writer that makes it
 FILM_WRITERS = {".gif": "pillow", ".mp4": "ffmpeg"}
 
@@ -47,6 +52,11 @@ def output_file(text: str) -> OutputPath:
 def plot_file(text: str) -> OutputPath:
     """argparse ``type`` of an option naming a figure (matplotlib picks the format from the suffix)."""
     return _PlotPath(text)
+
+
+def stream_file(text: str) -> OutputPath:
+    """argparse ``type`` of an option naming a file the command writes, or ``-`` for standard output."""
+    return _StreamPath(text)
 
 
 def film_file(text: str) -> OutputPath:
@@ -65,6 +75,8 @@ def check_output_path(path: OutputPath, option: str) -> None:
     empty name, a folder, a parent folder that does not exist or is not writable, an unknown figure format."""
     if not path.strip():
         raise FlexlinkError(f"{option}: expected a file name, got an empty one")
+    if path == "-" and isinstance(path, _StreamPath):
+        return                      # standard output
     try:
         _check_place(path, option)
     except OSError as e:            # a name too long, a path through a file, …

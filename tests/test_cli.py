@@ -148,10 +148,12 @@ def simulations(tmp_path_factory, cache):
             "linear": [*common, "--input", str(d / "ramp.csv"), "--csv", str(d / "linear.csv"),
                        "--output", "hub.theta", "hub.tau", "--plot", str(d / "linear.png")],
             "hold": [*common, "--input", str(d / "ramp.csv"), "--interpolation", "hold", "--csv",
-                     str(d / "hold.csv"), "--output", "hub.theta"]}
+                     str(d / "hold.csv"), "--output", "hub.theta"],
+            "stdout": [*common, "--csv", "-", "--output", "hub.theta", "arm.tip.v", "--progress"]}
     with ThreadPoolExecutor(2) as pool:
         for name, result in zip(jobs, pool.map(lambda a: flexlink(*a, cache=cache), jobs.values()), strict=True):
             (d / f"{name}.stderr").write_text(ok(result).stderr)
+            (d / f"{name}.stdout").write_text(result.stdout)
     return d
 
 
@@ -218,6 +220,22 @@ def test_simulate_output_selection_warning_and_progress(simulations):
     assert (d / "torque.stderr").read_text() == ""
     assert "s simulated" in (d / "heavy.stderr").read_text()
     assert "simulat" not in (d / "linear.stderr").read_text()
+
+
+def test_simulate_csv_to_stdout_is_only_the_csv(simulations):
+    """--csv - with the progress bar on: stdout is exactly the CSV of the same run written to a file (the
+    bar, the warning and the summary all on stderr)."""
+    d = simulations
+    stdout = (d / "stdout.stdout").read_text()
+    lines = stdout.splitlines()
+    assert lines[0] == "time,hub.theta,arm.tip.v" and len(lines) == 102
+    free = read_csv(d / "free.csv")
+    (d / "from_stdout.csv").write_text(stdout)
+    piped = read_csv(d / "from_stdout.csv")
+    for name in ("time", "hub.theta", "arm.tip.v"):
+        assert np.array_equal(piped[name], free[name]), name
+    err = (d / "stdout.stderr").read_text()
+    assert "s simulated" in err and "simulated 1.0 s in" in err and "warning" in err
 
 
 def test_plot_axes_carry_the_model_description_units(fmu_outputs, cache):

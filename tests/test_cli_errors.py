@@ -17,7 +17,7 @@ import pytest
 
 from flexlink.cli import build_parser
 from flexlink.errors import FlexlinkError
-from flexlink.paths import check_output_path, film_file, output_file, plot_file
+from flexlink.paths import check_output_path, film_file, output_file, plot_file, stream_file
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = "examples/rotating_link.toml"
@@ -51,7 +51,7 @@ def output_options() -> list[tuple[str, str]]:
     found = []
     for name, p in _subparsers(build_parser()).items():
         for a in p._actions:
-            if a.option_strings and a.type in (output_file, plot_file, film_file):
+            if a.option_strings and a.type in (output_file, plot_file, film_file, stream_file):
                 found.append((name, max(a.option_strings, key=len)))
     return found
 

@@ -148,10 +148,15 @@ def simulate(fmu: str | os.PathLike, stop_time: float, *, step: float | None = N
 
 
 def write_csv(result: np.ndarray, path: str | os.PathLike, names: list[str] | None = None) -> None:
-    """Time and ``names`` (every column of ``result`` for ``None``), every row, at full precision."""
+    """Time and ``names`` (every column of ``result`` for ``None``), every row, at full precision; ``path`` "-"
+    is standard output."""
+    import contextlib
+    import sys
+
     names = ["time", *names] if names else result.dtype.names
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
+    stdout = str(path) == "-"
+    with contextlib.nullcontext(sys.stdout) if stdout else open(path, "w", newline="") as f:
+        w = csv.writer(f, lineterminator="\n") if stdout else csv.writer(f)
         w.writerow(names)
         for row in result:
             w.writerow([repr(float(row[n])) for n in names])
