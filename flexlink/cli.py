@@ -62,7 +62,6 @@ def _cmd_simulate(args) -> int:
     import fmpy
 
     from flexlink.export.fmu import cached_fmu
-    from flexlink.run import progress
     from flexlink.run import simulate as run
 
     run.check_run(args.stop_time, args.step)        # before the build
@@ -71,15 +70,9 @@ def _cmd_simulate(args) -> int:
     md = fmpy.read_model_description(str(fmu))
     outputs = run.choose_outputs(md, args.output)
     input_names = [v.name for v in md.modelVariables if v.causality == "input"]
-    inputs = run.read_input_csv(args.input, input_names) if args.input else None
     t0 = time.perf_counter()
-    with progress.RunProgress(args.stop_time, force=args.progress is True) if progress.wanted(args.progress) \
-            else contextlib.nullcontext() as bar:
-        result = run.simulate(fmu, args.stop_time, step=args.step, inputs=inputs, start_values=start,
-                              outputs=list(dict.fromkeys(input_names + outputs)), interpolation=args.interpolation,
-                              step_finished=bar)
+    result = _drive(args, fmu, md, start, args.step, list(dict.fromkeys(input_names + outputs)), args.progress)
     wall = time.perf_counter() - t0
-    _warn_unset_inputs(md, input_names, inputs, start)     # after the run: a refused run's error stays one line
     if args.csv:
         run.write_csv(result, args.csv, outputs)
     if args.plot:
@@ -92,6 +85,23 @@ def _cmd_simulate(args) -> int:
     for n in outputs[:8] if not args.output else outputs:
         print(f"  {n:24s} {last[n]: .6g}", file=summary)
     return 0
+
+
+def _drive(args, fmu, md, start: dict[str, float], step: float | None, outputs: list[str], show_progress):
+    """Run the FMU as ``--input``, ``--interpolation`` and ``--set`` say, with the progress bar
+    (``show_progress``: None on a terminal only), and say after the run which inputs nobody gave."""
+    from flexlink.run import progress
+    from flexlink.run import simulate as run
+
+    input_names = [v.name for v in md.modelVariables if v.causality == "input"]
+    inputs = run.read_input_csv(args.input, input_names) if args.input else None
+    bar = progress.RunProgress(args.stop_time, force=show_progress is True) if progress.wanted(show_progress) \
+        else contextlib.nullcontext()
+    with bar as step_finished:
+        result = run.simulate(fmu, args.stop_time, step=step, inputs=inputs, start_values=start, outputs=outputs,
+                              interpolation=args.interpolation, step_finished=step_finished)
+    _warn_unset_inputs(md, input_names, inputs, start)     # after the run: a refused run's error stays one line
+    return result
 
 
 def _warn_unset_inputs(md, input_names: list[str], inputs, start: dict[str, float]) -> None:
@@ -111,7 +121,7 @@ def _cmd_animate(args) -> int:
 
     from flexlink.export.fmu import cached_fmu
     from flexlink.mechanics.centreline import centreline
-    from flexlink.run import animate, progress
+    from flexlink.run import animate
     from flexlink.run import simulate as run
     from flexlink.scene.loader import load_scene
 
@@ -127,13 +137,7 @@ def _cmd_animate(args) -> int:
     start = run.parse_assignments(args.set)
     line = centreline(load_scene(args.scene))
     fmu = cached_fmu(args.scene)
-    md = fmpy.read_model_description(str(fmu))
-    input_names = [v.name for v in md.modelVariables if v.causality == "input"]
-    inputs = run.read_input_csv(args.input, input_names) if args.input else None
-    with progress.RunProgress(args.stop_time) if progress.wanted(None) else contextlib.nullcontext() as bar:
-        result = run.simulate(fmu, args.stop_time, step=step, inputs=inputs, start_values=start,
-                              outputs=line.coordinates, interpolation=args.interpolation, step_finished=bar)
-    _warn_unset_inputs(md, input_names, inputs, start)
+    result = _drive(args, fmu, fmpy.read_model_description(str(fmu)), start, step, line.coordinates, None)
     film = animate.arm_film(line, result, args.magnify, frame_step=step)
     figure = animate.write_film(film, args.output, fps=args.fps, title=Path(args.scene).stem, view=args.view,
                                 still=args.still)
