@@ -61,6 +61,7 @@ from pathlib import Path
 
 import numpy as np
 
+from controllers.deadline import CaseTimeout, Deadline
 from flexlink.errors import FlexlinkError
 from flexlink.paths import SCENE_HELP, output_file, plot_file
 
@@ -254,6 +255,7 @@ class SweepSpec:
     series: tuple[str, ...] = ()
     series_every: int = 1
     metrics: tuple[str, ...] = field(default=())
+    case_timeout: float | None = None     # wall-clock seconds a case may take (None: no limit)
 
 
 class _WorkerJob:
@@ -427,7 +429,8 @@ def _run_case(spec: SweepSpec, case: int, params: dict[str, float]) -> dict:
     row: dict = {"case": case, "key": case_key(params), **params}
     job = _worker_job(spec)
     try:
-        metrics, series = (_closed_loop_case if spec.mode == "closed" else _open_loop_case)(job, params)
+        with Deadline(spec.case_timeout):
+            metrics, series = (_closed_loop_case if spec.mode == "closed" else _open_loop_case)(job, params)
         row.update(status="ok", failed=False, error="")
         row.update(metrics)
         if spec.series:
@@ -435,6 +438,10 @@ def _run_case(spec: SweepSpec, case: int, params: dict[str, float]) -> dict:
             row["series.time"] = [float(x) for x in series["time"][::every]]
             for name in spec.series:
                 row[f"series.{name}"] = [float(x) for x in series[name][::every]]
+    except CaseTimeout:
+        job.drop_instance()   # stopped mid-run: a fresh instance for the next case
+        row.update(status="timeout", failed=True, error=f"timed out: still running after the case timeout of "
+                                                        f"{spec.case_timeout:g} s (wall clock)")
     except Exception as e:  # noqa: BLE001 (every failure of a case is a result)
         job.drop_instance()   # an instance that reported an error is not trusted with the next case
         row.update(status="failed", failed=True, error=_error_text(e))
@@ -561,7 +568,7 @@ def run_sweep(scene: str | os.PathLike, params: Mapping[str, object] | None = No
               resume: bool = True, overwrite: bool = False, scheduler: str | None = None, client=None,
               n_workers: int | None = None, batch_size: int | None = None, shared_fs: bool = False,
               progress: bool | None = False, on_result: Callable[[dict, int, int], None] | None = None,
-              fmu: str | os.PathLike | None = None):
+              fmu: str | os.PathLike | None = None, case_timeout: float | None = None):
     """Run a parameter sweep of ``scene``'s FMU and return one row per case as a pandas DataFrame.
 
     Parameters
@@ -604,6 +611,10 @@ def run_sweep(scene: str | os.PathLike, params: Mapping[str, object] | None = No
         ``on_result(row, done, total)`` after each completed case (in this process).
     fmu : path, optional
         Use this FMU (built from ``scene``) instead of building/caching one.
+    case_timeout : float, optional
+        Wall-clock seconds one case may run (:mod:`controllers.deadline`); a case still running then is a
+        row with ``status = "timeout"``, ``failed = True`` and the limit in ``error``. Timed-out rows are
+        run again on resume (a limit depends on the machine's load, not on the case).
 
     Returns
     -------
@@ -616,6 +627,8 @@ def run_sweep(scene: str | os.PathLike, params: Mapping[str, object] | None = No
     from flexlink.scene.loader import load_scene
 
     t_start = time.perf_counter()
+    if case_timeout is not None and not (math.isfinite(case_timeout) and case_timeout > 0):
+        raise FlexlinkError(f"--case-timeout must be a positive number of seconds, got {case_timeout}")
     scene_path = Path(scene)
     sc = load_scene(scene_path)
     kind, cases = make_cases(params, samples=samples, seed=seed, distributions=distributions)
@@ -640,6 +653,7 @@ def run_sweep(scene: str | os.PathLike, params: Mapping[str, object] | None = No
         out = Path(out)
         done, journal = _open_journal(out, sweep=sweep, scene_path=scene_path, mode=mode, settings=settings,
                                       resume=resume, overwrite=overwrite)
+        done = {k: r for k, r in done.items() if r.get("status") != "timeout"}
 
     todo = [(i, c) for i, c in enumerate(cases) if case_key(c) not in done]
     resumed = len(cases) - len(todo)
@@ -649,6 +663,7 @@ def run_sweep(scene: str | os.PathLike, params: Mapping[str, object] | None = No
         if todo:
             spec = _sweep_spec(sweep, fmu_path, settings, make_design, shared_fs=shared_fs, mode=mode,
                                metric_names=metric_names, series=series, series_every=series_every)
+            spec.case_timeout = case_timeout
             run_settings = spec.settings
             new_rows = _run_cases(spec, todo, sweep=sweep, total=len(cases), resumed=resumed, desc=f"sweep {sc.name}",
                                   progress=progress, journal=journal, on_result=on_result, scheduler=scheduler,
@@ -1099,6 +1114,9 @@ def add_sweep_parser(subparsers) -> None:
     p.add_argument("--plot", type=plot_file, metavar="OUT.png",
                    help="metric vs parameter (grid) or histograms (Monte Carlo)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--case-timeout", type=float, metavar="S",
+                   help="wall-clock seconds a case may run; one still running then is a failed row (status "
+                        "timeout) and the sweep goes on; timed-out cases are run again on resume")
     p.set_defaults(func=cmd_sweep)
 
 
@@ -1137,7 +1155,8 @@ def cmd_sweep(args) -> int:
                        stop_time=args.stop_time, sample_time=args.sample_time, series=args.series,
                        series_every=args.series_every, out=args.out, overwrite=args.overwrite,
                        scheduler=args.scheduler, n_workers=args.workers, batch_size=args.batch_size,
-                       shared_fs=args.shared_fs, progress=None if not args.no_progress else False)
+                       shared_fs=args.shared_fs, progress=None if not args.no_progress else False,
+                       case_timeout=args.case_timeout)
     except KeyboardInterrupt:
         print(f"flexlink sweep: interrupted; finished cases are in {journal_path(args.out)}: run the same "
               "command again to resume", file=sys.stderr)

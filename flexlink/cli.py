@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import math
@@ -12,7 +13,7 @@ import time
 from pathlib import Path
 
 from flexlink.errors import FlexlinkError
-from flexlink.paths import SCENE_HELP, check_output_paths, output_file, plot_file
+from flexlink.paths import SCENE_HELP, check_output_paths, film_file, output_file, plot_file, stream_file
 
 
 def _announce(scene_path) -> None:
@@ -58,31 +59,106 @@ def _cmd_modes(args) -> int:
 
 
 def _cmd_simulate(args) -> int:
+    import fmpy
+
     from flexlink.export.fmu import cached_fmu
-    from flexlink.run.simulate import check_run, parse_assignments, plot_result, read_input_csv, simulate, write_csv
+    from flexlink.run import simulate as run
 
-    check_run(args.stop_time, args.step)        # before the build
-    start = parse_assignments(args.set)
+    run.check_run(args.stop_time, args.step)        # before the build
+    start = run.parse_assignments(args.set)
     fmu = cached_fmu(args.scene)
-    inputs = None
-    if args.input:
-        import fmpy
-
-        md = fmpy.read_model_description(str(fmu))
-        inputs = read_input_csv(args.input, [v.name for v in md.modelVariables if v.causality == "input"])
+    md = fmpy.read_model_description(str(fmu))
+    outputs = run.choose_outputs(md, args.output)
+    input_names = [v.name for v in md.modelVariables if v.causality == "input"]
     t0 = time.perf_counter()
-    result = simulate(fmu, args.stop_time, step=args.step, inputs=inputs, start_values=start)
+    result = _drive(args, fmu, md, start, args.step, list(dict.fromkeys(input_names + outputs)), args.progress)
     wall = time.perf_counter() - t0
     if args.csv:
-        write_csv(result, args.csv)
+        run.write_csv(result, args.csv, outputs)
     if args.plot:
-        plot_result(result, args.plot, title=Path(args.scene).stem)
+        shown = list(dict.fromkeys(input_names + (outputs if args.output else outputs[:6])))
+        run.plot_result(result, args.plot, shown, title=Path(args.scene).stem, units=run.variable_units(md))
     last = result[-1]
-    shown = [n for n in result.dtype.names if n != "time"][:8]
-    print(f"simulated {args.stop_time} s in {wall:.3f} s wall ({len(result)} points); at t = {last['time']:.6g}:")
-    for n in shown:
-        print(f"  {n:24s} {last[n]: .6g}")
+    summary = sys.stderr if args.csv == "-" else sys.stdout      # stdout holds nothing but the CSV then
+    print(f"simulated {args.stop_time} s in {wall:.3f} s wall ({len(result)} points); at t = {last['time']:.6g}:",
+          file=summary)
+    for n in outputs[:8] if not args.output else outputs:
+        print(f"  {n:24s} {last[n]: .6g}", file=summary)
     return 0
+
+
+def _drive(args, fmu, md, start: dict[str, float], step: float | None, outputs: list[str], show_progress):
+    """Run the FMU as ``--input``, ``--interpolation`` and ``--set`` say, with the progress bar
+    (``show_progress``: None on a terminal only), and say after the run which inputs nobody gave."""
+    from flexlink.run import progress
+    from flexlink.run import simulate as run
+
+    input_names = [v.name for v in md.modelVariables if v.causality == "input"]
+    inputs = run.read_input_csv(args.input, input_names) if args.input else None
+    bar = progress.RunProgress(args.stop_time, force=show_progress is True) if progress.wanted(show_progress) \
+        else contextlib.nullcontext()
+    with bar as step_finished:
+        result = run.simulate(fmu, args.stop_time, step=step, inputs=inputs, start_values=start, outputs=outputs,
+                              interpolation=args.interpolation, step_finished=step_finished)
+    _warn_unset_inputs(md, input_names, inputs, start)     # after the run: a refused run's error stays one line
+    return result
+
+
+def _warn_unset_inputs(md, input_names: list[str], inputs, start: dict[str, float]) -> None:
+    """One line on stderr for each run whose inputs nobody gives: they keep their start values throughout,
+    which is rarely what a user who forgot ``--input`` meant (an arm that never moves)."""
+    given = set(inputs.dtype.names[1:]) if inputs is not None else set()
+    unset = [v for v in md.modelVariables if v.name in input_names and v.name not in given and v.name not in start]
+    if unset:
+        held = ", ".join(f"{v.name} = {v.start}" for v in unset)
+        how = "not among --input's columns" if inputs is not None else "no --input given"
+        print(f"flexlink: warning: {how}: the input(s) keep their start values for the whole run ({held})",
+              file=sys.stderr)
+
+
+def _cmd_animate(args) -> int:
+    import fmpy
+
+    from flexlink.export.fmu import cached_fmu
+    from flexlink.mechanics.centreline import centreline
+    from flexlink.run import animate
+    from flexlink.run import simulate as run
+    from flexlink.scene.loader import load_scene
+
+    if not (math.isfinite(args.fps) and 0 < args.fps <= 100):
+        raise FlexlinkError(f"--fps must lie in (0, 100], got {args.fps}")
+    if args.magnify is not None and not (math.isfinite(args.magnify) and args.magnify > 0):
+        raise FlexlinkError(f"--magnify must be a positive number, got {args.magnify}")
+    step = 1.0 / args.fps
+    run.check_run(args.stop_time, step, step_option="--fps")
+    if args.stop_time * args.fps > animate.MAX_FRAMES:
+        raise FlexlinkError(f"{args.stop_time * args.fps:.0f} frames (--stop-time × --fps), more than "
+                            f"{animate.MAX_FRAMES}: give a lower --fps or a shorter --stop-time")
+    start = run.parse_assignments(args.set)
+    line = centreline(load_scene(args.scene))
+    fmu = cached_fmu(args.scene)
+    result = _drive(args, fmu, fmpy.read_model_description(str(fmu)), start, step, line.coordinates, None)
+    film = animate.arm_film(line, result, args.magnify, frame_step=step)
+    figure = animate.write_film(film, args.output, fps=args.fps, title=Path(args.scene).stem, view=args.view,
+                                still=args.still)
+    print(f"{args.output}: {len(film.times)} frames at {args.fps:g} per second, {figure.view} view, deflection "
+          f"× {film.magnification:g} (largest true deflection {film.deflection * 1e3:.3g} mm)"
+          + (f"; still frame {args.still}" if args.still else ""))
+    return 0
+
+
+def _add_input_options(p) -> None:
+    """--input, --interpolation and --set: how a run of the FMU is driven (simulate, animate)."""
+    from flexlink.run.simulate import INTERPOLATIONS
+
+    p.add_argument("--input", metavar="IN.csv", help="CSV: time, then one column per input name (two rows at "
+                   "the same time make a jump); an input without a column keeps its start value, with a warning")
+    p.add_argument("--interpolation", choices=INTERPOLATIONS, default="linear",
+                   help="--input between its rows: linear (default; fmpy's own, for a sampled continuous signal) "
+                        "or hold (each value until the next row, for piecewise-constant commands); the FMU gets "
+                        "the value at each communication point and holds it over the step")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="start value of a parameter (FMU name, e.g. hub.inertia=0.2; repeat)")
 
 
 def _cmd_explain(args) -> int:
@@ -183,18 +259,42 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", help=SCENE_HELP)
     p.add_argument("--stop-time", type=float, required=True, metavar="T", help="end of the run, s")
     p.add_argument("--step", type=float, metavar="H", help="communication step, s")
-    p.add_argument("--input", metavar="IN.csv", help="CSV: time, then one column per input name")
-    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                   help="start value of a parameter (FMU name, e.g. hub.inertia=0.2; repeat)")
-    p.add_argument("--csv", type=output_file, metavar="OUT.csv", help="write every output at every step")
-    p.add_argument("--plot", type=plot_file, metavar="OUT.png", help="plot the outputs against time")
+    _add_input_options(p)
+    p.add_argument("--output", nargs="+", action="extend", metavar="NAME",
+                   help="outputs (or inputs) to write, plot and print (FMU names, e.g. hub.theta arm.tip.v; "
+                        "default: every output written, the first six plotted; the inputs are always plotted)")
+    p.add_argument("--csv", type=stream_file, metavar="OUT.csv", help="write time and the outputs at every step "
+                   "(- : to standard output, the summary then goes to stderr)")
+    p.add_argument("--plot", type=plot_file, metavar="OUT.png", help="plot the inputs and outputs against time, "
+                   "with their units")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="a progress bar with the remaining time on stderr for runs over 2 s (default: only when "
+                        "stderr is a terminal; --progress shows it at once, even into a file)")
     p.set_defaults(func=_cmd_simulate)
+
+    p = sub.add_parser("animate", help="a film of the deformed arm over time (gif or mp4) from an FMU run")
+    p.add_argument("scene", help=SCENE_HELP)
+    p.add_argument("--stop-time", type=float, required=True, metavar="T", help="end of the run, s")
+    _add_input_options(p)
+    p.add_argument("-o", "--output", type=film_file, required=True, metavar="OUT.gif",
+                   help="the film: .gif (Pillow) or .mp4 (needs ffmpeg)")
+    p.add_argument("--magnify", type=float, metavar="K", help="deflection magnification (the elastic coordinates' "
+                   "effect only; joint angles true); default: 1, 2 or 5 × 10ⁿ making the largest deflection "
+                   "about 8 %% of the arm's reach; drawn in every frame")
+    p.add_argument("--view", choices=("auto", "3d", "xy", "xz", "yz"), default="auto",
+                   help="projection: auto (the plane of a planar arm, else 3d), 3d, or a world plane")
+    p.add_argument("--fps", type=float, default=25.0, help="frames per simulated second (also the communication "
+                   "step, 1/fps); the film plays in real time (default 25)")
+    p.add_argument("--still", type=plot_file, metavar="OUT.png", help="also write the frame of the largest "
+                   "deflection as a figure")
+    p.set_defaults(func=_cmd_animate)
 
     p = sub.add_parser("explain", help="coordinates, terms and why, frequencies, recommended SS22 step")
     p.add_argument("scene", help=SCENE_HELP)
     p.add_argument("--json", action="store_true", help="print the explanation as JSON")
     p.add_argument("--error-target", metavar="E", help="also measure the fidelity ladder (modes, kinematics, "
-                   "deformation) and recommend its cheapest level with relative RMS error below E")
+                   "deformation) and recommend its cheapest level with relative RMS error below E, checked "
+                   "directly (its FMU against the truth on a second manoeuvre)")
     p.add_argument("--quick", action="store_true", help="with --error-target: modes 1-3 and a shorter run (CI size)")
     p.add_argument("--estimate", action="store_true", help="only the estimate (sizes, rough build time and code "
                    "size, budgets exceeded), without building the model")

@@ -14,7 +14,8 @@ from pathlib import Path
 
 from flexlink.errors import FlexlinkError
 
-__all__ = ["SCENE_HELP", "OutputPath", "check_output_paths", "output_file", "plot_file"]
+__all__ = ["FILM_WRITERS", "SCENE_HELP", "OutputPath", "check_output_paths", "film_file", "output_file", "plot_file",
+           "stream_file"]
 
 
 SCENE_HELP = "the scene file (TOML; docs/scene.md)"
@@ -24,10 +25,23 @@ class OutputPath(str):
     """A file the command will write (a ``str``, so that commands use it unchanged)."""
 
     plot = False
+    film = False
 
 
 class _PlotPath(OutputPath):
     plot = True
+
+
+class _FilmPath(OutputPath):
+    film = True
+
+
+class _StreamPath(OutputPath):
+    """A file, or ``-`` for standard output."""
+
+
+#: a film's suffix → the matplotlib animation writer that makes it
+FILM_WRITERS = {".gif": "pillow", ".mp4": "ffmpeg"}
 
 
 def output_file(text: str) -> OutputPath:
@@ -38,6 +52,16 @@ def output_file(text: str) -> OutputPath:
 def plot_file(text: str) -> OutputPath:
     """argparse ``type`` of an option naming a figure (matplotlib picks the format from the suffix)."""
     return _PlotPath(text)
+
+
+def stream_file(text: str) -> OutputPath:
+    """argparse ``type`` of an option naming a file the command writes, or ``-`` for standard output."""
+    return _StreamPath(text)
+
+
+def film_file(text: str) -> OutputPath:
+    """argparse ``type`` of an option naming a film (.gif, or .mp4 if ffmpeg is installed)."""
+    return _FilmPath(text)
 
 
 def _plot_formats() -> set[str]:
@@ -51,6 +75,8 @@ def check_output_path(path: OutputPath, option: str) -> None:
     empty name, a folder, a parent folder that does not exist or is not writable, an unknown figure format."""
     if not path.strip():
         raise FlexlinkError(f"{option}: expected a file name, got an empty one")
+    if path == "-" and isinstance(path, _StreamPath):
+        return                      # standard output
     try:
         _check_place(path, option)
     except OSError as e:            # a name too long, a path through a file, …
@@ -72,6 +98,19 @@ def _check_place(path: OutputPath, option: str) -> None:
         if suffix not in formats:
             raise FlexlinkError(f"{option} {path}: expected a figure file ending in one of "
                                 f"{', '.join('.' + f for f in sorted(formats))}")
+    if path.film:
+        _check_film_writer(p, option)
+
+
+def _check_film_writer(path: Path, option: str) -> None:
+    suffix = path.suffix.lower()
+    if suffix not in FILM_WRITERS:
+        raise FlexlinkError(f"{option} {path}: expected a film ending in {' or '.join(FILM_WRITERS)}")
+    from matplotlib import animation
+
+    if not animation.writers.is_available(FILM_WRITERS[suffix]):
+        raise FlexlinkError(f"{option} {path}: an mp4 needs ffmpeg, which is not on PATH; write a .gif "
+                            f"(Pillow, always there) or install ffmpeg")
 
 
 def check_output_paths(args, options: dict[str, str]) -> None:

@@ -138,13 +138,22 @@ def simulations(tmp_path_factory, cache):
     d = tmp_path_factory.mktemp("simulate")
     (d / "in.csv").write_text("time,hub.tau\n0,0.2\n2,0.2\n")
     common = ["simulate", SCENE, "--stop-time", "1", "--step", "0.01"]
-    ok(flexlink(*common, "--input", str(d / "in.csv"), "--csv", str(d / "torque.csv"), "--plot",
-                str(d / "torque.png"), cache=cache))            # builds the cached FMU once
-    jobs = [[*common, "--csv", str(d / "free.csv")],
-            [*common, "--input", str(d / "in.csv"), "--set", "hub.inertia=0.2", "--csv", str(d / "heavy.csv")]]
+    first = ok(flexlink(*common, "--input", str(d / "in.csv"), "--csv", str(d / "torque.csv"), "--plot",
+                        str(d / "torque.png"), cache=cache))            # builds the cached FMU once
+    (d / "torque.stderr").write_text(first.stderr)
+    (d / "ramp.csv").write_text("time,hub.tau\n0,0.2\n0.5,0.6\n2,0.6\n")
+    jobs = {"free": [*common, "--csv", str(d / "free.csv")],
+            "heavy": [*common, "--input", str(d / "in.csv"), "--set", "hub.inertia=0.2", "--csv",
+                      str(d / "heavy.csv"), "--progress"],
+            "linear": [*common, "--input", str(d / "ramp.csv"), "--csv", str(d / "linear.csv"),
+                       "--output", "hub.theta", "hub.tau", "--plot", str(d / "linear.png")],
+            "hold": [*common, "--input", str(d / "ramp.csv"), "--interpolation", "hold", "--csv",
+                     str(d / "hold.csv"), "--output", "hub.theta"],
+            "stdout": [*common, "--csv", "-", "--output", "hub.theta", "arm.tip.v", "--progress"]}
     with ThreadPoolExecutor(2) as pool:
-        for result in pool.map(lambda a: flexlink(*a, cache=cache), jobs):
-            ok(result)
+        for name, result in zip(jobs, pool.map(lambda a: flexlink(*a, cache=cache), jobs.values()), strict=True):
+            (d / f"{name}.stderr").write_text(ok(result).stderr)
+            (d / f"{name}.stdout").write_text(result.stdout)
     return d
 
 
@@ -180,6 +189,74 @@ def test_simulate_input_and_set_take_effect(simulations):
     assert heavy["hub.theta"][-1] / torque["hub.theta"][-1] == pytest.approx((0.1 + j_arm) / (0.2 + j_arm), rel=0.02)
 
 
+def test_simulate_interpolation_hold_and_linear(simulations):
+    """A torque table 0.2 N m at 0, 0.6 N m from 0.5 s: held, the torque steps at 0.5 s; linear, it ramps
+    from 0.2 to 0.6 over the first half second. Rigid-body rotation θ(1) = ∫₀¹ (1 − s) τ(s) ds / J gives
+    0.15 / J and 0.21667 / J (the arm's vibration and the communication step move it by well under 3 %)."""
+    j = 0.1 + 0.349 * 2.2**3 / 3
+    held, linear = (read_csv(simulations / f"{n}.csv") for n in ("hold", "linear"))
+    assert held["hub.theta"][-1] == pytest.approx(0.15 / j, rel=0.03)
+    assert linear["hub.theta"][-1] == pytest.approx((0.1 + 0.8 * (0.125 - 0.125 / 3) + 0.05) / j, rel=0.03)
+
+
+def test_hold_inputs_is_a_staircase():
+    from flexlink.run.simulate import hold_inputs
+
+    table = np.array([(0.0, 1.0), (1.0, 2.0), (1.0, 5.0), (3.0, 4.0)], dtype=[("time", float), ("u", float)])
+    held = hold_inputs(table)
+    assert held["time"].tolist() == [0.0, 1.0, 1.0, 1.0, 3.0, 3.0]
+    assert held["u"].tolist() == [1.0, 1.0, 2.0, 5.0, 5.0, 4.0]
+
+
+def test_simulate_output_selection_warning_and_progress(simulations):
+    """--output writes those columns only, in that order; a run without --input warns (one line naming the
+    input and its start value), a run with it does not; --progress draws the bar on stderr even into a pipe,
+    and without it (stderr not a terminal) nothing is drawn."""
+    d = simulations
+    with open(d / "linear.csv") as f:
+        assert f.readline().strip() == "time,hub.theta,hub.tau"
+    (warning,) = (d / "free.stderr").read_text().splitlines()
+    assert warning.startswith("flexlink: warning: no --input given") and "hub.tau = 0.0" in warning
+    assert (d / "torque.stderr").read_text() == ""
+    assert "s simulated" in (d / "heavy.stderr").read_text()
+    assert "simulat" not in (d / "linear.stderr").read_text()
+
+
+def test_simulate_csv_to_stdout_is_only_the_csv(simulations):
+    """--csv - with the progress bar on: stdout is exactly the CSV of the same run written to a file (the
+    bar, the warning and the summary all on stderr)."""
+    d = simulations
+    stdout = (d / "stdout.stdout").read_text()
+    lines = stdout.splitlines()
+    assert lines[0] == "time,hub.theta,arm.tip.v" and len(lines) == 102
+    free = read_csv(d / "free.csv")
+    (d / "from_stdout.csv").write_text(stdout)
+    piped = read_csv(d / "from_stdout.csv")
+    for name in ("time", "hub.theta", "arm.tip.v"):
+        assert np.array_equal(piped[name], free[name]), name
+    err = (d / "stdout.stderr").read_text()
+    assert "s simulated" in err and "simulated 1.0 s in" in err and "warning" in err
+
+
+def test_plot_axes_carry_the_model_description_units(fmu_outputs, cache):
+    """Every y axis of the plot names the unit the FMU's model description declares for that variable."""
+    import fmpy
+
+    from flexlink.run.simulate import result_figure, variable_units
+
+    (fmu,) = (cache / "flexlink").glob("rotating_link-*.fmu")
+    md = fmpy.read_model_description(str(fmu))
+    declared = {v.name: v.unit for v in md.modelVariables}
+    names = ["hub.tau", "hub.theta", "arm.tip.v", "arm.eta[1]"]
+    result = np.zeros(3, dtype=[("time", float)] + [(n, float) for n in names])
+    fig = result_figure(result, names, units=variable_units(md))
+    labels = [ax.get_ylabel() for ax in fig.axes]
+    for name, label in zip(names, labels, strict=True):
+        assert label.startswith(name)
+        assert label.endswith(f"({declared[name]})") if declared[name] else label.endswith("(no unit given)")
+    assert declared["hub.tau"] == "N.m" and declared["hub.theta"] == "rad"
+
+
 # ------------------------------------------------------------------------------------------------ bad input
 
 BAD = {
@@ -201,6 +278,7 @@ BAD = {
     "nan-stop-time": ([*"simulate {scene} --stop-time nan".split()], ["--stop-time"]),
     "negative-step": ([*"simulate {scene} --stop-time 1 --step -0.01".split()], ["--step"]),
     "negative-EI": ([*"simulate {scene} --stop-time 1 --set arm.EI=-1".split()], ["arm.EI"]),
+    "unknown-output": ([*"simulate {scene} --stop-time 1 --output hub.thet".split()], ["hub.thet", "hub.theta"]),
     "zero-solver-step": ([*"simulate {scene} --stop-time 1 --set solver.step=0".split()], ["solver.step"]),
     "build-onto-a-folder": ([*"build {scene} -o {tmp}/taken".split()], ["rotating_link.fmu", "is a folder"]),
 }

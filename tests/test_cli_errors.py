@@ -17,7 +17,7 @@ import pytest
 
 from flexlink.cli import build_parser
 from flexlink.errors import FlexlinkError
-from flexlink.paths import check_output_path, output_file, plot_file
+from flexlink.paths import check_output_path, film_file, output_file, plot_file, stream_file
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = "examples/rotating_link.toml"
@@ -51,20 +51,22 @@ def output_options() -> list[tuple[str, str]]:
     found = []
     for name, p in _subparsers(build_parser()).items():
         for a in p._actions:
-            if a.option_strings and a.type in (output_file, plot_file):
+            if a.option_strings and a.type in (output_file, plot_file, film_file, stream_file):
                 found.append((name, max(a.option_strings, key=len)))
     return found
 
 
 # what the other required arguments of a command get, so that only the option under test is wrong
-REQUIRED = {"--stop-time": "0.01", "--out": "{tmp}/ok.csv", "--output": "{tmp}/ok.fmu"}
+REQUIRED = {"--stop-time": "0.01", "--out": "{tmp}/ok.csv", "--output": "{tmp}/ok.fmu",
+            ("animate", "--output"): "{tmp}/ok.gif"}
 
 
 def test_the_parser_has_the_output_options_we_expect():
     """The walk below finds the output files of the library's and the controllers' commands (the entry point)."""
     found = set(output_options())
     assert {("simulate", "--csv"), ("simulate", "--plot"), ("bench", "--plot"), ("bench", "--report"),
-            ("linearize", "--save"), ("control", "--plot"), ("sweep", "--out"), ("sweep", "--plot")} <= found
+            ("linearize", "--save"), ("control", "--plot"), ("sweep", "--out"), ("sweep", "--plot"),
+            ("animate", "--output"), ("animate", "--still")} <= found
 
 
 @pytest.mark.parametrize(("command", "option"), output_options())
@@ -74,8 +76,9 @@ def test_output_into_a_missing_folder_is_refused_before_the_work(tmp_path, comma
     for a in p._actions:
         flag = max(a.option_strings, key=len) if a.option_strings else None
         if a.required and flag and flag != option:
-            args += [flag, REQUIRED[flag].format(tmp=tmp_path)]
-    suffix = ".png" if "plot" in option else ".csv" if command in ("sweep", "simulate") else ".json"
+            args += [flag, REQUIRED.get((command, flag), REQUIRED[flag]).format(tmp=tmp_path)]
+    suffix = (".png" if "plot" in option or option == "--still" else ".gif" if command == "animate"
+              else ".csv" if command in ("sweep", "simulate") else ".json")
     missing = tmp_path / "no_such_folder" / f"out{suffix}"
     one_line(run([*args, option, str(missing)], tmp_path), option, "does not exist")
     # refused before the work: no FMU built into the private cache, nothing written

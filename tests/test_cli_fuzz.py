@@ -5,8 +5,8 @@ Arguments are drawn from the real parser (every sub-command and option, the ``co
 with values good, bad and absurd; scenes are examples/rotating_link.toml with a key deleted, retyped or set
 to an edge value, or its text cut short. The commands that build an FMU (``build``, ``control`` without
 ``--design-only``, ``sweep``, ``demo``, ``bench``, ``explain --error-target``) are left out: what the fuzzing
-looks for is a bad-input path, not a long build; ``simulate`` runs on the unchanged scene only, from an FMU
-built once into the run's cache. At CI size a few dozen invocations run; ``FLEXLINK_FULL=1`` runs 500
+looks for is a bad-input path, not a long build; ``simulate`` and ``animate`` run on the unchanged scene
+only, from an FMU built once into the run's cache. At CI size a few dozen invocations run; ``FLEXLINK_FULL=1`` runs 500
 (marked slow). A failure prints the seed and the command line.
 """
 
@@ -30,7 +30,8 @@ SCENE = ROOT / "examples" / "rotating_link.toml"
 FLEXLINK = [str(Path(sys.executable).with_name("flexlink"))]
 if not Path(FLEXLINK[0]).exists():
     FLEXLINK = [sys.executable, "-m", "flexlink.cli"]
-COMMANDS = ("modes", "explain", "linearize", "control", "check", "simulate")   # no FMU built but one (see above)
+# no FMU built but one (see above)
+COMMANDS = ("modes", "explain", "linearize", "control", "check", "simulate", "animate")
 # The scene contract sets no upper bound on a model's size: shapes.count = 10**6 is a build of hours, a long
 # run rather than a bad input, so sizes stay at most 8 here (64 clamped-free modes: explain takes minutes).
 SIZES = ("count", "modes", "mesh")
@@ -46,7 +47,7 @@ WORDS = ["hub.inertia=0.2", "hub.inertia=-1", "arm.EI=nan", "nope=1", "=", "hub.
 def _paths(tmp: Path) -> list[str]:
     return [str(SCENE), str(tmp / "scene.toml"), str(tmp / "missing.toml"), str(tmp), str(tmp / "no" / "x.png"),
             str(tmp / "out.png"), str(tmp / "out.json"), str(tmp / "out.npz"), str(tmp / "out.xyz"),
-            str(tmp / "not_an_fmu.fmu"), str(tmp / "in.csv"), str(tmp / "bad.csv"), "-", ""]
+            str(tmp / "out.gif"), str(tmp / "not_an_fmu.fmu"), str(tmp / "in.csv"), str(tmp / "bad.csv"), "-", ""]
 
 
 def _value(rng: random.Random, action: argparse.Action, tmp: Path) -> str:
@@ -69,7 +70,7 @@ def random_argv(rng: random.Random, tmp: Path) -> list[str]:
         if isinstance(a, argparse._HelpAction) or (command == "explain" and a.dest == "error_target"):
             continue
         if not a.option_strings:
-            good = str(SCENE) if command == "simulate" else str(tmp / "scene.toml")     # simulate: one FMU
+            good = str(SCENE) if command in ("simulate", "animate") else str(tmp / "scene.toml")   # one FMU
             argv.append(rng.choice(_paths(tmp)[:4] if rng.random() < 0.3 else [good]))
         elif rng.random() < (0.9 if a.required else 0.35):
             argv.append(rng.choice(a.option_strings))

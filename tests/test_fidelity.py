@@ -108,7 +108,7 @@ def test_cli_json_fields():
     assert info["coordinates"] == ["hub.theta", "arm.eta[1]", "arm.eta[2]", "arm.eta[3]"]   # explain as before
     fid = info["fidelity"]
     assert set(fid) == {"error_target", "outputs", "stop_time", "reference_error", "ladder", "recommendation",
-                        "notes"}
+                        "checks", "notes"}
     assert fid["error_target"] == 1e-2 and fid["outputs"] == ["hub.theta", "arm.tip.v"]
     fields = {"level", "count", "kinematics", "deformation", "coordinates", "highest_hz", "step", "model_error",
               "integration_error", "error", "cpu_s_per_simulated_s", "truth", "scene_level"}
@@ -117,7 +117,12 @@ def test_cli_json_fields():
         (n, k) for n in (1, 2, 3) for k in ("linear", "first-order", "second-order")}
     assert sum(r["truth"] for r in fid["ladder"]) == 1 and sum(r["scene_level"] for r in fid["ladder"]) == 1
     best = fid["recommendation"]
-    assert best is None or (best in fid["ladder"] and best["error"] < 1e-2 and best["model_error"] < 1e-2)
+    if best is not None:
+        check = best.pop("check")
+        assert best.pop("checked_error") == check["error"] < 1e-2 and check["passed"]
+        assert check["level"] == best["level"]
+        assert best in fid["ladder"] and best["error"] < 1e-2 and best["model_error"] < 1e-2
+        assert fid["checks"][-1] == check and not any(c["passed"] for c in fid["checks"][:-1])
     assert all(np.isfinite(r["error"]) and math.isfinite(r["cpu_s_per_simulated_s"]) for r in fid["ladder"])
 
 
@@ -147,3 +152,56 @@ def test_reduced_links_climb_the_ladder_in_modes():
     assert max(lv.count for lv in ladder) == scene.links[0].shapes.modes
     for lv in ladder:
         assert build_model(variant(scene, lv)).n_q == lv.count
+
+
+def test_the_checked_error_is_measured_directly(ladder):
+    """The recommended level's check: its FMU run here through fmpy (another path than the check's) at its
+    SS22 step over the second manoeuvre (+τ 0.7 s, −τ 0.7 s, free), against the truth's equations integrated
+    here by CVODES; the relative RMS error of each output, computed here, is the one the check reports."""
+    from flexlink.mechanics.reference import simulate_reference
+    from flexlink.run.simulate import simulate
+    from flexlink.tools.fidelity import check_level, variant_fmu
+
+    scene = load_scene(SCENE)
+    best = recommend(ladder, TARGET)
+    check = check_level(scene, best, ladder.truth.level, ladder.stop_time, TARGET)
+    times = np.round(np.arange(int(round(ladder.stop_time / 0.01)) + 1) * 0.01, 12)
+    pieces = [(0.0, {"hub.tau": 0.2}), (0.7, {"hub.tau": -0.2}), (1.4, {"hub.tau": 0.0})]
+    truth = build_model(variant(scene, ladder.truth.level))
+    ref = simulate_reference(truth, times, inputs=pieces, rtol=1e-10, atol=1e-13)
+    table = np.array([(0.0, 0.2), (0.7, 0.2), (0.7, -0.2), (1.4, -0.2), (1.4, 0.0), (ladder.stop_time, 0.0)],
+                     dtype=[("time", float), ("hub.tau", float)])
+    fmu = variant_fmu(variant(scene, best.level))
+    y = simulate(fmu, ladder.stop_time, step=0.01, inputs=table, start_values={"solver.step": best.step},
+                 outputs=["hub.theta", "arm.tip.v"])
+    _, last = np.unique(y["time"][::-1], return_index=True)         # fmpy repeats the samples at input jumps
+    y = y[len(y) - 1 - last]
+    assert np.allclose(y["time"], times)
+    for name in ("hub.theta", "arm.tip.v"):
+        r = ref.output(truth, name)
+        measured = np.sqrt(np.mean((y[name] - r) ** 2)) / np.sqrt(np.mean(r ** 2))
+        assert check.errors[name] == pytest.approx(measured, rel=1e-3), name
+    assert check.error == max(check.errors.values()) and check.passed == (check.error < TARGET)
+    assert check.manoeuvre.startswith("hub.tau = 0.2 for 0.7 s")
+
+
+def test_a_candidate_whose_direct_check_fails_is_not_recommended():
+    """The cheapest candidate whose check passes is recommended; a failing one is passed over (and reported);
+    none passing gives no recommendation; at most MAX_CHECKS candidates are run."""
+    from flexlink.tools.fidelity import MAX_CHECKS, Check, checked_recommendation
+
+    rungs = [f"level {k}" for k in range(5)]
+    verdicts = {"level 0": False, "level 1": True}
+    calls = []
+
+    def check(rung):
+        calls.append(rung)
+        ok = verdicts.get(rung, False)
+        return Check(rung, "m", {"y": 0.5 if ok else 2.0}, 0.5 if ok else 2.0, ok)
+
+    best, checks = checked_recommendation(rungs, check)
+    assert best == "level 1" and [c.passed for c in checks] == [False, True] and calls == rungs[:2]
+    verdicts.clear()
+    calls.clear()
+    best, checks = checked_recommendation(rungs, check)
+    assert best is None and len(checks) == MAX_CHECKS == len(calls)

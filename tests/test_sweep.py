@@ -305,3 +305,48 @@ def test_cli_monte_carlo_serial_parquet_and_bad_input(tmp_path, cache, capsys, m
         assert main(cmd) == 2
         err = capsys.readouterr().err
         assert err.startswith("flexlink: error: ") and message in err and "Traceback" not in err, err
+
+
+# ------------------------------------------------------------------------------------------------ case timeout
+# The same open-loop run with the SS22 step at 1 ms (500 steps: milliseconds) and at 0.1 us (5 million
+# Newton steps: minutes): only the second cannot finish within the limit.
+SLOW_GRID = {"solver.step": "1e-3,1e-7"}
+
+
+def test_deadline_stops_a_python_loop_and_never_fires_late():
+    from controllers.deadline import CaseTimeout, Deadline
+
+    t0 = time.perf_counter()
+    with pytest.raises(CaseTimeout), Deadline(0.3):
+        while True:
+            pass
+    assert 0.3 <= time.perf_counter() - t0 < 2.0
+    with Deadline(0.2):
+        pass
+    time.sleep(0.4)                               # an expiry after the block must not arrive here
+
+
+def test_case_timeout_is_a_failed_row_and_is_rerun_on_resume(tmp_path, fmu):
+    out = tmp_path / "slow.csv"
+    df = run_sweep(SCENE, SLOW_GRID, stop_time=0.5, sample_time=0.01, scheduler="serial", fmu=fmu, out=out,
+                   case_timeout=1.0)
+    fast, slow = df.iloc[0], df.iloc[1]
+    assert slow["solver.step"] == 1e-7 and fast["solver.step"] == 1e-3
+    assert not fast["failed"] and fast["status"] == "ok" and fast["wall_s"] < 1.0
+    assert slow["failed"] and slow["status"] == "timeout" and "case timeout of 1 s" in slow["error"]
+    assert 1.0 <= slow["wall_s"] < 3.0                   # stopped at the limit, not at the end of the run
+    again = run_sweep(SCENE, SLOW_GRID, stop_time=0.5, sample_time=0.01, scheduler="serial", fmu=fmu, out=out,
+                      case_timeout=1.0)
+    assert again.attrs["computed"] == 1 and again.attrs["resumed"] == 1       # only the timed-out case
+
+
+def test_cli_case_timeout_on_the_local_cluster(tmp_path, cache):
+    out = tmp_path / "slow.csv"
+    t0 = time.perf_counter()
+    r = _flexlink(["sweep", str(SCENE), "--param", "solver.step=1e-3,1e-7", "--stop-time", "0.5",
+                   "--sample-time", "0.01", "--case-timeout", "1", "--out", str(out), "--no-progress"], cache)
+    assert r.returncode == 0, r.stderr
+    assert "2 cases (grid): 1 ok, 1 failed" in r.stdout and "case timeout of 1 s" in r.stdout
+    df = pd.read_csv(out)
+    assert df["status"].tolist() == ["ok", "timeout"] and df["failed"].tolist() == [False, True]
+    assert time.perf_counter() - t0 < 120

@@ -49,6 +49,23 @@ def read_input_csv(path: str | os.PathLike, input_names: list[str]) -> np.ndarra
     return arr
 
 
+INTERPOLATIONS = ("linear", "hold")
+
+
+def hold_inputs(table: np.ndarray) -> np.ndarray:
+    """The input table as a staircase: each value held until the next row's time, where it jumps.
+
+    fmpy interpolates a real input linearly between the rows of its table and treats two rows at the same
+    time as a jump (an input event it steps to exactly); so a row (t_k, u_{k-1}) inserted before each
+    (t_k, u_k) turns linear interpolation into a zero-order hold without touching fmpy."""
+    if len(table) < 2:
+        return table
+    later = np.flatnonzero(np.diff(table["time"]) > 0) + 1          # rows whose time is past the previous one
+    held = table[later - 1].copy()
+    held["time"] = table["time"][later]
+    return np.insert(table, later, held)
+
+
 def parse_assignments(items: list[str]) -> dict[str, float]:
     """``NAME=VALUE`` pairs from the command line."""
     out = {}
@@ -83,8 +100,14 @@ def check_run(stop_time: float, step: float | None, stop_option: str = "--stop-t
 
 
 def simulate(fmu: str | os.PathLike, stop_time: float, *, step: float | None = None, inputs: np.ndarray | None = None,
-             start_values: dict[str, float] | None = None, outputs: list[str] | None = None):
-    """Co-simulate the FMU with fmpy (communication step ``step``) and return fmpy's structured result."""
+             start_values: dict[str, float] | None = None, outputs: list[str] | None = None,
+             interpolation: str = "linear", step_finished=None):
+    """Co-simulate the FMU with fmpy (communication step ``step``) and return fmpy's structured result.
+
+    ``interpolation`` of the ``inputs`` table between its rows: ``"linear"`` (fmpy's own) or ``"hold"``
+    (:func:`hold_inputs`); either way the FMU receives the value at each communication point and holds it
+    over the step (it does not interpolate inputs). ``step_finished(time, recorder)`` is called after every
+    step (a progress bar)."""
     import fmpy
     from fmpy.fmi1 import FMICallException
 
@@ -97,6 +120,10 @@ def simulate(fmu: str | os.PathLike, stop_time: float, *, step: float | None = N
             raise FlexlinkError(f"--set {name}: only parameters and inputs can be set "
                                 f"(it is an {names[name].causality})")
     check_run(stop_time, step)
+    if interpolation not in INTERPOLATIONS:
+        raise FlexlinkError(f"--interpolation {interpolation}: expected one of {', '.join(INTERPOLATIONS)}")
+    if inputs is not None and interpolation == "hold":
+        inputs = hold_inputs(inputs)
     messages: list[str] = []
     refusals: list[str] = []
 
@@ -109,7 +136,7 @@ def simulate(fmu: str | os.PathLike, stop_time: float, *, step: float | None = N
     try:
         result = fmpy.simulate_fmu(str(fmu), stop_time=stop_time, output_interval=step, fmi_type="CoSimulation",
                                    start_values=start_values or {}, input=inputs, output=outputs,
-                                   logger=logger, debug_logging=False)
+                                   logger=logger, debug_logging=False, step_finished=step_finished)
         if refusals:                        # a discarded step ends fmpy's loop early, without an exception
             raise FlexlinkError(f"the FMU refused: {refusals[-1]}")
         return result
@@ -120,33 +147,84 @@ def simulate(fmu: str | os.PathLike, stop_time: float, *, step: float | None = N
         _install_router()
 
 
-def write_csv(result: np.ndarray, path: str | os.PathLike) -> None:
-    names = result.dtype.names
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
+def write_csv(result: np.ndarray, path: str | os.PathLike, names: list[str] | None = None) -> None:
+    """Time and ``names`` (every column of ``result`` for ``None``), every row, at full precision; ``path`` "-"
+    is standard output."""
+    import contextlib
+    import sys
+
+    names = ["time", *names] if names else result.dtype.names
+    stdout = str(path) == "-"
+    with contextlib.nullcontext(sys.stdout) if stdout else open(path, "w", newline="") as f:
+        w = csv.writer(f, lineterminator="\n") if stdout else csv.writer(f)
         w.writerow(names)
         for row in result:
             w.writerow([repr(float(row[n])) for n in names])
 
 
-def plot_result(result: np.ndarray, path: str | os.PathLike, names: list[str] | None = None, title: str = "") -> None:
+def variable_units(model_description) -> dict[str, str]:
+    """Each variable's unit as the model description declares it (its own, else its type's; "" if none)."""
+    units = {}
+    for v in model_description.modelVariables:
+        declared = getattr(v, "declaredType", None)
+        units[v.name] = v.unit or (declared.unit if declared is not None and declared.unit else "") or ""
+    return units
+
+
+def choose_outputs(model_description, names: list[str] | None, option: str = "--output") -> list[str]:
+    """The FMU's outputs (or inputs) named by the user (every output for ``None``), in the user's order; an
+    unknown name is one error naming the closest outputs, so that a typo costs no run."""
+    import difflib
+
+    outputs = [v.name for v in model_description.modelVariables if v.causality == "output"]
+    if not names:
+        return outputs
+    inputs = {v.name for v in model_description.modelVariables if v.causality == "input"}
+    for name in names:
+        if name not in outputs and name not in inputs:
+            close = difflib.get_close_matches(name, outputs, n=4, cutoff=0.5)
+            hint = f"did you mean {', '.join(close)}?" if close else f"its outputs are {', '.join(outputs[:12])}" + (
+                ", …" if len(outputs) > 12 else "")
+            raise FlexlinkError(f"{option} {name}: the FMU has no output of that name; {hint}")
+    return list(dict.fromkeys(names))
+
+
+def axis_label(name: str, units: dict[str, str]) -> str:
+    unit = units.get(name, "")
+    return f"{name}\n({unit})" if unit else f"{name}\n(no unit given)"
+
+
+def plot_result(result: np.ndarray, path: str | os.PathLike, names: list[str] | None = None, title: str = "",
+                units: dict[str, str] | None = None) -> None:
+    """Write :func:`result_figure` to ``path``."""
+    import matplotlib.pyplot as plt
+
+    fig = result_figure(result, names, title, units)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def result_figure(result: np.ndarray, names: list[str] | None = None, title: str = "",
+                  units: dict[str, str] | None = None):
+    """One panel per signal against time, each y axis labelled with its unit (``units``: from
+    :func:`variable_units`); without ``names``, the first six columns."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     names = names or [n for n in result.dtype.names if n != "time"][:6]
+    units = units or {}
     fig, axes = plt.subplots(len(names), 1, sharex=True, figsize=(8, 1.8 * len(names) + 0.6), squeeze=False)
     for ax, n in zip(axes[:, 0], names, strict=True):
         ax.plot(result["time"], result[n], lw=1.0)
-        ax.set_ylabel(n, rotation=0, ha="right", fontsize=8)
+        ax.set_ylabel(axis_label(n, units), rotation=0, ha="right", va="center", fontsize=8)
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("time (s)")
     if title:
         axes[0, 0].set_title(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
 _ROUTES: dict[int, object] = {}     # componentEnvironment key → the Python logger of one instance

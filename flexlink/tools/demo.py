@@ -16,11 +16,13 @@ EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "rotating_link.toml
 
 
 def run_demo(out: str | Path = "out") -> int:
+    import fmpy
+
     from flexlink.export.fmu import build_fmu
     from flexlink.mechanics.analysis import natural_frequencies
     from flexlink.mechanics.model import build_model
     from flexlink.mechanics.reference import simulate_reference
-    from flexlink.run.simulate import plot_result, simulate, write_csv
+    from flexlink.run.simulate import plot_result, simulate, variable_units, write_csv
     from flexlink.scene.loader import load_scene
 
     out = Path(out)
@@ -47,7 +49,8 @@ def run_demo(out: str | Path = "out") -> int:
     err_theta = np.max(np.abs(res["hub.theta"] - ref.output(model, "hub.theta")))
     err_tip = np.max(np.abs(res["arm.tip.v"] - ref.output(model, "arm.tip.v")))
     write_csv(res, out / "rotating_link.csv")
-    plot_result(res, out / "rotating_link.png", shown,
+    units = variable_units(fmpy.read_model_description(str(rep.fmu)))
+    plot_result(res, out / "rotating_link.png", shown, units=units,
                 title="seed-000 rotating link, bang-bang torque (FMU through fmpy)")
     print(f"FMU run: {stop} s simulated in {wall:.3f} s wall (SS22 step {step} s, communication step 0.01 s)")
     print(f"final hub angle {res['hub.theta'][-1]:.6f} rad, max |tip deflection| "

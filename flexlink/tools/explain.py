@@ -8,7 +8,7 @@ import numpy as np
 from flexlink.mechanics.analysis import natural_frequencies
 from flexlink.mechanics.model import build_model
 from flexlink.scene.loader import load_scene
-from flexlink.tools.fidelity import MAX_HALVINGS, recommend, run_ladder
+from flexlink.tools.fidelity import MAX_HALVINGS, check_level, checked_recommendation, run_ladder
 
 STEPS_PER_PERIOD = 20     # Θ = ½: phase error per period ≈ (2π/20)²/12 · 2π ≈ 0.5 %
 
@@ -104,12 +104,30 @@ def format_explanation(info: dict) -> str:
 # ------------------------------------------------------------------------- --error-target (flexlink.tools.fidelity)
 
 def fidelity(scene_path, error_target: float, *, quick: bool = False, progress=None) -> dict:
-    """The fidelity ladder of the scene and the cheapest level that meets ``error_target``."""
-    ladder = run_ladder(scene_path, target=error_target, quick=quick, progress=progress)
-    best = recommend(ladder, error_target)
+    """The fidelity ladder of the scene and the cheapest level that meets ``error_target`` on the ladder's
+    manoeuvre and again when its FMU is checked directly against the truth on a second manoeuvre (a level
+    whose model and integration errors cancelled on the first is not recommended on that luck)."""
+    from flexlink.scene.loader import load_scene
+
+    scene = load_scene(scene_path)
+    ladder = run_ladder(scene, target=error_target, quick=quick, progress=progress)
+    candidates = [r for r in ladder.rungs if r.model_error < error_target and r.error < error_target]
+    best, checks = checked_recommendation(candidates, lambda rung: check_level(
+        scene, rung, ladder.truth.level, ladder.stop_time, error_target, progress))
+    recommendation = None
+    if best is not None:
+        recommendation = {**best.as_dict(), "checked_error": checks[-1].error, "check": checks[-1].as_dict()}
     return {"error_target": error_target, "outputs": ladder.outputs, "stop_time": ladder.stop_time,
             "reference_error": ladder.reference_error, "ladder": [r.as_dict() for r in ladder.rungs],
-            "recommendation": best.as_dict() if best else None, "notes": ladder.notes}
+            "recommendation": recommendation, "checks": [c.as_dict() for c in checks], "notes": ladder.notes}
+
+
+def _format_checks(info: dict) -> list[str]:
+    """The candidates the direct check turned down (their ladder errors had cancelled)."""
+    errors = {r["level"]: r["error"] for r in info["ladder"]}
+    return [f"  not recommended: {c['level']}: error {errors[c['level']]:.2e} on the ladder's manoeuvre but "
+            f"{c['error']:.2e} on the check manoeuvre ({c['manoeuvre']}): its errors cancelled on the first"
+            for c in info["checks"] if not c["passed"]]
 
 
 def format_fidelity(info: dict) -> str:
@@ -132,6 +150,11 @@ def format_fidelity(info: dict) -> str:
               "truth. The step is explain's (20 per period of the level's highest mode), halved (at most "
               f"{MAX_HALVINGS} times) while the model error meets the target and the error does not."]
     lines += [f"  note: {n}" for n in info["notes"]]
+    lines += _format_checks(info)
+    if best is None and info["checks"]:
+        lines.append(f"no level meets the error target {target:g} when checked directly (the cheapest "
+                     f"{len(info['checks'])} that met it on the ladder's manoeuvre were checked)")
+        return "\n".join(lines)
     if best is None:
         closest = min(rows, key=lambda r: max(r["model_error"], r["error"]))
         lines.append(f"no level meets the error target {target:g}: the closest is {closest['level']} "
@@ -141,6 +164,10 @@ def format_fidelity(info: dict) -> str:
     lines.append(f"recommended for an error target of {target:g}: {best['level']} ({best['coordinates']} "
                  f"coordinates) at SS22 step {best['step']:.3g} s: error {best['error']:.2e} (model "
                  f"{best['model_error']:.2e}), {best['cpu_s_per_simulated_s']:.3g} CPU s per simulated s")
+    check = best["check"]
+    lines.append(f"  checked directly: its FMU at that step against the truth under CVODES on a second manoeuvre "
+                 f"({check['manoeuvre']}): error {check['error']:.2e} ("
+                 + ", ".join(f"{n} {e:.2e}" for n, e in check["errors"].items()) + ")")
     if best["truth"]:
         lines.append("  that is the truth itself: its own error against a finer model is not measured here")
     own = next((r for r in rows if r["scene_level"]), None)

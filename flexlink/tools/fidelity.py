@@ -323,3 +323,68 @@ def recommend(ladder: Ladder, target: float) -> Rung | None:
     """The cheapest rung that meets ``target`` by its model error and by its error at its step (None if none)."""
     check_target(target)
     return next((r for r in ladder.rungs if r.model_error < target and r.error < target), None)
+
+
+# ---------------------------------------------------------------------- the recommendation, checked directly
+
+CHECK_SWITCHES = (0.7, 1.4)          # the check manoeuvre: +τ for 0.7 s, −τ for 0.7 s, then free
+MAX_CHECKS = 3                       # candidates checked before saying that none holds
+
+
+@dataclass
+class Check:
+    """A level's FMU at its step against the truth under CVODES, on a manoeuvre the ladder did not choose on."""
+
+    label: str
+    manoeuvre: str
+    errors: dict[str, float]          # per output: RMS deviation / RMS of the truth
+    error: float                      # the largest: what is compared with the target
+    passed: bool
+
+    def as_dict(self) -> dict:
+        return {"level": self.label, "manoeuvre": self.manoeuvre, "errors": self.errors, "error": self.error,
+                "passed": self.passed}
+
+
+def check_case(case):
+    """The ladder's manoeuvre with other switch times (a torque-driven first joint), so that a level whose model
+    and integration errors happened to cancel on the ladder's manoeuvre is not recommended on that luck; a
+    position-driven joint has one manoeuvre, its built-in law: the check then repeats it, afresh."""
+    if not case.switches:
+        return case, "the built-in law (the only manoeuvre of a position-driven first joint)"
+    (name, torque), = case.pieces[0][1].items()
+    t1, t2 = CHECK_SWITCHES
+    pieces = [(0.0, {name: torque}), (t1, {name: -torque}), (t2, {name: 0.0})]
+    return (dataclasses.replace(case, pieces=pieces, switches=[t for t in (t1, t2) if t < case.stop]),
+            f"{name} = {torque:g} for {t1:g} s, {-torque:g} for {t2 - t1:g} s, then 0")
+
+
+def check_level(scene: Scene, rung: Rung, truth_level: Level, stop: float, target: float, progress=None) -> Check:
+    """Run ``rung``'s FMU (a fresh instance) at its SS22 step over the check manoeuvre and compare each output
+    with the truth's equations under CVODES on the same manoeuvre: the error measured directly, with no part of
+    it taken from the ladder."""
+    from flexlink.mechanics.model import build_model
+    from flexlink.run.simulate import SlaveRunner
+    from flexlink.tools.bench import default_case, reference_outputs
+
+    (progress or (lambda m: None))(f"fidelity: checking {rung.label} on a second manoeuvre")
+    truth_case, manoeuvre = check_case(default_case(build_model(variant(scene, truth_level)), stop=stop))
+    ref = reference_outputs(truth_case, REFERENCE_RTOL)
+    with SlaveRunner(variant_fmu(variant(scene, rung.level)), instance_name="fidelity_check") as runner:
+        y = runner.run(stop, float(truth_case.times[1] - truth_case.times[0]), inputs=truth_case.inputs_at,
+                       start={"solver.step": rung.step}, outputs=truth_case.outputs)
+    errors = {n: float(np.sqrt(np.mean((y[n] - ref[n]) ** 2)) / max(np.sqrt(np.mean(ref[n] ** 2)), 1e-300))
+              for n in truth_case.outputs}
+    error = max(errors.values())
+    return Check(rung.label, manoeuvre, errors, error, error < target)
+
+
+def checked_recommendation(candidates: list[Rung], check) -> tuple[Rung | None, list[Check]]:
+    """The cheapest of ``candidates`` (cheapest first, each meeting the target on the ladder) whose direct
+    ``check(rung)`` passes; at most MAX_CHECKS are tried. Returns it (None if none passed) and every check."""
+    checks = []
+    for rung in candidates[:MAX_CHECKS]:
+        checks.append(check(rung))
+        if checks[-1].passed:
+            return rung, checks
+    return None, checks
