@@ -10,7 +10,8 @@ Co-Simulation at the scene's step.
 Each scene runs in a child process, and each importer run under fmpy's wall-clock limit (``--timeout``,
 default 120 s): a solver that stalls or a crash is a row that says so, not a hung benchmark.  The manoeuvre
 is ``flexlink bench``'s (a torque pulse on the first joint, or the built-in laws), 2 s long.  The Euler step
-is the scene's SS22 step and a tenth of it.
+is the scene's SS22 step (rounded down to a divisor of the 10 ms output interval, as fmpy requires) and a
+tenth of it.
 """
 
 from __future__ import annotations
@@ -49,7 +50,8 @@ def _scene(scene_path: str, stop: float, timeout: float) -> dict:
         return {m: {"na": str(exc)} for m in METHODS}
     fmu = cached_fmu(scene, model=model)
     ref = reference_outputs(case)
-    h, sample = scene.fmu.step, float(case.times[1] - case.times[0])
+    sample = float(case.times[1] - case.times[0])
+    h = sample / math.ceil(sample / scene.fmu.step - 1e-9)   # the scene's step, a divisor of the output interval
 
     def ss22():
         t0 = time.process_time()
