@@ -151,6 +151,9 @@ fmi2Status fmu_set_debug_logging(Instance *inst, fmi2Boolean on, size_t n, const
 /* ------------------------------------------------------------ variable access */
 fmi2Status fmu_get_real(Instance *inst, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]);
 fmi2Status fmu_set_real(Instance *inst, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]);
+/* Integer variables (solver.order): a Real call on one, or an Integer call on a Real, is an error. */
+fmi2Status fmu_get_integer(Instance *inst, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[]);
+fmi2Status fmu_set_integer(Instance *inst, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[]);
 
 /* ---------------------------------------------------------------- simulation */
 fmi2Status fmu_setup_experiment(Instance *inst, fmi2Boolean tolerance_defined, fmi2Real tolerance,

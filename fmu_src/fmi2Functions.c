@@ -136,18 +136,20 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
     return finish(inst, fmu_set_real(inst, vr, nvr, value));
 }
 
-/* The model has Real variables only. */
+/* The model has Real and Integer variables only. */
 static fmi2Status no_variables(Instance *inst, const char *function, const fmi2ValueReference vr[],
                                size_t nvr, const void *value) {
     if (nvr == 0) return fmi2OK;
     if (vr == NULL || value == NULL) return fail(inst, function, "vr or value is NULL");
-    fmu_error(inst, "%s: unknown value reference %u (this FMU has Real variables only)", function, vr[0]);
+    fmu_error(inst, "%s: unknown value reference %u (this FMU has Real and Integer variables only)", function,
+              vr[0]);
     return finish(inst, fmi2Error);
 }
 
 fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[]) {
     BEGIN("fmi2GetInteger", READABLE);
-    return no_variables(inst, "fmi2GetInteger", vr, nvr, value);
+    REQUIRE(nvr == 0 || (vr != NULL && value != NULL), "fmi2GetInteger", "vr or value is NULL");
+    return finish(inst, fmu_get_integer(inst, vr, nvr, value));
 }
 
 fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[]) {
@@ -163,7 +165,8 @@ fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           const fmi2Integer value[]) {
     BEGIN("fmi2SetInteger", SETTABLE);
-    return no_variables(inst, "fmi2SetInteger", vr, nvr, value);
+    REQUIRE(nvr == 0 || (vr != NULL && value != NULL), "fmi2SetInteger", "vr or value is NULL");
+    return finish(inst, fmu_set_integer(inst, vr, nvr, value));
 }
 
 fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,

@@ -14,6 +14,7 @@ import hashlib
 import math
 import os
 import shutil
+import sys
 import tempfile
 import time
 import zipfile
@@ -98,6 +99,39 @@ def display_unit(v: FmuVariable) -> str | None:
     return None
 
 
+def declared_min(v: FmuVariable) -> float:
+    """The ``min`` the model description states: what the FMU accepts, which for an exclusive bound (a stiffness
+    or step that must be > 0) is the smallest double above it; above 0 that is the smallest normal double,
+    as the FMU refuses subnormal values of everything but inputs (fmu_src/variables.c)."""
+    if not v.min_exclusive:
+        return v.min
+    if v.min == 0.0 and v.causality != "input":
+        return sys.float_info.min
+    return math.nextafter(v.min, math.inf)
+
+
+def type_attributes(v: FmuVariable, derivative_ref_offset: int) -> list[str]:
+    """The attributes of a variable's type element (FMI 2 ``<Real>``/``<Integer>``, FMI 3 ``<Float64>``/
+    ``<Int32>`` alike): start (not for outputs and locals, which are calculated), derivative (the state's
+    reference plus ``derivative_ref_offset``: FMI 2 counts from 1, FMI 3 uses value references), unit, display
+    unit, min, max."""
+    number = (lambda x: str(int(x))) if v.type == "Integer" else _num
+    out = []
+    if v.causality not in ("output", "local"):
+        out.append(f'start="{number(v.start)}"')
+    if v.derivative is not None:
+        out.append(f'derivative="{v.derivative + derivative_ref_offset}"')
+    if v.unit:
+        out.append(f'unit="{v.unit}"')
+    if display_unit(v):
+        out.append(f'displayUnit="{display_unit(v)}"')
+    if v.min > -1e299:
+        out.append(f'min="{number(declared_min(v))}"')
+    if v.max < 1e299:
+        out.append(f'max="{number(v.max)}"')
+    return out
+
+
 def generation_date_and_time() -> str:
     """Now in UTC as xs:dateTime, or ``$SOURCE_DATE_EPOCH`` (seconds) for a reproducible build."""
     epoch = os.environ.get("SOURCE_DATE_EPOCH", "").strip()
@@ -162,21 +196,8 @@ def model_description(model: SymbolicModel, gen: GeneratedModel, sources: list[s
             attrs.append('initial="calculated"')
         if v.description:
             attrs.append(f"description={quoteattr(v.description)}")
-        real = []
-        if v.causality not in ("output", "local"):
-            real.append(f'start="{_num(v.start)}"')
-        if v.derivative is not None:
-            real.append(f'derivative="{v.derivative + 1}"')
-        if v.unit:
-            real.append(f'unit="{v.unit}"')
-        if display_unit(v):
-            real.append(f'displayUnit="{display_unit(v)}"')
-        if v.min > -1e299:
-            real.append(f'min="{_num(v.min)}"')
-        if v.max < 1e299:
-            real.append(f'max="{_num(v.max)}"')
         lines.append(f"    <!-- {vr + 1} --><ScalarVariable {' '.join(attrs)}>"
-                     f"<Real {' '.join(real)}/></ScalarVariable>")
+                     f"<{v.type} {' '.join(type_attributes(v, 1))}/></ScalarVariable>")
     lines.append("  </ModelVariables>")
     lines += model_structure(model, gen)
     lines.append("</fmiModelDescription>")
