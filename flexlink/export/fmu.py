@@ -28,13 +28,15 @@ import numpy as np
 import flexlink
 from flexlink.errors import BuildError
 from flexlink.export.cbuild import (
+    FMI_VERSIONS,
     GENERIC_HEADERS,
-    GENERIC_SOURCES,
     LIBRARY_SUFFIX,
+    PLATFORM_FOLDER,
     compile_shared_library,
     compiler,
-    fmi_headers_dir,
+    fmi_headers,
     fmu_src_dir,
+    generic_sources,
     parse_platforms,
 )
 from flexlink.export.codegen import OPTIMISE_ENV, GeneratedModel, generate
@@ -153,6 +155,13 @@ def unit_definitions(units: list[str]) -> list[str]:
     return lines
 
 
+def log_categories_and_experiment(scene: Scene) -> list[str]:
+    """``<LogCategories>`` and ``<DefaultExperiment>`` (the same elements in FMI 2 and FMI 3)."""
+    return ["  <LogCategories>", *[f'    <Category name="{k}" description="{d}"/>' for k, d in LOG_CATEGORIES.items()],
+            "  </LogCategories>",
+            f'  <DefaultExperiment startTime="0" stopTime="5" stepSize="{_num(max(scene.fmu.step, 1e-3))}"/>']
+
+
 def model_description(model: SymbolicModel, gen: GeneratedModel, sources: list[str]) -> str:
     scene = model.scene
     units = sorted({v.unit for v in gen.variables if v.unit})
@@ -182,10 +191,7 @@ def model_description(model: SymbolicModel, gen: GeneratedModel, sources: list[s
         "  </CoSimulation>",
         *unit_definitions(units),
     ]
-    lines.append("  <LogCategories>")
-    lines += [f'    <Category name="{k}" description="{d}"/>' for k, d in LOG_CATEGORIES.items()]
-    lines.append("  </LogCategories>")
-    lines.append(f'  <DefaultExperiment startTime="0" stopTime="5" stepSize="{_num(max(scene.fmu.step, 1e-3))}"/>')
+    lines += log_categories_and_experiment(scene)
     lines.append("  <ModelVariables>")
     for vr, v in enumerate(gen.variables):
         attrs = [f'name="{v.name}"', f'valueReference="{vr}"', f'causality="{v.causality}"',
@@ -204,10 +210,19 @@ def model_description(model: SymbolicModel, gen: GeneratedModel, sources: list[s
     return "\n".join(lines) + "\n"
 
 
-def model_structure(model: SymbolicModel, gen: GeneratedModel) -> list[str]:
-    """``<ModelStructure>``: outputs and state derivatives with their dependencies on states and inputs
-    (structural, from CasADi's sparsity: flexlink.export.derivatives), and the initial unknowns (outputs,
-    states, derivatives) with their dependencies on inputs and parameters."""
+@dataclass
+class Unknown:
+    """One entry of ``<ModelStructure>``: a variable and what it depends on, as 1-based positions in the variable
+    list (FMI 2's indices; FMI 3 writes the value references, one less)."""
+    index: int
+    dependencies: list[int]
+    kinds: list[str]
+
+
+def dependencies(model: SymbolicModel, gen: GeneratedModel) -> tuple[list[Unknown], list[Unknown], list[Unknown]]:
+    """The outputs and state derivatives with their dependencies on states and inputs (structural, from CasADi's
+    sparsity: flexlink.export.derivatives), and the initial unknowns (outputs, states, derivatives) with their
+    dependencies on inputs and parameters: the content of ``<ModelStructure>`` in both FMI versions."""
     st = structure(model)
     n = model.n_q
     index = {(v.kind, v.index): vr + 1 for vr, v in enumerate(gen.variables)}   # 1-based XML indices
@@ -232,7 +247,7 @@ def model_structure(model: SymbolicModel, gen: GeneratedModel) -> list[str]:
     def deps(row: np.ndarray) -> set[int]:
         return {z_var[k] for k in np.flatnonzero(row) if z_var[k] is not None}
 
-    def unknown(vr: int, direct: set[int], kinds: dict[int, str] | None = None, initial: bool = False) -> str:
+    def unknown(vr: int, direct: set[int], kinds: dict[int, str] | None = None, initial: bool = False) -> Unknown:
         if initial:
             known: set[int] = set()
             for d in direct:
@@ -241,8 +256,7 @@ def model_structure(model: SymbolicModel, gen: GeneratedModel) -> list[str]:
         else:
             direct = {d for d in direct if d not in params}
         ds = sorted(direct)
-        kind = " ".join((kinds or {}).get(d, "dependent") for d in ds)
-        return f'      <Unknown index="{vr}" dependencies="{" ".join(map(str, ds))}" dependenciesKind="{kind}"/>'
+        return Unknown(vr, ds, [(kinds or {}).get(d, "dependent") for d in ds])
 
     unknowns = {}
     for vr, v in enumerate(gen.variables):
@@ -254,19 +268,26 @@ def model_structure(model: SymbolicModel, gen: GeneratedModel) -> list[str]:
             unknowns[vr + 1] = deps(st.acceleration[v.index])
         elif v.kind in ("VAR_STATE_Q", "VAR_STATE_V"):
             unknowns[vr + 1] = {vr + 1}
-    outputs = [vr + 1 for vr, v in enumerate(gen.variables) if v.kind == "VAR_OUTPUT"]
-    derivatives = [vr + 1 for vr, v in enumerate(gen.variables) if v.kind in ("VAR_DER_Q", "VAR_DER_V")]
-    lines = ["  <ModelStructure>", "    <Outputs>"]
-    lines += [unknown(vr, unknowns[vr]) for vr in outputs]
-    lines += ["    </Outputs>", "    <Derivatives>"]
-    for vr in derivatives:
-        v = gen.variables[vr - 1]
-        kinds = {z_var[n + v.index]: "constant"} if v.kind == "VAR_DER_Q" else None
-        lines.append(unknown(vr, unknowns[vr], kinds))
-    lines += ["    </Derivatives>", "    <InitialUnknowns>"]
-    lines += [unknown(vr, unknowns[vr], initial=True) for vr in sorted(unknowns)]
-    lines += ["    </InitialUnknowns>", "  </ModelStructure>"]
-    return lines
+    outputs = [unknown(vr + 1, unknowns[vr + 1]) for vr, v in enumerate(gen.variables) if v.kind == "VAR_OUTPUT"]
+    derivatives = []
+    for vr, v in enumerate(gen.variables):
+        if v.kind in ("VAR_DER_Q", "VAR_DER_V"):
+            kinds = {z_var[n + v.index]: "constant"} if v.kind == "VAR_DER_Q" else None
+            derivatives.append(unknown(vr + 1, unknowns[vr + 1], kinds))
+    initial = [unknown(vr, unknowns[vr], initial=True) for vr in sorted(unknowns)]
+    return outputs, derivatives, initial
+
+
+def model_structure(model: SymbolicModel, gen: GeneratedModel) -> list[str]:
+    """FMI 2's ``<ModelStructure>`` (:func:`dependencies`), by 1-based indices."""
+    def line(u: Unknown) -> str:
+        return (f'      <Unknown index="{u.index}" dependencies="{" ".join(map(str, u.dependencies))}" '
+                f'dependenciesKind="{" ".join(u.kinds)}"/>')
+
+    outputs, derivatives, initial = dependencies(model, gen)
+    return ["  <ModelStructure>", "    <Outputs>", *map(line, outputs), "    </Outputs>", "    <Derivatives>",
+            *map(line, derivatives), "    </Derivatives>", "    <InitialUnknowns>", *map(line, initial),
+            "    </InitialUnknowns>", "  </ModelStructure>"]
 
 
 def build_description(identifier: str, c_files: list[str]) -> str:
@@ -297,14 +318,17 @@ def fmu_path(output: str | os.PathLike, identifier: str) -> Path:
 
 
 def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, keep_dir: str | None = None,
-              model: SymbolicModel | None = None, platforms: str | Sequence[str] = ("linux64",)) -> BuildReport:
-    """Export ``scene`` as an FMI 2.0 FMU (Model Exchange and Co-Simulation) at ``output``; an existing
-    folder as ``output`` receives ``<model identifier>.fmu``.
+              model: SymbolicModel | None = None, platforms: str | Sequence[str] = ("linux64",),
+              fmi_version: int = 2) -> BuildReport:
+    """Export ``scene`` as an FMI 2.0 FMU, or with ``fmi_version=3`` an FMI 3.0 FMU (Model Exchange and
+    Co-Simulation) at ``output``; an existing folder as ``output`` receives ``<model identifier>.fmu``.
 
     ``platforms`` ("linux64", "win64", or both as a sequence or ``"linux64,win64"``) names the binaries
     compiled from the same sources.  A missing compiler (MinGW-w64 for win64) is a BuildError raised
     before the model is built, so that the user does not wait for code generation to learn it."""
     t0 = time.perf_counter()
+    if fmi_version not in FMI_VERSIONS:
+        raise BuildError(f"FMI version {fmi_version!r}: choose 2 or 3")
     platforms = parse_platforms(platforms)
     for platform in platforms:
         compiler(platform)
@@ -321,18 +345,23 @@ def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, ke
         gen = generate(model, src)
         t2 = time.perf_counter()
         generic = fmu_src_dir()
-        for name in [*GENERIC_SOURCES, *GENERIC_HEADERS]:
+        for name in [*generic_sources(fmi_version), *GENERIC_HEADERS]:
             shutil.copyfile(generic / name, src / name)
-        for h in fmi_headers_dir().glob("fmi2*.h"):
+        for h in fmi_headers(fmi_version):
             shutil.copyfile(h, src / h.name)
-        c_files = [*GENERIC_SOURCES, *(p.name for p in gen.sources)]
+        c_files = [*generic_sources(fmi_version), *(p.name for p in gen.sources)]
         (src / "buildDescription.xml").write_text(build_description(gen.identifier, c_files))
-        libraries = [work / "binaries" / platform / f"{gen.identifier}{LIBRARY_SUFFIX[platform]}"
-                     for platform in platforms]
+        libraries = [work / "binaries" / PLATFORM_FOLDER[fmi_version][platform]
+                     / f"{gen.identifier}{LIBRARY_SUFFIX[platform]}" for platform in platforms]
         for platform, library in zip(platforms, libraries, strict=True):
             compile_shared_library([src / f for f in c_files], [src], library, platform=platform)
         t3 = time.perf_counter()
-        xml = model_description(model, gen, c_files)
+        if fmi_version == 3:
+            from flexlink.export.fmi3 import model_description_fmi3  # it builds on this module's pieces
+
+            xml = model_description_fmi3(model, gen)
+        else:
+            xml = model_description(model, gen, c_files)
         (work / "modelDescription.xml").write_text(xml)
         output.parent.mkdir(parents=True, exist_ok=True)
         tmp = output.with_suffix(f"{output.suffix}.{os.getpid()}.part")   # unique: concurrent builders
