@@ -164,7 +164,8 @@ fmi2Status fmu_set_debug_logging(Instance *inst, fmi2Boolean on, size_t n, const
 /* ------------------------------------------------------------ variable access */
 fmi2Status fmu_get_real(Instance *inst, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]);
 fmi2Status fmu_set_real(Instance *inst, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]);
-/* Integer variables (solver.order): a Real call on one, or an Integer call on a Real, is an error. */
+/* Integer variables (solver.order): an Integer call on a Real is an error; the Real functions take Integer
+ * variables too (whole values only), as they did before solver.order became an Integer. */
 fmi2Status fmu_get_integer(Instance *inst, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[]);
 fmi2Status fmu_set_integer(Instance *inst, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[]);
 

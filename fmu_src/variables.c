@@ -143,18 +143,18 @@ fmi2Status fmu_update_outputs(Instance *inst, const char *function) {
 
 /* ================================================================ get and set */
 
-/* Unknown value references and variables of the other type are refused, naming the function to use. */
+/* Unknown value references are refused, and the Integer functions on a Real variable, naming the function to
+ * use.  The Real functions take an Integer variable too (solver.order was a Real before it became an Integer:
+ * hosts that read every variable as a Real, or set it as one, keep working; a value set so must be whole). */
 static fmi2Status check_references(Instance *inst, const char *function, int integer,
                                    const fmi2ValueReference vr[], size_t nvr) {
     for (size_t i = 0; i < nvr; i++) {
         if (vr[i] >= (fmi2ValueReference)N_VARS) {
             return fmu_error(inst, "%s: unknown value reference %u", function, vr[i]);
         }
-        if (MODEL_VARS[vr[i]].integer != integer) {
-            return fmu_error(inst, "%s: %s (value reference %u) is %s", function, MODEL_VARS[vr[i]].name, vr[i],
-                             MODEL_VARS[vr[i]].integer
-                                 ? "an Integer: get and set it with fmi2GetInteger/fmi2SetInteger (FMI 3: Int32)"
-                                 : "a Real: get and set it with fmi2GetReal/fmi2SetReal (FMI 3: Float64)");
+        if (integer && !MODEL_VARS[vr[i]].integer) {
+            return fmu_error(inst, "%s: %s (value reference %u) is a Real: get and set it with fmi2GetReal/"
+                             "fmi2SetReal (FMI 3: Float64)", function, MODEL_VARS[vr[i]].name, vr[i]);
         }
     }
     return fmi2OK;
@@ -213,6 +213,8 @@ static const char *refuse_value(const Instance *inst, const VarInfo *v, double x
         snprintf(why, n, "%s = %.15g: must be %s %.15g", v->name, x, v->min_exclusive ? ">" : ">=", v->min);
     } else if (!(x <= v->max)) {
         snprintf(why, n, "%s = %.15g: must be <= %.15g", v->name, x, v->max);
+    } else if (v->integer && x != floor(x)) {
+        snprintf(why, n, "%s = %.15g: an Integer, must be a whole number", v->name, x);
     } else if (v->kind == VAR_SOLVER && v->index == SOLVER_ORDER && x != 2.0 && x != 4.0) {
         snprintf(why, n, "%s = %.15g: must be 2 (SS22) or 4 (SS22 with Richardson extrapolation)", v->name, x);
     } else {

@@ -6,6 +6,7 @@ interface with the same settings, the FMI 2 FMU's directional derivatives, and t
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 import zipfile
@@ -97,7 +98,7 @@ def test_fmi3_model_description_is_valid_and_matches_fmi2(fmi3_fmu, example_fmu,
     ("rotating_link", 0.5, {"fmi_type": "ModelExchange", "solver": "CVode", "relative_tolerance": 1e-9}),
     ("rotating_link", 0.1, {"fmi_type": "ModelExchange", "solver": "Euler", "step_size": 1e-5}),
     ("steel_beam_raise", 0.3, {"fmi_type": "CoSimulation"}),
-])
+], ids=["cs-rotating_link", "me-cvode-rotating_link", "me-euler-rotating_link", "cs-steel_beam_raise"])
 def test_fmi3_simulates_as_the_fmi2_fmu(fmi3_fmu, example_fmu, name, stop, settings):
     fmu2 = str(example_fmu(name))
     u = torque(fmpy.read_model_description(fmu2), stop)
@@ -192,7 +193,7 @@ def test_fmi3_refuses_bad_calls(fmi3_fmu):
     statuses = []
     try:
         for call in (lambda: s.setInt32([vr["solver.order"]], [3]),
-                     lambda: s.setFloat64([vr["solver.order"]], [4.0]),
+                     lambda: s.setFloat64([vr["solver.order"]], [2.5]),
                      lambda: s.setFloat64([vr["time"]], [1.0]),
                      lambda: s.setFloat64([10_000], [1.0]),
                      lambda: s.setBoolean([vr["solver.order"]], [True]),
@@ -226,3 +227,48 @@ def test_fmi3_win64_binary_exports_the_fmi3_interface(tmp_path):
     declared = {line.split()[2].rstrip(";") for line in header.read_text().splitlines()
                 if line.startswith("FMI3_Export")}
     assert exported == declared
+
+
+def test_flexlink_check_runs_on_an_fmi3_fmu(fmi3_fmu, tmp_path, capsys):
+    """``flexlink check`` on an FMI 3 FMU: fmpy's validation with every variable read back through the binary,
+    and both interfaces simulated and compared; the FMI 2-only checks are reported as skipped.  A value
+    reference that the binary does not know is caught."""
+    from flexlink.cli import main
+
+    fmu = fmi3_fmu("rotating_link")
+    assert main(["check", str(fmu), "--me-vs-cs-stop", "0.05", "--json"]) == 0
+    results = {r["name"]: r["status"] for r in json.loads(capsys.readouterr().out)["checks"]}
+    assert results["model-description"] == "pass" and results["me-vs-cs"] == "pass"
+    assert results["fuzz"] == "skip" and results["fmu-state"] == "skip"
+    bad = tmp_path / "bad.fmu"
+    with zipfile.ZipFile(fmu) as z, zipfile.ZipFile(bad, "w") as out:
+        for item in z.infolist():
+            data = z.read(item)
+            if item.filename == "modelDescription.xml":
+                data = data.replace(b'name="solver.tolerance" valueReference="8"',
+                                    b'name="solver.tolerance" valueReference="9999"')
+                assert b'valueReference="9999"' in data
+            out.writestr(item, data)
+    assert main(["check", str(bad), "--only", "model-description"]) == 1
+    assert "9999" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("cc", ["gcc", MINGW_CC])
+def test_fmi3_sources_compile_clean_as_strict_c99(fmi3_fmu, tmp_path, cc):
+    """The FMI 3 FMU's ``sources/``: every file its buildDescription.xml lists (all the C files shipped, with
+    fmi3Functions.c instead of fmi2Functions.c), strict C99 with every warning an error."""
+    from fmpy.model_description import read_build_description
+
+    if shutil.which(cc) is None:
+        pytest.skip(f"{cc} is not installed")
+    fmu = fmi3_fmu("rotating_link")
+    with zipfile.ZipFile(fmu) as z:
+        z.extractall(tmp_path)
+    files = read_build_description(fmu, validate=True)[0].sourceFileSets[0].sourceFiles
+    assert sorted(files) == sorted(p.name for p in (tmp_path / "sources").glob("*.c"))
+    assert "fmi3Functions.c" in files and "fmi2Functions.c" not in files
+    flags = ["-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-O1", "-shared"] + (["-fPIC"] if cc == "gcc"
+                                                                                          else [])
+    res = subprocess.run([cc, *flags, f"-I{tmp_path / 'sources'}", *(str(tmp_path / "sources" / f) for f in files),
+                          "-o", str(tmp_path / "lib"), "-lm"], capture_output=True, text=True, check=False)
+    assert res.returncode == 0 and res.stderr == "", res.stderr[-4000:]

@@ -22,6 +22,9 @@ import numpy as np
 OK, WARNING, DISCARD, ERROR, FATAL = range(5)
 INTERFACES = {"CS": "coSimulation", "ME": "modelExchange"}
 FLEXLINK_VARIABLES = ("solver.step", "solver.theta1")
+#: fmpy's type names of a floating-point and of an integer variable, FMI 2.0 and FMI 3.0
+REAL_TYPES = ("Real", "Float64", "Float32")
+INTEGER_TYPES = ("Integer", "Int32", "Int64", "Int16", "Int8", "UInt32", "UInt64", "UInt16", "UInt8")
 
 
 class Fmu:
@@ -41,7 +44,8 @@ class Fmu:
         md = self.md
         self.vars = {v.name: v for v in md.modelVariables}
         self.vr = {v.name: v.valueReference for v in md.modelVariables}
-        real = [v for v in md.modelVariables if v.type == "Real"]
+        self.fmi3 = md.fmiVersion.startswith("3")
+        real = [v for v in md.modelVariables if v.type in REAL_TYPES and v.causality != "independent"]
         # Real variables by role (the numerical checks work on these); typed_* hold every type
         self.outputs = [v.name for v in real if v.causality == "output"]
         self.inputs = [v.name for v in real if v.causality == "input"]
@@ -68,10 +72,15 @@ class Fmu:
         return bool(desc is not None and getattr(desc, flag, False))
 
     def instance(self, kind: str, name: str = "check"):
-        from fmpy.fmi2 import FMU2Model, FMU2Slave
+        if self.fmi3:
+            from fmpy.fmi3 import FMU3Model as Model
+            from fmpy.fmi3 import FMU3Slave as Slave
+        else:
+            from fmpy.fmi2 import FMU2Model as Model
+            from fmpy.fmi2 import FMU2Slave as Slave
 
-        cls = FMU2Model if kind == "ME" else FMU2Slave
-        inst = cls(guid=self.md.guid, unzipDirectory=self.dir,
+        cls = Model if kind == "ME" else Slave
+        inst = cls(guid=self.md.instantiationToken if self.fmi3 else self.md.guid, unzipDirectory=self.dir,
                    modelIdentifier=getattr(self.md, INTERFACES[kind]).modelIdentifier, instanceName=name)
         inst._vr = self.vr
         return inst
@@ -91,7 +100,7 @@ class Fmu:
         return out
 
     def real_excitation(self) -> dict[str, float]:
-        return {k: v for k, v in self.excitation().items() if self.vars[k].type == "Real"}
+        return {k: v for k, v in self.excitation().items() if self.vars[k].type in REAL_TYPES}
 
 
 def _number(x) -> float | None:
@@ -106,11 +115,11 @@ def excite_value(v):
     clipped to [min, max]; Integer start + 1 within [min, max]; Enumeration another item of its type
     (or the start when there is only one); Boolean the negated start; String: None (left alone)."""
     start = v.start
-    if v.type == "Real":
+    if v.type in REAL_TYPES:
         x = (_number(start) or 0.0) + 0.1
         lo, hi = _number(v.min), _number(v.max)
         return float(np.clip(x, lo if lo is not None else -np.inf, hi if hi is not None else np.inf))
-    if v.type == "Integer":
+    if v.type in INTEGER_TYPES:
         x = int(_number(start) or 0) + 1
         lo, hi = _number(v.min), _number(v.max)
         if hi is not None and x > hi:
@@ -190,9 +199,9 @@ def start(f: Fmu, inst, kind: str, values: dict | None = None, stop: float | Non
         inst.enterContinuousTimeMode()
 
 
-def free(inst) -> None:
+def free(inst, fmi3: bool = False) -> None:
     """Free the instance but keep the library loaded (fmpy's freeInstance also unloads it)."""
-    inst.fmi2FreeInstance(inst.component)
+    (inst.fmi3FreeInstance if fmi3 else inst.fmi2FreeInstance)(inst.component)
     inst.component = None
 
 
