@@ -42,13 +42,9 @@ def _structure(f: Fmu) -> list[Finding]:
 
 def _initialised(f: Fmu, kind: str):
     inst = f.instance(kind)
-    if f.fmi3:
-        inst.instantiate(logMessage=lambda *message: None)
-        inst.enterInitializationMode(startTime=0.0)
-    else:
-        inst.instantiate(callbacks=quiet_callbacks())
-        inst.setupExperiment(startTime=0.0)
-        inst.enterInitializationMode()
+    inst.instantiate(callbacks=quiet_callbacks())
+    inst.setupExperiment(startTime=0.0)
+    inst.enterInitializationMode()
     inst.exitInitializationMode()
     return inst
 
@@ -67,14 +63,15 @@ def _read_back(f: Fmu, kind: str) -> list[Finding]:
                 inst = _initialised(f, kind)
             except Exception as e:    # a library that does not load, a GUID that differs, ...
                 return found + [Finding("loads", f"{kind}: {type(e).__name__}: {e}", sequence=isolation.recent())]
-        if call(getattr(inst, getters[v.type]), [v.valueReference]) > WARNING:
+        getter = getattr(inst.inst, getters[v.type]) if f.fmi3 else getattr(inst, getters[v.type])
+        if call(getter, [v.valueReference]) > WARNING:
             found.append(Finding("value-reference", f"{kind}: value reference {v.valueReference} of {name} "
                                                     f"({v.type}) is refused by the binary",
                                  sequence=isolation.recent(3)))
-            free(inst, f.fmi3)
+            free(inst)
             inst = None
     if inst is not None:
-        free(inst, f.fmi3)
+        free(inst)
     return found
 
 

@@ -28,9 +28,9 @@ class Check:
 CHECKS = [
     Check("model-description", "description:check_model_description", fmi3=True),
     Check("me-vs-cs", "me_vs_cs:check_me_vs_cs", fmi3=True),
-    Check("fuzz", "fuzz:check_fuzz"),
-    Check("fmu-state", "state:check_fmu_state"),
-    Check("directional-derivatives", "derivatives:check_directional_derivatives"),
+    Check("fuzz", "fuzz:check_fuzz", fmi3=True),
+    Check("fmu-state", "state:check_fmu_state", fmi3=True),
+    Check("directional-derivatives", "derivatives:check_directional_derivatives", fmi3=True),
     Check("illegal-calls", "illegal:check_illegal_calls", resumable=True),
     Check("libcosim", "importer_checks:check_libcosim", isolated=False),
     Check("fmutool", "importer_checks:check_fmutool", isolated=False),

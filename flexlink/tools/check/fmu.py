@@ -27,6 +27,44 @@ REAL_TYPES = ("Real", "Float64", "Float32")
 INTEGER_TYPES = ("Integer", "Int32", "Int64", "Int16", "Int8", "UInt32", "UInt64", "UInt16", "UInt8")
 
 
+class Fmi3AsFmi2:
+    """An fmpy FMI 3.0 instance (FMU3Slave, FMU3Model) under the FMI 2 names the checks call, so that the checks
+    written for FMI 2.0 drive an FMI 3.0 FMU unchanged: ``setupExperiment`` keeps its arguments for
+    ``enterInitializationMode``; Real and Integer are Float64 and Int32; ``newDiscreteStates`` is
+    ``updateDiscreteStates`` (its first result: whether another update is needed); the FMU state functions
+    take FMI 3's spelling.  Everything else is the FMI 3 instance's own."""
+
+    RENAMED = {"getReal": "getFloat64", "setReal": "setFloat64", "getInteger": "getInt32", "setInteger": "setInt32",
+               "getFMUstate": "getFMUState", "setFMUstate": "setFMUState", "freeFMUstate": "freeFMUState",
+               "serializeFMUstate": "serializeFMUState", "deSerializeFMUstate": "deserializeFMUState",
+               "getDerivatives": "getContinuousStateDerivatives", "newDiscreteStates": "updateDiscreteStates",
+               "fmi2FreeInstance": "fmi3FreeInstance"}
+
+    def __init__(self, inst):
+        self.__dict__["inst"] = inst
+        self.__dict__["experiment"] = {"startTime": 0.0}
+
+    def __getattr__(self, name):
+        return getattr(self.inst, self.RENAMED.get(name, name))
+
+    def __setattr__(self, name, value):
+        setattr(self.inst, name, value)
+
+    def instantiate(self, callbacks=None, loggingOn=False):
+        """FMI 2's callbacks are not FMI 3's: the messages are dropped, as the checks read statuses."""
+        del callbacks
+        self.inst.instantiate(loggingOn=loggingOn, logMessage=lambda *message: None)
+
+    def setupExperiment(self, tolerance=None, startTime=0.0, stopTime=None):
+        self.__dict__["experiment"] = {"tolerance": tolerance, "startTime": startTime, "stopTime": stopTime}
+
+    def enterInitializationMode(self):
+        self.inst.enterInitializationMode(**self.experiment)
+
+    def doStep(self, currentCommunicationPoint, communicationStepSize, noSetFMUStatePriorToCurrentPoint=True):
+        self.inst.doStep(currentCommunicationPoint, communicationStepSize, noSetFMUStatePriorToCurrentPoint)
+
+
 class Fmu:
     """The unzipped FMU, its model description, capability flags and variables by name."""
 
@@ -62,6 +100,19 @@ class Fmu:
         self.identifier = first.modelIdentifier if first is not None else ""
         self.is_flexlink = (str(md.generationTool or "").lower().startswith("flexlink")
                             and all(n in self.vars for n in FLEXLINK_VARIABLES))
+        if self.fmi3:
+            self._fmi3_flags()
+
+    def _fmi3_flags(self):
+        """fmpy 0.3.32 does not read FMI 3's ``providesDirectionalDerivatives``: taken from the XML, under FMI 2's
+        name that the checks ask for."""
+        import xml.etree.ElementTree as ET
+
+        root = ET.parse(os.path.join(self.dir, "modelDescription.xml")).getroot()
+        for kind, attribute in INTERFACES.items():
+            element, desc = root.find({"CS": "CoSimulation", "ME": "ModelExchange"}[kind]), getattr(self.md, attribute)
+            if element is not None and desc is not None:
+                desc.providesDirectionalDerivative = element.get("providesDirectionalDerivatives") in ("true", "1")
 
     def close(self):
         shutil.rmtree(self.dir, ignore_errors=True)
@@ -83,7 +134,7 @@ class Fmu:
         inst = cls(guid=self.md.instantiationToken if self.fmi3 else self.md.guid, unzipDirectory=self.dir,
                    modelIdentifier=getattr(self.md, INTERFACES[kind]).modelIdentifier, instanceName=name)
         inst._vr = self.vr
-        return inst
+        return Fmi3AsFmi2(inst) if self.fmi3 else inst
 
     # ------------------------------------------------------------------ values
     def excitation(self) -> dict[str, object]:
@@ -138,9 +189,9 @@ def excite_value(v):
 def set_value(inst, v, value) -> None:
     """fmi2Set<type> for one variable, by its type."""
     vr = [v.valueReference]
-    if v.type == "Real":
+    if v.type in REAL_TYPES:
         inst.setReal(vr, [float(value)])
-    elif v.type in ("Integer", "Enumeration"):
+    elif v.type in ("Enumeration", *INTEGER_TYPES):
         inst.setInteger(vr, [int(value)])
     elif v.type == "Boolean":
         inst.setBoolean(vr, [bool(value)])
@@ -153,9 +204,9 @@ def get_values(inst, variables) -> list:
     out = []
     for v in variables:
         vr = [v.valueReference]
-        if v.type == "Real":
+        if v.type in REAL_TYPES:
             out += inst.getReal(vr)
-        elif v.type in ("Integer", "Enumeration"):
+        elif v.type in ("Enumeration", *INTEGER_TYPES):
             out += inst.getInteger(vr)
         elif v.type == "Boolean":
             out += inst.getBoolean(vr)
@@ -199,9 +250,9 @@ def start(f: Fmu, inst, kind: str, values: dict | None = None, stop: float | Non
         inst.enterContinuousTimeMode()
 
 
-def free(inst, fmi3: bool = False) -> None:
+def free(inst) -> None:
     """Free the instance but keep the library loaded (fmpy's freeInstance also unloads it)."""
-    (inst.fmi3FreeInstance if fmi3 else inst.fmi2FreeInstance)(inst.component)
+    inst.fmi2FreeInstance(inst.component)      # fmi3FreeInstance through Fmi3AsFmi2
     inst.component = None
 
 
