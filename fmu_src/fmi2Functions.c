@@ -8,8 +8,8 @@
  * computed) leaves the instance in step mode at the communication point.  Model Exchange functions
  * called on a Co-Simulation instance (and fmi2DoStep on a Model Exchange one, which never reaches step
  * mode) are refused.  A NULL instance gives
- * fmi2Error and nothing else (there is no logger to tell). */
-#include <string.h>
+ * fmi2Error and nothing else (there is no logger to tell).  The call-sequence helpers (fmu_allowed,
+ * fmu_finish, ...) are shared with the FMI 3.0 layer, fmi3Functions.c (calls.c). */
 #include "cosimulation.h"
 
 #define SETTABLE (PHASE_INSTANTIATED | PHASE_INITIALIZATION | PHASE_STEP | PHASE_EVENT | PHASE_CONTINUOUS)

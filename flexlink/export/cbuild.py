@@ -1,9 +1,10 @@
 """Compiling the C half of an FMU: where its sources and the FMI headers are, and one compiler call.
 
 The generic C sources (``fmu_src/`` in the repository) are shipped as the package data
-``flexlink.fmu_src``; the FMI 2.0 headers come from fmpy (``fmpy/c-code``) and are never copied.
-Everything is built with all warnings as errors and ``-fvisibility=hidden``: an FMU library exports
-the ``fmi2…`` functions only (their declarations in ``fmi2Functions.h`` carry the visibility).
+``flexlink.fmu_src``; the FMI 2.0 and 3.0 headers come from fmpy (``fmpy/c-code``) and are never copied
+into the repository.  Everything is built with all warnings as errors and ``-fvisibility=hidden``: an FMU
+library exports the ``fmi2…`` (FMI 3: ``fmi3…``) functions only (their declarations in ``fmi2Functions.h`` /
+``fmi3Functions.h`` carry the visibility).
 """
 
 from __future__ import annotations

@@ -3,7 +3,9 @@
 The FMU holds ``modelDescription.xml``, ``binaries/linux64/<id>.so`` (and, on request,
 ``binaries/win64/<id>.dll`` cross-compiled with MinGW-w64) and ``sources/`` (the generic half from
 ``fmu_src/``, the generated model half, the FMI headers from the installed fmpy and a
-``buildDescription.xml``), so that it can be rebuilt elsewhere.
+``buildDescription.xml``), so that it can be rebuilt elsewhere.  This module writes the FMI 2.0 model
+description and the pieces the FMI 3.0 one (flexlink.export.fmi3, ``fmi_version=3``) shares with it; an FMI 3
+FMU's binaries sit in ``binaries/x86_64-linux`` and ``binaries/x86_64-windows``.
 """
 
 from __future__ import annotations
