@@ -30,7 +30,8 @@ def _cmd_build(args) -> int:
     from flexlink.export.fmu import build_fmu
 
     _announce(args.scene)
-    rep = build_fmu(args.scene, args.output, keep_dir=args.keep_sources, platforms=args.platforms)
+    rep = build_fmu(args.scene, args.output, keep_dir=args.keep_sources, platforms=args.platforms,
+                    fmi_version=args.fmi)
     total = sum(rep.seconds.values())
     print(f"{rep.fmu}: {rep.n_coordinates} coordinates, {rep.operations} operations, "
           f"{rep.generated_c_bytes / 1024:.0f} KiB generated C, FMU {rep.fmu_bytes / 1024:.0f} KiB, "
@@ -234,7 +235,7 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     """The whole ``flexlink`` parser, the applications' sub-commands included: what ``main`` parses, and what
     the command reference (docs/commands.md) is checked against."""
-    parser = _Parser(prog="flexlink", description="Flexible-link robots as FMI 2.0 FMUs.")
+    parser = _Parser(prog="flexlink", description="Flexible-link robots as FMI 2.0 and FMI 3.0 FMUs.")
     parser.add_argument("--allow-large", action="store_true",
                         help="build scenes past the size budgets (docs/budget.md); sets FLEXLINK_ALLOW_LARGE=1 "
                              "for every command")
@@ -247,6 +248,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--keep-sources", metavar="DIR", help="keep the build directory (generated C) in DIR")
     p.add_argument("--platforms", default="linux64", metavar="P[,P]",
                    help="binaries to compile: linux64 (default), win64 (needs MinGW-w64), or linux64,win64")
+    p.add_argument("--fmi", type=int, choices=(2, 3), default=2,
+                   help="FMI version of the FMU: 2 (default, FMI 2.0) or 3 (FMI 3.0); both with Co-Simulation and "
+                        "Model Exchange")
     p.set_defaults(func=_cmd_build)
 
     p = sub.add_parser("modes", help="natural frequencies about an equilibrium")

@@ -1,7 +1,9 @@
 /* cosimulation.h -- the instance of a flexlink FMU and everything behind the FMI functions:
  * lifecycle, logging, variable access, initialisation, the communication step and FMU states.
  *
- * fmi2Functions.c checks arguments and the call sequence and calls the functions below; these know
+ * fmi2Functions.c (FMI 2.0) and fmi3Functions.c (FMI 3.0) check arguments and the call sequence and call
+ * the functions below, which keep FMI 2's types for both (fmi3's Float64, UInt32 value references and
+ * statuses are the same C types and values); these know
  * the generic model of model.h (residual form, kinematic laws, variables) and nothing of beams.
  * They are defined by concern in logging.c, instance.c, variables.c, cs_step.c, model_exchange.c,
  * derivatives.c and fmu_state.c, which share a few helpers through internal.h.
@@ -130,6 +132,17 @@ typedef struct SavedState {
 
 #define STATE_MAGIC 0x53544154UL     /* "STAT" */
 
+/* ------------------------------------------- call sequence (calls.c: the FMI 2 and 3 layers) */
+/* The instance behind an fmi2Component / fmi3Instance, or NULL if it is not a live one. */
+Instance *fmu_instance_of(void *c);
+/* An fmi2Error (fmi3Error) puts the instance in the error state, fmi2Fatal in the fatal one. */
+fmi2Status fmu_finish(Instance *inst, fmi2Status status);
+/* Logs "function: message" and returns fmu_finish(inst, fmi2Error). */
+fmi2Status fmu_fail(Instance *inst, const char *function, const char *message);
+/* 1 if the instance is in one of phases (a bitmask of Phase); else logs which states would do, puts the
+ * instance in the error state and returns 0. */
+int fmu_allowed(Instance *inst, const char *function, int phases);
+
 /* ------------------------------------------------------------------ lifecycle */
 Instance *fmu_instantiate(fmi2String name, fmi2Type type, fmi2String guid,
                           const fmi2CallbackFunctions *functions, fmi2Boolean logging_on);
@@ -157,6 +170,10 @@ fmi2Status fmu_set_debug_logging(Instance *inst, fmi2Boolean on, size_t n, const
 /* ------------------------------------------------------------ variable access */
 fmi2Status fmu_get_real(Instance *inst, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]);
 fmi2Status fmu_set_real(Instance *inst, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]);
+/* Integer variables (solver.order): an Integer call on a Real is an error; the Real functions take Integer
+ * variables too (whole values only), as they did before solver.order became an Integer. */
+fmi2Status fmu_get_integer(Instance *inst, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[]);
+fmi2Status fmu_set_integer(Instance *inst, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[]);
 
 /* ---------------------------------------------------------------- simulation */
 fmi2Status fmu_setup_experiment(Instance *inst, fmi2Boolean tolerance_defined, fmi2Real tolerance,

@@ -8,8 +8,8 @@
  * computed) leaves the instance in step mode at the communication point.  Model Exchange functions
  * called on a Co-Simulation instance (and fmi2DoStep on a Model Exchange one, which never reaches step
  * mode) are refused.  A NULL instance gives
- * fmi2Error and nothing else (there is no logger to tell). */
-#include <string.h>
+ * fmi2Error and nothing else (there is no logger to tell).  The call-sequence helpers (fmu_allowed,
+ * fmu_finish, ...) are shared with the FMI 3.0 layer, fmi3Functions.c (calls.c). */
 #include "cosimulation.h"
 
 #define SETTABLE (PHASE_INSTANTIATED | PHASE_INITIALIZATION | PHASE_STEP | PHASE_EVENT | PHASE_CONTINUOUS)
@@ -19,48 +19,14 @@
 #define DERIVATIVES (PHASE_INITIALIZATION | PHASE_STEP | PHASE_EVENT | PHASE_CONTINUOUS | PHASE_TERMINATED)
 #define STATUS_QUERY (PHASE_STEP | PHASE_TERMINATED)
 
-static Instance *instance_of(fmi2Component c) {
-    Instance *inst = (Instance *)c;
-    return inst != NULL && inst->magic == INSTANCE_MAGIC ? inst : NULL;
-}
-
-/* An fmi2Error puts the instance in the error state (FMI 2.0 section 2.1.3). */
-static fmi2Status finish(Instance *inst, fmi2Status status) {
-    if (status == fmi2Error) inst->d.phase = PHASE_ERROR;
-    else if (status == fmi2Fatal) inst->d.phase = PHASE_FATAL;
-    return status;
-}
-
-static fmi2Status fail(Instance *inst, const char *function, const char *message) {
-    fmu_error(inst, "%s: %s", function, message);
-    return finish(inst, fmi2Error);
-}
-
-static int allowed(Instance *inst, const char *function, int phases) {
-    static const int all[] = {PHASE_INSTANTIATED, PHASE_INITIALIZATION, PHASE_STEP, PHASE_EVENT,
-                              PHASE_CONTINUOUS, PHASE_TERMINATED, PHASE_ERROR};
-    char list[200] = "";
-    if (inst->d.phase & phases) return 1;
-    for (size_t k = 0; k < sizeof(all) / sizeof(all[0]); k++) {
-        if (phases & all[k]) {
-            if (list[0] != '\0') strcat(list, ", ");
-            strcat(list, fmu_phase_name(all[k]));
-        }
-    }
-    fmu_error(inst, "%s: not allowed in state %s (allowed in: %s)", function, fmu_phase_name(inst->d.phase),
-              list);
-    finish(inst, fmi2Error);
-    return 0;
-}
-
 #define BEGIN(function, phases)                                            \
-    Instance *inst = instance_of(c);                                       \
+    Instance *inst = fmu_instance_of(c);                                       \
     if (inst == NULL) return fmi2Error;                                    \
     if (fmu_logs(inst, LOG_ALL)) fmu_log(inst, fmi2OK, LOG_ALL, "%s", function); \
-    if (!allowed(inst, function, phases)) return fmi2Error
+    if (!fmu_allowed(inst, function, phases)) return fmi2Error
 
 #define REQUIRE(condition, function, message) \
-    if (!(condition)) return fail(inst, function, message)
+    if (!(condition)) return fmu_fail(inst, function, message)
 
 /* ============================================================ common functions */
 
@@ -75,7 +41,7 @@ const char *fmi2GetVersion(void) {
 fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nCategories,
                                const fmi2String categories[]) {
     BEGIN("fmi2SetDebugLogging", PHASE_ANY);
-    return finish(inst, fmu_set_debug_logging(inst, loggingOn, nCategories, categories));
+    return fmu_finish(inst, fmu_set_debug_logging(inst, loggingOn, nCategories, categories));
 }
 
 fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
@@ -87,7 +53,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
 }
 
 void fmi2FreeInstance(fmi2Component c) {
-    Instance *inst = instance_of(c);
+    Instance *inst = fmu_instance_of(c);
     if (inst != NULL) fmu_free(inst);
 }
 
@@ -96,17 +62,17 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fm
     BEGIN("fmi2SetupExperiment", PHASE_INSTANTIATED);
     const fmi2Status status =
         fmu_setup_experiment(inst, toleranceDefined, tolerance, startTime, stopTimeDefined, stopTime);
-    return finish(inst, status);
+    return fmu_finish(inst, status);
 }
 
 fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
     BEGIN("fmi2EnterInitializationMode", PHASE_INSTANTIATED);
-    return finish(inst, fmu_enter_initialization(inst));
+    return fmu_finish(inst, fmu_enter_initialization(inst));
 }
 
 fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
     BEGIN("fmi2ExitInitializationMode", PHASE_INITIALIZATION);
-    return finish(inst, fmu_exit_initialization(inst));
+    return fmu_finish(inst, fmu_exit_initialization(inst));
 }
 
 fmi2Status fmi2Terminate(fmi2Component c) {
@@ -127,27 +93,29 @@ fmi2Status fmi2Reset(fmi2Component c) {
 fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]) {
     BEGIN("fmi2GetReal", READABLE);
     REQUIRE(nvr == 0 || (vr != NULL && value != NULL), "fmi2GetReal", "vr or value is NULL");
-    return finish(inst, fmu_get_real(inst, vr, nvr, value));
+    return fmu_finish(inst, fmu_get_real(inst, vr, nvr, value));
 }
 
 fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) {
     BEGIN("fmi2SetReal", SETTABLE);
     REQUIRE(nvr == 0 || (vr != NULL && value != NULL), "fmi2SetReal", "vr or value is NULL");
-    return finish(inst, fmu_set_real(inst, vr, nvr, value));
+    return fmu_finish(inst, fmu_set_real(inst, vr, nvr, value));
 }
 
-/* The model has Real variables only. */
+/* The model has Real and Integer variables only. */
 static fmi2Status no_variables(Instance *inst, const char *function, const fmi2ValueReference vr[],
                                size_t nvr, const void *value) {
     if (nvr == 0) return fmi2OK;
-    if (vr == NULL || value == NULL) return fail(inst, function, "vr or value is NULL");
-    fmu_error(inst, "%s: unknown value reference %u (this FMU has Real variables only)", function, vr[0]);
-    return finish(inst, fmi2Error);
+    if (vr == NULL || value == NULL) return fmu_fail(inst, function, "vr or value is NULL");
+    fmu_error(inst, "%s: unknown value reference %u (this FMU has Real and Integer variables only)", function,
+              vr[0]);
+    return fmu_finish(inst, fmi2Error);
 }
 
 fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[]) {
     BEGIN("fmi2GetInteger", READABLE);
-    return no_variables(inst, "fmi2GetInteger", vr, nvr, value);
+    REQUIRE(nvr == 0 || (vr != NULL && value != NULL), "fmi2GetInteger", "vr or value is NULL");
+    return fmu_finish(inst, fmu_get_integer(inst, vr, nvr, value));
 }
 
 fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[]) {
@@ -163,7 +131,8 @@ fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           const fmi2Integer value[]) {
     BEGIN("fmi2SetInteger", SETTABLE);
-    return no_variables(inst, "fmi2SetInteger", vr, nvr, value);
+    REQUIRE(nvr == 0 || (vr != NULL && value != NULL), "fmi2SetInteger", "vr or value is NULL");
+    return fmu_finish(inst, fmu_set_integer(inst, vr, nvr, value));
 }
 
 fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
@@ -183,18 +152,18 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
     BEGIN("fmi2GetFMUstate", PHASE_ANY);
     REQUIRE(FMUstate != NULL, "fmi2GetFMUstate", "FMUstate is NULL");
-    return finish(inst, fmu_get_state(inst, FMUstate));
+    return fmu_finish(inst, fmu_get_state(inst, FMUstate));
 }
 
 fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
     BEGIN("fmi2SetFMUstate", PHASE_ANY);
-    return finish(inst, fmu_set_state(inst, FMUstate));
+    return fmu_finish(inst, fmu_set_state(inst, FMUstate));
 }
 
 fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
     BEGIN("fmi2FreeFMUstate", PHASE_ANY);
     REQUIRE(FMUstate != NULL, "fmi2FreeFMUstate", "FMUstate is NULL");
-    return finish(inst, fmu_free_state(inst, FMUstate));
+    return fmu_finish(inst, fmu_free_state(inst, FMUstate));
 }
 
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size) {
@@ -210,7 +179,7 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byt
                                  size_t size) {
     BEGIN("fmi2SerializeFMUstate", PHASE_ANY);
     REQUIRE(serializedState != NULL, "fmi2SerializeFMUstate", "serializedState is NULL");
-    return finish(inst, fmu_serialize(inst, FMUstate, serializedState, size));
+    return fmu_finish(inst, fmu_serialize(inst, FMUstate, serializedState, size));
 }
 
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[], size_t size,
@@ -218,7 +187,7 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
     BEGIN("fmi2DeSerializeFMUstate", PHASE_ANY);
     REQUIRE(serializedState != NULL && FMUstate != NULL, "fmi2DeSerializeFMUstate",
             "serializedState or FMUstate is NULL");
-    return finish(inst, fmu_deserialize(inst, serializedState, size, FMUstate));
+    return fmu_finish(inst, fmu_deserialize(inst, serializedState, size, FMUstate));
 }
 
 /* ==================================================== directional derivatives */
@@ -230,7 +199,7 @@ fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReferenc
     REQUIRE((nUnknown == 0 || (vUnknown_ref != NULL && dvUnknown != NULL)) &&
             (nKnown == 0 || (vKnown_ref != NULL && dvKnown != NULL)), "fmi2GetDirectionalDerivative",
             "a value reference or value array is NULL");
-    return finish(inst, fmu_directional_derivative(inst, vUnknown_ref, nUnknown, vKnown_ref, nKnown, dvKnown,
+    return fmu_finish(inst, fmu_directional_derivative(inst, vUnknown_ref, nUnknown, vKnown_ref, nKnown, dvKnown,
                                                    dvUnknown));
 }
 
@@ -239,7 +208,7 @@ fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReferenc
 #define ME_BEGIN(function, phases)                                                          \
     BEGIN(function, phases);                                                                \
     if (!inst->d.model_exchange) {                                                          \
-        return fail(inst, function, "a Model Exchange function, but this instance is Co-Simulation"); \
+        return fmu_fail(inst, function, "a Model Exchange function, but this instance is Co-Simulation"); \
     }
 
 fmi2Status fmi2EnterEventMode(fmi2Component c) {
@@ -251,7 +220,7 @@ fmi2Status fmi2EnterEventMode(fmi2Component c) {
 fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *fmi2eventInfo) {
     ME_BEGIN("fmi2NewDiscreteStates", PHASE_EVENT);
     REQUIRE(fmi2eventInfo != NULL, "fmi2NewDiscreteStates", "fmi2eventInfo is NULL");
-    return finish(inst, fmu_new_discrete_states(inst, fmi2eventInfo));
+    return fmu_finish(inst, fmu_new_discrete_states(inst, fmi2eventInfo));
 }
 
 fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) {
@@ -269,24 +238,24 @@ fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStat
             "enterEventMode or terminateSimulation is NULL");
     *enterEventMode = fmi2False;
     *terminateSimulation = fmi2False;
-    return finish(inst, fmu_completed_integrator_step(inst, terminateSimulation));
+    return fmu_finish(inst, fmu_completed_integrator_step(inst, terminateSimulation));
 }
 
 fmi2Status fmi2SetTime(fmi2Component c, fmi2Real time) {
     ME_BEGIN("fmi2SetTime", PHASE_EVENT | PHASE_CONTINUOUS);
-    return finish(inst, fmu_set_time(inst, time));
+    return fmu_finish(inst, fmu_set_time(inst, time));
 }
 
 fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t nx) {
     ME_BEGIN("fmi2SetContinuousStates", PHASE_CONTINUOUS);
     REQUIRE(x != NULL, "fmi2SetContinuousStates", "x is NULL");
-    return finish(inst, fmu_set_states(inst, x, nx));
+    return fmu_finish(inst, fmu_set_states(inst, x, nx));
 }
 
 fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real derivatives[], size_t nx) {
     ME_BEGIN("fmi2GetDerivatives", ME_READABLE);
     REQUIRE(derivatives != NULL, "fmi2GetDerivatives", "derivatives is NULL");
-    return finish(inst, fmu_get_derivatives(inst, derivatives, nx));
+    return fmu_finish(inst, fmu_get_derivatives(inst, derivatives, nx));
 }
 
 fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real eventIndicators[], size_t ni) {
@@ -299,21 +268,21 @@ fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real eventIndicators[], s
 fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {
     ME_BEGIN("fmi2GetContinuousStates", ME_READABLE);
     REQUIRE(x != NULL, "fmi2GetContinuousStates", "x is NULL");
-    return finish(inst, fmu_get_states(inst, x, nx));
+    return fmu_finish(inst, fmu_get_states(inst, x, nx));
 }
 
 fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x_nominal[], size_t nx) {
     ME_BEGIN("fmi2GetNominalsOfContinuousStates", PHASE_INSTANTIATED | ME_READABLE);
     REQUIRE(x_nominal != NULL, "fmi2GetNominalsOfContinuousStates", "x_nominal is NULL");
-    return finish(inst, fmu_get_nominals(inst, x_nominal, nx));
+    return fmu_finish(inst, fmu_get_nominals(inst, x_nominal, nx));
 }
 
 /* ======================================================= not supported */
 
 #define NOT_SUPPORTED(function, why)                \
-    Instance *inst = instance_of(c);                \
+    Instance *inst = fmu_instance_of(c);                \
     if (inst == NULL) return fmi2Error;             \
-    return fail(inst, function, why)
+    return fmu_fail(inst, function, why)
 
 fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                        const fmi2Integer order[], const fmi2Real value[]) {
@@ -337,13 +306,13 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2R
                       fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
     (void)noSetFMUStatePriorToCurrentPoint;
     BEGIN("fmi2DoStep", PHASE_STEP);
-    return finish(inst, fmu_do_step(inst, currentCommunicationPoint, communicationStepSize));
+    return fmu_finish(inst, fmu_do_step(inst, currentCommunicationPoint, communicationStepSize));
 }
 
 fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value) {
     (void)s; (void)value;
     BEGIN("fmi2GetStatus", STATUS_QUERY);
-    return fail(inst, "fmi2GetStatus", "no status to query: fmi2DoStep never returns fmi2Pending");
+    return fmu_fail(inst, "fmi2GetStatus", "no status to query: fmi2DoStep never returns fmi2Pending");
 }
 
 fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value) {
@@ -357,7 +326,7 @@ fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *
 fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value) {
     (void)s; (void)value;
     BEGIN("fmi2GetIntegerStatus", STATUS_QUERY);
-    return fail(inst, "fmi2GetIntegerStatus", "there is no Integer status");
+    return fmu_fail(inst, "fmi2GetIntegerStatus", "there is no Integer status");
 }
 
 fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value) {
@@ -373,5 +342,5 @@ fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boo
 fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value) {
     (void)s; (void)value;
     BEGIN("fmi2GetStringStatus", STATUS_QUERY);
-    return fail(inst, "fmi2GetStringStatus", "no pending status: fmi2DoStep never returns fmi2Pending");
+    return fmu_fail(inst, "fmi2GetStringStatus", "no pending status: fmi2DoStep never returns fmi2Pending");
 }

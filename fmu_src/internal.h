@@ -1,6 +1,7 @@
-/* internal.h -- what the C files behind cosimulation.h share among themselves; fmi2Functions.c and
- * hosts use cosimulation.h only.
+/* internal.h -- what the C files behind cosimulation.h share among themselves; fmi2Functions.c,
+ * fmi3Functions.c and hosts use cosimulation.h only.
  *
+ *   calls.c           call-sequence rules of the FMI 2 and FMI 3 layers
  *   logging.c         log categories, messages through the host's logger, fmi2SetDebugLogging
  *   instance.c        instantiate, free, reset, start values, setup experiment, initialization
  *   variables.c       get/set of the variable table, inputs with kinematic laws, outputs

@@ -39,7 +39,7 @@ typedef enum {
     VAR_DER_V        /* derivative of the state v[index]: the acceleration a[index]         */
 } VarKind;
 
-/* SOLVER_ORDER: 2 (SS22) or 4 (SS22 with Θ = ½ and one Richardson extrapolation per internal step:
+/* SOLVER_ORDER (an Integer variable): 2 (SS22) or 4 (SS22 with Θ = ½ and one Richardson extrapolation per internal step:
  * fourth order for resolved modes, but unresolved ones are amplified, so only for non-stiff scenes). */
 typedef enum {
     SOLVER_STEP, SOLVER_THETA1, SOLVER_THETA2, SOLVER_TOLERANCE, SOLVER_ORDER, N_SOLVER_SETTINGS
@@ -53,6 +53,8 @@ typedef struct {
     double min, max;      /* allowed range; the glue refuses NaN/Inf always               */
     int min_exclusive;    /* 1: value must be > min (e.g. a stiffness stays > 0)          */
     int tunable;          /* 1: may be set in step mode (variability="tunable")           */
+    int integer;          /* 1: an Integer (fmi2Get/SetInteger, fmi3Get/SetInt32), else a Real;
+                             its value is whole and kept as a double in the same slot          */
 } VarInfo;
 
 /* MODEL_VARS[vr] describes value reference vr (0 .. N_VARS-1). */

@@ -143,21 +143,49 @@ fmi2Status fmu_update_outputs(Instance *inst, const char *function) {
 
 /* ================================================================ get and set */
 
-fmi2Status fmu_get_real(Instance *inst, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]) {
-    int need_outputs = 0;
-    fmi2Status status = fmi2OK;
+/* Unknown value references are refused, and the Integer functions on a Real variable, naming the function to
+ * use.  The Real functions take an Integer variable too (solver.order was a Real before it became an Integer:
+ * hosts that read every variable as a Real, or set it as one, keep working; a value set so must be whole). */
+static fmi2Status check_references(Instance *inst, const char *function, int integer,
+                                   const fmi2ValueReference vr[], size_t nvr) {
     for (size_t i = 0; i < nvr; i++) {
         if (vr[i] >= (fmi2ValueReference)N_VARS) {
-            return fmu_error(inst, "fmi2GetReal: unknown value reference %u", vr[i]);
+            return fmu_error(inst, "%s: unknown value reference %u", function, vr[i]);
         }
+        if (integer && !MODEL_VARS[vr[i]].integer) {
+            return fmu_error(inst, "%s: %s (value reference %u) is a Real: get and set it with fmi2GetReal/"
+                             "fmi2SetReal (FMI 3: Float64)", function, MODEL_VARS[vr[i]].name, vr[i]);
+        }
+    }
+    return fmi2OK;
+}
+
+/* Get Real or Integer values (one of real, integer). */
+static fmi2Status get_values(Instance *inst, const char *function, int is_integer, const fmi2ValueReference vr[],
+                             size_t nvr, fmi2Real real[], fmi2Integer integer[]) {
+    int need_outputs = 0;
+    fmi2Status status = fmi2OK;
+    if (check_references(inst, function, is_integer, vr, nvr) != fmi2OK) return fmi2Error;
+    for (size_t i = 0; i < nvr; i++) {
         if (MODEL_VARS[vr[i]].kind == VAR_OUTPUT || MODEL_VARS[vr[i]].kind == VAR_DER_V) need_outputs = 1;
     }
     if (need_outputs) {
-        status = fmu_update_outputs(inst, "fmi2GetReal");
+        status = fmu_update_outputs(inst, function);
         if (status > fmi2Warning) return status;
     }
-    for (size_t i = 0; i < nvr; i++) value[i] = *fmu_slot(&inst->d, &MODEL_VARS[vr[i]]);
+    for (size_t i = 0; i < nvr; i++) {
+        const double x = *fmu_slot(&inst->d, &MODEL_VARS[vr[i]]);
+        if (is_integer) integer[i] = (fmi2Integer)x; else real[i] = x;
+    }
     return status;
+}
+
+fmi2Status fmu_get_real(Instance *inst, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]) {
+    return get_values(inst, "fmi2GetReal", 0, vr, nvr, value, NULL);
+}
+
+fmi2Status fmu_get_integer(Instance *inst, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[]) {
+    return get_values(inst, "fmi2GetInteger", 1, vr, nvr, NULL, value);
 }
 
 /* Why x is outside variable v's domain (finite, not subnormal, within min/max), or NULL. */
@@ -171,6 +199,10 @@ static const char *outside_domain(const VarInfo *v, double x, char *why, size_t 
         snprintf(why, n, "%s = %.15g: must be %s %.15g", v->name, x, v->min_exclusive ? ">" : ">=", v->min);
     } else if (!(x <= v->max)) {
         snprintf(why, n, "%s = %.15g: must be <= %.15g", v->name, x, v->max);
+    } else if (v->integer && x != floor(x)) {
+        snprintf(why, n, "%s = %.15g: an Integer, must be a whole number", v->name, x);
+    } else if (v->kind == VAR_SOLVER && v->index == SOLVER_ORDER && x != 2.0 && x != 4.0) {
+        snprintf(why, n, "%s = %.15g: must be 2 (SS22) or 4 (SS22 with Richardson extrapolation)", v->name, x);
     } else {
         return NULL;
     }
@@ -202,8 +234,8 @@ static const char *refuse_value(const Instance *inst, const VarInfo *v, double x
 #if N_PARAMETER_CHECKS > 0
 /* The relations between parameters (model_parameter_check) with the new values in place: refused before
  * anything is written, so that a refused call changes nothing. */
-static fmi2Status check_parameter_relations(Instance *inst, const fmi2ValueReference vr[], size_t nvr,
-                                            const fmi2Real value[]) {
+static fmi2Status check_parameter_relations(Instance *inst, const char *function, const fmi2ValueReference vr[],
+                                            size_t nvr, const fmi2Real value[]) {
     double p[N_P], h[N_PARAMETER_CHECKS];
     int any = 0;
     memcpy(p, inst->d.p, sizeof(p));
@@ -213,12 +245,12 @@ static fmi2Status check_parameter_relations(Instance *inst, const fmi2ValueRefer
     }
     if (!any) return fmi2OK;
     if (model_parameter_check(p, h, &inst->work)) {
-        return fmu_error(inst, "fmi2SetReal: the relations between the parameters could not be evaluated");
+        return fmu_error(inst, "%s: the relations between the parameters could not be evaluated", function);
     }
     for (int k = 0; k < N_PARAMETER_CHECKS; k++) {
         if (!(h[k] >= -PARAMETER_CHECK_TOLERANCE)) {
-            return fmu_error(inst, "fmi2SetReal: refused, the parameters would break %s (%.6g); nothing was set",
-                             MODEL_PARAMETER_CHECK_NAMES[k], h[k]);
+            return fmu_error(inst, "%s: refused, the parameters would break %s (%.6g); nothing was set",
+                             function, MODEL_PARAMETER_CHECK_NAMES[k], h[k]);
         }
     }
     return fmi2OK;
@@ -252,31 +284,43 @@ const char *fmu_invalid_values(Instance *inst, const FmuData *d, char *why, size
     return NULL;
 }
 
-fmi2Status fmu_set_real(Instance *inst, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) {
+/* Set Real or Integer values (one of real, integer): everything is checked before anything is written,
+ * so that a refused call changes nothing. */
+static fmi2Status set_values(Instance *inst, const char *function, int is_integer, const fmi2ValueReference vr[],
+                             size_t nvr, const fmi2Real real[], const fmi2Integer integer[]) {
     FmuData *d = &inst->d;
     int invalidate = 0;
     char why[512];
-    for (size_t i = 0; i < nvr; i++) {                 /* check everything before writing anything */
-        if (vr[i] >= (fmi2ValueReference)N_VARS) {
-            return fmu_error(inst, "fmi2SetReal: unknown value reference %u", vr[i]);
-        }
-        if (refuse_value(inst, &MODEL_VARS[vr[i]], value[i], why, sizeof(why)) != NULL) {
-            return fmu_error(inst, "fmi2SetReal: %s", why);
+    if (check_references(inst, function, is_integer, vr, nvr) != fmi2OK) return fmi2Error;
+    for (size_t i = 0; i < nvr; i++) {
+        const double x = is_integer ? (double)integer[i] : real[i];
+        if (refuse_value(inst, &MODEL_VARS[vr[i]], x, why, sizeof(why)) != NULL) {
+            return fmu_error(inst, "%s: %s", function, why);
         }
     }
 #if N_PARAMETER_CHECKS > 0
-    if (check_parameter_relations(inst, vr, nvr, value) != fmi2OK) return fmi2Error;
+    /* tunable parameters are Reals: an Integer call sets none */
+    if (!is_integer && check_parameter_relations(inst, function, vr, nvr, real) != fmi2OK) return fmi2Error;
 #endif
     for (size_t i = 0; i < nvr; i++) {
         const VarInfo *v = &MODEL_VARS[vr[i]];
+        const double x = is_integer ? (double)integer[i] : real[i];
         if (v->kind == VAR_INPUT) rebase_law(d, v->index);
-        *fmu_slot(d, v) = value[i];
-        if (v->kind == VAR_START_Q) d->q[v->index] = value[i];       /* before initialization only */
-        if (v->kind == VAR_START_V) d->v[v->index] = value[i];
+        *fmu_slot(d, v) = x;
+        if (v->kind == VAR_START_Q) d->q[v->index] = x;       /* before initialization only */
+        if (v->kind == VAR_START_V) d->v[v->index] = x;
         if (v->kind == VAR_PARAMETER && d->phase == PHASE_STEP) invalidate = 1;
         if (v->kind == VAR_PARAMETER) d->omega_max_known = 0;   /* order 4's check looks again */
     }
     if (invalidate) ss22_invalidate(&d->ss22);
     if (nvr > 0) d->outputs_valid = 0;
     return fmi2OK;
+}
+
+fmi2Status fmu_set_real(Instance *inst, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) {
+    return set_values(inst, "fmi2SetReal", 0, vr, nvr, value, NULL);
+}
+
+fmi2Status fmu_set_integer(Instance *inst, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[]) {
+    return set_values(inst, "fmi2SetInteger", 1, vr, nvr, NULL, value);
 }

@@ -171,8 +171,10 @@ def test_log_categories_match_the_c_glue() -> None:
 
 def test_sources_and_headers_are_found() -> None:
     assert (cbuild.fmu_src_dir() / "model.h").is_file()
-    # every generic C file is compiled into (and shipped with) each FMU: none forgotten in the lists
+    # every generic C file is compiled into (and shipped with) each FMU: none forgotten in the lists; the FMI 3
+    # API layer takes the FMI 2 one's place in an FMI 3 FMU
     src = cbuild.fmu_src_dir()
-    assert sorted(p.name for p in src.glob("*.c")) == sorted(cbuild.GENERIC_SOURCES)
+    assert sorted(p.name for p in src.glob("*.c")) == sorted({*cbuild.GENERIC_SOURCES, *cbuild.API_SOURCE.values()})
+    assert sorted(cbuild.generic_sources(3)) == sorted(p.name for p in src.glob("*.c") if p.name != "fmi2Functions.c")
     assert sorted(p.name for p in src.glob("*.h")) == sorted(cbuild.GENERIC_HEADERS)
     assert (cbuild.fmi_headers_dir() / "fmi2FunctionTypes.h").is_file()

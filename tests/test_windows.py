@@ -4,7 +4,8 @@ and the win64 ``.dll`` under Wine through the same Co-Simulation and Model Excha
 the bits of every variable at every communication point, which must agree to RTOL of the variable's scale: the
 largest magnitude, over the run, of the variables of its unit (so that a quantity that is zero up to rounding,
 such as an in-plane joint's out-of-plane moment, is compared on the scale of its kind).  An FMU state
-serialised by one platform's library and restored by the other's must continue as the original did.
+serialised by one platform's library and restored by the other's must continue as the original did.  The FMI 3
+FMU (``--fmi 3``) is run the same way by tests/c/cross_host3.c.
 
 The two libraries differ in one respect: MinGW-w64 links its own sincos (x87 fsincos), glibc has another, and
 they round a few arguments differently by one unit in the last place.  The 4-coordinate rotating link keeps
@@ -230,3 +231,52 @@ def test_fmu_state_serialised_on_one_platform_continues_on_the_other(built, host
     continued = run_host(loader, fmu, hosts, wine_env, "cs", CS_RUN, ("load", state))
     assert continued[0, 0] > 0.2          # it started in the middle, not from t = 0
     assert_same_run(fmu, whole[-len(continued):], continued)
+
+
+# ------------------------------------------------------------------------------------------------ FMI 3.0
+
+HOST3 = ROOT / "tests" / "c" / "cross_host3.c"
+
+
+@need_mingw
+@need_wine
+def test_fmi3_win64_under_wine_equals_linux64_and_the_fmi2_fmu(built, hosts, wine_env, tmp_path):
+    """``--fmi 3 --platforms linux64,win64``: tests/c/cross_host3.c (the FMI 3.0 counterpart of cross_host.c, for
+    both platforms) runs Co-Simulation and Model Exchange on the x86_64-linux .so and, under Wine, on the
+    x86_64-windows .dll; both equal, and equal to the FMI 2 FMU's run of the same scene (the linux64 host)."""
+    path = build_fmu(SCENE, tmp_path / "rl3.fmu", platforms="linux64,win64", fmi_version=3).fmu
+    with zipfile.ZipFile(path) as z:
+        z.extractall(tmp_path / "unzipped")
+    md = fmpy.read_model_description(str(path))
+    ident = md.coSimulation.modelIdentifier
+    exe = {"linux64": tmp_path / "cross_host3", "win64": tmp_path / "cross_host3.exe"}
+    flags = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-O1", f"-I{cbuild.fmi_headers_dir()}", str(HOST3)]
+    for cc, out, libs in ((cbuild.compiler(), exe["linux64"], ["-ldl"]), ([MINGW], exe["win64"], [])):
+        res = subprocess.run([*cc, *flags, "-o", str(out), *libs], capture_output=True, text=True, check=False)
+        assert res.returncode == 0, res.stderr
+    fmu3 = {"name": "rotating_link", "md": md,
+            "linux64": tmp_path / "unzipped" / "binaries" / "x86_64-linux" / f"{ident}.so",
+            "win64": tmp_path / "unzipped" / "binaries" / "x86_64-windows" / f"{ident}.dll"}
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    settings = [f"{vr[name]}={value!r}" for name, value in CASES["rotating_link"][0].items()]
+    fmu2 = built("rotating_link")
+    for mode in ("cs", "me"):
+        run = CS_RUN if mode == "cs" else CASES["rotating_link"][2]
+        rows = {}
+        for platform in ("linux64", "win64"):
+            local = platform == "linux64"
+            path_of = str if local else _windows_path
+            command = [str(exe["linux64"])] if local else [WINE, str(exe["win64"])]
+            res = subprocess.run([*command, mode, path_of(fmu3[platform]), md.instantiationToken,
+                                  str(len(md.modelVariables)), str(len(md.derivatives)), *run, *settings],
+                                 capture_output=True, text=True, timeout=600, check=False,
+                                 env=None if local else wine_env)
+            assert res.returncode == 0, f"{platform} {mode}: exit {res.returncode}\n{res.stderr[-3000:]}"
+            rows[platform] = np.array([[struct.unpack(">d", bytes.fromhex(w))[0] for w in line.split()]
+                                       for line in res.stdout.splitlines() if line.strip()])
+        assert_moves(fmu3, rows["linux64"])
+        assert_same_run(fmu3, rows["linux64"], rows["win64"])
+        # the variable time is the host's time (the FMU sums its steps: rounding apart)
+        np.testing.assert_allclose(rows["linux64"][:, -1], rows["linux64"][:, 0], rtol=0, atol=1e-12)
+        fmi2 = run_host("linux64", fmu2, hosts, wine_env, mode, run)
+        assert_same_run(fmu2, fmi2, rows["linux64"][:, :-1])

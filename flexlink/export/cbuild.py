@@ -1,9 +1,10 @@
 """Compiling the C half of an FMU: where its sources and the FMI headers are, and one compiler call.
 
 The generic C sources (``fmu_src/`` in the repository) are shipped as the package data
-``flexlink.fmu_src``; the FMI 2.0 headers come from fmpy (``fmpy/c-code``) and are never copied.
-Everything is built with all warnings as errors and ``-fvisibility=hidden``: an FMU library exports
-the ``fmi2…`` functions only (their declarations in ``fmi2Functions.h`` carry the visibility).
+``flexlink.fmu_src``; the FMI 2.0 and 3.0 headers come from fmpy (``fmpy/c-code``) and are never copied
+into the repository.  Everything is built with all warnings as errors and ``-fvisibility=hidden``: an FMU
+library exports the ``fmi2…`` (FMI 3: ``fmi3…``) functions only (their declarations in ``fmi2Functions.h`` /
+``fmi3Functions.h`` carry the visibility).
 """
 
 from __future__ import annotations
@@ -30,9 +31,29 @@ LOG_CATEGORIES: tuple[str, ...] = (
 #: The generic C sources of every FMU, compiled with the generated model half: the FMI API layer, the
 #: functions behind it (cosimulation.h) by concern, the integrator and dense LU.
 GENERIC_SOURCES: tuple[str, ...] = (
-    "fmi2Functions.c", "logging.c", "instance.c", "variables.c", "cs_step.c", "model_exchange.c",
+    "fmi2Functions.c", "calls.c", "logging.c", "instance.c", "variables.c", "cs_step.c", "model_exchange.c",
     "derivatives.c", "fmu_state.c", "guards.c", "richardson.c", "ss22.c", "linalg.c",
 )
+#: The FMI API layer of each FMI version: an FMU carries one (the functions behind it are shared).
+API_SOURCE = {2: "fmi2Functions.c", 3: "fmi3Functions.c"}
+#: The FMI versions an FMU can be exported as.
+FMI_VERSIONS: tuple[int, ...] = (2, 3)
+
+
+def generic_sources(fmi_version: int = 2) -> tuple[str, ...]:
+    """The generic C sources of an FMI ``fmi_version`` FMU: GENERIC_SOURCES with the API layer of that version."""
+    if fmi_version not in API_SOURCE:
+        raise BuildError(f"unknown FMI version {fmi_version!r}: choose 2 or 3")
+    return tuple(API_SOURCE[fmi_version] if f == API_SOURCE[2] else f for f in GENERIC_SOURCES)
+
+
+def fmi_headers(fmi_version: int = 2) -> list[Path]:
+    """fmpy's FMI headers an FMU's sources need: FMI 2's always (the functions behind the API layer use its
+    types), FMI 3's too for an FMI 3 FMU."""
+    names = ["fmi2*.h"] + (["fmi3*.h"] if fmi_version == 3 else [])
+    return sorted(h for pattern in names for h in fmi_headers_dir().glob(pattern))
+
+
 #: The generic headers they include (copied into an FMU's ``sources/`` with them).
 GENERIC_HEADERS: tuple[str, ...] = ("model.h", "cosimulation.h", "internal.h", "ss22.h", "linalg.h")
 
@@ -42,6 +63,9 @@ CFLAGS: tuple[str, ...] = (
 )
 #: The platforms an FMU can carry a binary for (FMI 2.0 folder names under ``binaries/``).
 PLATFORMS: tuple[str, ...] = ("linux64", "win64")
+#: Their folders under ``binaries/`` by FMI version (FMI 3.0 names platforms by architecture-OS tuples).
+PLATFORM_FOLDER = {2: {"linux64": "linux64", "win64": "win64"},
+                   3: {"linux64": "x86_64-linux", "win64": "x86_64-windows"}}
 #: The MinGW-w64 cross-compiler of win64 binaries (``$FLEXLINK_MINGW_CC`` overrides it).
 MINGW_CC = "x86_64-w64-mingw32-gcc"
 #: The library suffix of each platform.

@@ -194,12 +194,13 @@ def _config_h(model: SymbolicModel, guid: str, variables: list[FmuVariable], sz:
 
 
 def _variable_rows(variables: list[FmuVariable]) -> str:
-    """The rows of ``MODEL_VARS``: name, kind, index, start, min, max, min_exclusive, tunable."""
+    """The rows of ``MODEL_VARS``: name, kind, index, start, min, max, min_exclusive, tunable, integer."""
     rows = []
     for v in variables:
         index = SOLVER_SETTINGS[v.index] if v.kind == "VAR_SOLVER" else str(v.index)
         rows.append(f'    {{"{v.name}", {v.kind}, {index}, {_c(v.start)}, {_c(v.min)}, {_c(v.max)}, '
-                    f"{int(v.min_exclusive)}, {int(v.variability == 'tunable' or v.causality == 'input')}}},")
+                    f"{int(v.min_exclusive)}, {int(v.variability == 'tunable' or v.causality == 'input')}, "
+                    f"{int(v.type == 'Integer')}}},")
     return "\n".join(rows)
 
 

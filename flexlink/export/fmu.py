@@ -3,7 +3,9 @@
 The FMU holds ``modelDescription.xml``, ``binaries/linux64/<id>.so`` (and, on request,
 ``binaries/win64/<id>.dll`` cross-compiled with MinGW-w64) and ``sources/`` (the generic half from
 ``fmu_src/``, the generated model half, the FMI headers from the installed fmpy and a
-``buildDescription.xml``), so that it can be rebuilt elsewhere.
+``buildDescription.xml``), so that it can be rebuilt elsewhere.  This module writes the FMI 2.0 model
+description and the pieces the FMI 3.0 one (flexlink.export.fmi3, ``fmi_version=3``) shares with it; an FMI 3
+FMU's binaries sit in ``binaries/x86_64-linux`` and ``binaries/x86_64-windows``.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import hashlib
 import math
 import os
 import shutil
+import sys
 import tempfile
 import time
 import zipfile
@@ -27,13 +30,15 @@ import numpy as np
 import flexlink
 from flexlink.errors import BuildError
 from flexlink.export.cbuild import (
+    FMI_VERSIONS,
     GENERIC_HEADERS,
-    GENERIC_SOURCES,
     LIBRARY_SUFFIX,
+    PLATFORM_FOLDER,
     compile_shared_library,
     compiler,
-    fmi_headers_dir,
+    fmi_headers,
     fmu_src_dir,
+    generic_sources,
     parse_platforms,
 )
 from flexlink.export.codegen import OPTIMISE_ENV, GeneratedModel, generate
@@ -98,6 +103,39 @@ def display_unit(v: FmuVariable) -> str | None:
     return None
 
 
+def declared_min(v: FmuVariable) -> float:
+    """The ``min`` the model description states: what the FMU accepts, which for an exclusive bound (a stiffness
+    or step that must be > 0) is the smallest double above it; above 0 that is the smallest normal double,
+    as the FMU refuses subnormal values of everything but inputs (fmu_src/variables.c)."""
+    if not v.min_exclusive:
+        return v.min
+    if v.min == 0.0 and v.causality != "input":
+        return sys.float_info.min
+    return math.nextafter(v.min, math.inf)
+
+
+def type_attributes(v: FmuVariable, derivative_ref_offset: int) -> list[str]:
+    """The attributes of a variable's type element (FMI 2 ``<Real>``/``<Integer>``, FMI 3 ``<Float64>``/
+    ``<Int32>`` alike): start (not for outputs and locals, which are calculated), derivative (the state's
+    reference plus ``derivative_ref_offset``: FMI 2 counts from 1, FMI 3 uses value references), unit, display
+    unit, min, max."""
+    number = (lambda x: str(int(x))) if v.type == "Integer" else _num
+    out = []
+    if v.causality not in ("output", "local"):
+        out.append(f'start="{number(v.start)}"')
+    if v.derivative is not None:
+        out.append(f'derivative="{v.derivative + derivative_ref_offset}"')
+    if v.unit:
+        out.append(f'unit="{v.unit}"')
+    if display_unit(v):
+        out.append(f'displayUnit="{display_unit(v)}"')
+    if v.min > -1e299:
+        out.append(f'min="{number(declared_min(v))}"')
+    if v.max < 1e299:
+        out.append(f'max="{number(v.max)}"')
+    return out
+
+
 def generation_date_and_time() -> str:
     """Now in UTC as xs:dateTime, or ``$SOURCE_DATE_EPOCH`` (seconds) for a reproducible build."""
     epoch = os.environ.get("SOURCE_DATE_EPOCH", "").strip()
@@ -117,6 +155,13 @@ def unit_definitions(units: list[str]) -> list[str]:
         lines.append(f'    <Unit name="{u}"><BaseUnit {base}/>{shown}</Unit>')
     lines.append("  </UnitDefinitions>")
     return lines
+
+
+def log_categories_and_experiment(scene: Scene) -> list[str]:
+    """``<LogCategories>`` and ``<DefaultExperiment>`` (the same elements in FMI 2 and FMI 3)."""
+    return ["  <LogCategories>", *[f'    <Category name="{k}" description="{d}"/>' for k, d in LOG_CATEGORIES.items()],
+            "  </LogCategories>",
+            f'  <DefaultExperiment startTime="0" stopTime="5" stepSize="{_num(max(scene.fmu.step, 1e-3))}"/>']
 
 
 def model_description(model: SymbolicModel, gen: GeneratedModel, sources: list[str]) -> str:
@@ -148,10 +193,7 @@ def model_description(model: SymbolicModel, gen: GeneratedModel, sources: list[s
         "  </CoSimulation>",
         *unit_definitions(units),
     ]
-    lines.append("  <LogCategories>")
-    lines += [f'    <Category name="{k}" description="{d}"/>' for k, d in LOG_CATEGORIES.items()]
-    lines.append("  </LogCategories>")
-    lines.append(f'  <DefaultExperiment startTime="0" stopTime="5" stepSize="{_num(max(scene.fmu.step, 1e-3))}"/>')
+    lines += log_categories_and_experiment(scene)
     lines.append("  <ModelVariables>")
     for vr, v in enumerate(gen.variables):
         attrs = [f'name="{v.name}"', f'valueReference="{vr}"', f'causality="{v.causality}"',
@@ -162,31 +204,27 @@ def model_description(model: SymbolicModel, gen: GeneratedModel, sources: list[s
             attrs.append('initial="calculated"')
         if v.description:
             attrs.append(f"description={quoteattr(v.description)}")
-        real = []
-        if v.causality not in ("output", "local"):
-            real.append(f'start="{_num(v.start)}"')
-        if v.derivative is not None:
-            real.append(f'derivative="{v.derivative + 1}"')
-        if v.unit:
-            real.append(f'unit="{v.unit}"')
-        if display_unit(v):
-            real.append(f'displayUnit="{display_unit(v)}"')
-        if v.min > -1e299:
-            real.append(f'min="{_num(v.min)}"')
-        if v.max < 1e299:
-            real.append(f'max="{_num(v.max)}"')
         lines.append(f"    <!-- {vr + 1} --><ScalarVariable {' '.join(attrs)}>"
-                     f"<Real {' '.join(real)}/></ScalarVariable>")
+                     f"<{v.type} {' '.join(type_attributes(v, 1))}/></ScalarVariable>")
     lines.append("  </ModelVariables>")
     lines += model_structure(model, gen)
     lines.append("</fmiModelDescription>")
     return "\n".join(lines) + "\n"
 
 
-def model_structure(model: SymbolicModel, gen: GeneratedModel) -> list[str]:
-    """``<ModelStructure>``: outputs and state derivatives with their dependencies on states and inputs
-    (structural, from CasADi's sparsity: flexlink.export.derivatives), and the initial unknowns (outputs,
-    states, derivatives) with their dependencies on inputs and parameters."""
+@dataclass
+class Unknown:
+    """One entry of ``<ModelStructure>``: a variable and what it depends on, as 1-based positions in the variable
+    list (FMI 2's indices; FMI 3 writes the value references, one less)."""
+    index: int
+    dependencies: list[int]
+    kinds: list[str]
+
+
+def dependencies(model: SymbolicModel, gen: GeneratedModel) -> tuple[list[Unknown], list[Unknown], list[Unknown]]:
+    """The outputs and state derivatives with their dependencies on states and inputs (structural, from CasADi's
+    sparsity: flexlink.export.derivatives), and the initial unknowns (outputs, states, derivatives) with their
+    dependencies on inputs and parameters: the content of ``<ModelStructure>`` in both FMI versions."""
     st = structure(model)
     n = model.n_q
     index = {(v.kind, v.index): vr + 1 for vr, v in enumerate(gen.variables)}   # 1-based XML indices
@@ -211,7 +249,7 @@ def model_structure(model: SymbolicModel, gen: GeneratedModel) -> list[str]:
     def deps(row: np.ndarray) -> set[int]:
         return {z_var[k] for k in np.flatnonzero(row) if z_var[k] is not None}
 
-    def unknown(vr: int, direct: set[int], kinds: dict[int, str] | None = None, initial: bool = False) -> str:
+    def unknown(vr: int, direct: set[int], kinds: dict[int, str] | None = None, initial: bool = False) -> Unknown:
         if initial:
             known: set[int] = set()
             for d in direct:
@@ -220,8 +258,7 @@ def model_structure(model: SymbolicModel, gen: GeneratedModel) -> list[str]:
         else:
             direct = {d for d in direct if d not in params}
         ds = sorted(direct)
-        kind = " ".join((kinds or {}).get(d, "dependent") for d in ds)
-        return f'      <Unknown index="{vr}" dependencies="{" ".join(map(str, ds))}" dependenciesKind="{kind}"/>'
+        return Unknown(vr, ds, [(kinds or {}).get(d, "dependent") for d in ds])
 
     unknowns = {}
     for vr, v in enumerate(gen.variables):
@@ -233,19 +270,26 @@ def model_structure(model: SymbolicModel, gen: GeneratedModel) -> list[str]:
             unknowns[vr + 1] = deps(st.acceleration[v.index])
         elif v.kind in ("VAR_STATE_Q", "VAR_STATE_V"):
             unknowns[vr + 1] = {vr + 1}
-    outputs = [vr + 1 for vr, v in enumerate(gen.variables) if v.kind == "VAR_OUTPUT"]
-    derivatives = [vr + 1 for vr, v in enumerate(gen.variables) if v.kind in ("VAR_DER_Q", "VAR_DER_V")]
-    lines = ["  <ModelStructure>", "    <Outputs>"]
-    lines += [unknown(vr, unknowns[vr]) for vr in outputs]
-    lines += ["    </Outputs>", "    <Derivatives>"]
-    for vr in derivatives:
-        v = gen.variables[vr - 1]
-        kinds = {z_var[n + v.index]: "constant"} if v.kind == "VAR_DER_Q" else None
-        lines.append(unknown(vr, unknowns[vr], kinds))
-    lines += ["    </Derivatives>", "    <InitialUnknowns>"]
-    lines += [unknown(vr, unknowns[vr], initial=True) for vr in sorted(unknowns)]
-    lines += ["    </InitialUnknowns>", "  </ModelStructure>"]
-    return lines
+    outputs = [unknown(vr + 1, unknowns[vr + 1]) for vr, v in enumerate(gen.variables) if v.kind == "VAR_OUTPUT"]
+    derivatives = []
+    for vr, v in enumerate(gen.variables):
+        if v.kind in ("VAR_DER_Q", "VAR_DER_V"):
+            kinds = {z_var[n + v.index]: "constant"} if v.kind == "VAR_DER_Q" else None
+            derivatives.append(unknown(vr + 1, unknowns[vr + 1], kinds))
+    initial = [unknown(vr, unknowns[vr], initial=True) for vr in sorted(unknowns)]
+    return outputs, derivatives, initial
+
+
+def model_structure(model: SymbolicModel, gen: GeneratedModel) -> list[str]:
+    """FMI 2's ``<ModelStructure>`` (:func:`dependencies`), by 1-based indices."""
+    def line(u: Unknown) -> str:
+        return (f'      <Unknown index="{u.index}" dependencies="{" ".join(map(str, u.dependencies))}" '
+                f'dependenciesKind="{" ".join(u.kinds)}"/>')
+
+    outputs, derivatives, initial = dependencies(model, gen)
+    return ["  <ModelStructure>", "    <Outputs>", *map(line, outputs), "    </Outputs>", "    <Derivatives>",
+            *map(line, derivatives), "    </Derivatives>", "    <InitialUnknowns>", *map(line, initial),
+            "    </InitialUnknowns>", "  </ModelStructure>"]
 
 
 def build_description(identifier: str, c_files: list[str]) -> str:
@@ -276,14 +320,17 @@ def fmu_path(output: str | os.PathLike, identifier: str) -> Path:
 
 
 def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, keep_dir: str | None = None,
-              model: SymbolicModel | None = None, platforms: str | Sequence[str] = ("linux64",)) -> BuildReport:
-    """Export ``scene`` as an FMI 2.0 FMU (Model Exchange and Co-Simulation) at ``output``; an existing
-    folder as ``output`` receives ``<model identifier>.fmu``.
+              model: SymbolicModel | None = None, platforms: str | Sequence[str] = ("linux64",),
+              fmi_version: int = 2) -> BuildReport:
+    """Export ``scene`` as an FMI 2.0 FMU, or with ``fmi_version=3`` an FMI 3.0 FMU (Model Exchange and
+    Co-Simulation) at ``output``; an existing folder as ``output`` receives ``<model identifier>.fmu``.
 
     ``platforms`` ("linux64", "win64", or both as a sequence or ``"linux64,win64"``) names the binaries
     compiled from the same sources.  A missing compiler (MinGW-w64 for win64) is a BuildError raised
     before the model is built, so that the user does not wait for code generation to learn it."""
     t0 = time.perf_counter()
+    if fmi_version not in FMI_VERSIONS:
+        raise BuildError(f"FMI version {fmi_version!r}: choose 2 or 3")
     platforms = parse_platforms(platforms)
     for platform in platforms:
         compiler(platform)
@@ -300,18 +347,23 @@ def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, ke
         gen = generate(model, src)
         t2 = time.perf_counter()
         generic = fmu_src_dir()
-        for name in [*GENERIC_SOURCES, *GENERIC_HEADERS]:
+        for name in [*generic_sources(fmi_version), *GENERIC_HEADERS]:
             shutil.copyfile(generic / name, src / name)
-        for h in fmi_headers_dir().glob("fmi2*.h"):
+        for h in fmi_headers(fmi_version):
             shutil.copyfile(h, src / h.name)
-        c_files = [*GENERIC_SOURCES, *(p.name for p in gen.sources)]
+        c_files = [*generic_sources(fmi_version), *(p.name for p in gen.sources)]
         (src / "buildDescription.xml").write_text(build_description(gen.identifier, c_files))
-        libraries = [work / "binaries" / platform / f"{gen.identifier}{LIBRARY_SUFFIX[platform]}"
-                     for platform in platforms]
+        libraries = [work / "binaries" / PLATFORM_FOLDER[fmi_version][platform]
+                     / f"{gen.identifier}{LIBRARY_SUFFIX[platform]}" for platform in platforms]
         for platform, library in zip(platforms, libraries, strict=True):
             compile_shared_library([src / f for f in c_files], [src], library, platform=platform)
         t3 = time.perf_counter()
-        xml = model_description(model, gen, c_files)
+        if fmi_version == 3:
+            from flexlink.export.fmi3 import model_description_fmi3  # it builds on this module's pieces
+
+            xml = model_description_fmi3(model, gen)
+        else:
+            xml = model_description(model, gen, c_files)
         (work / "modelDescription.xml").write_text(xml)
         output.parent.mkdir(parents=True, exist_ok=True)
         tmp = output.with_suffix(f"{output.suffix}.{os.getpid()}.part")   # unique: concurrent builders

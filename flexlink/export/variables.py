@@ -30,6 +30,7 @@ class FmuVariable:
     min_exclusive: bool = False
     feedthrough: tuple[int, ...] = ()   # for outputs: indices into u of the inputs it depends on directly
     derivative: int | None = None       # for der(...) variables: the value reference of the state
+    type: str = "Real"                  # Real | Integer (FMI 3: Float64 | Int32); Integer values are whole
 
     @property
     def tunable(self) -> bool:
@@ -64,10 +65,12 @@ def fmu_variables(model: SymbolicModel, feedthrough: dict[int, tuple[int, ...]] 
         FmuVariable("solver.tolerance", "VAR_SOLVER", 3, scene.fmu.tolerance, "parameter", "fixed", "",
                     "Newton tolerance: a step's rate change against the coordinate's nominal scale", min=0.0,
                     min_exclusive=True),
+        # an Integer: only 2 and 4 are valid (3 is refused when set, with the reason); the C table keeps it
+        # as a double in the solver settings, so FMU states keep their layout
         FmuVariable("solver.order", "VAR_SOLVER", 4, 2.0, "parameter", "fixed", "",
-                    "2: SS22; 4: SS22 (Theta = 1/2) with Richardson extrapolation, for resolved scenes: a step with "
-                    "omega_max * dt > 0.3 is refused (fmi2Discard)",
-                    min=2.0, max=4.0),
+                    "2 or 4 (3 is refused): 2: SS22; 4: SS22 (Theta = 1/2) with Richardson extrapolation, for "
+                    "resolved scenes: a step with omega_max * dt > 0.3 is refused (fmi2Discard)",
+                    min=2.0, max=4.0, type="Integer"),
     ]
     for i, sig in enumerate(model.inputs):
         if sig.fmu_variable:

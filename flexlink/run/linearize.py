@@ -282,6 +282,8 @@ def fmu_state_space(fmu: str | os.PathLike, *, outputs: Sequence[str] | None = N
     import fmpy
     from fmpy.fmi2 import FMU2Model
 
+    from flexlink.run.simulate import set_start_values
+
     md = fmpy.read_model_description(os.fspath(fmu))
     if md.modelExchange is None or not md.modelExchange.providesDirectionalDerivative:
         raise FlexlinkError(f"{fmu}: needs Model Exchange with directional derivatives")
@@ -300,8 +302,7 @@ def fmu_state_space(fmu: str | os.PathLike, *, outputs: Sequence[str] | None = N
                          instanceName="linearize")
         inst.instantiate()
         try:
-            for k, value in (start_values or {}).items():
-                inst.setReal([vr[k]], [float(value)])
+            set_start_values(inst, md.modelVariables, start_values)
             inst.setupExperiment(startTime=0.0)
             inst.enterInitializationMode()
             inst.exitInitializationMode()

@@ -80,6 +80,29 @@ def parse_assignments(items: list[str]) -> dict[str, float]:
     return out
 
 
+def set_start_values(instance, variables, values) -> None:
+    """Set start values through an fmpy instance with the setter of each variable's type: ``setInteger`` for
+    an Integer (``solver.order``), ``setReal`` otherwise.  ``variables``: the model description's variables
+    (any iterable of fmpy ScalarVariables)."""
+    by_name = {v.name: v for v in variables}
+    for name, value in (values or {}).items():
+        v = by_name[name]
+        if v.type in ("Integer", "Enumeration"):
+            instance.setInteger([v.valueReference], [int(value)])
+        else:
+            instance.setReal([v.valueReference], [float(value)])
+
+
+def check_integer_values(variables, values, option: str = "--set") -> None:
+    """An Integer variable (``solver.order``) takes whole numbers only: ``4.5`` is refused here, before fmpy
+    would truncate it to 4."""
+    by_name = {v.name: v for v in variables}
+    for name, value in (values or {}).items():
+        v = by_name.get(name)
+        if v is not None and v.type in ("Integer", "Enumeration") and float(value) != int(float(value)):
+            raise FlexlinkError(f"{option} {name}={value:g}: {name} is an Integer; give a whole number")
+
+
 MAX_POINTS = 1_000_000   # communication points of one run: fmpy keeps them all (100 MB for a dozen outputs)
 
 
@@ -119,6 +142,7 @@ def simulate(fmu: str | os.PathLike, stop_time: float, *, step: float | None = N
         if names[name].causality not in ("parameter", "input"):
             raise FlexlinkError(f"--set {name}: only parameters and inputs can be set "
                                 f"(it is an {names[name].causality})")
+    check_integer_values(md.modelVariables, start_values)
     check_run(stop_time, step)
     if interpolation not in INTERPOLATIONS:
         raise FlexlinkError(f"--interpolation {interpolation}: expected one of {', '.join(INTERPOLATIONS)}")
@@ -328,8 +352,7 @@ class SlaveRunner:
         if not self._fresh:
             s.reset()
         self._fresh = False
-        for name, value in (start or {}).items():
-            s.setReal([self.vr[name]], [float(value)])
+        set_start_values(s, self.model_description.modelVariables, start)
         s.setupExperiment(startTime=0.0)
         s.enterInitializationMode()
         s.exitInitializationMode()

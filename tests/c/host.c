@@ -441,7 +441,7 @@ static void bad_calls(Trajectory a) {
     RECOVER();
     ERROR(F.SetReal(c, &unknown, 1, &value), "unknown value reference");
     RECOVER();
-    ERROR(F.GetInteger(c, QV, 1, &i_value), "unknown value reference");
+    ERROR(F.GetInteger(c, QV, 1, &i_value), "is a Real");
     RECOVER();
     ERROR(F.SetBoolean(c, QV, 1, &b_value), "unknown value reference");
     RECOVER();

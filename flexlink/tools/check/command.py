@@ -1,8 +1,10 @@
 """``flexlink check FMU``: the command line (options, bad input, output formats, exit status).
 
 Exit status: 0 no error finding (warnings allowed, unless ``--strict``); 1 an error finding (or, with
-``--strict``, a warning); 2 bad input (no such file, not an FMI 2.0 FMU, an interface it lacks, a bad
-option), reported in one line.
+``--strict``, a warning); 2 bad input (no such file, not an FMI 2.0 or 3.0 FMU, an interface it lacks, a bad
+option), reported in one line.  An FMI 3.0 FMU gets the checks that drive it through fmpy's FMI 3 support
+(model-description, me-vs-cs, fuzz, fmu-state, directional-derivatives: ``fmu.Fmi3AsFmi2``); the illegal-call
+catalogue and the FMI 2.0 importers are reported as skipped.
 """
 
 from __future__ import annotations
@@ -47,8 +49,8 @@ def _validate(args) -> tuple[str, ...]:
         md = fmpy.read_model_description(args.fmu, validate=False)
     except Exception as e:                      # lxml's syntax errors, fmpy's own, ...
         raise FlexlinkError(f"{args.fmu}: unreadable modelDescription.xml: {str(e).splitlines()[0]}") from None
-    if md.fmiVersion != "2.0":
-        raise FlexlinkError(f"{args.fmu}: FMI {md.fmiVersion}; flexlink check supports FMI 2.0 only")
+    if md.fmiVersion not in ("2.0", "3.0"):
+        raise FlexlinkError(f"{args.fmu}: FMI {md.fmiVersion}; flexlink check supports FMI 2.0 and 3.0")
     for option, value in (("--me-vs-cs-stop", args.me_vs_cs_stop), ("--tolerance", args.tolerance),
                           ("--call-timeout", args.call_timeout)):
         if value is not None and not (0.0 < value < math.inf):
@@ -62,7 +64,8 @@ def _validate(args) -> tuple[str, ...]:
     if not present:
         raise FlexlinkError(f"{args.fmu}: has no {' or '.join(wanted)} interface to check")
     for k in present:
-        binary = f"binaries/{fmpy.platform}/{declared[k].modelIdentifier}{fmpy.sharedLibraryExtension}"
+        folder = fmpy.platform_tuple if md.fmiVersion == "3.0" else fmpy.platform
+        binary = f"binaries/{folder}/{declared[k].modelIdentifier}{fmpy.sharedLibraryExtension}"
         if binary not in members:
             raise FlexlinkError(f"{args.fmu}: no {binary}: flexlink check runs the FMU's binary for this platform")
     return present

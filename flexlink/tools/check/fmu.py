@@ -22,6 +22,47 @@ import numpy as np
 OK, WARNING, DISCARD, ERROR, FATAL = range(5)
 INTERFACES = {"CS": "coSimulation", "ME": "modelExchange"}
 FLEXLINK_VARIABLES = ("solver.step", "solver.theta1")
+#: fmpy's type names of a floating-point and of an integer variable, FMI 2.0 and FMI 3.0
+REAL_TYPES = ("Real", "Float64", "Float32")
+INTEGER_TYPES = ("Integer", "Int32", "Int64", "Int16", "Int8", "UInt32", "UInt64", "UInt16", "UInt8")
+
+
+class Fmi3AsFmi2:
+    """An fmpy FMI 3.0 instance (FMU3Slave, FMU3Model) under the FMI 2 names the checks call, so that the checks
+    written for FMI 2.0 drive an FMI 3.0 FMU unchanged: ``setupExperiment`` keeps its arguments for
+    ``enterInitializationMode``; Real and Integer are Float64 and Int32; ``newDiscreteStates`` is
+    ``updateDiscreteStates`` (its first result: whether another update is needed); the FMU state functions
+    take FMI 3's spelling.  Everything else is the FMI 3 instance's own."""
+
+    RENAMED = {"getReal": "getFloat64", "setReal": "setFloat64", "getInteger": "getInt32", "setInteger": "setInt32",
+               "getFMUstate": "getFMUState", "setFMUstate": "setFMUState", "freeFMUstate": "freeFMUState",
+               "serializeFMUstate": "serializeFMUState", "deSerializeFMUstate": "deserializeFMUState",
+               "getDerivatives": "getContinuousStateDerivatives", "newDiscreteStates": "updateDiscreteStates",
+               "fmi2FreeInstance": "fmi3FreeInstance"}
+
+    def __init__(self, inst):
+        self.__dict__["inst"] = inst
+        self.__dict__["experiment"] = {"startTime": 0.0}
+
+    def __getattr__(self, name):
+        return getattr(self.inst, self.RENAMED.get(name, name))
+
+    def __setattr__(self, name, value):
+        setattr(self.inst, name, value)
+
+    def instantiate(self, callbacks=None, loggingOn=False):
+        """FMI 2's callbacks are not FMI 3's: the messages are dropped, as the checks read statuses."""
+        del callbacks
+        self.inst.instantiate(loggingOn=loggingOn, logMessage=lambda *message: None)
+
+    def setupExperiment(self, tolerance=None, startTime=0.0, stopTime=None):
+        self.__dict__["experiment"] = {"tolerance": tolerance, "startTime": startTime, "stopTime": stopTime}
+
+    def enterInitializationMode(self):
+        self.inst.enterInitializationMode(**self.experiment)
+
+    def doStep(self, currentCommunicationPoint, communicationStepSize, noSetFMUStatePriorToCurrentPoint=True):
+        self.inst.doStep(currentCommunicationPoint, communicationStepSize, noSetFMUStatePriorToCurrentPoint)
 
 
 class Fmu:
@@ -41,7 +82,8 @@ class Fmu:
         md = self.md
         self.vars = {v.name: v for v in md.modelVariables}
         self.vr = {v.name: v.valueReference for v in md.modelVariables}
-        real = [v for v in md.modelVariables if v.type == "Real"]
+        self.fmi3 = md.fmiVersion.startswith("3")
+        real = [v for v in md.modelVariables if v.type in REAL_TYPES and v.causality != "independent"]
         # Real variables by role (the numerical checks work on these); typed_* hold every type
         self.outputs = [v.name for v in real if v.causality == "output"]
         self.inputs = [v.name for v in real if v.causality == "input"]
@@ -58,6 +100,19 @@ class Fmu:
         self.identifier = first.modelIdentifier if first is not None else ""
         self.is_flexlink = (str(md.generationTool or "").lower().startswith("flexlink")
                             and all(n in self.vars for n in FLEXLINK_VARIABLES))
+        if self.fmi3:
+            self._fmi3_flags()
+
+    def _fmi3_flags(self):
+        """fmpy 0.3.32 does not read FMI 3's ``providesDirectionalDerivatives``: taken from the XML, under FMI 2's
+        name that the checks ask for."""
+        import xml.etree.ElementTree as ET
+
+        root = ET.parse(os.path.join(self.dir, "modelDescription.xml")).getroot()
+        for kind, attribute in INTERFACES.items():
+            element, desc = root.find({"CS": "CoSimulation", "ME": "ModelExchange"}[kind]), getattr(self.md, attribute)
+            if element is not None and desc is not None:
+                desc.providesDirectionalDerivative = element.get("providesDirectionalDerivatives") in ("true", "1")
 
     def close(self):
         shutil.rmtree(self.dir, ignore_errors=True)
@@ -68,13 +123,18 @@ class Fmu:
         return bool(desc is not None and getattr(desc, flag, False))
 
     def instance(self, kind: str, name: str = "check"):
-        from fmpy.fmi2 import FMU2Model, FMU2Slave
+        if self.fmi3:
+            from fmpy.fmi3 import FMU3Model as Model
+            from fmpy.fmi3 import FMU3Slave as Slave
+        else:
+            from fmpy.fmi2 import FMU2Model as Model
+            from fmpy.fmi2 import FMU2Slave as Slave
 
-        cls = FMU2Model if kind == "ME" else FMU2Slave
-        inst = cls(guid=self.md.guid, unzipDirectory=self.dir,
+        cls = Model if kind == "ME" else Slave
+        inst = cls(guid=self.md.instantiationToken if self.fmi3 else self.md.guid, unzipDirectory=self.dir,
                    modelIdentifier=getattr(self.md, INTERFACES[kind]).modelIdentifier, instanceName=name)
         inst._vr = self.vr
-        return inst
+        return Fmi3AsFmi2(inst) if self.fmi3 else inst
 
     # ------------------------------------------------------------------ values
     def excitation(self) -> dict[str, object]:
@@ -91,7 +151,7 @@ class Fmu:
         return out
 
     def real_excitation(self) -> dict[str, float]:
-        return {k: v for k, v in self.excitation().items() if self.vars[k].type == "Real"}
+        return {k: v for k, v in self.excitation().items() if self.vars[k].type in REAL_TYPES}
 
 
 def _number(x) -> float | None:
@@ -106,11 +166,11 @@ def excite_value(v):
     clipped to [min, max]; Integer start + 1 within [min, max]; Enumeration another item of its type
     (or the start when there is only one); Boolean the negated start; String: None (left alone)."""
     start = v.start
-    if v.type == "Real":
+    if v.type in REAL_TYPES:
         x = (_number(start) or 0.0) + 0.1
         lo, hi = _number(v.min), _number(v.max)
         return float(np.clip(x, lo if lo is not None else -np.inf, hi if hi is not None else np.inf))
-    if v.type == "Integer":
+    if v.type in INTEGER_TYPES:
         x = int(_number(start) or 0) + 1
         lo, hi = _number(v.min), _number(v.max)
         if hi is not None and x > hi:
@@ -129,9 +189,9 @@ def excite_value(v):
 def set_value(inst, v, value) -> None:
     """fmi2Set<type> for one variable, by its type."""
     vr = [v.valueReference]
-    if v.type == "Real":
+    if v.type in REAL_TYPES:
         inst.setReal(vr, [float(value)])
-    elif v.type in ("Integer", "Enumeration"):
+    elif v.type in ("Enumeration", *INTEGER_TYPES):
         inst.setInteger(vr, [int(value)])
     elif v.type == "Boolean":
         inst.setBoolean(vr, [bool(value)])
@@ -144,9 +204,9 @@ def get_values(inst, variables) -> list:
     out = []
     for v in variables:
         vr = [v.valueReference]
-        if v.type == "Real":
+        if v.type in REAL_TYPES:
             out += inst.getReal(vr)
-        elif v.type in ("Integer", "Enumeration"):
+        elif v.type in ("Enumeration", *INTEGER_TYPES):
             out += inst.getInteger(vr)
         elif v.type == "Boolean":
             out += inst.getBoolean(vr)
@@ -192,7 +252,7 @@ def start(f: Fmu, inst, kind: str, values: dict | None = None, stop: float | Non
 
 def free(inst) -> None:
     """Free the instance but keep the library loaded (fmpy's freeInstance also unloads it)."""
-    inst.fmi2FreeInstance(inst.component)
+    inst.fmi2FreeInstance(inst.component)      # fmi3FreeInstance through Fmi3AsFmi2
     inst.component = None
 
 

@@ -98,6 +98,10 @@ def _flexlink(f: Fmu, illegal) -> None:
     illegal("solver.theta1 out of range", None, lambda i: i.setReal([f.vr["solver.theta1"]], [1.5]), "CS")
     illegal("fixed parameter set after initialization", "init",
             lambda i: i.setReal([f.vr["solver.step"]], [1e-3]), "CS")
+    order = f.vars.get("solver.order")
+    if order is not None and order.type == "Integer":       # an Integer since issue 17: 2 or 4
+        illegal("solver.order = 3", None, lambda i: i.setInteger([order.valueReference], [3]), "CS")
+        illegal("solver.order = 2.5 set as a Real", None, lambda i: i.setReal([order.valueReference], [2.5]), "CS")
 
 
 def catalogue(f: Fmu) -> list[tuple[str, str, str | None, object]]:

@@ -2,23 +2,23 @@
 #include "model.h"
 
 const VarInfo MODEL_VARS[N_VARS] = {
-    /* name          kind            idx start  min     max       min_excl tunable */
-    {"F1",           VAR_INPUT,      0,  1.0,  -1e300,  1e300,    0, 1},
-    {"F2",           VAR_INPUT,      1,  2.0,  -1e300,  1e300,    0, 1},
-    {"q1",           VAR_OUTPUT,     0,  0.0,  -1e300,  1e300,    0, 0},
-    {"q2",           VAR_OUTPUT,     1,  0.0,  -1e300,  1e300,    0, 0},
-    {"v1",           VAR_OUTPUT,     2,  0.0,  -1e300,  1e300,    0, 0},
-    {"v2",           VAR_OUTPUT,     3,  0.0,  -1e300,  1e300,    0, 0},
-    {"stiffness",    VAR_PARAMETER,  0,  1.0,   0.0,    1e300,    1, 1},
-    {"q1_start",     VAR_START_Q,    0,  0.0,  -1e300,  1e300,    0, 0},
-    {"q2_start",     VAR_START_Q,    1,  0.0,  -1e300,  1e300,    0, 0},
-    {"v1_start",     VAR_START_V,    0,  0.0,  -1e300,  1e300,    0, 0},
-    {"v2_start",     VAR_START_V,    1,  0.0,  -1e300,  1e300,    0, 0},
-    {"solver.step",  VAR_SOLVER,     SOLVER_STEP,      0.5,   0.0, 1e300, 1, 0},
-    {"solver.theta1",VAR_SOLVER,     SOLVER_THETA1,    0.5,   0.5, 1.0,   0, 0},
-    {"solver.theta2",VAR_SOLVER,     SOLVER_THETA2,    0.5,   0.5, 1.0,   0, 0},
-    {"solver.tolerance", VAR_SOLVER, SOLVER_TOLERANCE, 1e-10, 0.0, 1e300, 1, 0},
-    {"energy",       VAR_OUTPUT,     0,  0.0,  -1e300,  1e300,    0, 0},  /* alias of q1, unused slot */
+    /* name          kind            idx start  min     max       min_excl tunable integer */
+    {"F1",           VAR_INPUT,      0,  1.0,  -1e300,  1e300,    0, 1, 0},
+    {"F2",           VAR_INPUT,      1,  2.0,  -1e300,  1e300,    0, 1, 0},
+    {"q1",           VAR_OUTPUT,     0,  0.0,  -1e300,  1e300,    0, 0, 0},
+    {"q2",           VAR_OUTPUT,     1,  0.0,  -1e300,  1e300,    0, 0, 0},
+    {"v1",           VAR_OUTPUT,     2,  0.0,  -1e300,  1e300,    0, 0, 0},
+    {"v2",           VAR_OUTPUT,     3,  0.0,  -1e300,  1e300,    0, 0, 0},
+    {"stiffness",    VAR_PARAMETER,  0,  1.0,   0.0,    1e300,    1, 1, 0},
+    {"q1_start",     VAR_START_Q,    0,  0.0,  -1e300,  1e300,    0, 0, 0},
+    {"q2_start",     VAR_START_Q,    1,  0.0,  -1e300,  1e300,    0, 0, 0},
+    {"v1_start",     VAR_START_V,    0,  0.0,  -1e300,  1e300,    0, 0, 0},
+    {"v2_start",     VAR_START_V,    1,  0.0,  -1e300,  1e300,    0, 0, 0},
+    {"solver.step",  VAR_SOLVER,     SOLVER_STEP,      0.5,   0.0, 1e300, 1, 0, 0},
+    {"solver.theta1",VAR_SOLVER,     SOLVER_THETA1,    0.5,   0.5, 1.0,   0, 0, 0},
+    {"solver.theta2",VAR_SOLVER,     SOLVER_THETA2,    0.5,   0.5, 1.0,   0, 0, 0},
+    {"solver.tolerance", VAR_SOLVER, SOLVER_TOLERANCE, 1e-10, 0.0, 1e300, 1, 0, 0},
+    {"energy",       VAR_OUTPUT,     0,  0.0,  -1e300,  1e300,    0, 0, 0},  /* alias of q1, unused slot */
 };
 
 const double MODEL_NOMINAL_Q[N_Q] = {1.0, 1.0};
