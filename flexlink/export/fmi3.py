@@ -23,6 +23,7 @@ from flexlink.export.fmu import (
     log_categories_and_experiment,
     type_attributes,
     unit_definitions,
+    variable_attributes,
 )
 from flexlink.mechanics.model import SymbolicModel
 
@@ -47,14 +48,7 @@ def _variables(gen: GeneratedModel) -> list[str]:
     """``<ModelVariables>``: the FMI 2 FMU's variables at the same value references, then ``time``."""
     lines = ["  <ModelVariables>"]
     for vr, v in enumerate(gen.variables):
-        attrs = [f'name={quoteattr(v.name)}', f'valueReference="{vr}"', f'causality="{v.causality}"',
-                 f'variability="{v.variability}"']
-        if v.causality == "parameter":
-            attrs.append('initial="exact"')
-        if v.causality == "local":
-            attrs.append('initial="calculated"')
-        if v.description:
-            attrs.append(f"description={quoteattr(v.description)}")
+        attrs = variable_attributes(vr, v)
         lines.append(f"    <{FMI3_TYPE[v.type]} {' '.join(attrs + type_attributes(v, 0))}/>")
     lines.append(f'    <Float64 name="time" valueReference="{len(gen.variables)}" causality="independent" '
                  'variability="continuous" description="simulation time" unit="s"/>')

@@ -114,6 +114,20 @@ def declared_min(v: FmuVariable) -> float:
     return math.nextafter(v.min, math.inf)
 
 
+def variable_attributes(vr: int, v) -> list[str]:
+    """The attributes a variable has in both FMI versions' model descriptions: name, value reference,
+    causality, variability, initial and description."""
+    attrs = [f"name={quoteattr(v.name)}", f'valueReference="{vr}"', f'causality="{v.causality}"',
+             f'variability="{v.variability}"']
+    if v.causality == "parameter":
+        attrs.append('initial="exact"')
+    if v.causality == "local":
+        attrs.append('initial="calculated"')
+    if v.description:
+        attrs.append(f"description={quoteattr(v.description)}")
+    return attrs
+
+
 def type_attributes(v: FmuVariable, derivative_ref_offset: int) -> list[str]:
     """The attributes of a variable's type element (FMI 2 ``<Real>``/``<Integer>``, FMI 3 ``<Float64>``/
     ``<Int32>`` alike): start (not for outputs and locals, which are calculated), derivative (the state's
@@ -196,14 +210,7 @@ def model_description(model: SymbolicModel, gen: GeneratedModel, sources: list[s
     lines += log_categories_and_experiment(scene)
     lines.append("  <ModelVariables>")
     for vr, v in enumerate(gen.variables):
-        attrs = [f'name="{v.name}"', f'valueReference="{vr}"', f'causality="{v.causality}"',
-                 f'variability="{v.variability}"']
-        if v.causality == "parameter":
-            attrs.append('initial="exact"')
-        if v.causality == "local":
-            attrs.append('initial="calculated"')
-        if v.description:
-            attrs.append(f"description={quoteattr(v.description)}")
+        attrs = variable_attributes(vr, v)
         lines.append(f"    <!-- {vr + 1} --><ScalarVariable {' '.join(attrs)}>"
                      f"<{v.type} {' '.join(type_attributes(v, 1))}/></ScalarVariable>")
     lines.append("  </ModelVariables>")

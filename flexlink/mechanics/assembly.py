@@ -170,6 +170,14 @@ class ChainAssembly:
         return LinkDeformation(pick(q, "v"), pick(q, "w"), pick(q, "alpha"),
                                pick(v, "v"), pick(v, "w"), pick(v, "alpha"))
 
+    def assemble_kinematics(self) -> None:
+        """The stages every user of the chain's frames needs: coordinates, parameters, inputs, and the frames
+        with their energies (the model adds potential, dissipation and equations; a drawing stops here)."""
+        self.add_coordinates()
+        self.add_parameters()
+        self.add_inputs()
+        self.add_energies()
+
     # ---- coordinates: per joint its angle (and motor angle if elastic), then its link's η (v, w, α)
     def _new(self, name: str, kind: str, nominal: float = 1.0) -> int:
         self.coordinates.append(name)

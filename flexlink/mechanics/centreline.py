@@ -81,10 +81,7 @@ def _link_sections(chain: ChainAssembly, i: int, link, part, frame) -> list:
 def centreline(scene: Scene) -> Centreline:
     """The chain's drawing function, assembled from the same frames as the model (no equations formed)."""
     chain = ChainAssembly(scene)
-    chain.add_coordinates()
-    chain.add_parameters()
-    chain.add_inputs()
-    chain.add_energies()
+    chain.assemble_kinematics()
     p0 = ca.DM([par.value for par in chain.P.items])
     points, joints, payloads, polyline = [], [], [], []
     for i, (link, part, frame) in enumerate(zip(scene.links, chain.parts, chain.frames, strict=True)):

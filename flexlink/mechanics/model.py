@@ -90,10 +90,7 @@ def _out_of_memory(scene: Scene, exc: MemoryError) -> SceneError:
 def _build(scene: Scene) -> SymbolicModel:
     """The stages in order; split from build_model so that one try covers every allocation."""
     chain = ChainAssembly(scene)
-    chain.add_coordinates()
-    chain.add_parameters()
-    chain.add_inputs()
-    chain.add_energies()
+    chain.assemble_kinematics()
     chain.add_potential_and_dissipation()
     chain.add_equations()
     signals, expressions = chain_outputs(chain)
