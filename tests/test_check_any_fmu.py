@@ -98,6 +98,35 @@ def test_a_call_that_never_returns_is_reported_with_its_seconds(fmus, tmp_path, 
     assert "1 call(s) that hang or crash" in r.result
 
 
+def test_a_legal_call_that_hangs_ends_one_fuzz_sequence_not_the_fuzz(fmus):
+    """The fixture's third fmi2DoStep after instantiation sleeps for ever (DEFECT_STEP_HANG, STEP_HANG 3 in
+    model.c), a legal call: each sequence that reaches it is one error naming that call, its seconds and its
+    sequence, and the fuzz goes on in a fresh process with the next sequence, to the last one.  The hung
+    sequences are exactly the CS ones (even indices) with three doSteps in one instance; the reproduction
+    replays the first alone (each sequence has its own seeded generator)."""
+    n = 30
+    path = fmus("step_hang", defects=("DEFECT_STEP_HANG",))
+    r = _run(path, only=["fuzz"], fuzz=n)["fuzz"]
+    hangs = [x for x in r.findings if x.rule == "returns"]
+    assert r.findings == hangs and len(hangs) >= 2
+    items = []
+    for x in hangs:
+        assert x.message.startswith("fmi2DoStep(") and "did not return within" in x.message
+        assert float(x.message.split("within ")[1].split(" s")[0]) >= CALL_LIMIT
+        items.append(int(x.message.rsplit("(sequence ", 1)[1].rstrip(")")))
+        calls = x.sequence[max(i for i, c in enumerate(x.sequence) if c.startswith(("fmi2Instantiate",
+                                                                                     "fmi2Reset"))):]
+        assert calls[0].startswith("fmi2Instantiate") and calls[-1] == x.message.split(" did not")[0]
+        assert sum(c.startswith("fmi2DoStep") for c in calls) == 3
+    assert all(k % 2 == 0 for k in items) and items == sorted(set(items))
+    assert f"sequences {items[-1] + 1}..{n - 1} in the last process" in r.result
+    assert f"{len(hangs)} call(s) that hang or crash (sequence {', '.join(map(str, items))}" in r.result
+    assert hangs[0].reproduce.endswith(f"--only fuzz --fuzz {items[0] + 1} --seed 0 --call-timeout {CALL_LIMIT:g}")
+    replay = _run(path, only=["fuzz"], fuzz=items[0] + 1)["fuzz"]
+    assert [x.message.split(" did not")[0] for x in replay.findings] == [hangs[0].message.split(" did not")[0]]
+    assert not _run(fmus("oscillator_CSME", variant="oscillator"), only=["fuzz"], fuzz=n)["fuzz"].findings
+
+
 def test_a_crash_ends_one_item_not_the_harness(fmus):
     """fmi2GetReal of an unknown value reference segfaults: an error naming the signal and the call; the
     other checks run and pass."""

@@ -21,17 +21,17 @@ class Check:
     name: str
     function: str            # "module:function" under flexlink.tools.check
     isolated: bool = True    # False: the check starts its own processes (the importers)
-    resumable: bool = False  # marks its progress, so a hang or crash ends one item (see isolation.py)
+    item: str | None = None  # what it marks its progress in, so a hang or crash ends one (see isolation.py)
     fmi3: bool = False       # also runs on FMI 3.0 FMUs (the others drive FMI 2.0 calls: skipped there)
 
 
 CHECKS = [
     Check("model-description", "description:check_model_description", fmi3=True),
     Check("me-vs-cs", "me_vs_cs:check_me_vs_cs", fmi3=True),
-    Check("fuzz", "fuzz:check_fuzz", fmi3=True),
+    Check("fuzz", "fuzz:check_fuzz", fmi3=True, item="sequence"),
     Check("fmu-state", "state:check_fmu_state", fmi3=True),
     Check("directional-derivatives", "derivatives:check_directional_derivatives", fmi3=True),
-    Check("illegal-calls", "illegal:check_illegal_calls", resumable=True),
+    Check("illegal-calls", "illegal:check_illegal_calls", item="catalogue item"),
     Check("libcosim", "importer_checks:check_libcosim", isolated=False),
     Check("fmutool", "importer_checks:check_fmutool", isolated=False),
 ]
@@ -90,8 +90,9 @@ def check_fmu(path: str | os.PathLike, *, fuzz: int = CI_FUZZ, seed: int = 0, im
                 results.append(function(check)(f))
                 continue
             options = {**_options(check.name, fuzz, seed, stop_time, tolerance), "interfaces": list(interfaces)}
+            replay = (lambda k: f"--fuzz {k + 1} --seed {seed}") if check.name == "fuzz" else None
             results.append(run_isolated(check.name, fmu, options, call_limit=call_limit, limit=CHECK_LIMIT,
-                                        resumable=check.resumable))
+                                        item=check.item, replay=replay))
     finally:
         f.close()
         os.chdir(cwd)

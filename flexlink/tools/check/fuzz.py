@@ -1,5 +1,10 @@
 """Check ``fuzz``: seeded random *legal* call sequences, each call of which must succeed.
 
+Sequence k draws from its own generator, seeded with (seed, k), so that it is the same whether the run
+starts at sequence 0 or at k: the check marks its progress sequence by sequence, and a call that does not
+return (or crashes) ends that sequence only; the harness (:mod:`flexlink.tools.check.isolation`) reports it
+and resumes at sequence k + 1 in a fresh process.  ``--fuzz k+1 --seed S`` replays up to sequence k.
+
 Only what the FMU declares is called: its interfaces; FMU state round trips with ``canGetAndSetFMUstate``
 (serialization with ``canSerializeFMUstate``); directional derivatives with
 ``providesDirectionalDerivative``; one communication step size per sequence without
@@ -41,7 +46,9 @@ class Fuzzer:
 
     def __init__(self, f: Fmu, seed: int):
         self.f = f
+        self.seed = seed
         self.rng = np.random.default_rng(seed)
+        self.sequence = 0
         self.findings: list[Finding] = []
         self.seen: set[str] = set()
         self.calls = 0
@@ -67,7 +74,8 @@ class Fuzzer:
             key = what.split("(")[0] + f" {status}"
             if key not in self.seen and len(self.findings) < MAX_FINDINGS:
                 self.seen.add(key)
-                self.findings.append(Finding("legal-call", f"{what}: status {status}", sequence=isolation.recent()))
+                self.findings.append(Finding("legal-call", f"sequence {self.sequence}: {what}: status {status}",
+                                             sequence=isolation.recent()))
 
     def init(self, inst, kind: str) -> None:
         legal = self.LEGAL
@@ -103,9 +111,11 @@ class Fuzzer:
             values.append(float(np.clip(x, lo, hi)))
         self.expect(self.LEGAL, call(inst.setReal, [self.tunable[j].valueReference for j in group], values), what)
 
-    def legal_sequence(self, kind: str) -> None:
-        """Instantiate, maybe change a parameter, initialise, 3 to 14 random legal operations, maybe reset,
-        terminate, free."""
+    def legal_sequence(self, k: int) -> None:
+        """Sequence k, on interface k mod the number of interfaces, with its own generator: instantiate, maybe
+        change a parameter, initialise, 3 to 14 random legal operations, maybe reset, terminate, free."""
+        kind = self.f.interfaces[k % len(self.f.interfaces)]
+        self.sequence, self.rng = k, np.random.default_rng((self.seed, k))
         inst = self.insts[kind]
         inst.instantiate(callbacks=quiet_callbacks())
         if self.tunable and self.rng.random() < 0.5:
@@ -206,21 +216,28 @@ class Fuzzer:
                 inst.freeFMUstate(s2)
             self.calls += 6 if serialize else 3
         except Exception as e:
-            self.findings.append(Finding("fmu-state", f"FMU state round trip: {e}", sequence=isolation.recent()))
+            self.findings.append(Finding("fmu-state", f"sequence {self.sequence}: FMU state round trip: {e}",
+                                         sequence=isolation.recent()))
 
 
-def check_fuzz(f: Fmu, n: int = CI_FUZZ, seed: int = 0) -> CheckResult:
+def check_fuzz(f: Fmu, n: int = CI_FUZZ, seed: int = 0, first: int = 0) -> CheckResult:
+    """Sequences ``first`` .. n - 1 (the harness starts again after one that hangs or crashes)."""
     inp = f"{n} random legal sequences (seed {seed}) over {', '.join(f.interfaces) or 'no interface'}"
     ref = "every legal call returns fmi2OK/fmi2Warning (doStep, completedIntegratorStep may discard)"
     if not f.interfaces:
         return skipped("fuzz", "no interface")
     t0 = time.perf_counter()
     fuzzer = Fuzzer(f, seed)
-    for k in range(n):
-        fuzzer.legal_sequence(f.interfaces[k % len(f.interfaces)])
+    for k in range(first, n):
+        isolation.progress(k)
+        before = len(fuzzer.findings)
+        fuzzer.legal_sequence(k)
+        for x in fuzzer.findings[before:]:
+            x.reproduce = f"flexlink check {f.path} --only fuzz --fuzz {k + 1} --seed {seed}"
+        isolation.emit(fuzzer.findings[before:])
+    isolation.progress(n)
     found = fuzzer.findings
-    for x in found:
-        x.reproduce = f"flexlink check {f.path} --only fuzz --fuzz {n} --seed {seed}"
-    res = f"{n} sequences, {fuzzer.calls} calls, {len(found)} finding(s)"
+    res = (f"sequences {first}..{n - 1} in the last process" if first else f"{n} sequences")
+    res += f", {fuzzer.calls} calls, {len(found)} finding(s)"
     return CheckResult("fuzz", inp, ref, res, seconds=time.perf_counter() - t0,
                        details=[x.message for x in found], findings=found)

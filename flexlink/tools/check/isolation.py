@@ -13,8 +13,9 @@ to a small file shared with the parent (a memory map):
 
 The parent polls it: a call older than the per-call limit is a finding (rule ``returns``) with its
 seconds and the calls before it; a child killed by a signal is a finding (``no-crash``) naming the call
-in progress.  A check that marks its progress (the illegal-call catalogue, item by item) is then resumed
-after that item, so one bad call ends one item, not the check.
+in progress.  A check that marks its progress (the illegal-call catalogue item by item, the fuzz sequence
+by sequence) is then resumed after that item in a fresh child, so one bad call ends one item, not the
+check; the finding names the item.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from flexlink.tools.check.findings import CheckResult, Finding
 SIZE = 1 << 14
 _HEADER = struct.Struct("<dii")
 _map: mmap.mmap | None = None
-_recent: collections.deque[str] = collections.deque(maxlen=10)
+_recent: collections.deque[str] = collections.deque(maxlen=60)
 _NO_COMPONENT = ("fmi2Instantiate", "fmi2GetTypesPlatform", "fmi2GetVersion")
 
 
@@ -159,11 +160,14 @@ def _watch(p: subprocess.Popen, trace: str, call_limit: float, deadline: float) 
 
 
 def run_isolated(name: str, fmu: str, options: dict, *, call_limit: float, limit: float,
-                 resumable: bool = False) -> CheckResult:
-    """Run check ``name`` in a child process; see the module docstring."""
+                 item: str | None = None, replay=None) -> CheckResult:
+    """Run check ``name`` in a child process; see the module docstring.  ``item``: what a resumable check
+    counts its progress in ("sequence", "catalogue item"; None: not resumable); ``replay(k)``: the options
+    that replay it up to item k, for the reproduction."""
     t0 = time.monotonic()
     found: list[Finding] = []
-    hung_or_crashed = 0
+    bad_items: list[str] = []
+    resumable = item is not None
     result = None
     with tempfile.TemporaryDirectory(prefix="flexlink-check-child-") as tmp:
         trace = os.path.join(tmp, "trace")
@@ -184,10 +188,13 @@ def run_isolated(name: str, fmu: str, options: dict, *, call_limit: float, limit
                 bad = Finding("no-crash", f"the check's process ended with exit status {p.returncode}: {tail[0]}")
             found += [Finding.from_dict(json.loads(x[len("FINDING "):])) for x in stdout.splitlines()
                       if x.startswith("FINDING ")]
-            bad.reproduce = f"flexlink check {fmu} --only {name} --call-timeout {call_limit:g}"
-            found.append(bad)
-            hung_or_crashed += 1
             marker = _read(trace)[1]
+            extra = f" {replay(marker)}" if replay is not None and marker >= 0 else ""
+            bad.reproduce = f"flexlink check {fmu} --only {name}{extra} --call-timeout {call_limit:g}"
+            if resumable and marker >= 0:
+                bad.message += f" ({item} {marker})"
+            found.append(bad)
+            bad_items.append(str(marker))
             if not (resumable and marker >= first and time.monotonic() < t0 + limit and "limit" not in bad.message):
                 break
             first = marker + 1
@@ -197,6 +204,7 @@ def run_isolated(name: str, fmu: str, options: dict, *, call_limit: float, limit
         result.findings = found + result.findings
         result.details = [x.message for x in found] + result.details
         result.status = result.judged()
-        result.result = f"{result.result}; {hung_or_crashed} call(s) that hang or crash"
+        where = f" ({item} {', '.join(bad_items)}; resumed after each)" if resumable and bad_items else ""
+        result.result = f"{result.result}; {len(bad_items)} call(s) that hang or crash{where}"
     result.seconds = time.monotonic() - t0
     return result

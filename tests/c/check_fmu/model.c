@@ -18,6 +18,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "fmi2Functions.h"
 
@@ -28,6 +29,9 @@
 #define GUID "{check-fmu}"
 #endif
 #define FIXED_STEP 1e-3
+#ifndef STEP_HANG
+#define STEP_HANG 3
+#endif
 #define STAIR_PERIOD 0.2
 
 enum { R_X, R_V, R_DX, R_DV, R_U, R_K, R_Y, R_TIME, NR };
@@ -41,6 +45,7 @@ typedef struct {
     int i[NI];
     int b[NB];
     char label[64];
+    int steps;              /* fmi2DoStep calls since instantiation or reset (DEFECT_STEP_HANG) */
 } Data;
 
 typedef struct {
@@ -337,6 +342,10 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSet
     if (!s) return fmi2Error;
 #endif
     double end = t + h;
+#ifdef DEFECT_STEP_HANG
+    /* a legal call that never returns: the instance's STEP_HANG-th communication step sleeps for ever */
+    if (++s->d.steps == STEP_HANG) for (;;) sleep(1);
+#endif
 #ifdef DEFECT_NAN_HANG
     /* a NaN step passes both tests and the loop never ends (as in five of the six Reference FMUs) */
     if (h <= 0.0) return fail(s, "step size not positive");
