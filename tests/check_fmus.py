@@ -4,7 +4,8 @@ tests/c/check_fmu/model.c with gcc against fmpy's FMI 2.0 headers, with a hand-w
 ``build(directory, name, variant=..., interfaces=..., defects=..., capabilities=...)`` returns the FMU's path.
 Variants: ``oscillator`` (2 states, Real input/outputs/tunable parameter), ``typed`` (the oscillator plus
 Integer, Boolean, Enumeration and String variables), ``nostates`` (no states, no Real outputs), ``stair``
-(no states; an Integer counter stepping at time events).  ``defects`` are the DEFECT_* macros of model.c.
+(no states; an Integer counter stepping at time events), ``ball`` (a bouncing ball: height x from 1 m,
+gravity 9.81 m/s², restitution 0.7, one event indicator, the height).  ``defects`` are the DEFECT_* macros of model.c.
 """
 
 from __future__ import annotations
@@ -42,7 +43,8 @@ TYPED = [
 NOSTATES = [("u", "Real", 4, 'causality="input" variability="continuous"', 'start="0"')] + TYPED
 STAIR = [("counter", "Integer", 3, 'causality="output" variability="discrete"', "")]
 VARIANTS = {"oscillator": (OSCILLATOR, 2), "typed": (OSCILLATOR + TYPED, 2), "nostates": (NOSTATES, 0),
-            "stair": (STAIR, 0)}
+            "stair": (STAIR, 0), "ball": (OSCILLATOR, 2)}
+BALL = {"height": 1.0, "g": 9.81, "restitution": 0.7}      # as model.c's x start, G and E
 
 
 def _model_description(name: str, variant: str, interfaces, capabilities) -> str:
@@ -74,7 +76,8 @@ def _model_description(name: str, variant: str, interfaces, capabilities) -> str
         return f"    <{tag}>" + "".join(f'<Unknown index="{i}"/>' for i in indices) + f"</{tag}>\n" if indices else ""
 
     return (f'<?xml version="1.0" encoding="UTF-8"?>\n<fmiModelDescription fmiVersion="2.0" modelName="{name}" '
-            f'guid="{GUID}" generationTool="tests/check_fmus.py" numberOfEventIndicators="0">\n{interface_xml}'
+            f'guid="{GUID}" generationTool="tests/check_fmus.py" '
+            f'numberOfEventIndicators="{1 if variant == "ball" else 0}">\n{interface_xml}'
             f"{types}"
             f'  <DefaultExperiment startTime="0" stopTime="1" stepSize="0.01"/>\n'
             f"  <ModelVariables>\n" + "\n".join(rows) + "\n  </ModelVariables>\n  <ModelStructure>\n"
@@ -92,7 +95,8 @@ def build(directory: str | os.PathLike, name: str, *, variant: str = "oscillator
     binaries = d / "binaries" / "linux64"
     binaries.mkdir(parents=True, exist_ok=True)
     _, nx = VARIANTS[variant]
-    flags = [f"-DNX={nx}", *(["-DSTAIR"] if variant == "stair" else []), *(f"-D{x}" for x in defects)]
+    flags = [f"-DNX={nx}", *(["-DSTAIR"] if variant == "stair" else []), *(["-DBALL"] if variant == "ball" else []),
+             *(f"-D{x}" for x in defects)]
     headers = Path(fmpy.__file__).parent / "c-code"
     compile_shared_library([SOURCE], [headers], binaries / f"{name}.so", extra_cflags=flags)
     xml = _model_description(name, variant, interfaces, capabilities)

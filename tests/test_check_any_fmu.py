@@ -7,8 +7,9 @@ from __future__ import annotations
 import json
 import xml.etree.ElementTree as ET
 
+import numpy as np
 import pytest
-from check_fmus import CAPABILITIES, build
+from check_fmus import BALL, CAPABILITIES, build
 
 from flexlink.cli import main
 from flexlink.tools.check import check_fmu
@@ -40,10 +41,11 @@ def _run(path, **kwargs):
 
 @pytest.mark.parametrize("variant, interfaces", [
     ("oscillator", ("CS", "ME")), ("oscillator", ("CS",)), ("oscillator", ("ME",)), ("typed", ("CS", "ME")),
-    ("nostates", ("CS", "ME")), ("stair", ("CS", "ME"))])
+    ("nostates", ("CS", "ME")), ("stair", ("CS", "ME")), ("ball", ("CS", "ME"))])
 def test_a_correct_fmu_passes_with_no_finding(fmus, variant, interfaces):
     """Every shape the issue names: CS-only, ME-only, Integer/Boolean/Enumeration/String variables, no states
-    and no Real outputs, a discrete model with time events.  No finding at all (not even a warning)."""
+    and no Real outputs, a discrete model with time events, a model with state events (the bouncing ball).  No
+    finding at all (not even a warning)."""
     path = fmus(f"{variant}_{''.join(interfaces)}", variant=variant, interfaces=interfaces)
     res = _run(path)
     for r in res.values():
@@ -186,6 +188,53 @@ def test_me_vs_cs_is_measured_unless_a_tolerance_is_given(fmus):
     assert strict.status == "fail" and {x.rule for x in strict.findings} == {"me-vs-cs"}
 
 
+def _bounces(stop: float, u: float) -> tuple[list[float], object]:
+    """The ball of check_fmus.BALL under gravity less the input u: its bounce times before ``stop`` and its
+    height h(t) (free fall from rest, each flight 2 e^k v1 / g long, v1 = g t1)."""
+    g, e, h0 = BALL["g"] - u, BALL["restitution"], BALL["height"]
+    t1 = (2.0 * h0 / g) ** 0.5
+    times = [t1]
+    while times[-1] + 2.0 * e ** len(times) * t1 < stop:
+        times.append(times[-1] + 2.0 * e ** len(times) * t1)
+
+    def height(t):
+        t = np.asarray(t, float)
+        out = h0 - 0.5 * g * t**2
+        for k, tb in enumerate(times, 1):
+            after = t >= tb
+            v = e**k * g * t1                      # speed upwards after the k-th bounce
+            out = np.where(after, v * (t - tb) - 0.5 * g * (t - tb) ** 2, out)
+        return out
+
+    return times, height
+
+
+def test_me_vs_cs_locates_state_events(fmus):
+    """A bouncing ball (one event indicator, its height; model.c's BALL): the ME run of me-vs-cs (fmpy: CVODE
+    root finding, then the event iteration with fmi2NewDiscreteStates) locates every bounce at its analytic
+    time, and its heights follow the analytic parabolas through the bounces.  An integration that ignored the
+    indicator would let the ball fall through the floor (h(2 s) = -18.4 m instead of 0.12 m).  CS (explicit
+    Euler at 1 ms, bouncing after the step that crosses the floor) is measured against it, not judged."""
+    from flexlink.tools.check.fmu import Fmu
+    from flexlink.tools.check.me_vs_cs import _simulate
+
+    path = fmus("ball_CSME", variant="ball")
+    stop, u = 2.0, 0.1                             # the harness's excitation: the input at start + 0.1
+    times, height = _bounces(stop, u)
+    r = _run(path, only=["me-vs-cs"], stop_time=stop)["me-vs-cs"]
+    assert r.status == "pass" and "not judged" in r.reference and f"ME: {len(times)} state event(s)" in r.result
+    located = [float(t) for t in r.details[0].split("t = ")[1].split(", ")]
+    assert len(times) == 4 and np.allclose(located, times, rtol=0, atol=1e-7), (located, times)
+    f = Fmu(path)
+    try:
+        me, cs, events = _simulate(f, stop, stop / 500, {"u": u}, None, 0.0, 1e-9)
+    finally:
+        f.close()
+    assert np.allclose(events, times, rtol=0, atol=1e-7)
+    assert np.max(np.abs(me["x"] - height(me["time"]))) < 1e-6
+    assert 1e-3 < np.max(np.abs(cs["x"] - height(cs["time"]))) < 5e-2       # Euler at 1 ms: measured only
+
+
 def test_json_and_junit_output(fmus, tmp_path, capsys):
     path = fmus("state_restore", defects=("DEFECT_STATE_RESTORE",))
     junit = tmp_path / "junit.xml"
@@ -196,6 +245,10 @@ def test_json_and_junit_output(fmus, tmp_path, capsys):
     assert not data["passed"] and data["errors"] >= 1
     state = next(c for c in data["checks"] if c["name"] == "fmu-state")
     assert state["findings"][0]["reference"].startswith("FMI 2.0 §2.1.8")
+    assert state["findings"][0]["quotes"][0] == {"standard": "FMI 2.0.5", "section": "§2.1.8 Getting and Setting "
+                                                 "the Complete FMU State", "text": "fmi2SetFMUstate copies the content "
+                                                 "of the previously copied FMUstate back and uses it as actual new FMU "
+                                                 "state."}
     assert {c["name"] for c in data["checks"]} == {"model-description", "fmu-state", "directional-derivatives",
                                                    "illegal-calls"}
     suite = ET.parse(junit).getroot().find("testsuite")
@@ -289,3 +342,60 @@ def test_a_value_reference_the_binary_does_not_know_is_caught(fmus, tmp_path):
     write_report(results, tmp_path / "report", str(path))
     md = (tmp_path / "report" / "report.md").read_text()
     assert "FAILED" in md and "rule: FMI 2.0 §2.2.7" in md
+    assert "FMI 2.0.5 §2.2.7 Definition of Model Variables (ModelVariables): \u201cThe only guarantee is" in md
+
+
+@pytest.fixture(scope="module")
+def foreign_fmi3(tmp_path_factory):
+    """``foreign_fmi3(defect)``: examples/rotating_link.toml as an FMI 3.0 FMU that does not say it is flexlink's
+    (generationTool changed, so only FMI 3.0's own rules apply), its binary rebuilt from its own sources with
+    ``defect`` (C code) at the start of fmi3DoStep."""
+    import re
+    import zipfile
+
+    from conftest import EXAMPLES
+
+    from flexlink.export.cbuild import compile_shared_library
+    from flexlink.export.fmu import build_fmu
+
+    d = tmp_path_factory.mktemp("foreign_fmi3")
+    original = build_fmu(EXAMPLES / "rotating_link.toml", d / "rotating_link.fmu", fmi_version=3).fmu
+
+    def get(name: str, defect: str = ""):
+        src = d / name
+        with zipfile.ZipFile(original) as z:
+            z.extractall(src)
+        xml = src / "modelDescription.xml"
+        xml.write_text(re.sub(r'generationTool="[^"]*"', 'generationTool="another tool"', xml.read_text()))
+        if defect:
+            c = src / "sources" / "fmi3Functions.c"
+            text = c.read_text()
+            head = re.search(r"fmi3Status fmi3DoStep\(fmi3Instance instance,[^{]*\{\n", text)
+            c.write_text(text[:head.end()] + f"    {defect}\n" + text[head.end():])
+            so = next((src / "binaries").glob("*/*.so"))
+            compile_shared_library(sorted((src / "sources").glob("*.c")), [src / "sources"], so)
+        fmu = d / f"{name}.fmu"
+        with zipfile.ZipFile(fmu, "w", zipfile.ZIP_DEFLATED) as z:
+            for p in sorted(src.rglob("*")):
+                if p.is_file():
+                    z.write(p, p.relative_to(src).as_posix())
+        return fmu
+
+    return get
+
+
+def test_fmi3_an_accepted_illegal_call_is_an_error(foreign_fmi3):
+    """FMI 3.0 §2.2.4: "When detecting illegal arguments or a function call not allowed in the current state
+    ..., the FMU must return fmi3Error."  The FMI 3.0 FMU, not recognised as flexlink's, refuses every call of
+    the catalogue (no finding); with fmi3DoStep accepting a zero step it is one error of rule state-machine
+    (under FMI 2.0 the same acceptance would be a warning)."""
+    from flexlink.tools.check.findings import RULES
+
+    clean = _run(foreign_fmi3("clean"), only=["illegal-calls"])["illegal-calls"]
+    assert clean.status == "pass" and not clean.findings, [x.line() for x in clean.findings]
+    assert "forbidden calls on CS, ME" in clean.input
+    bad = _run(foreign_fmi3("zero_step", "if (communicationStepSize == 0.0) return fmi3OK;"),
+               only=["illegal-calls"])["illegal-calls"]
+    assert [(x.rule, x.severity) for x in bad.findings] == [("state-machine", "error")]
+    assert "'doStep with a zero step' (CS): expected fmi3Error (3), got 0" in bad.findings[0].message
+    assert "must return fmi3Error" in RULES["state-machine"].sources[0].quote

@@ -239,9 +239,9 @@ def test_flexlink_check_runs_on_an_fmi3_fmu(fmi3_fmu, tmp_path, capsys):
     fmu = fmi3_fmu("rotating_link")
     assert main(["check", str(fmu), "--me-vs-cs-stop", "0.05", "--fuzz", "20", "--json"]) == 0
     results = {r["name"]: r["status"] for r in json.loads(capsys.readouterr().out)["checks"]}
-    assert {name for name, status in results.items() if status == "pass"} == \
-           {"model-description", "me-vs-cs", "fuzz", "fmu-state", "directional-derivatives"}
-    assert {name for name, status in results.items() if status == "skip"} == {"illegal-calls", "libcosim", "fmutool"}
+    assert {name for name, status in results.items() if status == "pass"} >= \
+           {"model-description", "me-vs-cs", "fuzz", "fmu-state", "directional-derivatives", "illegal-calls"}
+    assert "libcosim" in {name for name, status in results.items() if status == "skip"}       # FMI 2.0 only
     bad = tmp_path / "bad.fmu"
     with zipfile.ZipFile(fmu) as z, zipfile.ZipFile(bad, "w") as out:
         for item in z.infolist():

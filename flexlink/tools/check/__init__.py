@@ -1,4 +1,5 @@
-"""``flexlink check FMU``: a compliance harness for FMI 2.0 FMUs, flexlink's and any other (docs/check.md).
+"""``flexlink check FMU``: a compliance harness for FMI 2.0 and 3.0 FMUs, flexlink's and any other
+(docs/check.md).
 
 Like fmpy's validation it collects problems instead of stopping at the first one.  Every check gives a row
 in the style of the FMI cross-check results (input, reference, result, status) and the findings behind it,

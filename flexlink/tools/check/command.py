@@ -2,9 +2,9 @@
 
 Exit status: 0 no error finding (warnings allowed, unless ``--strict``); 1 an error finding (or, with
 ``--strict``, a warning); 2 bad input (no such file, not an FMI 2.0 or 3.0 FMU, an interface it lacks, a bad
-option), reported in one line.  An FMI 3.0 FMU gets the checks that drive it through fmpy's FMI 3 support
-(model-description, me-vs-cs, fuzz, fmu-state, directional-derivatives: ``fmu.Fmi3AsFmi2``); the illegal-call
-catalogue and the FMI 2.0 importers are reported as skipped.
+option), reported in one line.  An FMI 3.0 FMU gets every check through fmpy's FMI 3 support
+(``fmu.Fmi3AsFmi2``), with FMI 3.0's own rules where they differ, but libcosim (FMI 1.0 and 2.0 only),
+reported as skipped.
 """
 
 from __future__ import annotations

@@ -30,6 +30,8 @@ def _structure(f: Fmu) -> list[Finding]:
         if v.get("causality") == "output" and i not in listed:
             found.append(Finding("outputs-listed", f"output {v.get('name')} (index {i}) is missing from "
                                                    "<ModelStructure><Outputs>"))
+    if f.md.modelExchange is None:          # "A Co- Simulation FMU does not need to expose these state derivatives."
+        return found
     ders = structure.find("Derivatives")
     listed_d = {int(u.get("index")) for u in (ders if ders is not None else [])}
     for i, v in enumerate(variables, 1):

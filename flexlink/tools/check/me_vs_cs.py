@@ -1,5 +1,9 @@
 """Check ``me-vs-cs``: the FMU run by fmpy in both interfaces and the trajectories compared.
 
+The Model Exchange run is fmpy's: CVODE root-finds a sign change of the event indicators, then fmpy enters
+Event Mode and iterates fmi2NewDiscreteStates before going back to Continuous-Time Mode (state events), and
+stops at the time events the FMU announces.  The times of the state events located are reported.
+
 The tolerance comes from what the FMU says about its Co-Simulation solver.  A flexlink FMU's CS is SS22
 with a step the check sets (``solver.step``), so its own tolerances below apply.  Any other FMU says
 nothing of its CS solver in FMI 2.0 (the Reference FMUs step with fixed explicit Euler), so its difference
@@ -61,11 +65,22 @@ def _simulate(f: Fmu, stop: float, interval: float, start: dict, ramp, cs_step: 
     import fmpy.sundials as sundials
 
     original = sundials.CVodeSolver
+    events: list[float] = []
 
-    class _CVode(original):                    # fmpy caps CVODE at 500 steps per output interval
+    class _CVode(original):
+        """fmpy's CVODE, which root-finds on the event indicators (the event iteration with
+        fmi2NewDiscreteStates is fmpy's simulateME), without fmpy's cap of 500 steps per output interval, and
+        noting the time of each state event it locates."""
+
         def __init__(self, *args, **kwargs):
             kwargs["maxNumSteps"] = 10**7
             super().__init__(*args, **kwargs)
+
+        def step(self, t, t_next):
+            state_event, roots, t_reached = super().step(t, t_next)
+            if state_event and np.any(roots != 0):
+                events.append(float(t_reached))
+            return state_event, roots, t_reached
 
     cs_start = {**start, "solver.step": cs_step} if f.is_flexlink else start
     try:
@@ -77,7 +92,7 @@ def _simulate(f: Fmu, stop: float, interval: float, start: dict, ramp, cs_step: 
                                start_values=cs_start, input=ramp, model_description=f.md)
     finally:
         sundials.CVodeSolver = original
-    return me, cs
+    return me, cs, events
 
 
 def _compare(f: Fmu, me, cs, tolerance: float | None) -> tuple[list[Finding], list[str], float, str]:
@@ -151,7 +166,7 @@ def check_me_vs_cs(f: Fmu, stop_time: float | None = None, tolerance: float | No
     ref = (f"ME: CVODE rtol {rtol}; CS: " + (f"SS22 step {cs_step} s" if f.is_flexlink else "its own solver")
            + f"; {judged}")
     try:
-        me, cs = _simulate(f, stop, interval, start, ramp, cs_step, rtol)
+        me, cs, events = _simulate(f, stop, interval, start, ramp, cs_step, rtol)
     except Exception as e:
         from flexlink.tools.check import isolation
 
@@ -160,5 +175,9 @@ def check_me_vs_cs(f: Fmu, stop_time: float | None = None, tolerance: float | No
                                              sequence=isolation.recent())])
     found, details, worst, worst_name = _compare(f, me, cs, tolerance)
     result = f"worst {worst_name}: {worst:.2e} of the peak" + (f"; {len(found)} failure(s)" if found else "")
+    if f.nz:
+        result += f"; ME: {len(events)} state event(s)"
+        details.insert(0, f"ME: {len(events)} state event(s) located on {f.nz} event indicator(s)"
+                          + (": t = " + ", ".join(f"{t:.9g}" for t in events[:20]) if events else ""))
     return CheckResult("me-vs-cs", desc, ref, result, seconds=time.perf_counter() - t0,
                        details=[x.message for x in found] + details, findings=found)

@@ -9,7 +9,7 @@ import os
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from flexlink.tools.check.findings import CheckResult
+from flexlink.tools.check.findings import RULES, CheckResult
 
 
 def totals(results: list[CheckResult]) -> tuple[int, int]:
@@ -55,6 +55,13 @@ def write_report(results: list[CheckResult], directory: str | os.PathLike, fmu: 
                 lines.append(f"- **{x.severity}**: {x.message}  \n  rule: {x.reference}"
                              + (f"  \n  calls: `{' ; '.join(x.sequence)}`" if x.sequence else "")
                              + (f"  \n  reproduce: `{x.reproduce}`" if x.reproduce else ""))
+    cited = sorted({x.rule for r in results for x in r.findings})
+    if cited:
+        lines += ["", "## Rules cited", "", "Quoted from the FMI specifications (Modelica Association Project FMI, "
+                  "CC-BY-SA 4.0).", ""]
+        for rule in cited:
+            lines.append(f"- `{rule}` ({RULES[rule].kind}): {RULES[rule].summary}")
+            lines += [f"  - {s.cite()}" for s in RULES[rule].sources]
     m = d / "report.md"
     m.write_text("\n".join(lines) + "\n")
     return j, m

@@ -4,7 +4,10 @@
  *   oscillator   x' = v, v' = -k x - c v + u (c = 0.5 * mode), outputs x and y = 2 x + u;
  *   NX=0         no continuous states (x and v stay at their start values);
  *   STAIR        an Integer `counter` that steps by one at every multiple of 0.2 s (time events in ME);
- *   typed        Integer n -> m = 2 n, Boolean b -> nb = !b, Enumeration mode in 1..3, String label.
+ *   typed        Integer n -> m = 2 n, Boolean b -> nb = !b, Enumeration mode in 1..3, String label;
+ *   BALL         a bouncing ball: height x, x' = v, v' = -G + u, one event indicator z = x; when the ball
+ *                reaches the floor moving down (x <= 0, v < 0) it bounces, v -> -E v (in ME at the state
+ *                event, in fmi2NewDiscreteStates; in CS after the Euler step that crosses the floor).
  *
  * Co-Simulation integrates with fixed explicit Euler steps of FIXED_STEP (as the Reference FMUs do).
  * Each DEFECT_* macro plants one defect that the harness claims to find; without them the model follows
@@ -29,6 +32,13 @@
 #define GUID "{check-fmu}"
 #endif
 #define FIXED_STEP 1e-3
+#define G 9.81
+#define E 0.7
+#ifdef BALL
+#define NZ 1
+#else
+#define NZ 0
+#endif
 #ifndef STEP_HANG
 #define STEP_HANG 3
 #endif
@@ -59,10 +69,30 @@ typedef struct {
 static void compute(Data *d) {
     double c = 0.5 * d->i[I_MODE];
     d->r[R_DX] = NX ? d->r[R_V] : 0.0;
+#ifdef BALL
+    (void)c;
+    d->r[R_DV] = -G + d->r[R_U];
+#else
     d->r[R_DV] = NX ? -d->r[R_K] * d->r[R_X] - c * d->r[R_V] + d->r[R_U] : 0.0;
+#endif
     d->r[R_Y] = 2.0 * d->r[R_X] + d->r[R_U];
     d->i[I_M] = 2 * d->i[I_N];
     d->b[B_NB] = !d->b[B_B];
+}
+
+/* the ball's bounce: returns whether the states changed */
+static int bounce(Data *d) {
+#ifdef BALL
+    if (d->r[R_X] <= 0.0 && d->r[R_V] < 0.0) {
+        d->r[R_X] = 0.0;
+        d->r[R_V] = -E * d->r[R_V];
+        compute(d);
+        return 1;
+    }
+#else
+    (void)d;
+#endif
+    return 0;
 }
 
 /* the stair's counter changes at events only (ME: fmi2NewDiscreteStates; CS: within fmi2DoStep) */
@@ -294,6 +324,10 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte bytes[], size
 
 static double partial(const Data *d, unsigned unknown, unsigned known) {
     double c = 0.5 * d->i[I_MODE], k = d->r[R_K];
+#ifdef BALL
+    c = 0.0;
+    k = 0.0;
+#endif
 #ifdef DEFECT_WRONG_DERIVATIVE
     k = -k;
 #endif
@@ -330,6 +364,7 @@ static void euler(Data *d, double h) {
     d->r[R_V] += h * dv;
     d->r[R_TIME] += h;
     compute(d);
+    bounce(d);
     update_counter(d);
 }
 
@@ -405,6 +440,7 @@ fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *e) {
     compute(&s->d);
     update_counter(&s->d);
     memset(e, 0, sizeof *e);
+    e->valuesOfContinuousStatesChanged = bounce(&s->d) ? fmi2True : fmi2False;
 #ifdef STAIR
     e->nextEventTimeDefined = fmi2True;
     e->nextEventTime = (s->d.i[I_COUNTER] + 1) * STAIR_PERIOD;
@@ -447,8 +483,10 @@ fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real dx[], size_t nx) {
 }
 
 fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real z[], size_t nz) {
-    Inst *s = c; (void)z; IN(s, INIT | RUN | TERMINATED); ME_ONLY(s);
-    return nz == 0 ? fmi2OK : fail(s, "wrong nz");
+    Inst *s = c; IN(s, INIT | RUN | TERMINATED); ME_ONLY(s);
+    if (nz != NZ) return fail(s, "wrong nz");
+    if (NZ) z[0] = s->d.r[R_X];
+    return fmi2OK;
 }
 
 fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {
