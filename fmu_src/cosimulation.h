@@ -57,6 +57,14 @@ extern const char *const LOG_CATEGORY_NAMES[N_LOG_CATEGORIES];
 #define FMU_SZ(n) ((n) > 0 ? (n) : 1)   /* C99 has no zero-length arrays */
 
 /* Everything numeric: an FMU state is a copy of this struct. */
+/* The mechanical energy at one time and what the inputs' work between two such points needs (guards.c). */
+typedef struct {
+    int available;
+    double time, kinetic, potential;
+    double force[FMU_SZ(N_Q)], q[FMU_SZ(N_Q)];             /* Q of the force inputs, the coordinates */
+    double law_torque[FMU_SZ(N_LAWS)], law_angle[FMU_SZ(N_LAWS)], law_rate[FMU_SZ(N_LAWS)];
+} EnergyPoint;
+
 typedef struct {
     int phase;                        /* Phase                                                  */
     int model_exchange;               /* 1: instantiated as Model Exchange, 0: Co-Simulation    */
@@ -71,7 +79,8 @@ typedef struct {
     double last_successful_time;
     double omega_max;                 /* highest natural frequency, rad/s (richardson.c)        */
     double energy_scale;              /* the most energy one step has moved so far (guards.c)   */
-    double energy_steps;              /* communication steps since the motion started (guards.c) */
+    double energy_floor;              /* ½ Σ M_ii (tolerance nominal_i)² (guards.c)              */
+    EnergyPoint energy_last;          /* Model Exchange: at the last completed integrator step   */
     double q[N_Q], v[N_Q];            /* state                                                  */
     double alpha[N_Q];                /* SS22 acceleration of the last step (Newton guess)      */
     double acceleration[N_Q];         /* consistent acceleration at time (outputs)              */

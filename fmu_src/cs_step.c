@@ -107,7 +107,7 @@ fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h) {
     }
     EnergyPoint e0, e1;
     {
-        const fmi2Status status = fmu_energy_point(inst, &e0);   /* the host may have read these outputs */
+        const fmi2Status status = fmu_energy_point(inst, &e0, "fmi2DoStep");   /* the host may have read these outputs */
         if (status > fmi2Warning) return status;
     }
     memcpy(&inst->backup, d, sizeof(*d));
@@ -148,7 +148,7 @@ fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h) {
     d->time = t_end;
     d->outputs_valid = 0;
     {   /* the outputs at t_end, which the host reads next, and with them the step's energy balance */
-        fmi2Status status = fmu_energy_point(inst, &e1);
+        fmi2Status status = fmu_energy_point(inst, &e1, "fmi2DoStep");
         if (status > fmi2Warning) {
             memcpy(d, &inst->backup, sizeof(*d));
             return status;

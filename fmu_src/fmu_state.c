@@ -127,7 +127,8 @@ static const char *invalid_data(const FmuData *d) {
          d->model_exchange | d->mass_matrix_guarded | d->omega_max_known) & ~1)
         return "flags";
     if (d->ss22.max_iterations < 0 || d->ss22.max_iterations > 1000) return "solver settings";
-    if (!(d->energy_scale >= 0.0 && isfinite(d->energy_scale)) || !(d->energy_steps >= 0.0 && d->energy_steps <= 1e300))
+    if (!(d->energy_scale >= 0.0 && isfinite(d->energy_scale)) || (d->energy_last.available & ~1) ||
+        !(d->energy_floor >= 0.0 && isfinite(d->energy_floor)))
         return "energy balance";
     for (int k = 0; k < SS22_CACHE; k++) {
         const SS22Factor *f = &d->ss22.cache[k];

@@ -43,16 +43,11 @@ const char *fmu_invalid_values(Instance *inst, const FmuData *d, char *why, size
  * inst->guard_reason. */
 fmi2Status fmu_guard_state(Instance *inst, double t, const double *u, int check_mass_matrix);
 void fmu_guard_init(Instance *inst, const double *u);
-/* The energy balance of a communication step: the energies, the inputs' generalized forces and where they
- * act at its ends (outputs brought up to date at the current time), then fmi2OK or fmi2Discard with the
- * reason in inst->guard_reason. */
-typedef struct {
-    int available;
-    double time, kinetic, potential;
-    double force[FMU_SZ(N_Q)], q[FMU_SZ(N_Q)];             /* Q of the force inputs, the coordinates */
-    double law_torque[FMU_SZ(N_LAWS)], law_angle[FMU_SZ(N_LAWS)], law_rate[FMU_SZ(N_LAWS)];
-} EnergyPoint;
-fmi2Status fmu_energy_point(Instance *inst, EnergyPoint *e);
+/* The energy balance of a communication step (or, in Model Exchange, of the importer's step between two
+ * completed integrator steps): the energies, the inputs' generalized forces and where they act at its ends
+ * (EnergyPoint, cosimulation.h; outputs brought up to date at the current time, `function` names the caller
+ * in messages), then fmi2OK or fmi2Discard with the reason in inst->guard_reason. */
+fmi2Status fmu_energy_point(Instance *inst, EnergyPoint *e, const char *function);
 fmi2Status fmu_guard_energy(Instance *inst, const EnergyPoint *e0, const EnergyPoint *e1);
 
 /* fmu_state.c: frees the FMU states inst handed out and the host did not free (fmi2FreeInstance). */

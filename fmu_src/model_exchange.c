@@ -91,10 +91,13 @@ fmi2Status fmu_new_discrete_states(Instance *inst, fmi2EventInfo *info) {
 }
 
 /* fmi2CompletedIntegratorStep: the importer's accepted state passes the same guards as a Co-Simulation step
- * (guards.c).  Outside the model's validity the FMU asks the importer to stop (terminateSimulation) and
- * answers fmi2Discard with the reason, instead of letting it integrate a state the model cannot stand behind. */
+ * (guards.c), the energy balance included, judged between this and the last completed step (an explicit
+ * integrator at too large a step gains energy at every step).  Outside them the FMU asks the importer to
+ * stop (terminateSimulation) and answers fmi2Discard with the reason, instead of letting it integrate a
+ * state the model cannot stand behind. */
 fmi2Status fmu_completed_integrator_step(Instance *inst, fmi2Boolean *terminate) {
     FmuData *d = &inst->d;
+    EnergyPoint now;
     fmu_model_inputs(d, d->time, inst->u1);
     if (fmu_guard_state(inst, d->time, inst->u1, 1) != fmi2OK) {
         *terminate = fmi2True;
@@ -102,5 +105,16 @@ fmi2Status fmu_completed_integrator_step(Instance *inst, fmi2Boolean *terminate)
                 "simulation", inst->guard_reason);
         return fmi2Discard;
     }
+    const fmi2Status status = fmu_energy_point(inst, &now, "fmi2CompletedIntegratorStep");
+    if (status > fmi2Warning) return status;
+    /* a step of the importer's: forward in time (an event iteration completes no step) */
+    if (now.available && d->energy_last.available && now.time > d->energy_last.time &&
+        fmu_guard_energy(inst, &d->energy_last, &now) != fmi2OK) {
+        *terminate = fmi2True;
+        fmu_log(inst, fmi2Discard, LOG_STATUS_DISCARD, "fmi2CompletedIntegratorStep: %s; terminate the "
+                "simulation", inst->guard_reason);
+        return fmi2Discard;
+    }
+    d->energy_last = now;
     return fmi2OK;
 }

@@ -34,8 +34,8 @@ void ss22_weighted_inputs(const SS22 *s, double dt, const double *u0, const doub
     const double t2 = s->theta2;
     for (int k = 0; k < N_LAWS; k++) {
         const int o = MODEL_LAWS[k].u_offset;
-        const double x0 = u0[o], xd0 = u0[o + 1], x1 = u1[o];
-        const double abar = 2.0 * (x1 - x0 - dt * xd0) / (dt * dt);
+        const double x0 = u0[o], xd0 = u0[o + 1], xd1 = u1[o + 1];
+        const double abar = (xd1 - xd0) / dt;
         u_bar[o] = x0 + t1 * dt * xd0 + t2 * 0.5 * dt * dt * abar;
         u_bar[o + 1] = xd0 + t1 * dt * abar;
         u_bar[o + 2] = abar;

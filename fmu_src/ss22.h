@@ -58,7 +58,10 @@ void ss22_invalidate(SS22 *s);
 
 /* Weighted inputs over the step; kinematic-law slots (MODEL_LAWS) of u0 hold the law's
  * (position, rate, acceleration) at t0 and those of u1 at t0 + dt.  The law's coordinate
- * moves as SS22 would move it, landing exactly on its position at t0 + dt. */
+ * moves as SS22 would move it with the law's mean acceleration over the step, (rate1 - rate0)/dt: its
+ * weighted rate is then the average of its exact rates, as the free coordinates' is, and a law whose jerk
+ * is not zero keeps the scheme second-order (landing on the end position instead is off the mean
+ * acceleration by dt x'''/6 at every step: first order, docs/integrator.md). */
 void ss22_weighted_inputs(const SS22 *s, double dt, const double *u0, const double *u1, double *u_bar);
 
 /* One step of size dt from (q, v).  alpha: in, an initial guess (e.g. the previous step's);

@@ -125,3 +125,27 @@ def test_order_four_option_converges_at_order_four(tmp_path):
         assert all(abs(p - 4.0) < 0.5 for p in orders), (errors, orders)
         with pytest.raises(FMICallException):
             runner.run(0.1, 0.01, start={"solver.order": 4, "solver.theta1": 0.6, "solver.theta2": 0.6})
+
+
+def test_a_law_with_jerk_converges_at_second_order():
+    """A prescribed law whose jerk is not zero (aluminium_arm_smooth's quintic rest-to-rest law): the law's
+    coordinate moves in each step with its mean acceleration (θ̇₁ − θ̇₀)/Δt, so the free coordinates feel the
+    trapezoid of its rates and the run keeps SS22's second order.  Moving it so as to land on the end angle
+    instead (the first version) is off the mean acceleration by Δt θ⃛/6 at every step: the run converged at
+    first order (relative errors 1.04e-3, 4.7e-4, 2.2e-4: orders 1.15, 1.07).  Against the CVODES reference
+    of the same equations, halving solver.step divides the error by 4.  (Order 4 is refused at such steps on
+    this FE beam: ω_max Δt > 0.3, tests/test_richardson.py.)"""
+    from flexlink.tools.bench import default_case, reference_outputs, relative_error
+
+    scene = load_scene("examples/aluminium_arm_smooth.toml")
+    model = build_model(scene)
+    fmu = cached_fmu(scene, model=model)
+    case = default_case(model, stop=1.0)
+    ref = reference_outputs(case)
+    errors = []
+    with SlaveRunner(fmu) as runner:
+        for h in (2e-3, 1e-3, 5e-4):
+            res = runner.run(case.stop, 0.01, inputs=case.inputs_at, start={"solver.step": h}, outputs=case.outputs)
+            errors.append(relative_error(case, res, ref))
+    orders = [np.log2(a / b) for a, b in zip(errors[:-1], errors[1:], strict=True)]
+    assert all(abs(p - 2.0) < 0.3 for p in orders), (errors, orders)

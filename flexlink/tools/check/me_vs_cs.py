@@ -83,16 +83,54 @@ def _simulate(f: Fmu, stop: float, interval: float, start: dict, ramp, cs_step: 
             return state_event, roots, t_reached
 
     cs_start = {**start, "solver.step": cs_step} if f.is_flexlink else start
+    logs: dict[str, list[str]] = {"ME": [], "CS": []}
+
+    def logger_of(interface):
+        def logger(component, instance, status, category, message):
+            if status > 1:                          # what the FMU said with fmi2Discard, fmi2Error, fmi2Fatal
+                logs[interface].append(message.decode(errors="replace") if isinstance(message, bytes)
+                                       else str(message))
+        return logger
+
+    def run(kind: str, fmi_type: str, **options):
+        """fmpy's run of one interface.  FMI 2: on an instance whose messages reach ``logs`` through
+        flexlink's logger router (fmpy's own ``logger=`` would register a process-wide callback that is
+        freed after the run, and the next FMU to log would call it: a crash in a later check)."""
+        if f.fmi3:
+            return fmpy.simulate_fmu(f.dir, fmi_type=fmi_type, model_description=f.md, **options)
+        from flexlink.run.simulate import logging_callbacks, release_logging_callbacks
+
+        inst = f.instance(kind, name="me-vs-cs")
+        callbacks = logging_callbacks(logger_of(kind))
+        inst.instantiate(callbacks=callbacks)
+        try:
+            return fmpy.simulate_fmu(f.dir, fmi_type=fmi_type, model_description=f.md, fmu_instance=inst,
+                                     **options)
+        finally:
+            inst.freeInstance()
+            release_logging_callbacks(callbacks)
+
     try:
         sundials.CVodeSolver = _CVode
-        me = fmpy.simulate_fmu(f.dir, fmi_type="ModelExchange", solver="CVode", relative_tolerance=rtol,
-                               stop_time=stop, output_interval=interval, start_values=start, input=ramp,
-                               model_description=f.md, record_events=False)
-        cs = fmpy.simulate_fmu(f.dir, fmi_type="CoSimulation", stop_time=stop, output_interval=interval,
-                               start_values=cs_start, input=ramp, model_description=f.md)
+        me = run("ME", "ModelExchange", solver="CVode", relative_tolerance=rtol, stop_time=stop,
+                 output_interval=interval, start_values=start, input=ramp, record_events=False)
+        cs = run("CS", "CoSimulation", stop_time=stop, output_interval=interval, start_values=cs_start,
+                 input=ramp)
     finally:
         sundials.CVodeSolver = original
-    return me, cs, events
+    return me, cs, events, logs
+
+
+def _ended_early(runs: dict, logs: dict[str, list[str]], stop: float, interval: float) -> list[str]:
+    """A line for each run that stopped before ``stop`` (fmpy ends a run quietly when the FMU discards a step),
+    with the last thing the FMU said: the reason is the finding, not the differing time grids it leaves."""
+    lines = []
+    for interface, run in runs.items():
+        end = float(run["time"][-1]) if len(run) else 0.0
+        if end < stop - 0.5 * interval:
+            said = logs[interface][-1] if logs[interface] else "nothing logged"
+            lines.append(f"the {interface} run ended at t = {end:.9g} of {stop:.9g} s; the FMU: {said}")
+    return lines
 
 
 def _compare(f: Fmu, me, cs, tolerance: float | None) -> tuple[list[Finding], list[str], float, str]:
@@ -166,7 +204,7 @@ def check_me_vs_cs(f: Fmu, stop_time: float | None = None, tolerance: float | No
     ref = (f"ME: CVODE rtol {rtol}; CS: " + (f"SS22 step {cs_step} s" if f.is_flexlink else "its own solver")
            + f"; {judged}")
     try:
-        me, cs, events = _simulate(f, stop, interval, start, ramp, cs_step, rtol)
+        me, cs, events, logs = _simulate(f, stop, interval, start, ramp, cs_step, rtol)
     except Exception as e:
         from flexlink.tools.check import isolation
 
@@ -174,6 +212,7 @@ def check_me_vs_cs(f: Fmu, stop_time: float | None = None, tolerance: float | No
                            findings=[Finding("legal-call", f"a simulation failed: {type(e).__name__}: {e}",
                                              sequence=isolation.recent())])
     found, details, worst, worst_name = _compare(f, me, cs, tolerance)
+    details[:0] = _ended_early({"ME": me, "CS": cs}, logs, stop, interval)
     result = f"worst {worst_name}: {worst:.2e} of the peak" + (f"; {len(found)} failure(s)" if found else "")
     if f.nz:
         result += f"; ME: {len(events)} state event(s)"
