@@ -10,8 +10,13 @@
  * independent variable `time` (value reference N_VARS, after the model's variables), and the arrays of the
  * event-update and step functions.
  *
- * Scalar variables only (no arrays); no clocks, no event mode in Co-Simulation, no early return, no
- * intermediate update, no configuration mode: those functions answer fmi3Error with the reason.  Messages from
+ * Arrays: a link's elastic coordinates (and their states, rates and derivatives) are Float64 arrays whose value
+ * reference is the FMI 2 reference of their first element; element k is FMI 2's reference + k - 1.  The
+ * generated fmi3_layout.c says how many values each reference holds (FMI3_ELEMENTS), and the functions taking
+ * value references expand them into FMI 2 references before they call cosimulation.h.
+ *
+ * No clocks, no event mode in Co-Simulation, no early return, no intermediate update, no configuration mode:
+ * those functions answer fmi3Error with the reason.  Messages from
  * the functions behind cosimulation.h name the FMI 2 function they were written for (fmi2SetReal for
  * fmi3SetFloat64 and so on). */
 #include <math.h>
@@ -24,6 +29,10 @@
 typedef char fmi3_int32_is_fmi2_integer[sizeof(fmi3Int32) == sizeof(fmi2Integer) ? 1 : -1];
 
 #define TIME_VR ((fmi3ValueReference)N_VARS)   /* the independent variable "time" */
+
+/* fmi3_layout.c (generated): values of FMI 3 value reference vr < N_VARS: 1 a scalar, n an array of the FMI 2
+ * references vr .. vr+n-1, 0 a later element of an array (not an FMI 3 variable) */
+extern const int FMI3_ELEMENTS[N_VARS];
 
 #define SETTABLE (PHASE_INSTANTIATED | PHASE_INITIALIZATION | PHASE_STEP | PHASE_EVENT | PHASE_CONTINUOUS)
 #define READABLE (PHASE_INITIALIZATION | PHASE_STEP | PHASE_TERMINATED | PHASE_ERROR | PHASE_EVENT | \
@@ -206,39 +215,94 @@ fmi3Status fmi3Reset(fmi3Instance instance) {
     return fmi3OK;
 }
 
+/* ================================================================= arrays */
+
+/* FMI 3 value references expanded into FMI 2 ones (time and unknown references pass through, one value each, for
+ * the functions behind to answer); `vr` points at the caller's array when no reference is an array. */
+typedef struct {
+    const fmi2ValueReference *vr;
+    fmi2ValueReference *owned;
+    size_t n;
+} Refs;
+
+/* The number of values of reference vr, or 0 after an error message (vr is a later element of an array). */
+static size_t values_of(Instance *inst, const char *function, fmi3ValueReference vr) {
+    fmi3ValueReference head = vr;
+    if (vr >= N_VARS || FMI3_ELEMENTS[vr] > 0) return vr >= N_VARS ? 1 : (size_t)FMI3_ELEMENTS[vr];
+    while (head > 0 && FMI3_ELEMENTS[head] == 0) head--;
+    fmu_error(inst, "%s: value reference %u (FMI 2's %s) is not a variable of this FMI 3.0 FMU: it is element %u of "
+              "the array at value reference %u, read and set through that reference", function, (unsigned)vr,
+              MODEL_VARS[vr].name, (unsigned)(vr - head + 1), (unsigned)head);
+    return 0;
+}
+
+/* refs = vr[0..nvr) expanded; expected: the number of values the caller passed (nValues, nSeed, ...). */
+static fmi2Status expand(Instance *inst, const char *function, const fmi3ValueReference vr[], size_t nvr,
+                         size_t expected, Refs *refs) {
+    size_t total = 0, k, j = 0;
+    refs->vr = vr;
+    refs->owned = NULL;
+    refs->n = nvr;
+    for (size_t i = 0; i < nvr; i++) {
+        k = values_of(inst, function, vr[i]);
+        if (k == 0) return fmu_finish(inst, fmi2Error);
+        total += k;
+    }
+    if (total != expected) {
+        fmu_error(inst, "%s: the value references hold %lu values, not %lu (an array holds as many values as its "
+                  "<Dimension>)", function, (unsigned long)total, (unsigned long)expected);
+        return fmu_finish(inst, fmi2Error);
+    }
+    if (total == nvr) return fmi2OK;
+    refs->owned = (fmi2ValueReference *)calloc(total, sizeof(fmi2ValueReference));
+    if (refs->owned == NULL) return fmu_fail(inst, function, "out of memory");
+    for (size_t i = 0; i < nvr; i++) {
+        for (k = 0; k < values_of(inst, function, vr[i]); k++) refs->owned[j++] = vr[i] + (fmi2ValueReference)k;
+    }
+    refs->vr = refs->owned;
+    refs->n = total;
+    return fmi2OK;
+}
+
 /* ======================================================= getting and setting values */
 
 fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
                           fmi3Float64 values[], size_t nValues) {
     fmi2Status status = fmi2OK, one;
+    Refs refs;
     BEGIN("fmi3GetFloat64", READABLE);
     REQUIRE(nValueReferences == 0 || (valueReferences != NULL && values != NULL), "fmi3GetFloat64",
             "valueReferences or values is NULL");
-    REQUIRE(nValues == nValueReferences, "fmi3GetFloat64", "nValues must equal nValueReferences (scalar variables)");
-    for (size_t i = 0; i < nValueReferences; i++) {
-        if (valueReferences[i] == TIME_VR) {
+    if (expand(inst, "fmi3GetFloat64", valueReferences, nValueReferences, nValues, &refs) != fmi2OK) return fmi3Error;
+    for (size_t i = 0; i < refs.n; i++) {
+        if (refs.vr[i] == TIME_VR) {
             values[i] = inst->d.time;
             continue;
         }
-        one = fmu_get_real(inst, &valueReferences[i], 1, &values[i]);   /* outputs are computed once */
-        if (one > fmi2Warning) return s3(fmu_finish(inst, one));
+        one = fmu_get_real(inst, &refs.vr[i], 1, &values[i]);   /* outputs are computed once */
         if (one > status) status = one;
+        if (one > fmi2Warning) break;
     }
-    return s3(status);
+    free(refs.owned);
+    return s3(status > fmi2Warning ? fmu_finish(inst, status) : status);
 }
 
 fmi3Status fmi3SetFloat64(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
                           const fmi3Float64 values[], size_t nValues) {
+    fmi2Status status;
+    Refs refs;
     BEGIN("fmi3SetFloat64", SETTABLE);
     REQUIRE(nValueReferences == 0 || (valueReferences != NULL && values != NULL), "fmi3SetFloat64",
             "valueReferences or values is NULL");
-    REQUIRE(nValues == nValueReferences, "fmi3SetFloat64", "nValues must equal nValueReferences (scalar variables)");
     for (size_t i = 0; i < nValueReferences; i++) {
         REQUIRE(valueReferences[i] != TIME_VR, "fmi3SetFloat64",
                 "time is the independent variable: Co-Simulation advances it with fmi3DoStep, Model Exchange sets "
                 "it with fmi3SetTime");
     }
-    return s3(fmu_finish(inst, fmu_set_real(inst, valueReferences, nValueReferences, values)));
+    if (expand(inst, "fmi3SetFloat64", valueReferences, nValueReferences, nValues, &refs) != fmi2OK) return fmi3Error;
+    status = fmu_set_real(inst, refs.vr, refs.n, values);
+    free(refs.owned);
+    return s3(fmu_finish(inst, status));
 }
 
 fmi3Status fmi3GetInt32(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
@@ -371,43 +435,57 @@ fmi3Status fmi3DeserializeFMUState(fmi3Instance instance, const fmi3Byte seriali
 fmi3Status fmi3GetDirectionalDerivative(fmi3Instance instance, const fmi3ValueReference unknowns[], size_t nUnknowns,
                                         const fmi3ValueReference knowns[], size_t nKnowns, const fmi3Float64 seed[],
                                         size_t nSeed, fmi3Float64 sensitivity[], size_t nSensitivity) {
+    fmi2Status status;
+    Refs u, k;
     BEGIN("fmi3GetDirectionalDerivative", DERIVATIVES);
     REQUIRE((nUnknowns == 0 || (unknowns != NULL && sensitivity != NULL)) &&
             (nKnowns == 0 || (knowns != NULL && seed != NULL)), "fmi3GetDirectionalDerivative",
             "a value reference or value array is NULL");
-    REQUIRE(nSeed == nKnowns && nSensitivity == nUnknowns, "fmi3GetDirectionalDerivative",
-            "nSeed must equal nKnowns and nSensitivity nUnknowns (scalar variables)");
-    return s3(fmu_finish(inst, fmu_directional_derivative(inst, unknowns, nUnknowns, knowns, nKnowns, seed,
-                                                          sensitivity)));
+    if (expand(inst, "fmi3GetDirectionalDerivative (unknowns, nSensitivity)", unknowns, nUnknowns, nSensitivity,
+               &u) != fmi2OK) {
+        return fmi3Error;
+    }
+    status = expand(inst, "fmi3GetDirectionalDerivative (knowns, nSeed)", knowns, nKnowns, nSeed, &k);
+    if (status == fmi2OK) status = fmu_directional_derivative(inst, u.vr, u.n, k.vr, k.n, seed, sensitivity);
+    free(u.owned);
+    free(k.owned);
+    return s3(fmu_finish(inst, status));
 }
 
-/* sensitivity = J^T seed with J = d(unknowns)/d(knowns), one column of J per known from the forward derivative
- * (the model has no reverse-mode function): nKnowns forward evaluations, exact, not faster than the
- * directional derivative. */
+/* sensitivity = J^T seed with J = d(unknowns)/d(knowns), one column of J per known element from the forward
+ * derivative (the model has no reverse-mode function): one forward evaluation per known element, exact, not
+ * faster than the directional derivative. */
 fmi3Status fmi3GetAdjointDerivative(fmi3Instance instance, const fmi3ValueReference unknowns[], size_t nUnknowns,
                                     const fmi3ValueReference knowns[], size_t nKnowns, const fmi3Float64 seed[],
                                     size_t nSeed, fmi3Float64 sensitivity[], size_t nSensitivity) {
     const fmi2Real one = 1.0;
-    fmi2Status status = fmi2OK;
-    double *column;
+    fmi2Status status;
+    double *column = NULL;
+    Refs u, k;
     BEGIN("fmi3GetAdjointDerivative", DERIVATIVES);
     REQUIRE((nUnknowns == 0 || (unknowns != NULL && seed != NULL)) &&
             (nKnowns == 0 || (knowns != NULL && sensitivity != NULL)), "fmi3GetAdjointDerivative",
             "a value reference or value array is NULL");
-    REQUIRE(nSeed == nUnknowns && nSensitivity == nKnowns, "fmi3GetAdjointDerivative",
-            "nSeed must equal nUnknowns and nSensitivity nKnowns (scalar variables)");
-    for (size_t i = 0; i < nUnknowns; i++) {
+    for (size_t i = 0; i < nSeed; i++) {
         REQUIRE(isfinite(seed[i]), "fmi3GetAdjointDerivative", "a seed is NaN or infinite");
     }
-    column = (double *)calloc(nUnknowns > 0 ? nUnknowns : 1, sizeof(double));
-    REQUIRE(column != NULL, "fmi3GetAdjointDerivative", "out of memory");
-    for (size_t j = 0; j < nKnowns && status <= fmi2Warning; j++) {
-        fmi2Status s = fmu_directional_derivative(inst, unknowns, nUnknowns, &knowns[j], 1, &one, column);
+    if (expand(inst, "fmi3GetAdjointDerivative (unknowns, nSeed)", unknowns, nUnknowns, nSeed, &u) != fmi2OK) {
+        return fmi3Error;
+    }
+    status = expand(inst, "fmi3GetAdjointDerivative (knowns, nSensitivity)", knowns, nKnowns, nSensitivity, &k);
+    if (status == fmi2OK) {
+        column = (double *)calloc(u.n > 0 ? u.n : 1, sizeof(double));
+        if (column == NULL) status = fmu_fail(inst, "fmi3GetAdjointDerivative", "out of memory");
+    }
+    for (size_t j = 0; j < k.n && status <= fmi2Warning; j++) {
+        fmi2Status s = fmu_directional_derivative(inst, u.vr, u.n, &k.vr[j], 1, &one, column);
         if (s > status) status = s;
         sensitivity[j] = 0.0;
-        for (size_t i = 0; i < nUnknowns; i++) sensitivity[j] += seed[i] * column[i];
+        for (size_t i = 0; i < u.n; i++) sensitivity[j] += seed[i] * column[i];
     }
     free(column);
+    free(u.owned);
+    free(k.owned);
     return s3(fmu_finish(inst, status));
 }
 
