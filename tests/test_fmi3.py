@@ -9,6 +9,7 @@ correspondence (docs/fmi.md), element k of the array at the value reference of F
 
 from __future__ import annotations
 
+import ctypes
 import json
 import os
 import re
@@ -386,6 +387,45 @@ def test_fmi3_derivatives_equal_fmi2_and_adjoint_is_the_transpose(fmi3_fmu, exam
     finally:
         m3.freeInstance()
         m2.freeInstance()
+
+
+def test_fmi3_discarded_step_keeps_the_last_communication_point(fmi3_fmu):
+    """FMI 3.0 §4.2.1: a step the FMU's guards refuse (a torque that bends the link past the model's validity) is
+    fmi3Discard with terminateSimulation, no early return even where allowed, and lastSuccessfulTime the
+    communication point it started from, where the FMU still is: its outputs read as before the step, and the
+    importer may terminate cleanly.  Accepted steps return lastSuccessfulTime = the step's end."""
+    messages: list[str] = []
+    fmu = fmi3_fmu("rotating_link")
+    md = fmpy.read_model_description(str(fmu))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    s = FMU3Slave(guid=md.instantiationToken, unzipDirectory=fmpy.extract(str(fmu)),
+                  modelIdentifier=md.coSimulation.modelIdentifier, instanceName="fmi3")
+    s.instantiate(earlyReturnAllowed=True,
+                  logMessage=lambda env, status, category, message: messages.append(message.decode()))
+    do_step = s.dll.fmi3DoStep          # unchecked: fmpy raises on fmi3Discard and drops the output arguments
+    do_step.restype = ctypes.c_int
+    watched = [vr["hub.theta"], vr["arm.tip.v"], vr["arm.eta"], vr["time"]]
+    try:
+        s.enterInitializationMode(startTime=0.0)
+        s.exitInitializationMode()
+        s.setFloat64([vr["hub.tau"]], [200.0])
+        for k in range(10):
+            flags = [ctypes.c_bool() for _ in range(3)]
+            last = ctypes.c_double()
+            before = s.getFloat64(watched, nValues=6)
+            status = do_step(s.component, ctypes.c_double(0.01 * k), ctypes.c_double(0.01), ctypes.c_bool(True),
+                             *map(ctypes.byref, flags), ctypes.byref(last))
+            if status != 0:
+                break
+            assert [f.value for f in flags] == [False, False, False] and last.value == pytest.approx(0.01 * (k + 1))
+        assert k > 0 and status == 2                                               # fmi3Discard, not at once
+        assert [f.value for f in flags] == [False, True, False]                    # terminateSimulation only
+        assert last.value == before[-1] == pytest.approx(0.01 * k)
+        assert s.getFloat64(watched, nValues=6) == before
+        assert "model's validity" in messages[-1] and "discarded" in messages[-1], messages[-1]
+        s.terminate()
+    finally:
+        s.freeInstance()
 
 
 def test_fmi3_refuses_bad_calls(fmi3_fmu):
