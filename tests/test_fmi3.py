@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import ctypes
 import json
+import math
 import os
 import re
 import shutil
 import subprocess
 import zipfile
+from pathlib import Path
 from xml.etree import ElementTree
 
 import fmpy
@@ -109,13 +111,13 @@ def test_fmi3_model_description_is_valid_and_matches_fmi2(fmi3_fmu, example_fmu,
             assert flags[flag] == "true", (interface, flag)
     # every FMI 2 variable is an FMI 3 scalar at the same value reference, or element k of an array at the
     # reference of element 1, with the same causality, variability, unit, display unit and range; Real is
-    # Float64, Integer Int32
+    # Float64, the one Integer (solver.order) an Enumeration
     v3 = {v.name: v for v in md3.modelVariables}
     elements: dict[str, list[int]] = {}
     for v in md2.modelVariables:
         name3, k = array_of(v.name)
         w = v3[name3]
-        assert w.type == {"Real": "Float64", "Integer": "Int32"}[v.type], v.name
+        assert w.type == {"Real": "Float64", "Integer": "Enumeration"}[v.type], v.name
         assert w.valueReference + (k or 1) - 1 == v.valueReference, v.name
         assert (w.causality, w.variability, w.unit, w.displayUnit) == \
                (v.causality, v.variability, v.unit, v.displayUnit), v.name
@@ -135,6 +137,9 @@ def test_fmi3_model_description_is_valid_and_matches_fmi2(fmi3_fmu, example_fmu,
         assert ks == list(range(1, n + 1)) and v3[name3].shape == (n,), name3
     assert f"element k is FMI 2's {link}.eta[k]" in v3[f"{link}.eta"].description
     assert v3["time"].causality == "independent"
+    # solver.order: its items are the values the FMU accepts, 2 and 4 (3 is refused: test_fmi3_refuses_bad_calls)
+    order = v3["solver.order"].declaredType
+    assert [(i.name, int(i.value)) for i in order.items] == [("SS22", 2), ("SS22_Richardson", 4)]
     assert len(md3.modelVariables) == len(md2.modelVariables) - 5 * (n - 1) + 1
     assert md3.numberOfContinuousStates == md2.numberOfContinuousStates
     # the model structure: the FMI 2 unknowns with their dependencies, an array's elements merged into one
@@ -309,7 +314,7 @@ def test_fmi3_fmu_state_round_trip(fmi3_fmu):
     outputs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
     n_values = sum(size(v) for v in md.modelVariables if v.causality == "output") + 1
     try:
-        s.setInt32([vr["solver.order"]], [4])
+        s.setInt64([vr["solver.order"]], [4])
         s.enterInitializationMode(startTime=0.0)
         s.exitInitializationMode()
 
@@ -389,6 +394,39 @@ def test_fmi3_derivatives_equal_fmi2_and_adjoint_is_the_transpose(fmi3_fmu, exam
         m2.freeInstance()
 
 
+@pytest.mark.parametrize("name", ["rotating_link", "flexible_pendulum"])
+def test_fmi3_display_units_against_fmpys_fmi3_schema(fmi3_fmu, name):
+    """The FMI 3 model description is valid against the FMI 3.0 XML schema fmpy ships (lxml, the schema itself,
+    not fmpy's reader); the variables a user reads or sets carry the display units of FMI 2 (angles deg, rates
+    deg/s with rpm offered, tip deflections mm), with factors computed here; fmpy converts a start value given
+    in degrees through them."""
+    from lxml import etree
+
+    schema = etree.XMLSchema(file=str(Path(fmpy.__file__).parent / "schema" / "fmi3" / "fmi3ModelDescription.xsd"))
+    with zipfile.ZipFile(fmi3_fmu(name)) as z:
+        root = etree.fromstring(z.read("modelDescription.xml"))
+    schema.assertValid(root)
+    offered = {u.get("name"): {d.get("name"): float(d.get("factor")) for d in u.findall("DisplayUnit")}
+               for u in root.find("UnitDefinitions")}
+    assert offered["rad"] == pytest.approx({"deg": 180.0 / math.pi}, rel=1e-15)
+    assert offered["rad/s"] == pytest.approx({"deg/s": 180.0 / math.pi, "rpm": 60.0 / (2.0 * math.pi)}, rel=1e-15)
+    assert offered["m"] == pytest.approx({"mm": 1000.0}, rel=1e-15)
+    shown = {}
+    for v in root.find("ModelVariables"):
+        unit, causality = v.get("unit"), v.get("causality")
+        expected = None if causality in ("local", "independent") else {"rad": "deg", "rad/s": "deg/s"}.get(unit)
+        if unit == "m" and causality == "output" and "deflection" in v.get("description", ""):
+            expected = "mm"
+        assert v.get("displayUnit") == expected, v.get("name")
+        shown[v.get("name")] = expected
+    joint = next(n for n, u in shown.items() if n.endswith(".theta") and u)
+    assert shown[joint] == "deg" and shown[joint.replace(".theta", ".omega")] == "deg/s" and "mm" in shown.values()
+    start = joint.replace(".theta", ".initial_angle")
+    run = fmpy.simulate_fmu(str(fmi3_fmu(name)), stop_time=0.01, output_interval=0.01, output=[joint],
+                            start_values={start: (30.0, "deg")})
+    assert run[joint][0] == pytest.approx(math.pi / 6, rel=1e-15)
+
+
 def test_fmi3_discarded_step_keeps_the_last_communication_point(fmi3_fmu):
     """FMI 3.0 §4.2.1: a step the FMU's guards refuse (a torque that bends the link past the model's validity) is
     fmi3Discard with terminateSimulation, no early return even where allowed, and lastSuccessfulTime the
@@ -433,8 +471,10 @@ def test_fmi3_refuses_bad_calls(fmi3_fmu):
     md, s, vr = slave(fmi3_fmu("rotating_link"))
     statuses = []
     try:
-        for call in (lambda: s.setInt32([vr["solver.order"]], [3]),
-                     lambda: s.setFloat64([vr["solver.order"]], [2.5]),
+        for call in (lambda: s.setInt64([vr["solver.order"]], [3]),
+                     lambda: s.setInt64([vr["solver.order"]], [2**40]),        # not an Int32 behind
+                     lambda: s.setInt32([vr["solver.order"]], [4]),            # an Enumeration: Int64 only
+                     lambda: s.setFloat64([vr["solver.order"]], [4.0]),
                      lambda: s.setFloat64([vr["time"]], [1.0]),
                      lambda: s.setFloat64([10_000], [1.0]),
                      lambda: s.setBoolean([vr["solver.order"]], [True]),
@@ -444,7 +484,7 @@ def test_fmi3_refuses_bad_calls(fmi3_fmu):
                 call()
             statuses.append(int(e.value.status))
             s.reset()
-        assert statuses == [3] * 7                                  # fmi3Error
+        assert statuses == [3] * 9                                  # fmi3Error
         s.enterInitializationMode(startTime=0.0)
         s.exitInitializationMode()
         s.doStep(0.0, 0.01)
@@ -532,6 +572,18 @@ def test_flexlink_check_runs_on_an_fmi3_fmu(fmi3_fmu, tmp_path, capsys):
             out.writestr(item, data)
     assert main(["check", str(bad), "--only", "model-description"]) == 1
     assert "9999" in capsys.readouterr().out
+    # the harness sets and reads the Enumeration solver.order with FMI 3's Int64 functions, an array whole
+    from flexlink.tools.check.fmu import Fmu, free, get_values, start
+
+    f = Fmu(fmu)
+    try:
+        inst = f.instance("CS")
+        start(f, inst, "CS", {"solver.order": 4})
+        assert get_values(inst, [f.vars["solver.order"]]) == [4]
+        assert len(get_values(inst, [f.vars["arm.eta"]])) == 3 and "arm.eta[3]" in f.outputs
+        free(inst)
+    finally:
+        f.close()
 
 
 @pytest.mark.parametrize("cc", ["gcc", MINGW_CC])

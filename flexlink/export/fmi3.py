@@ -2,8 +2,9 @@
 and dependencies (flexlink.export.fmu) in FMI 3's elements, with each link's elastic coordinates as arrays.
 
 What changes against FMI 2: the root's ``instantiationToken`` (the same GUID, checked by fmi3Instantiate*),
-no ``<SourceFiles>`` (``sources/buildDescription.xml`` says it), typed variable elements (``<Float64>``,
-``<Int32>`` for ``solver.order``) carrying their type's attributes, the independent variable ``time`` (value
+no ``<SourceFiles>`` (``sources/buildDescription.xml`` says it), typed variable elements (``<Float64>``, and
+``solver.order`` an ``<Enumeration>`` of its two valid values, read and set with fmi3Get/SetInt64) carrying
+their type's attributes, the independent variable ``time`` (value
 reference N_VARS, after the model's: FMI 3 requires one), ``derivative`` and ``<ModelStructure>`` by value
 reference, and ``<Output>``/``<ContinuousStateDerivative>``/``<InitialUnknown>`` elements.
 
@@ -40,6 +41,16 @@ from flexlink.export.variables import FmuVariable
 from flexlink.mechanics.model import SymbolicModel
 
 FMI3_TYPE = {"Real": "Float64", "Integer": "Int32"}
+#: FMI 2 Integer variables that FMI 3 declares as an Enumeration: name → (type name, description, items
+#: (name, value, description)); the values are the only ones the C glue accepts (fmu_src/variables.c)
+ENUMERATIONS = {
+    "solver.order": ("flexlink.SolverOrder", "order of the Co-Simulation integrator", (
+        ("SS22", 2, "SS22: second order, unconditionally stable with Theta2 >= Theta1 >= 1/2"),
+        ("SS22_Richardson", 4, "SS22 (Theta = 1/2) with Richardson extrapolation: fourth order, for resolved "
+                               "scenes (a step with omega_max * dt > 0.3 is refused)"))),
+}
+#: The type codes of FMI3_TYPES in fmi3_layout.c (fmi3Functions.c: FMI3_FLOAT64, FMI3_INT32, FMI3_ENUMERATION)
+TYPE_CODE = {"Float64": 0, "Int32": 1, "Enumeration": 2}
 #: The generated C file that tells fmi3Functions.c which value references are arrays.
 LAYOUT_SOURCE = "fmi3_layout.c"
 # the variable kinds that carry one value per coordinate: an elastic coordinate's output, state, rate, derivatives
@@ -63,6 +74,11 @@ class Fmi3Variable:
     variable: FmuVariable          # the FMI 2 variable of the first element (kind, causality, unit, ...)
     description: str
     array: bool = False
+
+    @property
+    def type(self) -> str:
+        """The FMI 3 element: Float64, Int32, or Enumeration (ENUMERATIONS)."""
+        return "Enumeration" if self.name in ENUMERATIONS else FMI3_TYPE[self.variable.type]
 
 
 def _link_layouts(model: SymbolicModel) -> dict[str, str]:
@@ -144,8 +160,9 @@ def _variables(layout: list[Fmi3Variable], n_vars: int) -> list[str]:
     lines = ["  <ModelVariables>"]
     for f in layout:
         v = dataclasses.replace(f.variable, name=f.name, description=f.description)
-        attrs = variable_attributes(f.vr, v) + type_attributes(v, 0)
-        element = FMI3_TYPE[v.type]
+        declared = [f'declaredType="{ENUMERATIONS[f.name][0]}"'] if f.type == "Enumeration" else []
+        attrs = variable_attributes(f.vr, v) + declared + type_attributes(v, 0)
+        element = f.type
         if f.array:
             lines.append(f'    <{element} {" ".join(attrs)}><Dimension start="{f.size}"/></{element}>')
         else:
@@ -153,6 +170,18 @@ def _variables(layout: list[Fmi3Variable], n_vars: int) -> list[str]:
     lines.append(f'    <Float64 name="time" valueReference="{n_vars}" causality="independent" '
                  'variability="continuous" description="simulation time" unit="s"/>')
     lines.append("  </ModelVariables>")
+    return lines
+
+
+def _type_definitions() -> list[str]:
+    """``<TypeDefinitions>``: the enumeration types of ENUMERATIONS."""
+    lines = ["  <TypeDefinitions>"]
+    for name, description, items in ENUMERATIONS.values():
+        lines.append(f"    <EnumerationType name={quoteattr(name)} description={quoteattr(description)}>")
+        lines += [f'      <Item name={quoteattr(n)} value="{value}" description={quoteattr(d)}/>'
+                  for n, value, d in items]
+        lines.append("    </EnumerationType>")
+    lines.append("  </TypeDefinitions>")
     return lines
 
 
@@ -185,18 +214,27 @@ def _model_structure(model: SymbolicModel, gen: GeneratedModel, layout: list[Fmi
 def write_layout(model: SymbolicModel, gen: GeneratedModel, directory: Path) -> str:
     """``fmi3_layout.c`` in ``directory``: FMI3_ELEMENTS[vr], the number of values of FMI 3 value reference vr
     (1: a scalar; n: an array of the FMI 2 references vr … vr + n − 1; 0: an element of an array, not a
-    variable of the FMI 3 FMU).  Returns the file's name."""
+    variable of the FMI 3 FMU), and FMI3_TYPES[vr] (TYPE_CODE: which fmi3Get/Set functions take it).  Returns
+    the file's name."""
     counts = [0] * len(gen.variables)
+    types = [0] * len(gen.variables)
     for f in fmi3_variables(model, gen.variables):
         counts[f.vr] = f.size
-    rows = ",\n".join("    " + ", ".join(map(str, counts[i:i + 20])) for i in range(0, len(counts), 20))
+        types[f.vr:f.vr + f.size] = [TYPE_CODE[f.type]] * f.size
+
+    def rows(values):
+        return ",\n".join("    " + ", ".join(map(str, values[i:i + 20])) for i in range(0, len(values), 20))
+
     (Path(directory) / LAYOUT_SOURCE).write_text(
         f"/* {LAYOUT_SOURCE} -- generated by flexlink.export.fmi3 for the scene {model.scene.name}: the number of\n"
         " * values of each FMI 3.0 value reference (1: scalar; n: an array of n consecutive FMI 2 variables; 0: not\n"
-        " * an FMI 3 variable but a later element of an array).  Read by fmi3Functions.c. */\n"
+        " * an FMI 3 variable but a later element of an array) and its type (0: Float64, 1: Int32, 2: Enumeration,\n"
+        " * read and set as Int64).  Read by fmi3Functions.c. */\n"
         '#include "model.h"\n\n'
         "extern const int FMI3_ELEMENTS[N_VARS];\n"
-        f"const int FMI3_ELEMENTS[N_VARS] = {{\n{rows}\n}};\n")
+        "extern const unsigned char FMI3_TYPES[N_VARS];\n"
+        f"const int FMI3_ELEMENTS[N_VARS] = {{\n{rows(counts)}\n}};\n"
+        f"const unsigned char FMI3_TYPES[N_VARS] = {{\n{rows(types)}\n}};\n")
     return LAYOUT_SOURCE
 
 
@@ -214,6 +252,7 @@ def model_description_fmi3(model: SymbolicModel, gen: GeneratedModel) -> str:
         '  variableNamingConvention="structured">',
         *_interfaces(gen.identifier),
         *unit_definitions(units),
+        *_type_definitions(),
         *log_categories_and_experiment(scene),
         *_variables(layout, len(gen.variables)),
         *_model_structure(model, gen, layout),

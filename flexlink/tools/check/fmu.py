@@ -210,10 +210,19 @@ def excite_value(v):
     return None
 
 
+def _fmi3_integer(inst, v, verb: str):
+    """An FMI 3 instance's own function for an integer variable (an Enumeration is an Int64), else None."""
+    if not isinstance(inst, Fmi3AsFmi2) or v.type not in ("Enumeration", *INTEGER_TYPES):
+        return None
+    return getattr(inst.inst, verb + ("Int64" if v.type == "Enumeration" else v.type))
+
+
 def set_value(inst, v, value) -> None:
-    """fmi2Set<type> for one variable, by its type."""
+    """fmi2Set<type> for one variable, by its type (FMI 3: the integer type's own)."""
     vr = [v.valueReference]
-    if v.type in REAL_TYPES:
+    if _fmi3_integer(inst, v, "set") is not None:
+        _fmi3_integer(inst, v, "set")(vr, [int(value)])
+    elif v.type in REAL_TYPES:
         inst.setReal(vr, [float(value)])
     elif v.type in ("Enumeration", *INTEGER_TYPES):
         inst.setInteger(vr, [int(value)])
@@ -228,7 +237,9 @@ def get_values(inst, variables) -> list:
     out = []
     for v in variables:
         vr = [v.valueReference]
-        if v.type in REAL_TYPES:
+        if _fmi3_integer(inst, v, "get") is not None:
+            out += _fmi3_integer(inst, v, "get")(vr)
+        elif v.type in REAL_TYPES:
             out += inst.getReal(vr)
         elif v.type in ("Enumeration", *INTEGER_TYPES):
             out += inst.getInteger(vr)
