@@ -379,6 +379,12 @@ def test_fmi3_derivatives_equal_fmi2_and_adjoint_is_the_transpose(fmi3_fmu, exam
         m3.updateDiscreteStates()
         m3.enterContinuousTimeMode()
         m3.setContinuousStates(x.ctypes.data_as(fmpy.fmi2.POINTER(fmpy.fmi2.c_double)), len(x))
+        # the state and derivative arrays read whole are the state vector's and derivative vector's elements
+        dx = np.zeros(len(x))
+        m3.getContinuousStateDerivatives(dx.ctypes.data_as(fmpy.fmi2.POINTER(fmpy.fmi2.c_double)), len(x))
+        arrays = m3.getFloat64([vr[n] for n in ("q.arm.eta", "v.arm.eta", "der(q.arm.eta)", "der(v.arm.eta)")],
+                               nValues=12)
+        assert arrays == [*x[1:4], *x[5:8], *dx[1:4], *dx[5:8]] and np.any(dx[5:8] != 0)
         J = np.array([m3.getDirectionalDerivative(u3, k3, list(np.eye(len(k2))[j]), nSensitivity=len(u2))
                       for j in range(len(k2))]).T
         J2 = np.array([m2.getDirectionalDerivative(u2, [k], [1.0]) for k in k2]).T
