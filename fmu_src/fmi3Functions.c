@@ -3,27 +3,40 @@
  * FMI 2.0 layer (fmi2Functions.c, not compiled into an FMI 3 FMU) calls.
  *
  * The internal functions keep FMI 2's types: fmi3Float64 is fmi2Real (double), fmi3ValueReference is
- * fmi2ValueReference (32-bit unsigned), fmi3Int32 is fmi2Integer on every platform built for (checked below),
- * and the statuses OK..Fatal have the same values.  What differs is translated here: instantiation (FMI 3
+ * fmi2ValueReference (32-bit unsigned), and the statuses OK..Fatal have the same values; integers are copied
+ * between fmi3Int32/fmi3Int64 and fmi2Integer.  What differs is translated here: instantiation (FMI 3
  * passes a log-message callback and no memory functions: the instance gets an FMI 2 callback record whose
  * logger forwards to it and whose memory is the C library's), fmi3Boolean (a bool, fmi2Boolean an int), the
  * independent variable `time` (value reference N_VARS, after the model's variables), and the arrays of the
  * event-update and step functions.
  *
- * Scalar variables only (no arrays); no clocks, no event mode in Co-Simulation, no early return, no
- * intermediate update, no configuration mode: those functions answer fmi3Error with the reason.  Messages from
- * the functions behind cosimulation.h name the FMI 2 function they were written for (fmi2SetReal for
- * fmi3SetFloat64 and so on). */
+ * Arrays: a link's elastic coordinates (and their states, rates and derivatives) are Float64 arrays whose value
+ * reference is the FMI 2 reference of their first element; element k is FMI 2's reference + k - 1.  The
+ * generated fmi3_layout.c says how many values each reference holds (FMI3_ELEMENTS), and the functions taking
+ * value references expand them into FMI 2 references before they call cosimulation.h.
+ *
+ * Types: each reference is read and set with its type's functions only (FMI3_TYPES): Float64, and the
+ * Enumeration solver.order with fmi3GetInt64/fmi3SetInt64; no Int32 variables.
+ *
+ * No clocks, no event mode in Co-Simulation, no early return, no intermediate update, no configuration mode:
+ * those functions answer fmi3Error with the reason.  Messages from the functions behind cosimulation.h name the
+ * FMI 2 function they were written for (fmi2SetReal for fmi3SetFloat64 and so on). */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 #include "fmi3Functions.h"
 #include "cosimulation.h"
 
-/* fmi3Int32 values are handed to fmu_set_integer as fmi2Integer: the same size (a compile error otherwise) */
-typedef char fmi3_int32_is_fmi2_integer[sizeof(fmi3Int32) == sizeof(fmi2Integer) ? 1 : -1];
-
 #define TIME_VR ((fmi3ValueReference)N_VARS)   /* the independent variable "time" */
+
+/* fmi3_layout.c (generated): values of FMI 3 value reference vr < N_VARS: 1 a scalar, n an array of the FMI 2
+ * references vr .. vr+n-1, 0 a later element of an array (not an FMI 3 variable); and its FMI 3 type */
+extern const int FMI3_ELEMENTS[N_VARS];
+extern const unsigned char FMI3_TYPES[N_VARS];
+enum { FMI3_FLOAT64, FMI3_INT32, FMI3_ENUMERATION };   /* the codes of FMI3_TYPES */
+static const char *const TYPE_NAME[] = {"Float64", "Int32", "Enumeration"};
+static const char *const TYPE_API[] = {"fmi3GetFloat64/fmi3SetFloat64", "fmi3GetInt32/fmi3SetInt32",
+                                       "fmi3GetInt64/fmi3SetInt64"};
 
 #define SETTABLE (PHASE_INSTANTIATED | PHASE_INITIALIZATION | PHASE_STEP | PHASE_EVENT | PHASE_CONTINUOUS)
 #define READABLE (PHASE_INITIALIZATION | PHASE_STEP | PHASE_TERMINATED | PHASE_ERROR | PHASE_EVENT | \
@@ -206,65 +219,186 @@ fmi3Status fmi3Reset(fmi3Instance instance) {
     return fmi3OK;
 }
 
+/* ================================================================= arrays */
+
+/* FMI 3 value references expanded into FMI 2 ones (time and unknown references pass through, one value each, for
+ * the functions behind to answer); `vr` points at the caller's array when no reference is an array. */
+typedef struct {
+    const fmi2ValueReference *vr;
+    fmi2ValueReference *owned;
+    size_t n;
+} Refs;
+
+/* The number of values of reference vr, or 0 after an error message (vr is a later element of an array). */
+static size_t values_of(Instance *inst, const char *function, fmi3ValueReference vr) {
+    fmi3ValueReference head = vr;
+    if (vr >= N_VARS || FMI3_ELEMENTS[vr] > 0) return vr >= N_VARS ? 1 : (size_t)FMI3_ELEMENTS[vr];
+    while (head > 0 && FMI3_ELEMENTS[head] == 0) head--;
+    fmu_error(inst, "%s: value reference %u (FMI 2's %s) is not a variable of this FMI 3.0 FMU: it is element %u of "
+              "the array at value reference %u, read and set through that reference", function, (unsigned)vr,
+              MODEL_VARS[vr].name, (unsigned)(vr - head + 1), (unsigned)head);
+    return 0;
+}
+
+/* refs = vr[0..nvr) expanded; expected: the number of values the caller passed (nValues, nSeed, ...). */
+static fmi2Status expand(Instance *inst, const char *function, const fmi3ValueReference vr[], size_t nvr,
+                         size_t expected, Refs *refs) {
+    size_t total = 0, k, j = 0;
+    refs->vr = vr;
+    refs->owned = NULL;
+    refs->n = nvr;
+    for (size_t i = 0; i < nvr; i++) {
+        k = values_of(inst, function, vr[i]);
+        if (k == 0) return fmu_finish(inst, fmi2Error);
+        total += k;
+    }
+    if (total != expected) {
+        fmu_error(inst, "%s: the value references hold %lu values, not %lu (an array holds as many values as its "
+                  "<Dimension>)", function, (unsigned long)total, (unsigned long)expected);
+        return fmu_finish(inst, fmi2Error);
+    }
+    if (total == nvr) return fmi2OK;
+    refs->owned = (fmi2ValueReference *)calloc(total, sizeof(fmi2ValueReference));
+    if (refs->owned == NULL) return fmu_fail(inst, function, "out of memory");
+    for (size_t i = 0; i < nvr; i++) {
+        for (k = 0; k < values_of(inst, function, vr[i]); k++) refs->owned[j++] = vr[i] + (fmi2ValueReference)k;
+    }
+    refs->vr = refs->owned;
+    refs->n = total;
+    return fmi2OK;
+}
+
+/* Every reference is of the function's type (time is a Float64; an unknown reference passes, for the functions
+ * behind to refuse): the FMI 2 layer's leniency (fmi2GetReal on solver.order) is not carried into FMI 3. */
+static fmi2Status of_type(Instance *inst, const char *function, const fmi3ValueReference vr[], size_t nvr, int type) {
+    for (size_t i = 0; i < nvr; i++) {
+        const int is = vr[i] < N_VARS ? FMI3_TYPES[vr[i]] : FMI3_FLOAT64;
+        if (vr[i] > N_VARS || is == type) continue;
+        fmu_error(inst, "%s: %s (value reference %u) is %s %s: read and set it with %s", function,
+                  vr[i] < N_VARS ? MODEL_VARS[vr[i]].name : "time", (unsigned)vr[i],
+                  is == FMI3_ENUMERATION ? "an" : "a", TYPE_NAME[is], TYPE_API[is]);
+        return fmu_finish(inst, fmi2Error);
+    }
+    return fmi2OK;
+}
+
 /* ======================================================= getting and setting values */
 
 fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
                           fmi3Float64 values[], size_t nValues) {
     fmi2Status status = fmi2OK, one;
+    Refs refs;
     BEGIN("fmi3GetFloat64", READABLE);
     REQUIRE(nValueReferences == 0 || (valueReferences != NULL && values != NULL), "fmi3GetFloat64",
             "valueReferences or values is NULL");
-    REQUIRE(nValues == nValueReferences, "fmi3GetFloat64", "nValues must equal nValueReferences (scalar variables)");
-    for (size_t i = 0; i < nValueReferences; i++) {
-        if (valueReferences[i] == TIME_VR) {
+    if (of_type(inst, "fmi3GetFloat64", valueReferences, nValueReferences, FMI3_FLOAT64) != fmi2OK) return fmi3Error;
+    if (expand(inst, "fmi3GetFloat64", valueReferences, nValueReferences, nValues, &refs) != fmi2OK) return fmi3Error;
+    for (size_t i = 0; i < refs.n; i++) {
+        if (refs.vr[i] == TIME_VR) {
             values[i] = inst->d.time;
             continue;
         }
-        one = fmu_get_real(inst, &valueReferences[i], 1, &values[i]);   /* outputs are computed once */
-        if (one > fmi2Warning) return s3(fmu_finish(inst, one));
+        one = fmu_get_real(inst, &refs.vr[i], 1, &values[i]);   /* outputs are computed once */
         if (one > status) status = one;
+        if (one > fmi2Warning) break;
     }
-    return s3(status);
+    free(refs.owned);
+    return s3(status > fmi2Warning ? fmu_finish(inst, status) : status);
 }
 
 fmi3Status fmi3SetFloat64(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
                           const fmi3Float64 values[], size_t nValues) {
+    fmi2Status status;
+    Refs refs;
     BEGIN("fmi3SetFloat64", SETTABLE);
     REQUIRE(nValueReferences == 0 || (valueReferences != NULL && values != NULL), "fmi3SetFloat64",
             "valueReferences or values is NULL");
-    REQUIRE(nValues == nValueReferences, "fmi3SetFloat64", "nValues must equal nValueReferences (scalar variables)");
     for (size_t i = 0; i < nValueReferences; i++) {
         REQUIRE(valueReferences[i] != TIME_VR, "fmi3SetFloat64",
                 "time is the independent variable: Co-Simulation advances it with fmi3DoStep, Model Exchange sets "
                 "it with fmi3SetTime");
     }
-    return s3(fmu_finish(inst, fmu_set_real(inst, valueReferences, nValueReferences, values)));
+    if (of_type(inst, "fmi3SetFloat64", valueReferences, nValueReferences, FMI3_FLOAT64) != fmi2OK) return fmi3Error;
+    if (expand(inst, "fmi3SetFloat64", valueReferences, nValueReferences, nValues, &refs) != fmi2OK) return fmi3Error;
+    status = fmu_set_real(inst, refs.vr, refs.n, values);
+    free(refs.owned);
+    return s3(fmu_finish(inst, status));
+}
+
+/* Int32 and Int64 (the Enumeration solver.order): one value per reference, kept as fmi2Integer behind. */
+static fmi3Status get_integers(Instance *inst, const char *function, int type, const fmi3ValueReference vr[],
+                               size_t nvr, fmi3Int32 *values32, fmi3Int64 *values64, size_t nValues) {
+    fmi2Integer one;
+    fmi2Status status;
+    REQUIRE(nvr == 0 || (vr != NULL && (values32 != NULL || values64 != NULL)), function,
+            "valueReferences or values is NULL");
+    REQUIRE(nValues == nvr, function, "nValues must equal nValueReferences (no integer arrays)");
+    if (of_type(inst, function, vr, nvr, type) != fmi2OK) return fmi3Error;
+    for (size_t i = 0; i < nvr; i++) {
+        status = fmu_get_integer(inst, &vr[i], 1, &one);
+        if (status > fmi2Warning) return s3(fmu_finish(inst, status));
+        if (values32 != NULL) values32[i] = (fmi3Int32)one;
+        else values64[i] = (fmi3Int64)one;
+    }
+    return fmi3OK;
+}
+
+static fmi3Status set_integers(Instance *inst, const char *function, int type, const fmi3ValueReference vr[],
+                               size_t nvr, const fmi3Int32 *values32, const fmi3Int64 *values64, size_t nValues) {
+    fmi2Integer *values;
+    fmi2Status status;
+    REQUIRE(nvr == 0 || (vr != NULL && (values32 != NULL || values64 != NULL)), function,
+            "valueReferences or values is NULL");
+    REQUIRE(nValues == nvr, function, "nValues must equal nValueReferences (no integer arrays)");
+    if (of_type(inst, function, vr, nvr, type) != fmi2OK) return fmi3Error;
+    values = (fmi2Integer *)calloc(nvr > 0 ? nvr : 1, sizeof(fmi2Integer));
+    REQUIRE(values != NULL, function, "out of memory");
+    for (size_t i = 0; i < nvr; i++) {
+        const fmi3Int64 x = values32 != NULL ? (fmi3Int64)values32[i] : values64[i];
+        if (x < -2147483647 - 1 || x > 2147483647) {
+            free(values);
+            fmu_error(inst, "%s: %s = %lld: not a value of its type", function,
+                      vr[i] < N_VARS ? MODEL_VARS[vr[i]].name : "?", (long long)x);
+            return s3(fmu_finish(inst, fmi2Error));
+        }
+        values[i] = (fmi2Integer)x;
+    }
+    status = fmu_set_integer(inst, vr, nvr, values);
+    free(values);
+    return s3(fmu_finish(inst, status));
 }
 
 fmi3Status fmi3GetInt32(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
                         fmi3Int32 values[], size_t nValues) {
     BEGIN("fmi3GetInt32", READABLE);
-    REQUIRE(nValueReferences == 0 || (valueReferences != NULL && values != NULL), "fmi3GetInt32",
-            "valueReferences or values is NULL");
-    REQUIRE(nValues == nValueReferences, "fmi3GetInt32", "nValues must equal nValueReferences (scalar variables)");
-    return s3(fmu_finish(inst, fmu_get_integer(inst, valueReferences, nValueReferences, (fmi2Integer *)values)));
+    return get_integers(inst, "fmi3GetInt32", FMI3_INT32, valueReferences, nValueReferences, values, NULL, nValues);
 }
 
 fmi3Status fmi3SetInt32(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
                         const fmi3Int32 values[], size_t nValues) {
     BEGIN("fmi3SetInt32", SETTABLE);
-    REQUIRE(nValueReferences == 0 || (valueReferences != NULL && values != NULL), "fmi3SetInt32",
-            "valueReferences or values is NULL");
-    REQUIRE(nValues == nValueReferences, "fmi3SetInt32", "nValues must equal nValueReferences (scalar variables)");
-    return s3(fmu_finish(inst, fmu_set_integer(inst, valueReferences, nValueReferences,
-                                               (const fmi2Integer *)values)));
+    return set_integers(inst, "fmi3SetInt32", FMI3_INT32, valueReferences, nValueReferences, values, NULL, nValues);
+}
+
+fmi3Status fmi3GetInt64(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
+                        fmi3Int64 values[], size_t nValues) {
+    BEGIN("fmi3GetInt64", READABLE);
+    return get_integers(inst, "fmi3GetInt64", FMI3_ENUMERATION, valueReferences, nValueReferences, NULL, values,
+                        nValues);
+}
+
+fmi3Status fmi3SetInt64(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
+                        const fmi3Int64 values[], size_t nValues) {
+    BEGIN("fmi3SetInt64", SETTABLE);
+    return set_integers(inst, "fmi3SetInt64", FMI3_ENUMERATION, valueReferences, nValueReferences, NULL, values,
+                        nValues);
 }
 
 /* The types this FMU has no variable of: any value reference is unknown. */
 static fmi3Status no_variables(Instance *inst, const char *function, const fmi3ValueReference vr[], size_t nvr) {
     if (nvr == 0) return fmi3OK;
     if (vr == NULL) return s3(fmu_fail(inst, function, "valueReferences is NULL"));
-    fmu_error(inst, "%s: unknown value reference %u (this FMU has Float64 and Int32 variables only)", function,
+    fmu_error(inst, "%s: unknown value reference %u (this FMU has Float64 and Enumeration variables only)", function,
               (unsigned)vr[0]);
     return s3(fmu_finish(inst, fmi2Error));
 }
@@ -290,7 +424,6 @@ NO_VARIABLES(UInt8, fmi3UInt8)
 NO_VARIABLES(Int16, fmi3Int16)
 NO_VARIABLES(UInt16, fmi3UInt16)
 NO_VARIABLES(UInt32, fmi3UInt32)
-NO_VARIABLES(Int64, fmi3Int64)
 NO_VARIABLES(UInt64, fmi3UInt64)
 NO_VARIABLES(Boolean, fmi3Boolean)
 NO_VARIABLES(String, fmi3String)
@@ -371,43 +504,57 @@ fmi3Status fmi3DeserializeFMUState(fmi3Instance instance, const fmi3Byte seriali
 fmi3Status fmi3GetDirectionalDerivative(fmi3Instance instance, const fmi3ValueReference unknowns[], size_t nUnknowns,
                                         const fmi3ValueReference knowns[], size_t nKnowns, const fmi3Float64 seed[],
                                         size_t nSeed, fmi3Float64 sensitivity[], size_t nSensitivity) {
+    fmi2Status status;
+    Refs u, k;
     BEGIN("fmi3GetDirectionalDerivative", DERIVATIVES);
     REQUIRE((nUnknowns == 0 || (unknowns != NULL && sensitivity != NULL)) &&
             (nKnowns == 0 || (knowns != NULL && seed != NULL)), "fmi3GetDirectionalDerivative",
             "a value reference or value array is NULL");
-    REQUIRE(nSeed == nKnowns && nSensitivity == nUnknowns, "fmi3GetDirectionalDerivative",
-            "nSeed must equal nKnowns and nSensitivity nUnknowns (scalar variables)");
-    return s3(fmu_finish(inst, fmu_directional_derivative(inst, unknowns, nUnknowns, knowns, nKnowns, seed,
-                                                          sensitivity)));
+    if (expand(inst, "fmi3GetDirectionalDerivative (unknowns, nSensitivity)", unknowns, nUnknowns, nSensitivity,
+               &u) != fmi2OK) {
+        return fmi3Error;
+    }
+    status = expand(inst, "fmi3GetDirectionalDerivative (knowns, nSeed)", knowns, nKnowns, nSeed, &k);
+    if (status == fmi2OK) status = fmu_directional_derivative(inst, u.vr, u.n, k.vr, k.n, seed, sensitivity);
+    free(u.owned);
+    free(k.owned);
+    return s3(fmu_finish(inst, status));
 }
 
-/* sensitivity = J^T seed with J = d(unknowns)/d(knowns), one column of J per known from the forward derivative
- * (the model has no reverse-mode function): nKnowns forward evaluations, exact, not faster than the
- * directional derivative. */
+/* sensitivity = J^T seed with J = d(unknowns)/d(knowns), one column of J per known element from the forward
+ * derivative (the model has no reverse-mode function): one forward evaluation per known element, exact, not
+ * faster than the directional derivative. */
 fmi3Status fmi3GetAdjointDerivative(fmi3Instance instance, const fmi3ValueReference unknowns[], size_t nUnknowns,
                                     const fmi3ValueReference knowns[], size_t nKnowns, const fmi3Float64 seed[],
                                     size_t nSeed, fmi3Float64 sensitivity[], size_t nSensitivity) {
     const fmi2Real one = 1.0;
-    fmi2Status status = fmi2OK;
-    double *column;
+    fmi2Status status;
+    double *column = NULL;
+    Refs u, k;
     BEGIN("fmi3GetAdjointDerivative", DERIVATIVES);
     REQUIRE((nUnknowns == 0 || (unknowns != NULL && seed != NULL)) &&
             (nKnowns == 0 || (knowns != NULL && sensitivity != NULL)), "fmi3GetAdjointDerivative",
             "a value reference or value array is NULL");
-    REQUIRE(nSeed == nUnknowns && nSensitivity == nKnowns, "fmi3GetAdjointDerivative",
-            "nSeed must equal nUnknowns and nSensitivity nKnowns (scalar variables)");
-    for (size_t i = 0; i < nUnknowns; i++) {
+    for (size_t i = 0; i < nSeed; i++) {
         REQUIRE(isfinite(seed[i]), "fmi3GetAdjointDerivative", "a seed is NaN or infinite");
     }
-    column = (double *)calloc(nUnknowns > 0 ? nUnknowns : 1, sizeof(double));
-    REQUIRE(column != NULL, "fmi3GetAdjointDerivative", "out of memory");
-    for (size_t j = 0; j < nKnowns && status <= fmi2Warning; j++) {
-        fmi2Status s = fmu_directional_derivative(inst, unknowns, nUnknowns, &knowns[j], 1, &one, column);
+    if (expand(inst, "fmi3GetAdjointDerivative (unknowns, nSeed)", unknowns, nUnknowns, nSeed, &u) != fmi2OK) {
+        return fmi3Error;
+    }
+    status = expand(inst, "fmi3GetAdjointDerivative (knowns, nSensitivity)", knowns, nKnowns, nSensitivity, &k);
+    if (status == fmi2OK) {
+        column = (double *)calloc(u.n > 0 ? u.n : 1, sizeof(double));
+        if (column == NULL) status = fmu_fail(inst, "fmi3GetAdjointDerivative", "out of memory");
+    }
+    for (size_t j = 0; j < k.n && status <= fmi2Warning; j++) {
+        fmi2Status s = fmu_directional_derivative(inst, u.vr, u.n, &k.vr[j], 1, &one, column);
         if (s > status) status = s;
         sensitivity[j] = 0.0;
-        for (size_t i = 0; i < nUnknowns; i++) sensitivity[j] += seed[i] * column[i];
+        for (size_t i = 0; i < u.n; i++) sensitivity[j] += seed[i] * column[i];
     }
     free(column);
+    free(u.owned);
+    free(k.owned);
     return s3(fmu_finish(inst, status));
 }
 

@@ -167,7 +167,7 @@ def test_fmu_cache_key_covers_the_c_sources_and_templates(tmp_path, monkeypatch)
     monkeypatch.setattr(fmu_module, "fmu_src_dir", lambda: src)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
 
-    def build(scene, path, model=None):                   # no compiler: only the cache key is tested
+    def build(scene, path, model=None, **_):                # no compiler: only the cache key is tested
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         Path(path).write_bytes(b"")
 
@@ -200,7 +200,7 @@ def test_generated_code_optimisation_level(monkeypatch, tmp_path):
         generated_code_optimisation(10)
     keys = []
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
-    monkeypatch.setattr(fmu_module, "build_fmu", lambda scene, path, model=None: None)
+    monkeypatch.setattr(fmu_module, "build_fmu", lambda scene, path, model=None, **_: None)
     for level in ("O0", "O2"):
         monkeypatch.setenv("FLEXLINK_OPTIMISE", level)
         keys.append(fmu_module.cached_fmu(EXAMPLES[0]))

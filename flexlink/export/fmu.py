@@ -359,6 +359,10 @@ def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, ke
         for h in fmi_headers(fmi_version):
             shutil.copyfile(h, src / h.name)
         c_files = [*generic_sources(fmi_version), *(p.name for p in gen.sources)]
+        if fmi_version == 3:      # which FMI 3 value references are arrays (flexlink.export.fmi3)
+            from flexlink.export.fmi3 import write_layout
+
+            c_files.append(write_layout(model, gen, src))
         (src / "buildDescription.xml").write_text(build_description(gen.identifier, c_files))
         libraries = [work / "binaries" / PLATFORM_FOLDER[fmi_version][platform]
                      / f"{gen.identifier}{LIBRARY_SUFFIX[platform]}" for platform in platforms]
@@ -399,10 +403,11 @@ def cache_dir() -> Path:
     return Path(base) / "flexlink"
 
 
-def cached_fmu(scene, model=None) -> Path:
-    """The FMU of a scene file (or of a Scene object), rebuilt only when the scene's content, flexlink or the
-    C sources change.  The key is the parsed scene, so a file and the same Scene object share one FMU.
-    Concurrent callers (Dask workers, test processes) build it once: the first holds a lock file."""
+def cached_fmu(scene, model=None, fmi_version: int = 2) -> Path:
+    """The FMU of a scene file (or of a Scene object), FMI 2.0 or with ``fmi_version=3`` FMI 3.0, rebuilt only
+    when the scene's content, flexlink or the C sources change.  The key is the parsed scene, so a file and the
+    same Scene object share one FMU.  Concurrent callers (Dask workers, test processes) build it once: the
+    first holds a lock file."""
     if not isinstance(scene, Scene):
         scene = load_scene(scene)             # first: a missing or bad file is a SceneError
     h = hashlib.sha256(repr(dataclasses.replace(scene, path=None)).encode())
@@ -415,12 +420,13 @@ def cached_fmu(scene, model=None) -> Path:
             h.update(f.read_bytes())
     for f in sorted(Path(flexlink.__file__).parent.rglob("*.py")):
         h.update(f.read_bytes())
-    path = cache_dir() / f"{scene.model_identifier}-{h.hexdigest()[:16]}.fmu"
+    version = "" if fmi_version == 2 else f"-fmi{fmi_version}"
+    path = cache_dir() / f"{scene.model_identifier}{version}-{h.hexdigest()[:16]}.fmu"
     if not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
         with _exclusive(path.with_suffix(".lock")):
             if not path.exists():             # built by another process while this one waited
-                build_fmu(scene, path, model=model)
+                build_fmu(scene, path, model=model, fmi_version=fmi_version)
     return path
 
 

@@ -2,13 +2,14 @@
  * MinGW-w64: LoadLibrary of the x86_64-windows .dll under Wine); tests/test_windows.py runs both on the same
  * FMI 3 FMU and compares what they print.
  *
- * usage: cross_host3 cs|me LIBRARY TOKEN N_VARS N_STATES STOP STEP [VR=VALUE ...]
+ * usage: cross_host3 cs|me LIBRARY TOKEN VRS N_VALUES N_STATES STOP STEP [VR=VALUE ...]
  *   cs: Co-Simulation, fmi3DoStep from 0 to STOP with communication step STEP;
  *   me: Model Exchange, classical Runge-Kutta 4 on the N_STATES states (step STEP) through fmi3SetTime /
  *       fmi3SetContinuousStates / fmi3GetContinuousStateDerivatives and fmi3CompletedIntegratorStep;
  *   VR=VALUE: fmi3SetFloat64 before initialisation.
- * Prints one row per communication point: the time and the values of value references 0..N_VARS-1 read with
- * fmi3GetFloat64, each as the 16 hex digits of its IEEE 754 bits.  Exits 0 when every call returned fmi3OK,
+ * Prints one row per communication point: the time and the N_VALUES values of the value references VRS (comma-
+ * separated; an array reference holds all its elements) read with one fmi3GetFloat64, each as the 16 hex digits
+ * of its IEEE 754 bits.  Exits 0 when every call returned fmi3OK,
  * 1 otherwise (the failing call on stderr), 2 on bad usage. */
 #include <stdint.h>
 #include <stdio.h>
@@ -39,7 +40,7 @@ static struct { FUNCTIONS(DECLARE) } F;
 
 static struct {
     const char *mode, *library, *token;
-    size_t n_vars, n_states;
+    size_t n_vrs, n_values, n_states;
     double stop, h;
     int n_set;
     char **set;
@@ -72,9 +73,9 @@ static void print_bits(double x) {
 }
 
 static int print_row(fmi3Instance c, double t) {
-    CHECK(F.GetFloat64(c, VR, A.n_vars, VALUES, A.n_vars));
+    CHECK(F.GetFloat64(c, VR, A.n_vrs, VALUES, A.n_values));
     print_bits(t);
-    for (size_t i = 0; i < A.n_vars; i++) print_bits(VALUES[i]);
+    for (size_t i = 0; i < A.n_values; i++) print_bits(VALUES[i]);
     putchar('\n');
     return 0;
 }
@@ -157,22 +158,29 @@ static int model_exchange(void) {
     }
 
 int main(int argc, char **argv) {
-    if (argc < 8 || (strcmp(argv[1], "cs") != 0 && strcmp(argv[1], "me") != 0)) {
-        fprintf(stderr, "usage: %s cs|me LIBRARY TOKEN N_VARS N_STATES STOP STEP [VR=VALUE ...]\n", argv[0]);
+    const char *list;
+    char *end;
+    if (argc < 9 || (strcmp(argv[1], "cs") != 0 && strcmp(argv[1], "me") != 0)) {
+        fprintf(stderr, "usage: %s cs|me LIBRARY TOKEN VRS N_VALUES N_STATES STOP STEP [VR=VALUE ...]\n", argv[0]);
         return 2;
     }
     A.mode = argv[1]; A.library = argv[2]; A.token = argv[3];
-    A.n_vars = (size_t)atol(argv[4]); A.n_states = (size_t)atol(argv[5]);
-    A.stop = atof(argv[6]); A.h = atof(argv[7]);
-    A.set = argv + 8;
-    A.n_set = argc - 8;
+    list = argv[4];
+    A.n_values = (size_t)atol(argv[5]); A.n_states = (size_t)atol(argv[6]);
+    A.stop = atof(argv[7]); A.h = atof(argv[8]);
+    A.set = argv + 9;
+    A.n_set = argc - 9;
     for (int k = 0; k < A.n_set; k++) {
         if (strchr(A.set[k], '=') == NULL) { fprintf(stderr, "not VR=VALUE: %s\n", A.set[k]); return 2; }
     }
     FUNCTIONS(LOAD)
-    VR = malloc(A.n_vars * sizeof *VR);
-    VALUES = malloc(A.n_vars * sizeof *VALUES);
-    for (size_t i = 0; i < A.n_vars; i++) VR[i] = (fmi3ValueReference)i;
+    VR = malloc((strlen(list) + 1) * sizeof *VR);      /* at most one reference per character */
+    VALUES = malloc((A.n_values > 0 ? A.n_values : 1) * sizeof *VALUES);
+    for (A.n_vrs = 0; *list != '\0'; A.n_vrs++) {
+        VR[A.n_vrs] = (fmi3ValueReference)strtoul(list, &end, 10);
+        if (end == list || (*end != ',' && *end != '\0')) { fprintf(stderr, "VRS: not a list: %s\n", argv[4]); return 2; }
+        list = *end == ',' ? end + 1 : end;
+    }
     const int status = strcmp(A.mode, "cs") == 0 ? cosimulation() : model_exchange();
     fflush(stdout);
     free(VR);

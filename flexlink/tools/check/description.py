@@ -9,6 +9,7 @@ import time
 import xml.etree.ElementTree as ET
 
 from flexlink.tools.check import isolation
+from flexlink.tools.check.arrays import size as array_size
 from flexlink.tools.check.findings import CheckResult, Finding
 from flexlink.tools.check.fmu import WARNING, Fmu, call, free, quiet_callbacks
 
@@ -66,7 +67,7 @@ def _read_back(f: Fmu, kind: str) -> list[Finding]:
             except Exception as e:    # a library that does not load, a GUID that differs, ...
                 return found + [Finding("loads", f"{kind}: {type(e).__name__}: {e}", sequence=isolation.recent())]
         getter = getattr(inst.inst, getters[v.type]) if f.fmi3 else getattr(inst, getters[v.type])
-        if call(getter, [v.valueReference]) > WARNING:
+        if call(getter, [v.valueReference], *([array_size(v)] if f.fmi3 else [])) > WARNING:   # FMI 3 arrays: whole
             found.append(Finding("value-reference", f"{kind}: value reference {v.valueReference} of {name} "
                                                     f"({v.type}) is refused by the binary",
                                  sequence=isolation.recent(3)))

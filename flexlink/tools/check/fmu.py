@@ -19,6 +19,9 @@ import tempfile
 
 import numpy as np
 
+from flexlink.tools.check.arrays import Elements
+from flexlink.tools.check.arrays import size as array_size
+
 OK, WARNING, DISCARD, ERROR, FATAL = range(5)
 INTERFACES = {"CS": "coSimulation", "ME": "modelExchange"}
 FLEXLINK_VARIABLES = ("solver.step", "solver.theta1")
@@ -40,9 +43,25 @@ class Fmi3AsFmi2:
                "getDerivatives": "getContinuousStateDerivatives", "newDiscreteStates": "updateDiscreteStates",
                "fmi2FreeInstance": "fmi3FreeInstance"}
 
-    def __init__(self, inst):
+    def __init__(self, inst, elements=None):
         self.__dict__["inst"] = inst
         self.__dict__["experiment"] = {"startTime": 0.0}
+        self.__dict__["elements"] = elements      # arrays.Elements: Float64 arrays seen as their elements
+
+    def getReal(self, vr):
+        if not self.elements:
+            return self.inst.getFloat64(vr)
+        return self.elements.get(self.inst.getFloat64, vr)
+
+    def setReal(self, vr, values):
+        if not self.elements:
+            return self.inst.setFloat64(vr, values)
+        return self.elements.set(self.inst.getFloat64, self.inst.setFloat64, vr, values)
+
+    def getDirectionalDerivative(self, unknowns, knowns, seed):
+        if not self.elements:
+            return self.inst.getDirectionalDerivative(unknowns, knowns, seed)
+        return self.elements.directional(self.inst.getDirectionalDerivative, unknowns, knowns, seed)
 
     def __getattr__(self, name):
         return getattr(self.inst, self.RENAMED.get(name, name))
@@ -83,15 +102,20 @@ class Fmu:
         self.vars = {v.name: v for v in md.modelVariables}
         self.vr = {v.name: v.valueReference for v in md.modelVariables}
         self.fmi3 = md.fmiVersion.startswith("3")
+        # FMI 3 Float64 arrays: the numerical checks see their elements X[k] (pseudo value references that
+        # Fmi3AsFmi2 turns into whole-array calls); array inputs and tunable arrays are left out of them
+        self.elements = Elements(md.modelVariables if self.fmi3 else [])
+        self.vr.update(self.elements.names)
         real = [v for v in md.modelVariables if v.type in REAL_TYPES and v.causality != "independent"]
+        scalar = [v for v in real if array_size(v) == 1]
         # Real variables by role (the numerical checks work on these); typed_* hold every type
-        self.outputs = [v.name for v in real if v.causality == "output"]
-        self.inputs = [v.name for v in real if v.causality == "input"]
-        self.tunable = [v.name for v in real if v.causality == "parameter" and v.variability == "tunable"]
-        self.typed_inputs = [v for v in md.modelVariables if v.causality == "input"]
+        self.outputs = self.elements.scalar_names([v.name for v in real if v.causality == "output"])
+        self.inputs = [v.name for v in scalar if v.causality == "input"]
+        self.tunable = [v.name for v in scalar if v.causality == "parameter" and v.variability == "tunable"]
+        self.typed_inputs = [v for v in md.modelVariables if v.causality == "input" and array_size(v) == 1]
         self.typed_outputs = [v for v in md.modelVariables if v.causality == "output"]
-        self.states = [u.variable.derivative.name for u in md.derivatives]
-        self.derivatives = [u.variable.name for u in md.derivatives]
+        self.states = self.elements.scalar_names([u.variable.derivative.name for u in md.derivatives])
+        self.derivatives = self.elements.scalar_names([u.variable.name for u in md.derivatives])
         self.nx = len(self.derivatives)
         self.nz = int(md.numberOfEventIndicators or 0)
         self.interfaces = [k for k in ("CS", "ME") if k in interfaces and getattr(md, INTERFACES[k]) is not None]
@@ -134,7 +158,7 @@ class Fmu:
         inst = cls(guid=self.md.instantiationToken if self.fmi3 else self.md.guid, unzipDirectory=self.dir,
                    modelIdentifier=getattr(self.md, INTERFACES[kind]).modelIdentifier, instanceName=name)
         inst._vr = self.vr
-        return Fmi3AsFmi2(inst) if self.fmi3 else inst
+        return Fmi3AsFmi2(inst, self.elements) if self.fmi3 else inst
 
     # ------------------------------------------------------------------ values
     def excitation(self) -> dict[str, object]:
@@ -186,10 +210,19 @@ def excite_value(v):
     return None
 
 
+def _fmi3_integer(inst, v, verb: str):
+    """An FMI 3 instance's own function for an integer variable (an Enumeration is an Int64), else None."""
+    if not isinstance(inst, Fmi3AsFmi2) or v.type not in ("Enumeration", *INTEGER_TYPES):
+        return None
+    return getattr(inst.inst, verb + ("Int64" if v.type == "Enumeration" else v.type))
+
+
 def set_value(inst, v, value) -> None:
-    """fmi2Set<type> for one variable, by its type."""
+    """fmi2Set<type> for one variable, by its type (FMI 3: the integer type's own)."""
     vr = [v.valueReference]
-    if v.type in REAL_TYPES:
+    if _fmi3_integer(inst, v, "set") is not None:
+        _fmi3_integer(inst, v, "set")(vr, [int(value)])
+    elif v.type in REAL_TYPES:
         inst.setReal(vr, [float(value)])
     elif v.type in ("Enumeration", *INTEGER_TYPES):
         inst.setInteger(vr, [int(value)])
@@ -204,7 +237,9 @@ def get_values(inst, variables) -> list:
     out = []
     for v in variables:
         vr = [v.valueReference]
-        if v.type in REAL_TYPES:
+        if _fmi3_integer(inst, v, "get") is not None:
+            out += _fmi3_integer(inst, v, "get")(vr)
+        elif v.type in REAL_TYPES:
             out += inst.getReal(vr)
         elif v.type in ("Enumeration", *INTEGER_TYPES):
             out += inst.getInteger(vr)
