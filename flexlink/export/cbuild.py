@@ -55,7 +55,8 @@ def fmi_headers(fmi_version: int = 2) -> list[Path]:
 
 
 #: The generic headers they include (copied into an FMU's ``sources/`` with them).
-GENERIC_HEADERS: tuple[str, ...] = ("model.h", "cosimulation.h", "internal.h", "ss22.h", "linalg.h")
+GENERIC_HEADERS: tuple[str, ...] = ("model.h", "solver_settings.h", "cosimulation.h", "internal.h", "ss22.h",
+                                    "linalg.h")
 
 #: Flags of every FMU build (generated CasADi code included).
 CFLAGS: tuple[str, ...] = (

@@ -31,6 +31,7 @@ from flexlink.export.cbuild import BuildError, fmu_src_dir
 from flexlink.export.derivatives import forward_functions
 from flexlink.export.variables import FmuVariable, fmu_variables
 from flexlink.mechanics.model import SymbolicModel
+from flexlink.scene.solver import SETTINGS
 
 # Scalar (SX) code is fast to run.  Each generated function is its own translation unit (compiled side by
 # side), at -O2 up to FULL_OPTIMISATION_MAX_OPERATIONS and -O1 above: -O1 runs large straight-line code as
@@ -71,9 +72,6 @@ def _optimise_pragma(level: str) -> str:
     if level == "O2":
         return ""
     return f'#pragma GCC optimize ("{level}")  /* large straight-line code */\n'
-
-
-SOLVER_SETTINGS = ("SOLVER_STEP", "SOLVER_THETA1", "SOLVER_THETA2", "SOLVER_TOLERANCE", "SOLVER_ORDER")
 
 
 @dataclass
@@ -197,7 +195,7 @@ def _variable_rows(variables: list[FmuVariable]) -> str:
     """The rows of ``MODEL_VARS``: name, kind, index, start, min, max, min_exclusive, tunable, integer."""
     rows = []
     for v in variables:
-        index = SOLVER_SETTINGS[v.index] if v.kind == "VAR_SOLVER" else str(v.index)
+        index = SETTINGS[v.index].c_name if v.kind == "VAR_SOLVER" else str(v.index)
         rows.append(f'    {{"{v.name}", {v.kind}, {index}, {_c(v.start)}, {_c(v.min)}, {_c(v.max)}, '
                     f"{int(v.min_exclusive)}, {int(v.variability == 'tunable' or v.causality == 'input')}, "
                     f"{int(v.type == 'Integer')}}},")

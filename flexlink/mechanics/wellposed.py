@@ -53,8 +53,8 @@ def check_step_matrix(model: SymbolicModel) -> None:
     # for the step matrix itself, whose Jacobian takes seconds to form on a large chain
     if not _free_coordinates(np.asarray(model.mass_matrix_function()(q, u, p))):
         return
-    theta1, theta2 = model.scene.fmu.theta
-    dt = model.scene.fmu.step
+    theta1, theta2 = model.scene.fmu.solver.theta
+    dt = model.scene.fmu.solver.step
     J = np.asarray(model.newton_matrix_function()(q, v, np.zeros(model.n_q), u, p, 1.0, theta1 * dt,
                                                   theta2 * 0.5 * dt * dt))
     free = _free_coordinates(J)

@@ -12,6 +12,7 @@ Python loop are not charged: the FMU is timed with one fmi2DoStep per input swit
 
 from __future__ import annotations
 
+import dataclasses
 import statistics
 import time
 from dataclasses import dataclass, field
@@ -137,7 +138,8 @@ def bench_ss22(case: BenchCase, fmu, steps, thetas, ref, repeats: int = 5, order
     method = "ss22 (FMU)" if order == 2 else "ss22 order 4 (FMU, Richardson)"
     for theta in thetas:
         for h in steps:
-            start = {"solver.step": h, "solver.theta1": theta[0], "solver.theta2": theta[1], "solver.order": order}
+            settings = dataclasses.replace(case.model.scene.fmu.solver, step=h, theta=theta, order=order)
+            start = settings.start_values()
             setting = f"step={h:g}" + ("" if theta == (0.5, 0.5) else f", theta={theta[0]:g}/{theta[1]:g}")
             with SlaveRunner(fmu) as runner:      # a fresh instance: a refused setting leaves its own broken
                 try:

@@ -50,7 +50,7 @@ def explain(scene_path) -> dict:
     model = build_model(scene)
     modes = natural_frequencies(model)
     f_max = max(modes.frequencies_hz) if modes.frequencies_hz else 0.0
-    step = 1.0 / (STEPS_PER_PERIOD * f_max) if f_max > 0 else scene.fmu.step
+    step = 1.0 / (STEPS_PER_PERIOD * f_max) if f_max > 0 else scene.fmu.solver.step
     return {
         "scene": scene.name,
         "bodies": body_lines(scene),
@@ -67,7 +67,7 @@ def explain(scene_path) -> dict:
         "frequencies_hz": modes.frequencies_hz,
         "unstable_hz": modes.unstable_hz,
         "recommended_step": step,
-        "scene_step": scene.fmu.step,
+        "scene_step": scene.fmu.solver.step,
     }
 
 
