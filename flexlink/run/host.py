@@ -75,7 +75,8 @@ def set_start_values(instance: Any, variables: Iterable[Any], values: Mapping[st
     """Set values through an fmpy instance with the setter of each variable's type.
 
     ``setInteger`` for an Integer (``solver.order``), ``setReal`` otherwise.  ``variables``: the model
-    description's variables (any iterable of fmpy ScalarVariables)."""
+    description's variables (any iterable of fmpy ScalarVariables).
+    """
     by_name = {v.name: v for v in variables}
     for name, value in (values or {}).items():
         v = by_name[name]
@@ -147,8 +148,11 @@ class FmuHost:
         self.statuses.append(int(status))
 
     def call(self, function: str, f: Callable[..., Any], *args: Any) -> Any:
-        """``f(*args)``, an fmpy call of FMI ``function``; a refusal becomes one :class:`FmuCallError` with
-        the messages the FMU logged during the call (the last three), or a note that it logged none."""
+        """Call ``f(*args)``, an fmpy call of FMI ``function``.
+
+        A refusal becomes one :class:`FmuCallError` with the messages the FMU logged during the call (the
+        last three), or a note that it logged none.
+        """
         seen = len(self.messages)
         try:
             return f(*args)
@@ -191,8 +195,11 @@ class FmuHost:
 
     def initialize(self, start: Mapping[str, float] | None = None, *, start_time: float = 0.0,
                    tolerance: float | None = None) -> None:
-        """Reset (after a first initialisation), set ``start`` values by type, set up the experiment and
-        pass through initialisation mode."""
+        """Reset (after a first initialisation), set ``start`` values, and initialise.
+
+        Each start value goes through its type's setter; then the experiment is set up and the instance
+        passes through initialisation mode.
+        """
         s = self.instance
         if not self._fresh:
             self.call("fmi2Reset", s.reset)
@@ -203,11 +210,13 @@ class FmuHost:
         self.call("fmi2ExitInitializationMode", s.exitInitializationMode)
 
     def solver_statistics(self) -> dict[str, int]:
-        """The integrator's counters of the run just made (SS22 steps, Newton iterations, factorisations,
-        residual evaluations), read from the FMU's ``logStatistics`` message at fmi2Terminate.
+        """Read the integrator's counters of the run just made from the FMU's ``logStatistics`` message.
+
+        SS22 steps, Newton iterations, factorisations and residual evaluations, logged at fmi2Terminate.
 
         Ends the run (the next :meth:`initialize` resets the instance).  Empty for an FMU without that
-        category."""
+        category.
+        """
         self.messages.clear()
         self.instance.setDebugLogging(True, ["logStatistics"])
         self.call("fmi2Terminate", self.instance.terminate)
@@ -257,8 +266,11 @@ def _route(environment, instance, status, category, message) -> None:
 
 
 def install_router() -> None:
-    """Point fmpy's process-wide logger proxy back at our router (fmpy.simulate_fmu replaces it with a
-    logger that dies with the call; a message after that would call freed memory)."""
+    """Point fmpy's process-wide logger proxy back at our router.
+
+    fmpy.simulate_fmu replaces it with a logger that dies with the call; a message after that would call
+    freed memory.
+    """
     global _ROUTER
     from ctypes import byref
 
@@ -279,7 +291,8 @@ def logging_callbacks(logger: Callable[..., None]) -> Any:
     """fmi2CallbackFunctions whose messages reach ``logger(component, instance, status, category, message)``.
 
     Keep the returned object alive while the instance lives; :func:`release_logging_callbacks` ends the
-    route."""
+    route.
+    """
     from ctypes import byref, c_void_p
 
     from fmpy import calloc, free
@@ -305,4 +318,4 @@ def logging_callbacks(logger: Callable[..., None]) -> Any:
 
 def release_logging_callbacks(callbacks: Any) -> None:
     """End the route of callbacks made by :func:`logging_callbacks` (the instance is freed)."""
-    _ROUTES.pop(getattr(callbacks, "route_key", None), None)
+    _ROUTES.pop(getattr(callbacks, "route_key", 0), None)

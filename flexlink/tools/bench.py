@@ -23,6 +23,7 @@ import numpy as np
 from flexlink.errors import FlexlinkError
 from flexlink.mechanics.model import SymbolicModel
 from flexlink.mechanics.reference import simulate_reference
+from flexlink.run.host import FmuCallError, FmuHost
 
 
 @dataclass
@@ -105,18 +106,15 @@ def reference_outputs(case: BenchCase, rtol: float = 1e-12) -> dict[str, np.ndar
 
 # ------------------------------------------------------------------------------------------- the FMU
 
-def time_slave(slave, vr: dict, case: BenchCase, start: dict, repeats: int) -> float:
-    """Median CPU seconds per simulated second of an instantiated FMU2Slave over ``case``: reset, ``start``
-    set, then one fmi2DoStep per input switch, so that no Python loop is charged."""
+def time_slave(host: FmuHost, case: BenchCase, start: dict, repeats: int) -> float:
+    """Median CPU seconds per simulated second of a Co-Simulation :class:`FmuHost` over ``case``: reset,
+    ``start`` set (each with its type's setter), then one fmi2DoStep per input switch, so that no Python loop
+    is charged."""
+    slave, vr = host.instance, host.vr
     bounds = [0.0, *case.switches, case.stop]
     cpu = []
     for _ in range(repeats):
-        slave.reset()
-        for name, value in start.items():
-            slave.setReal([vr[name]], [value])
-        slave.setupExperiment(startTime=0.0)
-        slave.enterInitializationMode()
-        slave.exitInitializationMode()
+        host.initialize(start)
         t0 = time.process_time()
         for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
             u = case.inputs_at(lo)
@@ -130,8 +128,6 @@ def time_slave(slave, vr: dict, case: BenchCase, start: dict, repeats: int) -> f
 def bench_ss22(case: BenchCase, fmu, steps, thetas, ref, repeats: int = 5, order: int = 2) -> list[BenchRow]:
     """SS22 through the FMU at each step and Θ: cost, error, and the integrator's work per internal step.
     A setting the FMU refuses is recorded as a failed row with the FMU's reason, and the study goes on."""
-    from fmpy.fmi1 import FMICallException
-
     from flexlink.run.simulate import SlaveRunner
 
     rows = []
@@ -146,9 +142,9 @@ def bench_ss22(case: BenchCase, fmu, steps, thetas, ref, repeats: int = 5, order
                     res = runner.run(case.stop, float(case.times[1] - case.times[0]), inputs=case.inputs_at,
                                      start=start, outputs=case.outputs)
                     stats = runner.solver_statistics()
-                    cost = time_slave(runner.slave, runner.vr, case, start, repeats)
-                except FMICallException:
-                    reason = runner.messages[-1] if runner.messages else "the FMU refused the step"
+                    cost = time_slave(runner, case, start, repeats)
+                except FmuCallError as e:
+                    reason = e.reason
                     rows.append(BenchRow(method, setting, float("nan"), float("nan"), failure=reason))
                     continue
             per_step = {k: stats[k] / stats["steps"] for k in ("factorisations", "newton_iterations")} \

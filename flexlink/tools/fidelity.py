@@ -185,7 +185,7 @@ class _Runs:
     def cost(self, step: float, repeats: int) -> float:
         from flexlink.tools.bench import time_slave
 
-        return time_slave(self.runner.slave, self.runner.vr, self.case, {"solver.step": step}, repeats)
+        return time_slave(self.runner, self.case, {"solver.step": step}, repeats)
 
     def close(self) -> None:
         self.runner.close()
