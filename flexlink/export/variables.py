@@ -17,6 +17,8 @@ BIG = 1e300   # "no bound" in the C tables (finite, so the glue can compare)
 
 @dataclass(frozen=True)
 class FmuVariable:
+    """One FMU variable: its name, where its value lives in the C tables, and its model-description attributes."""
+
     name: str
     kind: str                 # VAR_PARAMETER | VAR_START_Q | VAR_START_V | VAR_SOLVER | VAR_INPUT | VAR_OUTPUT
     #                           | VAR_STATE_Q | VAR_STATE_V | VAR_DER_Q | VAR_DER_V (Model Exchange)
@@ -35,6 +37,7 @@ class FmuVariable:
 
     @property
     def tunable(self) -> bool:
+        """Whether the host may set it after initialisation (a tunable parameter or an input)."""
         return self.variability == "tunable" or self.causality == "input"
 
 
@@ -90,8 +93,11 @@ def fmu_variables(model: SymbolicModel, feedthrough: dict[int, tuple[int, ...]] 
 
 
 def _unit(model: SymbolicModel, i: int, order: int) -> str:
-    """Unit of coordinate i's order-th time derivative: that of the output of the same name (rad for a
-    joint angle, m for nodal FE displacements, none for modal amplitudes), per s, per s²."""
+    """Unit of coordinate i's order-th time derivative.
+
+    That of the output of the same name (rad for a joint angle, m for nodal FE displacements, none for modal
+    amplitudes), per s, per s².
+    """
     c = model.coordinates[i]
     base = next((s.unit for s in model.outputs if s.name == c), "rad" if c.endswith(".theta") else "")
     if base not in ("m", "rad"):

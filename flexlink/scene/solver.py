@@ -81,8 +81,10 @@ class SolverSettings:
             raise ValueError(f"solver.{problem[0]}: {problem[1]}")
 
     def problem(self) -> tuple[str, str] | None:
-        """The first invalid setting as (name, what it must be), or None: the one rule the FMU also applies
-        at ``fmi2ExitInitializationMode``."""
+        """The first invalid setting as (name, what it must be), or None.
+
+        The same rule as the FMU's at ``fmi2ExitInitializationMode``.
+        """
         th1, th2 = self.theta
         if not (math.isfinite(self.step) and self.step > 0):
             return "step", f"a positive number (s), got {self.step!r}"

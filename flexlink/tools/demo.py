@@ -16,6 +16,7 @@ EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "rotating_link.toml
 
 
 def run_demo(out: str | Path = "out") -> int:
+    """Build the example FMU, run it, compare it with CVODES, and write its plot and CSV into ``out``."""
     import fmpy
 
     from flexlink.export.fmu import build_fmu
