@@ -20,7 +20,7 @@ import os
 import re
 import shutil
 from collections.abc import Callable, Iterable, Mapping
-from typing import Any
+from typing import Any, Self
 
 from fmpy.fmi1 import FMICallException
 
@@ -245,7 +245,7 @@ class FmuHost:
             shutil.rmtree(self._unzipdir, ignore_errors=True)
             self._unzipdir = None
 
-    def __enter__(self) -> FmuHost:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:
