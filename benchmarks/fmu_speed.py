@@ -67,7 +67,7 @@ def main() -> None:
             for k in range(max(1, min(3, args.repeats))):
                 rep = build_fmu(scene, Path(tmp) / f"{scene.model_identifier}-{k}.fmu")
                 builds.append(sum(rep.seconds.values()))
-            step = scene.fmu.step
+            step = scene.fmu.solver.step
             sim_time = min(args.sim_time, 2000 * step)        # at most 2000 steps of the large models
             walls = time_fmu(rep.fmu, sim_time, step, args.repeats)
             wall = statistics.median(walls)

@@ -51,7 +51,7 @@ def _scene(scene_path: str, stop: float, timeout: float) -> dict:
     fmu = cached_fmu(scene, model=model)
     ref = reference_outputs(case, rtol=REFERENCE_RTOL)
     sample = float(case.times[1] - case.times[0])
-    h = sample / math.ceil(sample / scene.fmu.step - 1e-9)   # the scene's step, a divisor of the output interval
+    h = sample / math.ceil(sample / scene.fmu.solver.step - 1e-9)   # the scene's step, a divisor of the output interval
 
     def ss22():
         t0 = time.process_time()

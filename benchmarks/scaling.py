@@ -87,7 +87,7 @@ def measure(scene, *, builds: int, repeats: int) -> dict:
             walls.append(time.perf_counter() - t0)
         model = build_model(scene)
         exe = compile_driver(report.fmu, tmp)
-        step = measure_step(exe, report.fmu, default_case(model, stop=3.0), step=scene.fmu.step, repeats=repeats)
+        step = measure_step(exe, report.fmu, default_case(model, stop=3.0), step=scene.fmu.solver.step, repeats=repeats)
     return {"scene": scene.name, "n_q": model.n_q, "bodies": len(scene.links),
             "build_s": statistics.median(walls), "build_parts_s": report.seconds,
             "generated_bytes": report.generated_c_bytes, "operations": report.operations,

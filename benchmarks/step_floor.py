@@ -104,7 +104,7 @@ def measure_scene(scene_path: str | Path, *, step: float | None = None, orders=(
             fmu = build_fmu(scene, Path(tmp) / "floor.fmu", model=model).fmu
         exe = compile_driver(fmu, tmp)
         for order in orders:
-            r = measure(exe, fmu, case, step=step or scene.fmu.step, order=order, repeats=repeats)
+            r = measure(exe, fmu, case, step=step or scene.fmu.solver.step, order=order, repeats=repeats)
             r["scene"] = Path(scene_path).stem
             rows.append(r)
     return rows

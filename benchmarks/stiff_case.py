@@ -73,7 +73,7 @@ def ss22_run(fmu, case, coords: list[str], step: float, theta: float, repeats: i
     sample = float(case.times[1] - case.times[0])
     with SlaveRunner(fmu) as runner:
         res = runner.run(case.stop, sample, inputs=case.inputs_at, start=start, outputs=coords)
-        cost = time_slave(runner.slave, runner.vr, case, start, repeats)
+        cost = time_slave(runner, case, start, repeats)
     Q = np.column_stack([res[name] for name in coords])
     return cost, Q
 

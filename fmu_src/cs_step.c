@@ -4,11 +4,7 @@
 #include <string.h>
 #include "internal.h"
 
-#define SUBSTEP_MAX 8              /* a failed internal step is retried as 2, 4, ... SUBSTEP_MAX sub-steps */
-/* The most internal steps one fmi2DoStep takes: its time stays bounded (about 10 s at 10 µs a step) and the
- * step count cannot overflow (solver.step = 1e-300 once made it one step).  A doStep that needs more is
- * refused (fmi2Discard, the FMU unchanged): a larger solver.step or shorter communication steps. */
-#define DOSTEP_MAX_INTERNAL_STEPS 1000000.0
+/* SUBSTEP_MAX and DOSTEP_MAX_INTERNAL_STEPS: solver_settings.h (from flexlink/scene/solver.py) */
 
 /* ====================================================================== doStep */
 

@@ -60,10 +60,10 @@ static const char *solver_name(int setting) {
 static void set_start_values(FmuData *d) {
     memset(d, 0, sizeof(*d));
     d->phase = PHASE_INSTANTIATED;
-    d->solver[SOLVER_THETA1] = 0.5;
-    d->solver[SOLVER_THETA2] = 0.5;
-    d->solver[SOLVER_TOLERANCE] = 1e-10;
-    d->solver[SOLVER_ORDER] = 2;
+    d->solver[SOLVER_THETA1] = SOLVER_DEFAULT_THETA;
+    d->solver[SOLVER_THETA2] = SOLVER_DEFAULT_THETA;
+    d->solver[SOLVER_TOLERANCE] = SOLVER_DEFAULT_TOLERANCE;
+    d->solver[SOLVER_ORDER] = SOLVER_ORDER_SS22;
 #ifdef DEFAULT_STEP
     d->solver[SOLVER_STEP] = DEFAULT_STEP;
 #endif
@@ -247,7 +247,7 @@ fmi2Status fmu_exit_initialization(Instance *inst) {
         return fmu_error(inst, "fmi2ExitInitializationMode: %s = %g: must be > 0",
                          solver_name(SOLVER_STEP), step);
     }
-    if (!(theta1 >= 0.5 && theta2 >= theta1 && theta2 <= 1.0)) {
+    if (!(theta1 >= SOLVER_THETA_MIN && theta2 >= theta1 && theta2 <= SOLVER_THETA_MAX)) {
         return fmu_error(inst, "fmi2ExitInitializationMode: SS22 needs 0.5 <= %s <= %s <= 1 (unconditional "
                          "stability), got %g and %g", solver_name(SOLVER_THETA1), solver_name(SOLVER_THETA2),
                          theta1, theta2);
@@ -256,11 +256,12 @@ fmi2Status fmu_exit_initialization(Instance *inst) {
         return fmu_error(inst, "fmi2ExitInitializationMode: %s = %g: must be > 0",
                          solver_name(SOLVER_TOLERANCE), tolerance);
     }
-    if (d->solver[SOLVER_ORDER] != 2 && d->solver[SOLVER_ORDER] != 4) {
+    if (d->solver[SOLVER_ORDER] != SOLVER_ORDER_SS22 && d->solver[SOLVER_ORDER] != SOLVER_ORDER_RICHARDSON) {
         return fmu_error(inst, "fmi2ExitInitializationMode: %s = %g: must be 2 (SS22) or 4 (SS22 with "
                          "Richardson extrapolation)", solver_name(SOLVER_ORDER), d->solver[SOLVER_ORDER]);
     }
-    if (d->solver[SOLVER_ORDER] == 4 && !(theta1 == 0.5 && theta2 == 0.5)) {
+    if (d->solver[SOLVER_ORDER] == SOLVER_ORDER_RICHARDSON &&
+        !(theta1 == SOLVER_THETA_MIN && theta2 == SOLVER_THETA_MIN)) {
         return fmu_error(inst, "fmi2ExitInitializationMode: %s = 4 extrapolates the symmetric SS22: it needs "
                          "%s = %s = 0.5, got %g and %g", solver_name(SOLVER_ORDER), solver_name(SOLVER_THETA1),
                          solver_name(SOLVER_THETA2), theta1, theta2);

@@ -55,7 +55,6 @@ void fmu_free_all_states(Instance *inst);
 
 /* richardson.c: fmi2OK if order 4 is stable at internal steps of dt (w_max dt <= RICHARDSON_MAX_OMEGA_STEP,
  * w_max found at the current state and parameters when not known), else fmi2Discard with the reason. */
-#define RICHARDSON_MAX_OMEGA_STEP 0.3
 fmi2Status fmu_check_richardson(Instance *inst, double dt);
 
 #endif /* FLEXLINK_INTERNAL_H */

@@ -23,6 +23,7 @@
 
 #include <stddef.h>
 #include "config.h"
+#include "solver_settings.h"   /* SolverSetting and the solver's limits, from flexlink/scene/solver.py */
 
 /* ---------------------------------------------------------------- variables */
 
@@ -38,12 +39,6 @@ typedef enum {
     VAR_DER_Q,       /* derivative of the state q[index]: v[index]                          */
     VAR_DER_V        /* derivative of the state v[index]: the acceleration a[index]         */
 } VarKind;
-
-/* SOLVER_ORDER (an Integer variable): 2 (SS22) or 4 (SS22 with Θ = ½ and one Richardson extrapolation per internal step:
- * fourth order for resolved modes, but unresolved ones are amplified, so only for non-stiff scenes). */
-typedef enum {
-    SOLVER_STEP, SOLVER_THETA1, SOLVER_THETA2, SOLVER_TOLERANCE, SOLVER_ORDER, N_SOLVER_SETTINGS
-} SolverSetting;
 
 typedef struct {
     const char *name;     /* the FMU variable name, for messages                           */

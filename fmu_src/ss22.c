@@ -9,7 +9,7 @@ void ss22_init(SS22 *s, double theta1, double theta2, double tolerance) {
     s->theta1 = theta1;
     s->theta2 = theta2;
     s->tolerance = tolerance;
-    s->max_iterations = 20;
+    s->max_iterations = SS22_MAX_ITERATIONS;
 }
 
 void ss22_invalidate(SS22 *s) {

@@ -35,7 +35,7 @@ SOURCE = "docs.toml"
 QUICK_START = (
     "python3 -m venv .venv && .venv/bin/pip install -q -e . && .venv/bin/flexlink demo",
     "python3 -m venv .venv && .venv/bin/pip install -q -e '.[test]' && .venv/bin/ruff check . && "
-    ".venv/bin/lint-imports && .venv/bin/pytest -q -n auto --dist loadfile",
+    ".venv/bin/lint-imports && .venv/bin/mypy && .venv/bin/pytest -q -n auto --dist loadfile",
 )
 
 

@@ -37,4 +37,4 @@ def test_explicit_euler_is_refused_not_returned_diverged(rotating_link):
     it, with fmi2Discard at fmi2CompletedIntegratorStep (the validity or finiteness guard)."""
     scene, case, fmu, _ = rotating_link
     with pytest.raises(FMICallException, match="discard"):
-        run_model_exchange(case, fmu, solver="Euler", step_size=scene.fmu.step)
+        run_model_exchange(case, fmu, solver="Euler", step_size=scene.fmu.solver.step)

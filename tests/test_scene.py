@@ -33,6 +33,7 @@ from flexlink.scene.schema import (
     Link,
     section_keys,
 )
+from flexlink.scene.solver import SolverSettings
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 SOURCE = "scenes/bad.toml"
@@ -152,7 +153,7 @@ def test_defaults_follow_scene_md() -> None:
     assert link.shapes == Shapes("clamped-free", 3)
     assert link.kinematics == "second-order" and link.initial_deformation == "undeformed"
     assert link.payload == Payload(0.0, 0.0, (0.0, 0.0, 0.0)) and not link.payload.is_present
-    assert s.fmu == FmuSettings(1e-3, "ss22", (0.5, 0.5), 1e-10, (), False)
+    assert s.fmu == FmuSettings(SolverSettings(1e-3, (0.5, 0.5), 1e-10), "ss22", (), False)
     assert (j.origin, j.rpy) == ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)) and s.tool == Tool()
     assert not link.is_rigid and (link.mass, link.center_of_mass, link.inertia) == (None, None, None)
 
@@ -206,7 +207,7 @@ def test_model_identifier(name: str, ident: str) -> None:
 def test_fmu_settings_read() -> None:
     d = minimal()
     d["fmu"] = {"step": 2e-4, "theta": [0.6, 0.9], "tolerance": 1e-8, "tip_load_inputs": True}
-    assert parse_scene(d).fmu == FmuSettings(2e-4, "ss22", (0.6, 0.9), 1e-8, (), True)
+    assert parse_scene(d).fmu == FmuSettings(SolverSettings(2e-4, (0.6, 0.9), 1e-8), "ss22", (), True)
 
 
 # ----------------------------------------------------------------------------------------- trajectory

@@ -48,14 +48,17 @@ def generic_sources(fmi_version: int = 2) -> tuple[str, ...]:
 
 
 def fmi_headers(fmi_version: int = 2) -> list[Path]:
-    """fmpy's FMI headers an FMU's sources need: FMI 2's always (the functions behind the API layer use its
-    types), FMI 3's too for an FMI 3 FMU."""
+    """Fmpy's FMI headers an FMU's sources need.
+
+    FMI 2's always (the functions behind the API layer use its types), FMI 3's too for an FMI 3 FMU.
+    """
     names = ["fmi2*.h"] + (["fmi3*.h"] if fmi_version == 3 else [])
     return sorted(h for pattern in names for h in fmi_headers_dir().glob(pattern))
 
 
 #: The generic headers they include (copied into an FMU's ``sources/`` with them).
-GENERIC_HEADERS: tuple[str, ...] = ("model.h", "cosimulation.h", "internal.h", "ss22.h", "linalg.h")
+GENERIC_HEADERS: tuple[str, ...] = ("model.h", "solver_settings.h", "cosimulation.h", "internal.h", "ss22.h",
+                                    "linalg.h")
 
 #: Flags of every FMU build (generated CasADi code included).
 CFLAGS: tuple[str, ...] = (
@@ -93,7 +96,8 @@ def fmu_src_dir() -> Path:
     The copy next to this flexlink comes first: a source tree's ``fmu_src/`` (a checkout on sys.path, or
     a second worktree whose interpreter has another checkout installed in editable mode, whose mapping
     of ``flexlink.fmu_src`` would otherwise pair this Python with that checkout's C), or an installed
-    package's ``flexlink/fmu_src``; the package mapping only if neither exists."""
+    package's ``flexlink/fmu_src``; the package mapping only if neither exists.
+    """
     here = Path(__file__).resolve()
     for path in (here.parents[2] / "fmu_src", here.parents[1] / "fmu_src"):
         if (path / "fmi2Functions.c").is_file():
@@ -112,7 +116,8 @@ def compiler(platform: str = "linux64") -> list[str]:
 
     linux64: ``$CC`` (may carry arguments, e.g. ``ccache gcc``) or ``gcc``.  win64: ``$FLEXLINK_MINGW_CC``
     or the MinGW-w64 cross-compiler ``x86_64-w64-mingw32-gcc``; when it is not installed, a one-line
-    BuildError says which package provides it (checked here, before minutes of code generation)."""
+    BuildError says which package provides it (checked here, before minutes of code generation).
+    """
     if platform == "linux64":
         return shlex.split(os.environ.get("CC", "").strip() or "gcc")
     if platform != "win64":
@@ -125,8 +130,10 @@ def compiler(platform: str = "linux64") -> list[str]:
 
 
 def parse_platforms(platforms: str | Iterable[str]) -> tuple[str, ...]:
-    """Platform names from ``"linux64,win64"`` or a sequence, in the order given and without repeats; an
-    unknown or missing name is a BuildError naming the choices."""
+    """Platform names from ``"linux64,win64"`` or a sequence, in the order given and without repeats.
+
+    An unknown or missing name is a BuildError naming the choices.
+    """
     names = platforms.split(",") if isinstance(platforms, str) else list(platforms)
     names = [n.strip() for n in names]
     unknown = [n for n in names if n not in PLATFORMS]
@@ -175,13 +182,13 @@ def compile_shared_library(
     cc = compiler(platform)
     base = CFLAGS if platform == "linux64" else tuple(f for f in CFLAGS if f != "-fPIC")
     flags = [*base, *(SANITIZE_CFLAGS if sanitize else ()), *extra_cflags, *(f"-I{d}" for d in include_dirs)]
-    sources = [Path(s) for s in sources]
+    files = [Path(s) for s in sources]
     with tempfile.TemporaryDirectory(prefix="flexlink-objects-") as tmp:
-        objects = [Path(tmp) / f"{k}_{s.stem}.o" for k, s in enumerate(sources)]
+        objects = [Path(tmp) / f"{k}_{s.stem}.o" for k, s in enumerate(files)]
         # the largest files first, one compiler per core: the units of a large model compile side by side
-        order = sorted(range(len(sources)), key=lambda k: -(sources[k].stat().st_size if sources[k].is_file() else 0))
+        order = sorted(range(len(files)), key=lambda k: -(files[k].stat().st_size if files[k].is_file() else 0))
         with ThreadPoolExecutor(max_workers=max(1, os.cpu_count() or 1)) as pool:
-            for _ in pool.map(lambda k: _run([*cc, *flags, "-c", str(sources[k]), "-o", str(objects[k])],
+            for _ in pool.map(lambda k: _run([*cc, *flags, "-c", str(files[k]), "-o", str(objects[k])],
                                              output.name), order):
                 pass
         _run([*cc, *flags, *(str(o) for o in objects), "-o", str(output), "-lm"], output.name)

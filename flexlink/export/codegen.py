@@ -31,6 +31,7 @@ from flexlink.export.cbuild import BuildError, fmu_src_dir
 from flexlink.export.derivatives import forward_functions
 from flexlink.export.variables import FmuVariable, fmu_variables
 from flexlink.mechanics.model import SymbolicModel
+from flexlink.scene.solver import SETTINGS
 
 # Scalar (SX) code is fast to run.  Each generated function is its own translation unit (compiled side by
 # side), at -O2 up to FULL_OPTIMISATION_MAX_OPERATIONS and -O1 above: -O1 runs large straight-line code as
@@ -56,8 +57,10 @@ OPTIMISE_LEVELS = ("O0", "O1", "O2")
 
 
 def generated_code_optimisation(operations: int) -> str:
-    """The gcc optimisation level of one generated function of ``operations`` operations: $FLEXLINK_OPTIMISE if
-    set, else O2 or, above FULL_OPTIMISATION_MAX_OPERATIONS, O1."""
+    """The gcc optimisation level of one generated function of ``operations`` operations.
+
+    $FLEXLINK_OPTIMISE if set, else O2 or, above FULL_OPTIMISATION_MAX_OPERATIONS, O1.
+    """
     level = os.environ.get(OPTIMISE_ENV, "").strip()
     if level:
         if level not in OPTIMISE_LEVELS:
@@ -73,11 +76,10 @@ def _optimise_pragma(level: str) -> str:
     return f'#pragma GCC optimize ("{level}")  /* large straight-line code */\n'
 
 
-SOLVER_SETTINGS = ("SOLVER_STEP", "SOLVER_THETA1", "SOLVER_THETA2", "SOLVER_TOLERANCE", "SOLVER_ORDER")
-
-
 @dataclass
 class GeneratedModel:
+    """The model half of an FMU's C sources, as written into its build directory."""
+
     directory: Path
     sources: list[Path]            # the model half's C files to compile: model.c and one unit per function
     generated: list[Path]          # every generated file
@@ -100,8 +102,10 @@ def _c_string(text: str) -> str:
 
 
 def _feedthrough(model: SymbolicModel) -> dict[int, tuple[int, ...]]:
-    """Output i depends directly on input j if it reads u_j, or reads the acceleration (which
-    depends on every input that the residual reads)."""
+    """Output i depends directly on input j if it reads u_j, or reads the acceleration.
+
+    The acceleration depends on every input that the residual reads.
+    """
     f = model.outputs_function
     n_u = f.size1_in(3)
     if n_u == 0:
@@ -128,8 +132,10 @@ def _template(name: str) -> Template:
 
 
 def dense_newton_matrix(model: SymbolicModel) -> bool:
-    """Whether the Newton matrix is generated as one dense symbolic Jacobian (else assembled by columns):
-    the scene's [fmu] newton_matrix, or for "auto" up to NEWTON_DENSE_MAX_COORDINATES."""
+    """Whether the Newton matrix is generated as one dense symbolic Jacobian (else assembled by columns).
+
+    The scene's [fmu] newton_matrix, or for "auto" up to NEWTON_DENSE_MAX_COORDINATES.
+    """
     form = model.scene.fmu.newton_matrix
     if form == "dense" and model.n_q > EXPAND_MAX_COORDINATES:
         raise BuildError(f'[fmu] newton_matrix = "dense": at most {EXPAND_MAX_COORDINATES} coordinates (this '
@@ -141,9 +147,12 @@ def dense_newton_matrix(model: SymbolicModel) -> bool:
 
 
 def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> list[ca.Function]:
-    """Residual, outputs, the forward derivatives of residual and outputs, the validity ratios, and either
-    the dense Newton matrix or the mass matrix (the columns of the Newton matrix come from the residual's
-    forward derivative), named for the model."""
+    """The CasADi functions to generate, named for the model.
+
+    Residual, outputs, the forward derivatives of residual and outputs, the validity ratios, and either the
+    dense Newton matrix or the mass matrix (the columns of the Newton matrix come from the residual's forward
+    derivative).
+    """
 
     def prepare(f: ca.Function) -> ca.Function:
         name = f"{ident}_{f.name()}"    # public symbols carry the model identifier
@@ -154,10 +163,10 @@ def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> list[
             # scalar code with common subexpressions merged: 15-45 % fewer operations on the examples, the
             # same values (CasADi's cse, issue 22)
             g = f.expand()
-            args = g.sx_in()
-            return ca.Function(name, args, g.call(args), f.name_in(), f.name_out(), {"cse": True})
-        args = f.mx_in()
-        return ca.Function(name, args, f.call(args), f.name_in(), f.name_out())
+            sx_args = g.sx_in()
+            return ca.Function(name, sx_args, g.call(sx_args), f.name_in(), f.name_out(), {"cse": True})
+        mx_args = f.mx_in()
+        return ca.Function(name, mx_args, f.call(mx_args), f.name_in(), f.name_out())
 
     residual = prepare(model.residual)
     outputs = prepare(model.outputs_function)
@@ -166,6 +175,8 @@ def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> list[
     else:
         newton = prepare(model.mass_matrix_function())
     residual_fwd, outputs_fwd = (prepare(f) for f in forward_functions(model))
+    if model.validity is None:
+        raise BuildError("the model has no validity function (flexlink.mechanics.model.build_model makes one)")
     functions = [residual, newton, outputs, residual_fwd, outputs_fwd, prepare(model.validity)]
     if model.parameter_check is not None:
         functions.append(prepare(model.parameter_check))
@@ -197,7 +208,7 @@ def _variable_rows(variables: list[FmuVariable]) -> str:
     """The rows of ``MODEL_VARS``: name, kind, index, start, min, max, min_exclusive, tunable, integer."""
     rows = []
     for v in variables:
-        index = SOLVER_SETTINGS[v.index] if v.kind == "VAR_SOLVER" else str(v.index)
+        index = SETTINGS[v.index].c_name if v.kind == "VAR_SOLVER" else str(v.index)
         rows.append(f'    {{"{v.name}", {v.kind}, {index}, {_c(v.start)}, {_c(v.min)}, {_c(v.max)}, '
                     f"{int(v.min_exclusive)}, {int(v.variability == 'tunable' or v.causality == 'input')}, "
                     f"{int(v.type == 'Integer')}}},")
@@ -256,8 +267,10 @@ def _parameter_check_body(model: SymbolicModel) -> str:
 
 
 def _write_unit(f: ca.Function, model: SymbolicModel, directory: Path, expanded: bool) -> tuple[Path, int]:
-    """One generated function as its own C file (and header): CasADi's code behind unit.c.in's preamble,
-    at the optimisation level its size calls for.  Returns the file and its operation count."""
+    """One generated function as its own C file (and header); returns the file and its operation count.
+
+    CasADi's code behind unit.c.in's preamble, at the optimisation level its size calls for.
+    """
     name = f.name()
     cg = ca.CodeGenerator(f"{name}.c", {"with_header": True, "prefix": f"{name}_", "casadi_real": "double"})
     cg.add(f)
@@ -272,8 +285,11 @@ def _write_unit(f: ca.Function, model: SymbolicModel, directory: Path, expanded:
 
 
 def generate(model: SymbolicModel, directory: Path) -> GeneratedModel:
-    """Write the model half of the FMU's C sources into ``directory``: model.c, and one unit per generated
-    function (compiled side by side, :func:`flexlink.export.cbuild.compile_shared_library`)."""
+    """Write the model half of the FMU's C sources into ``directory``.
+
+    model.c, and one unit per generated function (compiled side by side,
+    :func:`flexlink.export.cbuild.compile_shared_library`).
+    """
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     ident = model.scene.model_identifier

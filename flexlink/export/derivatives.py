@@ -1,5 +1,7 @@
-"""Derivatives for the FMU: forward-mode functions for ``fmi2GetDirectionalDerivative`` and the
-structural dependencies of ``<ModelStructure>`` (DESIGN.md §5), both from CasADi.
+"""Derivatives for the FMU, both from CasADi.
+
+Forward-mode functions for ``fmi2GetDirectionalDerivative`` and the structural dependencies of
+``<ModelStructure>`` (DESIGN.md §5).
 
 The FMU's continuous state is x = (q, v) (free coordinates and their rates); the derivatives are
 ẋ = (v, a) with the acceleration a from ``M(q) a = −r(q, v, 0, u, p)``.  The generated C gets the two
@@ -30,9 +32,11 @@ def _symbols(model: SymbolicModel):
 
 
 def forward_functions(model: SymbolicModel) -> tuple[ca.Function, ca.Function]:
-    """``residual_forward(q, v, a, u, p, dq, dv, da, du, dp) → dr`` and
-    ``outputs_forward(q, v, a, u, p, dq, dv, da, du, dp) → dy``: Jacobian-times-seed of the residual and
-    of the outputs with respect to all their arguments."""
+    """Jacobian-times-seed of the residual and of the outputs with respect to all their arguments.
+
+    ``residual_forward(q, v, a, u, p, dq, dv, da, du, dp) → dr`` and
+    ``outputs_forward(q, v, a, u, p, dq, dv, da, du, dp) → dy``.
+    """
     args = _symbols(model)
     seeds = [ca.MX.sym("d" + n, a.sparsity()) for n, a in zip("qvaup", args, strict=True)]
     x, dx = ca.vertcat(*args), ca.vertcat(*seeds)
@@ -67,6 +71,7 @@ class Structure:
     n_p: int
 
     def block(self, which: str) -> slice:
+        """The columns of ``which`` ("q", "v", "u" or "p") in the stacked arguments (q, v, u, p)."""
         n, nu = self.n_q, self.n_u
         return {"q": slice(0, n), "v": slice(n, 2 * n), "u": slice(2 * n, 2 * n + nu),
                 "p": slice(2 * n + nu, 2 * n + nu + self.n_p)}[which]

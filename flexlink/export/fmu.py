@@ -173,9 +173,10 @@ def unit_definitions(units: list[str]) -> list[str]:
 
 def log_categories_and_experiment(scene: Scene) -> list[str]:
     """``<LogCategories>`` and ``<DefaultExperiment>`` (the same elements in FMI 2 and FMI 3)."""
+    step = _num(scene.fmu.solver.default_communication_step)
     return ["  <LogCategories>", *[f'    <Category name="{k}" description="{d}"/>' for k, d in LOG_CATEGORIES.items()],
             "  </LogCategories>",
-            f'  <DefaultExperiment startTime="0" stopTime="5" stepSize="{_num(max(scene.fmu.step, 1e-3))}"/>']
+            f'  <DefaultExperiment startTime="0" stopTime="5" stepSize="{step}"/>']
 
 
 def model_description(model: SymbolicModel, gen: GeneratedModel, sources: list[str]) -> str:

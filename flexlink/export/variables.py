@@ -10,12 +10,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from flexlink.mechanics.model import SymbolicModel
+from flexlink.scene.solver import SETTINGS
 
 BIG = 1e300   # "no bound" in the C tables (finite, so the glue can compare)
 
 
 @dataclass(frozen=True)
 class FmuVariable:
+    """One FMU variable: its name, where its value lives in the C tables, and its model-description attributes."""
+
     name: str
     kind: str                 # VAR_PARAMETER | VAR_START_Q | VAR_START_V | VAR_SOLVER | VAR_INPUT | VAR_OUTPUT
     #                           | VAR_STATE_Q | VAR_STATE_V | VAR_DER_Q | VAR_DER_V (Model Exchange)
@@ -34,10 +37,8 @@ class FmuVariable:
 
     @property
     def tunable(self) -> bool:
+        """Whether the host may set it after initialisation (a tunable parameter or an input)."""
         return self.variability == "tunable" or self.causality == "input"
-
-
-SOLVER_SETTINGS = ("SOLVER_STEP", "SOLVER_THETA1", "SOLVER_THETA2", "SOLVER_TOLERANCE", "SOLVER_ORDER")
 
 
 def fmu_variables(model: SymbolicModel, feedthrough: dict[int, tuple[int, ...]] | None = None
@@ -53,25 +54,14 @@ def fmu_variables(model: SymbolicModel, feedthrough: dict[int, tuple[int, ...]] 
     for s in model.start_values:
         out.append(FmuVariable(s.name, "VAR_START_V" if s.rate else "VAR_START_Q", s.coordinate, s.value,
                                "parameter", "fixed", s.unit, s.description))
-    th1, th2 = scene.fmu.theta
-    out += [
-        FmuVariable("solver.step", "VAR_SOLVER", 0, scene.fmu.step, "parameter", "fixed", "s",
-                    "SS22 internal step (communication steps are split into steps of at most this size)",
-                    min=0.0, min_exclusive=True),
-        FmuVariable("solver.theta1", "VAR_SOLVER", 1, th1, "parameter", "fixed", "",
-                    "SS22 Theta1 (0.5: second order; larger: numerical damping)", min=0.5, max=1.0),
-        FmuVariable("solver.theta2", "VAR_SOLVER", 2, th2, "parameter", "fixed", "",
-                    "SS22 Theta2 (>= Theta1 for unconditional stability)", min=0.5, max=1.0),
-        FmuVariable("solver.tolerance", "VAR_SOLVER", 3, scene.fmu.tolerance, "parameter", "fixed", "",
-                    "Newton tolerance: a step's rate change against the coordinate's nominal scale", min=0.0,
-                    min_exclusive=True),
-        # an Integer: only 2 and 4 are valid (3 is refused when set, with the reason); the C table keeps it
-        # as a double in the solver settings, so FMU states keep their layout
-        FmuVariable("solver.order", "VAR_SOLVER", 4, 2.0, "parameter", "fixed", "",
-                    "2 or 4 (3 is refused): 2: SS22; 4: SS22 (Theta = 1/2) with Richardson extrapolation, for "
-                    "resolved scenes: a step with omega_max * dt > 0.3 is refused (fmi2Discard)",
-                    min=2.0, max=4.0, type="Integer"),
-    ]
+    # the solver's settings, in their C slot order (flexlink.scene.solver, their one owner); an Integer
+    # (solver.order) is kept as a double in the solver table, so FMU states keep their layout
+    start = scene.fmu.solver.start_values()
+    for slot, setting in enumerate(SETTINGS):
+        out.append(FmuVariable(setting.name, "VAR_SOLVER", slot, float(start[setting.name]), "parameter", "fixed",
+                               setting.unit, setting.description, min=max(setting.min, -BIG),
+                               max=min(setting.max, BIG), min_exclusive=setting.min_exclusive,
+                               type="Integer" if setting.integer else "Real"))
     for i, sig in enumerate(model.inputs):
         if sig.fmu_variable:
             out.append(FmuVariable(sig.name, "VAR_INPUT", i, sig.start, "input", "continuous", sig.unit,
@@ -103,8 +93,11 @@ def fmu_variables(model: SymbolicModel, feedthrough: dict[int, tuple[int, ...]] 
 
 
 def _unit(model: SymbolicModel, i: int, order: int) -> str:
-    """Unit of coordinate i's order-th time derivative: that of the output of the same name (rad for a
-    joint angle, m for nodal FE displacements, none for modal amplitudes), per s, per s²."""
+    """Unit of coordinate i's order-th time derivative.
+
+    That of the output of the same name (rad for a joint angle, m for nodal FE displacements, none for modal
+    amplitudes), per s, per s².
+    """
     c = model.coordinates[i]
     base = next((s.unit for s in model.outputs if s.name == c), "rad" if c.endswith(".theta") else "")
     if base not in ("m", "rad"):

@@ -87,19 +87,23 @@ class SymbolicModel:
 
     @property
     def n_q(self) -> int:
+        """The number of free coordinates."""
         return len(self.coordinates)
 
     @property
     def p0(self) -> np.ndarray:
+        """The parameters' values from the scene, in parameter order."""
         return np.array([par.value for par in self.parameters], dtype=float)
 
     def parameter_index(self, name: str) -> int:
+        """The position of the parameter ``name`` (KeyError if the model has none of that name)."""
         for i, par in enumerate(self.parameters):
             if par.name == name:
                 return i
         raise KeyError(name)
 
     def output_index(self, name: str) -> int:
+        """The position of the output ``name`` (KeyError if the model has none of that name)."""
         for i, sig in enumerate(self.outputs):
             if sig.name == name:
                 return i
@@ -134,6 +138,7 @@ class SymbolicModel:
         return u
 
     def start_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """(q, v) at the start: zero but for the scene's start values."""
         q = np.zeros(self.n_q)
         v = np.zeros(self.n_q)
         for s in self.start_values:

@@ -28,16 +28,17 @@ NEGLIGIBLE = 1e-14
 def _where(model: SymbolicModel, coordinate: str) -> str:
     """The scene key of the joint or link that owns a coordinate ("j2.theta" → 'joint[2] "j2"')."""
     owner = coordinate.split(".", 1)[0]
-    for kind, items in (("joint", model.scene.joints), ("link", model.scene.links)):
-        for i, item in enumerate(items, start=1):
-            if item.name == owner:
-                return f'{kind}[{i}] "{owner}"'
+    for kind, names in (("joint", [j.name for j in model.scene.joints]), ("link", [k.name for k in model.scene.links])):
+        if owner in names:
+            return f'{kind}[{names.index(owner) + 1}] "{owner}"'
     return f'"{owner}"'
 
 
 def _free_coordinates(J: np.ndarray) -> list[int]:
-    """The coordinates whose column of J is negligible (none if J is not finite: a non-finite model is the
-    loader's and the guards' business)."""
+    """The coordinates whose column of J is negligible.
+
+    None if J is not finite: a non-finite model is the loader's and the guards' business.
+    """
     if not np.all(np.isfinite(J)):
         return []
     scale = np.max(np.abs(J))
@@ -53,8 +54,8 @@ def check_step_matrix(model: SymbolicModel) -> None:
     # for the step matrix itself, whose Jacobian takes seconds to form on a large chain
     if not _free_coordinates(np.asarray(model.mass_matrix_function()(q, u, p))):
         return
-    theta1, theta2 = model.scene.fmu.theta
-    dt = model.scene.fmu.step
+    theta1, theta2 = model.scene.fmu.solver.theta
+    dt = model.scene.fmu.solver.step
     J = np.asarray(model.newton_matrix_function()(q, v, np.zeros(model.n_q), u, p, 1.0, theta1 * dt,
                                                   theta2 * 0.5 * dt * dt))
     free = _free_coordinates(J)

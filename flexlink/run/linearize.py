@@ -81,6 +81,7 @@ class LinearPlant:
 
     @property
     def states(self) -> list[str]:
+        """The state names, in the plant's order."""
         return list(self.sys.state_labels)
 
     def output_row(self, name: str) -> int:
@@ -91,9 +92,11 @@ class LinearPlant:
         raise KeyError(f"{name!r} is not an output of this linearisation; outputs are {self.outputs}")
 
     def state_index(self, name: str) -> int:
+        """The position of the state ``name``."""
         return self.states.index(name)
 
     def parameter(self, name: str) -> float:
+        """The value of the parameter ``name`` at the operating point."""
         return float(self.op.p[self.model.parameter_index(name)])
 
 
@@ -120,8 +123,10 @@ def _parameter_vector(model: SymbolicModel, parameters: Mapping[str, float] | No
 
 def operating_point_at(model: SymbolicModel, *, angle: float | None = None, rate: float = 0.0,
                        parameters: Mapping[str, float] | None = None) -> OperatingPoint:
-    """The operating point of ``flexlink modes`` (:func:`flexlink.mechanics.analysis.operating_point`), optionally
-    with the first joint at ``angle`` (rad) instead of its initial angle and with parameters changed.
+    """The operating point of ``flexlink modes``, optionally moved and with parameters changed.
+
+    That of :func:`flexlink.mechanics.analysis.operating_point`, with the first joint at ``angle`` (rad)
+    instead of its initial angle if given.
 
     The elastic coordinates take their static (steady-state) deflection there and a torque-driven first
     joint gets the torque that holds it.
@@ -149,8 +154,10 @@ def operating_point_at(model: SymbolicModel, *, angle: float | None = None, rate
 
 
 def explicit_functions(model: SymbolicModel) -> tuple[ca.Function, ca.Function]:
-    """``f(x, u, p) = ẋ`` and ``h(x, u, p) = y`` (all the model's outputs): the explicit first-order form,
-    the acceleration from the residual (affine in it).  ``u`` is the model's whole input vector."""
+    """The explicit first-order form ``f(x, u, p) = ẋ`` and ``h(x, u, p) = y`` (all the model's outputs).
+
+    The acceleration comes from the residual (affine in it).  ``u`` is the model's whole input vector.
+    """
     n = model.n_q
     q, v, a = ca.MX.sym("q", n), ca.MX.sym("v", n), ca.MX.sym("a", n)
     u = ca.MX.sym("u", model.residual.size1_in(3))
@@ -277,12 +284,9 @@ def fmu_state_space(fmu: str | os.PathLike, *, outputs: Sequence[str] | None = N
     --------
     linear_plant : the same from the CasADi model.
     """
-    import tempfile
-
     import fmpy
-    from fmpy.fmi2 import FMU2Model
 
-    from flexlink.run.simulate import set_start_values
+    from flexlink.run.host import FmuHost
 
     md = fmpy.read_model_description(os.fspath(fmu))
     if md.modelExchange is None or not md.modelExchange.providesDirectionalDerivative:
@@ -296,24 +300,15 @@ def fmu_state_space(fmu: str | os.PathLike, *, outputs: Sequence[str] | None = N
     inputs = [v.name for v in md.modelVariables if v.causality == "input"]
     ders = [u.variable.name for u in md.derivatives]
     states = [u.variable.derivative.name for u in md.derivatives]
-    with tempfile.TemporaryDirectory(prefix="flexlink-lin-") as d:
-        fmpy.extract(os.fspath(fmu), d)
-        inst = FMU2Model(guid=md.guid, unzipDirectory=d, modelIdentifier=md.modelExchange.modelIdentifier,
-                         instanceName="linearize")
-        inst.instantiate()
-        try:
-            set_start_values(inst, md.modelVariables, start_values)
-            inst.setupExperiment(startTime=0.0)
-            inst.enterInitializationMode()
-            inst.exitInitializationMode()
-            inst.newDiscreteStates()
-            inst.enterContinuousTimeMode()
-            unknowns = [vr[n] for n in ders + outputs]
-            cols = [np.asarray(inst.getDirectionalDerivative(unknowns, [vr[k]], [1.0]), dtype=float)
-                    for k in states + inputs]
-            inst.terminate()
-        finally:
-            inst.freeInstance()
+    with FmuHost(fmu, interface="ModelExchange", instance_name="linearize") as host:
+        inst = host.instance
+        host.initialize(start_values)
+        host.call("fmi2NewDiscreteStates", inst.newDiscreteStates)
+        host.call("fmi2EnterContinuousTimeMode", inst.enterContinuousTimeMode)
+        unknowns = [vr[n] for n in ders + outputs]
+        cols = [np.asarray(host.call("fmi2GetDirectionalDerivative", inst.getDirectionalDerivative, unknowns,
+                                     [vr[k]], [1.0]), dtype=float)
+                for k in states + inputs]
     J = np.array(cols).T.reshape(len(ders) + len(outputs), len(states) + len(inputs))
     nx = len(states)
     A, B, C, D = J[:nx, :nx], J[:nx, nx:], J[nx:, :nx], J[nx:, nx:]

@@ -18,9 +18,11 @@ def wanted(option: bool | None) -> bool:
 
 
 class RunProgress:
-    """fmpy's ``step_finished(time, recorder)`` callback drawing a tqdm bar in simulated seconds; tqdm's
-    remaining-time estimate is (stop − t) / (simulated seconds per wall second), which is what a user waits
-    for. Use as a context manager so that the bar is closed (and its line ended) even on an error."""
+    """fmpy's ``step_finished(time, recorder)`` callback drawing a tqdm bar in simulated seconds.
+
+    tqdm's remaining-time estimate is (stop − t) / (simulated seconds per wall second), which is what a user
+    waits for. Use as a context manager so that the bar is closed (and its line ended) even on an error.
+    """
 
     def __init__(self, stop_time: float, *, delay: float = DELAY, force: bool = False):
         from tqdm import tqdm
@@ -32,6 +34,7 @@ class RunProgress:
                         bar_format="{desc} {bar} {n:.3g}/{total:.3g} s simulated [{elapsed}<{remaining}]")
 
     def __call__(self, time: float, recorder=None) -> bool:
+        """Advance the bar to ``time``; True lets fmpy go on."""
         t = min(float(time), self.stop_time)
         if t > self._last:
             self.bar.update(t - self._last)

@@ -3,14 +3,19 @@
 from __future__ import annotations
 
 import csv
-import itertools
 import os
-import re
 from pathlib import Path
 
 import numpy as np
 
 from flexlink.errors import FlexlinkError
+from flexlink.run.host import (  # noqa: F401  (logging_callbacks, set_start_values, ...: importable here)
+    FmuHost,
+    install_router,
+    logging_callbacks,
+    release_logging_callbacks,
+    set_start_values,
+)
 
 
 def read_input_csv(path: str | os.PathLike, input_names: list[str]) -> np.ndarray:
@@ -57,7 +62,8 @@ def hold_inputs(table: np.ndarray) -> np.ndarray:
 
     fmpy interpolates a real input linearly between the rows of its table and treats two rows at the same
     time as a jump (an input event it steps to exactly); so a row (t_k, u_{k-1}) inserted before each
-    (t_k, u_k) turns linear interpolation into a zero-order hold without touching fmpy."""
+    (t_k, u_k) turns linear interpolation into a zero-order hold without touching fmpy.
+    """
     if len(table) < 2:
         return table
     later = np.flatnonzero(np.diff(table["time"]) > 0) + 1          # rows whose time is past the previous one
@@ -80,22 +86,11 @@ def parse_assignments(items: list[str]) -> dict[str, float]:
     return out
 
 
-def set_start_values(instance, variables, values) -> None:
-    """Set start values through an fmpy instance with the setter of each variable's type: ``setInteger`` for
-    an Integer (``solver.order``), ``setReal`` otherwise.  ``variables``: the model description's variables
-    (any iterable of fmpy ScalarVariables)."""
-    by_name = {v.name: v for v in variables}
-    for name, value in (values or {}).items():
-        v = by_name[name]
-        if v.type in ("Integer", "Enumeration"):
-            instance.setInteger([v.valueReference], [int(value)])
-        else:
-            instance.setReal([v.valueReference], [float(value)])
-
-
 def check_integer_values(variables, values, option: str = "--set") -> None:
-    """An Integer variable (``solver.order``) takes whole numbers only: ``4.5`` is refused here, before fmpy
-    would truncate it to 4."""
+    """Refuse a value that is not whole for an Integer variable (``solver.order``).
+
+    ``4.5`` is refused here, before fmpy would truncate it to 4.
+    """
     by_name = {v.name: v for v in variables}
     for name, value in (values or {}).items():
         v = by_name.get(name)
@@ -108,9 +103,12 @@ MAX_POINTS = 1_000_000   # communication points of one run: fmpy keeps them all 
 
 def check_run(stop_time: float, step: float | None, stop_option: str = "--stop-time",
               step_option: str = "--step") -> None:
-    """Refuse a run that cannot end or cannot be stored before it starts: a stop time or step that is not a
-    positive number, or so many communication steps (``--stop-time 0.01 --step 1e-12``: 10¹⁰) that the run
-    would outlast the user and its results the memory. Without ``step``, fmpy keeps about 1000 points."""
+    """Refuse a run that cannot end or cannot be stored before it starts.
+
+    A stop time or step that is not a positive number, or so many communication steps (``--stop-time 0.01
+    --step 1e-12``: 10¹⁰) that the run would outlast the user and its results the memory. Without ``step``,
+    fmpy keeps about 1000 points.
+    """
     if not (np.isfinite(stop_time) and stop_time > 0):
         raise FlexlinkError(f"{stop_option} must be a positive number, got {stop_time}")
     if step is None:
@@ -130,7 +128,8 @@ def simulate(fmu: str | os.PathLike, stop_time: float, *, step: float | None = N
     ``interpolation`` of the ``inputs`` table between its rows: ``"linear"`` (fmpy's own) or ``"hold"``
     (:func:`hold_inputs`); either way the FMU receives the value at each communication point and holds it
     over the step (it does not interpolate inputs). ``step_finished(time, recorder)`` is called after every
-    step (a progress bar)."""
+    step (a progress bar).
+    """
     import fmpy
     from fmpy.fmi1 import FMICallException
 
@@ -168,22 +167,24 @@ def simulate(fmu: str | os.PathLike, stop_time: float, *, step: float | None = N
         detail = messages[-1] if messages else str(e)
         raise FlexlinkError(f"the FMU refused: {detail}") from None
     finally:
-        _install_router()
+        install_router()
 
 
 def write_csv(result: np.ndarray, path: str | os.PathLike, names: list[str] | None = None) -> None:
-    """Time and ``names`` (every column of ``result`` for ``None``), every row, at full precision; ``path`` "-"
-    is standard output."""
+    """Write time and ``names`` (every column of ``result`` for ``None``), every row, at full precision.
+
+    ``path`` "-" is standard output.
+    """
     import contextlib
     import sys
 
-    names = ["time", *names] if names else result.dtype.names
+    columns = ["time", *names] if names else list(result.dtype.names or ())
     stdout = str(path) == "-"
     with contextlib.nullcontext(sys.stdout) if stdout else open(path, "w", newline="") as f:
         w = csv.writer(f, lineterminator="\n") if stdout else csv.writer(f)
-        w.writerow(names)
+        w.writerow(columns)
         for row in result:
-            w.writerow([repr(float(row[n])) for n in names])
+            w.writerow([repr(float(row[n])) for n in columns])
 
 
 def variable_units(model_description) -> dict[str, str]:
@@ -196,8 +197,10 @@ def variable_units(model_description) -> dict[str, str]:
 
 
 def choose_outputs(model_description, names: list[str] | None, option: str = "--output") -> list[str]:
-    """The FMU's outputs (or inputs) named by the user (every output for ``None``), in the user's order; an
-    unknown name is one error naming the closest outputs, so that a typo costs no run."""
+    """The FMU's outputs (or inputs) named by the user (every output for ``None``), in the user's order.
+
+    An unknown name is one error naming the closest outputs, so that a typo costs no run.
+    """
     import difflib
 
     outputs = [v.name for v in model_description.modelVariables if v.causality == "output"]
@@ -214,6 +217,7 @@ def choose_outputs(model_description, names: list[str] | None, option: str = "--
 
 
 def axis_label(name: str, units: dict[str, str]) -> str:
+    """A plot's y label: the signal's name over its unit, or a note that the FMU gives none."""
     unit = units.get(name, "")
     return f"{name}\n({unit})" if unit else f"{name}\n(no unit given)"
 
@@ -230,14 +234,16 @@ def plot_result(result: np.ndarray, path: str | os.PathLike, names: list[str] | 
 
 def result_figure(result: np.ndarray, names: list[str] | None = None, title: str = "",
                   units: dict[str, str] | None = None):
-    """One panel per signal against time, each y axis labelled with its unit (``units``: from
-    :func:`variable_units`); without ``names``, the first six columns."""
+    """One panel per signal against time, each y axis labelled with its unit.
+
+    ``units``: from :func:`variable_units`; without ``names``, the first six columns.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    names = names or [n for n in result.dtype.names if n != "time"][:6]
+    names = names or [n for n in result.dtype.names or () if n != "time"][:6]
     units = units or {}
     fig, axes = plt.subplots(len(names), 1, sharex=True, figsize=(8, 1.8 * len(names) + 0.6), squeeze=False)
     for ax, n in zip(axes[:, 0], names, strict=True):
@@ -251,113 +257,31 @@ def result_figure(result: np.ndarray, names: list[str] | None = None, title: str
     return fig
 
 
-_ROUTES: dict[int, object] = {}     # componentEnvironment key → the Python logger of one instance
-_ROUTE_KEYS = itertools.count(1)
-_ROUTER = None                        # the one ctypes logger fmpy's native proxy ever calls
+class SlaveRunner(FmuHost):
+    """A step-by-step co-simulation loop on one :class:`~flexlink.run.host.FmuHost` (Co-Simulation).
 
-
-def _route(environment, instance, status, category, message):
-    logger = _ROUTES.get(environment or 0)
-    if logger is not None:
-        logger(environment, instance, status, category, message)
-
-
-def _install_router() -> None:
-    """Point fmpy's process-wide logger proxy back at our router (fmpy.simulate_fmu replaces it with a
-    logger that dies with the call; a message after that would call freed memory)."""
-    global _ROUTER
-    from ctypes import byref
-
-    from fmpy.fmi2 import fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
-
-    if _ROUTER is None:
-        _ROUTER = fmi2CallbackLoggerTYPE(_route)
-    try:
-        from fmpy.logging import addLoggerProxy
-    except ImportError:   # older fmpy: no proxy, messages arrive unformatted
-        return
-    holder = fmi2CallbackFunctions()
-    holder.logger = _ROUTER
-    addLoggerProxy(byref(holder))
-
-
-def logging_callbacks(logger):
-    """fmi2CallbackFunctions whose messages reach ``logger(component, instance, status, category, message)``.
-
-    fmpy's native proxy (which formats the FMU's printf-style messages) keeps a single, process-wide Python
-    logger, so every instance is registered with one router that dispatches on ``componentEnvironment``.
-    Keep the returned object alive while the instance lives; ``release_logging_callbacks`` ends the route."""
-    from ctypes import byref, c_void_p
-
-    from fmpy import calloc, free
-    from fmpy.fmi2 import fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions
-
-    _install_router()
-    key = next(_ROUTE_KEYS)
-    _ROUTES[key] = logger
-    callbacks = fmi2CallbackFunctions()
-    callbacks.logger = _ROUTER
-    callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-    callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-    callbacks.componentEnvironment = c_void_p(key)
-    try:
-        from fmpy.logging import addLoggerProxy
-
-        addLoggerProxy(byref(callbacks))
-    except ImportError:
-        pass
-    callbacks.route_key = key
-    return callbacks
-
-
-def release_logging_callbacks(callbacks) -> None:
-    _ROUTES.pop(getattr(callbacks, "route_key", None), None)
-
-
-# fmu_src/logging.c's logStatistics message, and the counters it holds
-STATISTICS = re.compile(r"(\d+) SS22 steps, (\d+) Newton iterations, (\d+) factorisations, (\d+) residual")
-STATISTICS_KEYS = ("steps", "newton_iterations", "factorisations", "residual_evaluations")
-
-
-class SlaveRunner:
-    """A step-by-step co-simulation loop with fmpy's ``FMU2Slave``, instantiated once (reset between runs).
+    The FMU is instantiated once and reset between runs.
 
     ``run(stop, comm_step, inputs=lambda t: {...}, start={...}, outputs=[...])`` sets the inputs at each
     communication point from ``inputs(t)`` and records the outputs; it returns ``{name: array}`` with
-    ``"time"``.
+    ``"time"``.  A refused call raises :class:`~flexlink.run.host.FmuCallError` with the FMU's reason.
     """
 
     def __init__(self, fmu: str | os.PathLike, instance_name: str = "flexlink", logging: bool = False):
-        import fmpy
-        from fmpy.fmi2 import FMU2Slave
+        super().__init__(fmu, interface="CoSimulation", instance_name=instance_name, logging=logging)
 
-        self.model_description = fmpy.read_model_description(str(fmu))
-        self._unzipdir = fmpy.extract(str(fmu))
-        self.vr = {v.name: v.valueReference for v in self.model_description.modelVariables}
-        self.messages: list[str] = []
-
-        def logger(component, instance, status, category, message):
-            self.messages.append(message.decode(errors="replace") if isinstance(message, bytes) else str(message))
-
-        self.slave = FMU2Slave(guid=self.model_description.guid, unzipDirectory=self._unzipdir,
-                               modelIdentifier=self.model_description.coSimulation.modelIdentifier,
-                               instanceName=instance_name)
-        self._callbacks = logging_callbacks(logger)
-        self.slave.instantiate(loggingOn=logging, callbacks=self._callbacks)
-        self._fresh = True
+    @property
+    def slave(self):
+        """The fmpy ``FMU2Slave`` (for loops that call it directly)."""
+        return self.instance
 
     def run(self, stop: float, comm_step: float, *, inputs=None, start: dict[str, float] | None = None,
             outputs: list[str] | None = None) -> dict[str, np.ndarray]:
-        s = self.slave
-        if not self._fresh:
-            s.reset()
-        self._fresh = False
-        set_start_values(s, self.model_description.modelVariables, start)
-        s.setupExperiment(startTime=0.0)
-        s.enterInitializationMode()
-        s.exitInitializationMode()
+        """Initialise with ``start`` and step to ``stop``; the outputs at every communication point."""
+        s = self.instance
+        self.initialize(start)
         outputs = outputs or [v.name for v in self.model_description.modelVariables if v.causality == "output"]
-        out_vr = [self.vr[n] for n in outputs]
+        out_vr = [self.value_reference(n) for n in outputs]
         n = int(round(stop / comm_step))
         rec = np.empty((n + 1, len(outputs)))
         times = np.arange(n + 1) * comm_step
@@ -365,41 +289,11 @@ class SlaveRunner:
             if inputs is not None:
                 u = inputs(times[k])
                 if u:
-                    s.setReal([self.vr[name] for name in u], [float(x) for x in u.values()])
-            rec[k] = s.getReal(out_vr)
+                    self.call("fmi2SetReal", s.setReal, [self.value_reference(name) for name in u],
+                              [float(x) for x in u.values()])
+            rec[k] = self.call("fmi2GetReal", s.getReal, out_vr)
             if k < n:
-                s.doStep(currentCommunicationPoint=times[k], communicationStepSize=comm_step)
+                self.call("fmi2DoStep", s.doStep, times[k], comm_step)
         result = {"time": times}
         result.update({name: rec[:, i] for i, name in enumerate(outputs)})
         return result
-
-    def solver_statistics(self) -> dict[str, int]:
-        """The integrator's counters of the run just made (SS22 steps, Newton iterations, factorisations,
-        residual evaluations), read from the FMU's ``logStatistics`` message at fmi2Terminate; ends the run
-        (the next ``run`` resets the instance).  Empty for an FMU without that category."""
-        self.messages.clear()
-        self.slave.setDebugLogging(True, ["logStatistics"])
-        self.slave.terminate()
-        self.slave.setDebugLogging(False, [])
-        for message in reversed(self.messages):
-            found = STATISTICS.search(message)
-            if found:
-                return {key: int(value) for key, value in zip(STATISTICS_KEYS, found.groups(), strict=True)}
-        return {}
-
-    def close(self) -> None:
-        try:
-            self.slave.terminate()
-        except Exception:   # already terminated, or in error: freeing is what matters
-            pass
-        self.slave.freeInstance()
-        release_logging_callbacks(self._callbacks)
-        import shutil
-
-        shutil.rmtree(self._unzipdir, ignore_errors=True)
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()

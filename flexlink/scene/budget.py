@@ -104,11 +104,14 @@ class LinkCost:
 
     @property
     def coordinates(self) -> int:
+        """The link's coordinates, all fields together."""
         return sum(self.fields.values())
 
 
 @dataclass(frozen=True)
 class SceneCost:
+    """The estimated size of a whole scene: its links, its joints and what they cost to build and hold."""
+
     source: str
     links: tuple[LinkCost, ...]
     joint_coordinates: int             # free joint (and motor) angles

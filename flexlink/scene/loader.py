@@ -42,6 +42,7 @@ from flexlink.scene.schema import (
     key_spec,
     section_keys,
 )
+from flexlink.scene.solver import THETA_RULE, SolverSettings, theta_valid
 
 __all__ = [
     "FmuSettings",
@@ -512,16 +513,17 @@ class _Parser(_Values):
         t = self.table(value, "fmu", "fmu", "an [fmu] table")
         step = self.number_key(t, "fmu", "step", "fmu")
         integrator = self.choice_key(t, "fmu", "integrator", "fmu")
-        expected = "[Θ1, Θ2] with 0.5 ≤ Θ1 ≤ Θ2 ≤ 1 (unconditional stability of SS22)"
+        expected = f"[Θ1, Θ2] with {THETA_RULE} (unconditional stability of SS22)"
         raw = self.get(t, "fmu", "theta")
         if not isinstance(raw, list) or len(raw) != 2:
             raise self.fail("fmu.theta", expected, raw)
         th1, th2 = (self.number(v, f"fmu.theta[{i + 1}]") for i, v in enumerate(raw))
-        if not 0.5 <= th1 <= th2 <= 1.0:
+        if not theta_valid(th1, th2):
             raise self.fail("fmu.theta", expected, raw)
         tolerance = self.number_key(t, "fmu", "tolerance", "fmu")
         tunable = checks.tunable_names(self.source, self.get(t, "fmu", "tunable"), joints, links)
         tip_load_inputs = self.boolean(self.get(t, "fmu", "tip_load_inputs"), "fmu.tip_load_inputs")
         newton_matrix = self.choice_key(t, "fmu", "newton_matrix", "fmu")
-        return FmuSettings(step=step, integrator=integrator, theta=(th1, th2), tolerance=tolerance,
-                           tunable=tunable, tip_load_inputs=tip_load_inputs, newton_matrix=newton_matrix)
+        solver = SolverSettings(step=step, theta=(th1, th2), tolerance=tolerance)
+        return FmuSettings(solver=solver, integrator=integrator, tunable=tunable, tip_load_inputs=tip_load_inputs,
+                           newton_matrix=newton_matrix)

@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from flexlink.scene.solver import THETA_RULE, SolverSettings
+
 __all__ = [
     "KEYS",
     "SECTIONS",
@@ -243,10 +245,11 @@ class Tool:
 
 @dataclass(frozen=True)
 class FmuSettings:
-    step: float = 1e-3
+    """The ``[fmu]`` table: the integrator and its settings (:class:`~flexlink.scene.solver.SolverSettings`,
+    their one owner), the terms kept tunable and the optional tip-load inputs."""
+
+    solver: SolverSettings = SolverSettings()
     integrator: str = "ss22"
-    theta: tuple[float, float] = (0.5, 0.5)
-    tolerance: float = 1e-10
     tunable: tuple[str, ...] = ()
     tip_load_inputs: bool = False
     newton_matrix: str = "auto"
@@ -352,6 +355,7 @@ SECTIONS: tuple[Section, ...] = (
 _VEC0 = (0.0, 0.0, 0.0)
 _NAME_RULE = "letters, digits, _; not starting with a digit; not tip, energy, solver, gravity; unique"
 _K = Key
+_SOLVER = SolverSettings()   # the defaults of the [fmu] solver keys
 KEYS: tuple[Key, ...] = (
     # ---------------------------------------------------------------------------------- top level
     _K("scene", "name", "string", bounds="non-empty",
@@ -479,11 +483,11 @@ KEYS: tuple[Key, ...] = (
     _K("tool", "rpy", "[roll, pitch, yaw]", "rad", _VEC0,
        description="the tool frame's orientation in the last link's tip frame: R = Rz(yaw)·Ry(pitch)·Rx(roll)"),
     # -------------------------------------------------------------------------------------- [fmu]
-    _K("fmu", "step", "number", "s", 1e-3, "> 0", description="the SS22 step (the FMU's fixed step)"),
+    _K("fmu", "step", "number", "s", _SOLVER.step, "> 0", description="the SS22 step (the FMU's fixed step)"),
     _K("fmu", "integrator", "string", "", "ss22", choices=INTEGRATORS, description="the integrator"),
-    _K("fmu", "theta", "[Θ1, Θ2]", "", (0.5, 0.5), "0.5 ≤ Θ1 ≤ Θ2 ≤ 1",
+    _K("fmu", "theta", "[Θ1, Θ2]", "", _SOLVER.theta, THETA_RULE,
        description="SS22 parameters (unconditionally stable in this range; > 0.5 damps high frequencies)"),
-    _K("fmu", "tolerance", "number", "", 1e-10, "> 0",
+    _K("fmu", "tolerance", "number", "", _SOLVER.tolerance, "> 0",
        description="Newton tolerance: a step's rate change against the coordinate's nominal scale"),
     _K("fmu", "tunable", "list of strings", "", (), "distinct",
        description="terms kept as FMU parameters even at zero: <link>.kelvin_voigt, <link>.payload.mass, "
@@ -496,7 +500,7 @@ KEYS: tuple[Key, ...] = (
                    "code n times the residual's), columns of the residual's derivative (code like the residual's), "
                    "or auto (dense up to 12 coordinates)"),
 )
-del _K
+del _K, _SOLVER
 
 _BY_KEY = {(k.section, k.name): k for k in KEYS}
 

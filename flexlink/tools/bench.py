@@ -12,6 +12,7 @@ Python loop are not charged: the FMU is timed with one fmi2DoStep per input swit
 
 from __future__ import annotations
 
+import dataclasses
 import statistics
 import time
 from dataclasses import dataclass, field
@@ -22,10 +23,13 @@ import numpy as np
 from flexlink.errors import FlexlinkError
 from flexlink.mechanics.model import SymbolicModel
 from flexlink.mechanics.reference import simulate_reference
+from flexlink.run.host import FmuCallError, FmuHost
 
 
 @dataclass
 class BenchCase:
+    """A manoeuvre to measure: the model, its duration, sample times, piecewise-constant inputs, outputs."""
+
     model: SymbolicModel
     stop: float
     times: np.ndarray
@@ -34,6 +38,7 @@ class BenchCase:
     switches: list[float] = field(default_factory=list)
 
     def inputs_at(self, t: float) -> dict[str, float]:
+        """The inputs in force at time ``t`` (a switch at ``t`` included)."""
         out: dict[str, float] = {}
         for ts, values in self.pieces:
             if ts <= t + 1e-12:
@@ -43,9 +48,13 @@ class BenchCase:
 
 @dataclass
 class BenchRow:
-    """One method at one setting.  For the FMU's SS22 rows also the integrator's work per internal step
-    (factorisations and Newton iterations, from its logStatistics counters); a setting the FMU refused
-    (fmi2Discard or fmi2Error) is a failed row: no cost or error, the FMU's reason in ``failure``."""
+    """One method at one setting.
+
+    For the FMU's SS22 rows also the integrator's work per internal step (factorisations and Newton
+    iterations, from its logStatistics counters); a setting the FMU refused (fmi2Discard or fmi2Error) is a
+    failed row: no cost or error, the FMU's reason in ``failure``.
+    """
+
     method: str
     setting: str
     cpu_s_per_simulated_s: float
@@ -55,6 +64,7 @@ class BenchRow:
     failure: str | None = None
 
     def as_dict(self) -> dict:
+        """The row for the JSON report (a failed row's figures are null)."""
         failed = self.failure is not None           # no figures (JSON has no NaN)
         return {"method": self.method, "setting": self.setting,
                 "cpu_s_per_simulated_s": None if failed else self.cpu_s_per_simulated_s,
@@ -64,6 +74,12 @@ class BenchRow:
 
 
 def default_case(model: SymbolicModel, stop: float = 5.0, torque: float = 0.2, sample: float = 0.01) -> BenchCase:
+    """The bench's manoeuvre, sampled every ``sample`` s.
+
+    A torque-driven first joint gets +``torque`` for 1 s, −``torque`` for 1 s, then none; its angle and the
+    last link's tip deflection are the outputs.  Otherwise the scene's first position law must be a built-in
+    trajectory; the tip deflection and the first joint's torque are the outputs.
+    """
     scene = model.scene
     joint = scene.joints[0].name
     link = scene.links[-1].name
@@ -82,13 +98,16 @@ def default_case(model: SymbolicModel, stop: float = 5.0, torque: float = 0.2, s
 
 
 def relative_error(case: BenchCase, y: dict[str, np.ndarray], ref: dict[str, np.ndarray]) -> float:
+    """The largest, over the case's outputs, RMS error against ``ref`` divided by the reference's RMS."""
     return max(float(np.sqrt(np.mean((y[n] - ref[n]) ** 2)) / max(np.sqrt(np.mean(ref[n] ** 2)), 1e-300))
                for n in case.outputs)
 
 
 def reference_outputs(case: BenchCase, rtol: float = 1e-12) -> dict[str, np.ndarray]:
-    """CVODES from the state the FMU starts from: a coordinate the scene starts in static equilibrium is solved
-    for as the FMU does it (laws at rest)."""
+    """The case's outputs under CVODES, from the state the FMU starts from.
+
+    A coordinate the scene starts in static equilibrium is solved for as the FMU does it (laws at rest).
+    """
     from flexlink.mechanics.analysis import static_deflection
 
     model = case.model
@@ -104,18 +123,17 @@ def reference_outputs(case: BenchCase, rtol: float = 1e-12) -> dict[str, np.ndar
 
 # ------------------------------------------------------------------------------------------- the FMU
 
-def time_slave(slave, vr: dict, case: BenchCase, start: dict, repeats: int) -> float:
-    """Median CPU seconds per simulated second of an instantiated FMU2Slave over ``case``: reset, ``start``
-    set, then one fmi2DoStep per input switch, so that no Python loop is charged."""
+def time_slave(host: FmuHost, case: BenchCase, start: dict, repeats: int) -> float:
+    """Median CPU seconds per simulated second of a Co-Simulation :class:`FmuHost` over ``case``.
+
+    Reset, ``start`` set (each with its type's setter), then one fmi2DoStep per input switch, so that no
+    Python loop is charged.
+    """
+    slave, vr = host.instance, host.vr
     bounds = [0.0, *case.switches, case.stop]
     cpu = []
     for _ in range(repeats):
-        slave.reset()
-        for name, value in start.items():
-            slave.setReal([vr[name]], [value])
-        slave.setupExperiment(startTime=0.0)
-        slave.enterInitializationMode()
-        slave.exitInitializationMode()
+        host.initialize(start)
         t0 = time.process_time()
         for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
             u = case.inputs_at(lo)
@@ -128,25 +146,26 @@ def time_slave(slave, vr: dict, case: BenchCase, start: dict, repeats: int) -> f
 
 def bench_ss22(case: BenchCase, fmu, steps, thetas, ref, repeats: int = 5, order: int = 2) -> list[BenchRow]:
     """SS22 through the FMU at each step and Θ: cost, error, and the integrator's work per internal step.
-    A setting the FMU refuses is recorded as a failed row with the FMU's reason, and the study goes on."""
-    from fmpy.fmi1 import FMICallException
 
+    A setting the FMU refuses is recorded as a failed row with the FMU's reason, and the study goes on.
+    """
     from flexlink.run.simulate import SlaveRunner
 
     rows = []
     method = "ss22 (FMU)" if order == 2 else "ss22 order 4 (FMU, Richardson)"
     for theta in thetas:
         for h in steps:
-            start = {"solver.step": h, "solver.theta1": theta[0], "solver.theta2": theta[1], "solver.order": order}
+            settings = dataclasses.replace(case.model.scene.fmu.solver, step=h, theta=theta, order=order)
+            start = settings.start_values()
             setting = f"step={h:g}" + ("" if theta == (0.5, 0.5) else f", theta={theta[0]:g}/{theta[1]:g}")
             with SlaveRunner(fmu) as runner:      # a fresh instance: a refused setting leaves its own broken
                 try:
                     res = runner.run(case.stop, float(case.times[1] - case.times[0]), inputs=case.inputs_at,
                                      start=start, outputs=case.outputs)
                     stats = runner.solver_statistics()
-                    cost = time_slave(runner.slave, runner.vr, case, start, repeats)
-                except FMICallException:
-                    reason = runner.messages[-1] if runner.messages else "the FMU refused the step"
+                    cost = time_slave(runner, case, start, repeats)
+                except FmuCallError as e:
+                    reason = e.reason
                     rows.append(BenchRow(method, setting, float("nan"), float("nan"), failure=reason))
                     continue
             per_step = {k: stats[k] / stats["steps"] for k in ("factorisations", "newton_iterations")} \
@@ -159,7 +178,7 @@ def bench_ss22(case: BenchCase, fmu, steps, thetas, ref, repeats: int = 5, order
 # ------------------------------------------------------------------------------- the same equations
 
 def _ode(model: SymbolicModel):
-    """x' = (v, a(q, v, u, p)) as SX, with the inputs' values and the parameters as the integrator's p."""
+    """X' = (v, a(q, v, u, p)) as SX, with the inputs' values and the parameters as the integrator's p."""
     n = model.n_q
     f = model.residual.expand()
     x = ca.SX.sym("x", 2 * n)
@@ -202,8 +221,10 @@ def _outputs(case: BenchCase, X: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def casadi_states(case: BenchCase, plugin: str, tol: float, repeats: int = 5, ode=None) -> tuple[float, np.ndarray]:
-    """One of CasADi's SUNDIALS integrators (CVODES, IDAS) over ``case``, restarted at every input switch:
-    median CPU seconds per simulated second and the states (q, v) at ``case.times`` (rows)."""
+    """One of CasADi's SUNDIALS integrators (CVODES, IDAS) over ``case``, restarted at every input switch.
+
+    Returns the median CPU seconds per simulated second and the states (q, v) at ``case.times`` (rows).
+    """
     if case.model.laws:
         raise FlexlinkError("the CasADi comparison needs constant inputs between switches (no built-in law)")
     x, u, p, rhs = ode or _ode(case.model)
@@ -270,9 +291,12 @@ def bench_scipy(case: BenchCase, method: str, tolerances, ref, repeats: int = 3)
 
 
 def model_exchange_inputs(case: BenchCase) -> np.ndarray | None:
-    """fmpy's input table of a case: a switch is two rows at the same time (fmpy's discontinuity), the value
-    before and after; the last row holds the value of the last interval (fmpy interpolates linearly between
-    rows: a switch at the stop time itself would otherwise ramp the whole last interval)."""
+    """Fmpy's input table of a case.
+
+    A switch is two rows at the same time (fmpy's discontinuity), the value before and after; the last row
+    holds the value of the last interval (fmpy interpolates linearly between rows: a switch at the stop time
+    itself would otherwise ramp the whole last interval).
+    """
     names = [s.name for s in case.model.inputs if s.fmu_variable]
     if not names:
         return None
@@ -287,9 +311,11 @@ def model_exchange_inputs(case: BenchCase) -> np.ndarray | None:
 def run_model_exchange(case: BenchCase, fmu, *, solver: str = "CVode", relative_tolerance: float | None = None,
                        step_size: float | None = None, timeout: float | None = None
                        ) -> tuple[dict[str, np.ndarray], float]:
-    """The case's outputs on its sample grid from the FMU's Model Exchange interface under one of fmpy's
-    solvers (CVode, or its explicit Euler at ``step_size``), and the CPU seconds it took.  Past ``timeout``
-    wall-clock seconds fmpy stops early: a TimeoutError, not a short result."""
+    """The case's outputs on its sample grid from the FMU's Model Exchange interface, and the CPU seconds.
+
+    Under one of fmpy's solvers (CVode, or its explicit Euler at ``step_size``).  Past ``timeout`` wall-clock
+    seconds fmpy stops early: a TimeoutError, not a short result.
+    """
     import fmpy
 
     sample = float(case.times[1] - case.times[0])
@@ -304,8 +330,11 @@ def run_model_exchange(case: BenchCase, fmu, *, solver: str = "CVode", relative_
 
 
 def bench_model_exchange(case: BenchCase, fmu, tolerances, ref, repeats: int = 3) -> list[BenchRow]:
-    """The same FMU's Model Exchange interface under fmpy's CVODE (what an FMI host would run), restarted at
-    the input switches by fmpy's input handling; the time includes fmpy's Python loop around the FMU calls."""
+    """The same FMU's Model Exchange interface under fmpy's CVODE (what an FMI host would run).
+
+    Restarted at the input switches by fmpy's input handling; the time includes fmpy's Python loop around the
+    FMU calls.
+    """
     rows = []
     for tol in tolerances:
         runs = [run_model_exchange(case, fmu, relative_tolerance=tol) for _ in range(repeats)]
@@ -349,6 +378,7 @@ def run_bench(scene_path, *, quick: bool = False, repeats: int | None = None) ->
 
 
 def plot_bench(rows: list[BenchRow], info: dict, path) -> None:
+    """Write the speed-against-error plot of the rows (one series per method) to ``path``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -370,6 +400,7 @@ def plot_bench(rows: list[BenchRow], info: dict, path) -> None:
 
 
 def report_markdown(rows: list[BenchRow], info: dict) -> str:
+    """The bench's report as Markdown: the case, the reference's own error, and one table row per row."""
     lines = [f"# Speed against error: {info['scene']}", "",
              f"Outputs {', '.join(info['outputs'])} over {info['stop_time']} s; reference {info['reference']} "
              f"(its own error, against rtol 1e-13: {info['reference_error']:.1e}).", "",

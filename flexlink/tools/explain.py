@@ -1,5 +1,7 @@
-"""``flexlink explain``: what a scene's model contains and why, its frequencies, and a step for SS22; with
-``--error-target``, the cheapest model level that is accurate enough (``flexlink.tools.fidelity``)."""
+"""``flexlink explain``: what a scene's model contains and why, its frequencies, and a step for SS22.
+
+With ``--error-target``, the cheapest model level that is accurate enough (``flexlink.tools.fidelity``).
+"""
 
 from __future__ import annotations
 
@@ -18,8 +20,11 @@ def _fmt(vector) -> str:
 
 
 def body_lines(scene) -> list[str]:
-    """One line per joint and the body it drives, base to tip: the joint's axis, drive and placement, the
-    link's kind, size and mass (what the chain is made of, before any model is built)."""
+    """One line per joint and the body it drives, base to tip.
+
+    The joint's axis, drive and placement, the link's kind, size and mass (what the chain is made of, before
+    any model is built).
+    """
     lines = []
     for joint, link in zip(scene.joints, scene.links, strict=True):
         where = ""
@@ -46,11 +51,12 @@ def body_lines(scene) -> list[str]:
 
 
 def explain(scene_path) -> dict:
+    """What ``flexlink explain`` reports on a scene file, as JSON-ready data."""
     scene = load_scene(scene_path)
     model = build_model(scene)
     modes = natural_frequencies(model)
     f_max = max(modes.frequencies_hz) if modes.frequencies_hz else 0.0
-    step = 1.0 / (STEPS_PER_PERIOD * f_max) if f_max > 0 else scene.fmu.step
+    step = 1.0 / (STEPS_PER_PERIOD * f_max) if f_max > 0 else scene.fmu.solver.step
     return {
         "scene": scene.name,
         "bodies": body_lines(scene),
@@ -67,11 +73,12 @@ def explain(scene_path) -> dict:
         "frequencies_hz": modes.frequencies_hz,
         "unstable_hz": modes.unstable_hz,
         "recommended_step": step,
-        "scene_step": scene.fmu.step,
+        "scene_step": scene.fmu.solver.step,
     }
 
 
 def format_explanation(info: dict) -> str:
+    """The text ``flexlink explain`` prints for :func:`explain`'s data."""
     lines = [f"{info['scene']}: joints and the bodies they drive, base to tip"]
     lines += [f"  {b}" for b in info["bodies"]]
     lines.append(f"{len(info['coordinates'])} coordinates")
@@ -104,9 +111,12 @@ def format_explanation(info: dict) -> str:
 # ------------------------------------------------------------------------- --error-target (flexlink.tools.fidelity)
 
 def fidelity(scene_path, error_target: float, *, quick: bool = False, progress=None) -> dict:
-    """The fidelity ladder of the scene and the cheapest level that meets ``error_target`` on the ladder's
-    manoeuvre and again when its FMU is checked directly against the truth on a second manoeuvre (a level
-    whose model and integration errors cancelled on the first is not recommended on that luck)."""
+    """The fidelity ladder of the scene and the cheapest level that meets ``error_target``.
+
+    The level must meet it on the ladder's manoeuvre and again when its FMU is checked directly against the
+    truth on a second manoeuvre (a level whose model and integration errors cancelled on the first is not
+    recommended on that luck).
+    """
     from flexlink.scene.loader import load_scene
 
     scene = load_scene(scene_path)
@@ -131,6 +141,7 @@ def _format_checks(info: dict) -> list[str]:
 
 
 def format_fidelity(info: dict) -> str:
+    """The text ``flexlink explain --error-target`` prints for the ladder and its recommendation."""
     target = info["error_target"]
     rows = info["ladder"]
     best = info["recommendation"]

@@ -164,7 +164,7 @@ def recommended_step(model) -> tuple[float, float]:
 
     freqs = natural_frequencies(model).frequencies_hz
     f_max = max(freqs) if freqs else 0.0
-    return (1.0 / (STEPS_PER_PERIOD * f_max) if f_max > 0 else model.scene.fmu.step), f_max
+    return (1.0 / (STEPS_PER_PERIOD * f_max) if f_max > 0 else model.scene.fmu.solver.step), f_max
 
 
 class _Runs:
@@ -185,7 +185,7 @@ class _Runs:
     def cost(self, step: float, repeats: int) -> float:
         from flexlink.tools.bench import time_slave
 
-        return time_slave(self.runner.slave, self.runner.vr, self.case, {"solver.step": step}, repeats)
+        return time_slave(self.runner, self.case, {"solver.step": step}, repeats)
 
     def close(self) -> None:
         self.runner.close()

@@ -70,6 +70,7 @@ class ClampedFreeBasis(ShapeBasis):
 
     @property
     def n(self) -> int:
+        """The number of shape functions."""
         return self.count
 
     def _evaluate(self, x: np.ndarray, derivative: int) -> np.ndarray:
@@ -88,6 +89,7 @@ class ClampedFreeBasis(ShapeBasis):
         return value * (self.amplitude * (lam / self.length) ** derivative)
 
     def panel_edges(self) -> np.ndarray:
+        """The edges of the quadrature panels along the link (m)."""
         # about one radian of the highest mode per panel: the point rule's integrands (u², u̇²) oscillate 4×
         return np.linspace(0.0, self.length, max(4, math.ceil(self.lambdas[-1])) + 1)
 

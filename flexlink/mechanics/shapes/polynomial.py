@@ -14,6 +14,8 @@ from .base import ShapeBasis
 
 
 class PolynomialBasis(ShapeBasis):
+    """Polynomial shape functions of a clamped link (SCENE.md ``kind = "polynomial"``)."""
+
     kind = "polynomial"
 
     def __init__(self, count: int, length: float, linear_density: float = 1.0):
@@ -22,6 +24,7 @@ class PolynomialBasis(ShapeBasis):
 
     @property
     def n(self) -> int:
+        """The number of shape functions."""
         return self.count
 
     def _evaluate(self, x: np.ndarray, derivative: int) -> np.ndarray:

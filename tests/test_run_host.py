@@ -1,0 +1,69 @@
+"""flexlink.run.host.FmuHost: one instance from extraction to clean-up, refusals as one error with the FMU's
+reason.  The refusals asserted are the FMU's own rules (fmu_src: the doStep bound of
+flexlink.scene.solver.DOSTEP_MAX_INTERNAL_STEPS, the declared range of solver.theta1), and the counters of
+logStatistics are checked against the step count the settings imply."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+from fmpy.fmi1 import FMICallException
+
+from flexlink.errors import FlexlinkError
+from flexlink.run.host import FmuCallError, FmuHost
+from flexlink.scene import solver
+
+
+@pytest.fixture(scope="module")
+def fmu(example_fmu):
+    return example_fmu("rotating_link")
+
+
+def test_a_discarded_step_is_one_error_with_the_fmu_reason(fmu) -> None:
+    step = 1e-9
+    with FmuHost(fmu) as host:
+        host.initialize({"solver.step": step})
+        with pytest.raises(FmuCallError) as info:
+            host.call("fmi2DoStep", host.instance.doStep, 0.0, 1e-2)
+        e = info.value
+        assert e.status == 2 and e.function == "fmi2DoStep"
+        assert f"at most {solver.DOSTEP_MAX_INTERNAL_STEPS}" in e.reason
+        assert isinstance(e, FlexlinkError) and isinstance(e, FMICallException)
+        assert str(e).startswith(f"{os.path.basename(fmu)}: fmi2DoStep failed with status 2 (discard): ")
+        host.call("fmi2DoStep", host.instance.doStep, 0.0, 100 * step)    # the instance goes on
+
+
+def test_a_value_outside_the_declared_range_is_refused_with_its_name(fmu) -> None:
+    with FmuHost(fmu) as host, pytest.raises(FmuCallError) as info:
+        host.initialize({"solver.theta1": solver.THETA_MIN - 0.1})
+    assert info.value.status == 3 and "solver.theta1" in info.value.reason
+
+
+def test_an_unknown_name_is_refused_with_the_closest_names(fmu) -> None:
+    with FmuHost(fmu) as host, pytest.raises(FlexlinkError, match="did you mean .*solver.step"):
+        host.value_reference("solver.stepp")
+
+
+def test_the_statistics_count_the_steps_the_settings_imply(fmu) -> None:
+    with FmuHost(fmu) as host:
+        for run in range(2):                         # the second run resets the instance
+            host.initialize({"solver.step": 5e-4})
+            for k in range(10):
+                host.call("fmi2DoStep", host.instance.doStep, k * 1e-2, 1e-2)
+            stats = host.solver_statistics()
+            assert stats["steps"] == 200, run        # 0.1 s in steps of 0.5 ms
+            assert stats["newton_iterations"] >= stats["steps"]
+
+
+def test_model_exchange_and_clean_up(fmu) -> None:
+    with FmuHost(fmu, interface="ModelExchange", instance_name="me") as host:
+        host.initialize()
+        extracted = host._unzipdir
+        assert extracted is not None and os.path.isdir(extracted)
+        host.call("fmi2NewDiscreteStates", host.instance.newDiscreteStates)
+        host.call("fmi2EnterContinuousTimeMode", host.instance.enterContinuousTimeMode)
+        assert host.get_real(["hub.theta"]) == [0.0]
+    assert not os.path.exists(extracted)
+    with pytest.raises(ValueError, match="interface"):
+        FmuHost(fmu, interface="Scheduled")
