@@ -87,10 +87,11 @@ def add_control_parsers(subparsers) -> None:
                    help="window after the manoeuvre for the residual vibration and final error (default 1.5)")
     p.add_argument("--controller", choices=("lqr", "pd"), default="lqr",
                    help="lqr: LQR + Kalman estimator with model feedforward; pd: joint PD baseline")
-    p.add_argument("--torque-limit", type=_finite, metavar="NM",
-                   help="saturation and Bryson torque limit of every joint (default: 1.5 x the rigid quintic's "
-                        "peak torque of the first joint; with several joints 1.5 x the largest peak of the "
-                        "inverse-dynamics feedforward)")
+    p.add_argument("--torque-limit", type=_angles, metavar="NM[,NM...]",
+                   help="saturation and Bryson torque limit of every joint, or one per torque-driven joint "
+                        "comma-separated in scene order (default: 1.5 x the rigid quintic's peak torque of the "
+                        "first joint; with several joints 1.5 x the largest peak of the inverse-dynamics "
+                        "feedforward)")
     p.add_argument("--root-moment", type=_finite, metavar="NM",
                    help="Bryson limit of every link's root bending moment in the LQR weights (default: 10 %% of the "
                         "torque limit of the joint carrying the link; the torque limit itself gives the two-link "
@@ -200,8 +201,8 @@ def cmd_control(args) -> int:
         raise FlexlinkError(f"--sample-time must be positive, got {args.sample_time}")
     if args.root_moment is not None and not args.root_moment > 0:
         raise FlexlinkError(f"--root-moment must be positive, got {args.root_moment}")
-    if args.torque_limit is not None and not args.torque_limit > 0:
-        raise FlexlinkError(f"--torque-limit must be positive, got {args.torque_limit}")
+    if args.torque_limit is not None and not all(v > 0 for v in args.torque_limit):
+        raise FlexlinkError(f"--torque-limit must be positive, got {','.join(f'{v:g}' for v in args.torque_limit)}")
     run_params = parse_assignments(args.set)
     if args.schedule is not None and args.schedule < 2:
         raise FlexlinkError(f"--schedule: at least 2 design points along the path (start and target), got "
@@ -221,7 +222,7 @@ def cmd_control(args) -> int:
     target = targets[0] if targets else None
     if args.duration is not None and not args.duration > 0:
         raise FlexlinkError(f"--duration must be a positive number of seconds, got {args.duration}")
-    limit = args.torque_limit
+    limit = _torque_limits(plant, args.torque_limit)
     if limit is None:
         limit = _default_limits(plant, targets, args.duration, args.sample_time)
     try:
@@ -318,6 +319,20 @@ def _export_ssp(args, d, targets) -> None:
           f"for {args.duration + args.settle:g} s at a {d.dt:g} s communication step", file=sys.stderr)
 
 
+def _torque_limits(plant, values):
+    """``--torque-limit``: one number for every joint, or a mapping joint → limit (one per torque-driven
+    joint); None when not given."""
+    from controllers.design import actuated_joints
+
+    if values is None or len(values) == 1:
+        return None if values is None else values[0]
+    joints = actuated_joints(plant)
+    if len(values) != len(joints):
+        raise FlexlinkError(f"--torque-limit: one limit for all joints or one per torque-driven joint "
+                            f"({', '.join(joints)}), got {len(values)}")
+    return dict(zip(joints, values, strict=True))
+
+
 def _default_limits(plant, targets, duration, dt):
     """One joint: 1.5 x the rigid quintic's peak torque; several: 1.5 x the largest inverse-dynamics peak."""
     from controllers.design import actuated_joints
@@ -342,13 +357,13 @@ def _run_multijoint(args, d, targets, run_params) -> int:
         raise FlexlinkError("--controller: with several torque-driven joints the run compares the LQG and the joint "
                             "PD; leave --controller out")
     check_multijoint(d)                   # the refusals before an FMU is built
-    plan(d.plant, targets)
+    pl = plan(d.plant, targets)
     _check_times(args.duration, args.settle, d.dt)
     fmu = cached_fmu(args.scene)
     if args.schedule is not None:
         return _run_scheduled(args, d, targets, run_params, fmu)
     with _loop(fmu, run_params) as loop:
-        runs = compare(d, loop, targets, args.duration, args.settle, parameters=run_params)
+        runs = compare(d, loop, targets, args.duration, args.settle, parameters=run_params, pl=pl)
     move = _move(d, targets)
     if args.plot:
         from controllers.plots import plot_multijoint
