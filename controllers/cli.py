@@ -112,8 +112,8 @@ def add_control_parsers(subparsers) -> None:
                         "with the fixed LQG designed at the start (docs/control.md)")
     p.add_argument("--export-fmu", type=output_file, metavar="CTRL.fmu",
                    help="also write the sampled LQG (Kalman current estimator + discrete LQR, saturation) as a "
-                        "pure-C FMI 2.0 Co-Simulation FMU, its sample time the fixed communication step "
-                        "(docs/control.md)")
+                        "pure-C FMI 2.0 Co-Simulation FMU, its sample time the fixed communication step; with "
+                        "--schedule the scheduled LQG, its matrices switched along the path (docs/control.md)")
     p.add_argument("--export-ssp", type=output_file, metavar="SYSTEM.ssp",
                    help="also write an SSP 1.0 package: the scene's FMU and the controller FMU playing the "
                         "--target manoeuvre (needs --target and --duration), connected, the sample time as the "
@@ -232,7 +232,10 @@ def cmd_control(args) -> int:
     if args.schedule is not None and (args.design_only or len(d.actuated_joints) < 2):
         raise FlexlinkError("--schedule: gain scheduling over the path is part of the multi-joint run (several "
                             "torque-driven joints, --target and --duration, no --design-only)")
-    if args.export_fmu:
+    if args.schedule is not None and args.export_ssp:
+        raise FlexlinkError("--export-ssp: the SSP package's controller is the fixed LQG so far; leave --schedule "
+                            "out (--export-fmu writes the scheduled one)")
+    if args.export_fmu and args.schedule is None:      # with --schedule: once the schedule is designed
         _export(args, d)
     if args.export_ssp:
         _export_ssp(args, d, targets)
@@ -284,15 +287,16 @@ def cmd_control(args) -> int:
     return 0
 
 
-def _export(args, d) -> None:
-    """``--export-fmu``: the controller FMU (:func:`controllers.export.export_controller_fmu`); one line on
-    stderr (stdout may carry --json)."""
+def _export(args, d, schedule=None) -> None:
+    """``--export-fmu``: the controller FMU (:func:`controllers.export.export_controller_fmu`), scheduled
+    along the path with ``schedule``; one line on stderr (stdout may carry --json)."""
     import sys
 
     from controllers.export import export_controller_fmu
 
-    path = export_controller_fmu(d, args.export_fmu)
-    print(f"wrote {path}: sampled LQG of {', '.join(d.actuated_joints)} at {d.dt:g} s (inputs: "
+    path = export_controller_fmu(d, args.export_fmu, schedule=schedule, duration=args.duration)
+    what = "sampled LQG" if schedule is None else f"sampled LQG scheduled at {len(schedule.designs)} poses"
+    print(f"wrote {path}: {what} of {', '.join(d.actuated_joints)} at {d.dt:g} s (inputs: "
           f"{', '.join(d.kalman.sensors)}, x_ref, u_ff, w; outputs: {', '.join(d.lqr.inputs)})", file=sys.stderr)
 
 
@@ -410,6 +414,8 @@ def _run_scheduled(args, d, targets, run_params, fmu) -> int:
 
     pl = plan(d.plant, targets)
     schedule = design_schedule(d, pl, args.schedule)
+    if args.export_fmu:
+        _export(args, d, schedule)
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, args.duration, args.settle)
     with _loop(fmu, run_params) as loop:
         runs = compare_schedule(d, schedule, loop, pl, ref, parameters=run_params)
