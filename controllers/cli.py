@@ -501,12 +501,17 @@ def _print_comparison(args, d, runs, move, kp, kd) -> None:
 
 
 def _robustness_json(d, controller: str) -> dict:
-    """The design's margins as JSON values (``controllers.robustness.robustness_figures``); with the PD, its
-    own sampled loop as ``"pd"`` too."""
+    """The design's margins as JSON values (``controllers.robustness.robustness_figures``): the continuous
+    LQR, the sampled LQG, and with one sample of computation delay the predictive LQG and the LQG unaware of
+    it (sensors without feedthrough); with the PD, its own sampled loop as ``"pd"`` too."""
     from controllers.closedloop import sampled_plant
     from controllers.robustness import loop_at_a_time, robustness_figures
 
     rob = dict(d.robustness())
+    if not np.any(d.kalman.D != 0):
+        from controllers.robustness import delayed_robustness
+
+        rob.update(delayed_robustness(d.lqr, d.kalman))
     if controller == "pd":
         law = d.law("pd")
         rob["pd"] = loop_at_a_time(sampled_plant(d.plant, d.dt, law.sensors), -law.K @ law.S, [law.input])
@@ -532,7 +537,10 @@ def _report_design(args, d) -> int:
     def db(v):
         return "inf" if v is None else f"{v:.3g}"
 
-    for loop, what in (("lqr", "continuous LQR, full state"), ("lqg", f"sampled LQG at {d.dt:g} s")):
+    for loop, what in (("lqr", "continuous LQR, full state"), ("lqg", f"sampled LQG at {d.dt:g} s"),
+                       ("lqg_delay1", "predictive LQG, one sample of delay (the SSP package's)")):
+        if loop not in rob:
+            continue
         r = rob[loop]
         print(f"  {what}: {'stable' if r['stable'] else 'UNSTABLE'}, peak sensitivity "
               f"{db(r['peak_sensitivity'])} (all loops)")
@@ -541,4 +549,7 @@ def _report_design(args, d) -> int:
             print(f"    {a['input']:<16} gain margin {db(a['gain_margin_db'])} dB (down {gr} dB), phase margin "
                   f"{db(a['phase_margin_deg'])} deg at {db(a['gain_crossover_hz'])} Hz, peak sensitivity "
                   f"{db(a['peak_sensitivity'])}")
+    if "lqg_delay1_unaware" in rob:
+        print(f"  the sampled LQG with that delay (not predicting it): "
+              f"{'stable' if rob['lqg_delay1_unaware']['stable'] else 'UNSTABLE'}")
     return 0
