@@ -189,11 +189,6 @@ def _print_matrix(name: str, M, rows: list[str], cols: list[str]) -> None:
 
 
 def cmd_control(args) -> int:
-    from controllers.cosim import FmuLoop
-    from controllers.manoeuvre import check_scene, design, predict_manoeuvre, rest_to_rest
-    from flexlink.export.fmu import cached_fmu
-    from flexlink.mechanics.model import build_model
-    from flexlink.run.linearize import linear_plant
     from flexlink.run.simulate import parse_assignments
     from flexlink.scene.loader import load_scene
 
@@ -212,10 +207,24 @@ def cmd_control(args) -> int:
     if args.design_only and args.torque_limit is None and (args.target is None or args.duration is None):
         raise FlexlinkError("--design-only needs --torque-limit (or --target and --duration for the default)")
     if not args.design_only:
-        from controllers.manoeuvre import _check_times
+        from controllers.trajectory import check_times
 
-        _check_times(args.duration, args.settle, args.sample_time)      # before the model and the FMU are built
-    model = build_model(load_scene(args.scene))
+        check_times(args.duration, args.settle, args.sample_time)       # before the model and the FMU are built
+    scene = load_scene(args.scene)
+    key = _cache_key(args, scene)
+    if key is not None:
+        from controllers.design_cache import load
+
+        entry = load(key)
+        if entry is not None and (not args.json or "json" in entry):
+            return _run_cached(args, scene, entry, run_params)
+    from controllers.cosim import FmuLoop
+    from controllers.manoeuvre import check_scene, design, predict_manoeuvre, rest_to_rest
+    from flexlink.export.fmu import cached_fmu
+    from flexlink.mechanics.model import build_model
+    from flexlink.run.linearize import linear_plant
+
+    model = build_model(scene)
     check_scene(model)
     plant = linear_plant(model, outputs=[f"{model.scene.joints[0].name}.theta"])
     targets = [math.radians(v) for v in args.target] if args.target is not None else None
@@ -263,20 +272,91 @@ def cmd_control(args) -> int:
         plot_manoeuvre(args.plot, [res], d, [pred],
                        title=f"{model.scene.name}: {args.controller.upper()}, {args.target[0]:g} deg in "
                              f"{args.duration:g} s, torque limit {limit:g} N m")
+    info = {"name": model.scene.name, "start_deg": math.degrees(float(plant.x0[0])), "limit": limit, "wn": wn,
+            "zeta": zeta, "sensors": d.kalman.sensors if args.controller == "lqr" else d.law("pd").sensors}
+    if args.controller == "pd":
+        info.update(kp=d.pd.kp, kd=d.pd.kd, pd_zeta=d.pd.zeta)
+    rob = _robustness_json(d, args.controller) if args.json else None
+    if key is not None:
+        _store(key, args, d, target, info, rob)
+    _report_single(args, info, m, run_params, rob)
+    return 0
+
+
+def _cache_key(args, scene) -> str | None:
+    """The design cache's key of a one-joint run (:mod:`controllers.design_cache`); None for what it does
+    not hold (several targets, --design-only, --noise, --plot, exports, --schedule) or when it is off."""
+    if (args.design_only or args.noise or args.plot or args.export_fmu or args.export_ssp
+            or args.schedule is not None or args.target is None or len(args.target) != 1):
+        return None
+    from controllers.design_cache import cache_key, enabled
+
+    if not enabled():
+        return None
+    return cache_key(scene, {"target": args.target, "duration": args.duration, "settle": args.settle,
+                             "controller": args.controller, "torque_limit": args.torque_limit,
+                             "root_moment": args.root_moment, "sample_time": args.sample_time,
+                             "sensors": args.sensors})
+
+
+def _store(key: str, args, d, target: float, info: dict, rob: dict | None) -> None:
+    """Cache what the run needs (its law's affine form along the reference) and what it prints."""
+    from controllers.design_cache import load, store
+    from controllers.manoeuvre import _target, reference
+
+    law = d.law(args.controller)
+    ref = reference(d, args.controller, target, args.duration, args.settle)
+    law.follow(ref)
+    law.reset()
+    form = law.affine(ref)
+    if form is None:
+        return
+    old = load(key) or {}
+    store(key, {"law": {"kind": law.kind, "dt": law.dt, "sensors": list(law.sensors), "input": law.input,
+                        "form": form},
+                "reference": ref, "info": info, "json": rob if rob is not None else old.get("json"),
+                "context": {"joint": d.joint, "link": d.link, "torque_input": d.plant.inputs[0],
+                            "torque_limit": d.torque_limit, "static_tip": _target(d, target),
+                            "start_angle": d.start_angle}})
+
+
+def _run_cached(args, scene, entry: dict, run_params: dict) -> int:
+    """A repeated one-joint command: the cached law and reference through the FMU, the same figures."""
+    from controllers.design_cache import CachedLaw
+    from controllers.figures import manoeuvre_figures
+    from flexlink.export.fmu import cached_fmu
+
+    c = entry["context"]
+    fmu = cached_fmu(scene)
+    with _loop(fmu, run_params) as loop:
+        loop.record = [f"{c['joint']}.theta", f"{c['link']}.tip.v"]
+        res = loop.run(CachedLaw(**entry["law"]), entry["reference"], parameters=run_params)
+    target = math.radians(args.target[0])
+    m = manoeuvre_figures(res.series, joint=c["joint"], link=c["link"], torque_input=c["torque_input"],
+                          torque_limit=c["torque_limit"], static_tip=c["static_tip"], target=target,
+                          duration=args.duration, settle=args.settle, sample_time=args.sample_time,
+                          controller=args.controller, wall_time=res.wall_time)
+    _report_single(args, entry["info"], m, run_params, entry.get("json"))
+    return 0
+
+
+def _report_single(args, info: dict, m: dict, run_params: dict, rob: dict | None) -> None:
+    """The one-joint run's figures, printed or as JSON."""
     if args.json:
         m = dict(m)
-        m.update({"sensors": d.kalman.sensors if args.controller == "lqr" else d.law("pd").sensors,
-                  "rigid_pair_rad_s": wn, "rigid_pair_zeta": zeta, "parameters": run_params,
-                  "robustness": _robustness_json(d, args.controller)})
+        m.update({"sensors": info["sensors"], "rigid_pair_rad_s": info["wn"], "rigid_pair_zeta": info["zeta"],
+                  "parameters": run_params, "robustness": rob})
         print(json.dumps(m))
-        return 0
-    print(f"{model.scene.name}: {args.controller.upper()} rest-to-rest {math.degrees(float(plant.x0[0])):g} -> "
+        return
+    wn, zeta = info["wn"], info["zeta"]
+    print(f"{info['name']}: {args.controller.upper()} rest-to-rest {info['start_deg']:g} -> "
           f"{args.target[0]:g} deg in {args.duration:g} s (+ {args.settle:g} s settle), sample time "
-          f"{args.sample_time:g} s, torque limit {limit:g} N m")
+          f"{args.sample_time:g} s, torque limit {info['limit']:g} N m")
     if args.controller == "lqr":
-        print(f"  LQR rigid-body pair {wn:.3g} rad/s (zeta {zeta:.2f}); Kalman sensors: {', '.join(d.kalman.sensors)}")
+        print(f"  LQR rigid-body pair {wn:.3g} rad/s (zeta {zeta:.2f}); Kalman sensors: {', '.join(info['sensors'])}")
     else:
-        print(f"  PD kp {d.pd.kp:.4g} N m/rad, kd {d.pd.kd:.4g} N m s/rad (pair at {wn:.3g} rad/s, zeta {d.pd.zeta})")
+        print(f"  PD kp {info['kp']:.4g} N m/rad, kd {info['kd']:.4g} N m s/rad (pair at {wn:.3g} rad/s, zeta "
+              f"{info['pd_zeta']})")
     print(f"  final error          {m['final_error_deg']: .3e} deg")
     print(f"  residual vibration   {m['residual_vibration_rms_m']: .3e} m RMS (tip.v over the settle window)")
     print(f"  peak torque          {m['peak_torque_nm']: .4g} N m (saturated {100 * m['saturated_fraction']:.1f} %)")
@@ -284,7 +364,6 @@ def cmd_control(args) -> int:
     print(f"  realtime factor      {m['realtime_factor']: .1f} (simulated s per wall-clock s)")
     if args.plot:
         print(f"  wrote {args.plot}")
-    return 0
 
 
 def _export(args, d, schedule=None) -> None:
