@@ -216,7 +216,9 @@ def cmd_control(args) -> int:
         from controllers.design_cache import load
 
         entry = load(key)
-        if entry is not None and (not args.json or "json" in entry):
+        if entry is not None and (not args.json or entry.get("json") is not None):
+            if entry.get("kind") == "multijoint":
+                return _run_multijoint_cached(args, scene, entry, run_params)
             return _run_cached(args, scene, entry, run_params)
     from controllers.cosim import FmuLoop
     from controllers.manoeuvre import check_scene, design, predict_manoeuvre, rest_to_rest
@@ -251,7 +253,7 @@ def cmd_control(args) -> int:
     if args.design_only:
         return _report_design(args, d)
     if len(d.actuated_joints) > 1:
-        return _run_multijoint(args, d, targets, run_params)
+        return _run_multijoint(args, d, targets, run_params, key)
     if len(targets) > 1:
         raise FlexlinkError(f"--target: {len(targets)} angles for one torque-driven joint")
     fmu = cached_fmu(args.scene)          # built (or found in the cache) before the timed run
@@ -284,10 +286,10 @@ def cmd_control(args) -> int:
 
 
 def _cache_key(args, scene) -> str | None:
-    """The design cache's key of a one-joint run (:mod:`controllers.design_cache`); None for what it does
-    not hold (several targets, --design-only, --noise, --plot, exports, --schedule) or when it is off."""
+    """The design cache's key of a run (:mod:`controllers.design_cache`); None for what it does not hold
+    (--design-only, --noise, --plot, exports, --schedule) or when it is off."""
     if (args.design_only or args.noise or args.plot or args.export_fmu or args.export_ssp
-            or args.schedule is not None or args.target is None or len(args.target) != 1):
+            or args.schedule is not None or args.target is None):
         return None
     from controllers.design_cache import cache_key, enabled
 
@@ -427,11 +429,12 @@ def _default_limits(plant, targets, duration, dt):
     return multijoint_limit(plant, targets, duration, dt)
 
 
-def _run_multijoint(args, d, targets, run_params) -> int:
+def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int:
     """``flexlink control`` with several torque-driven joints: the MIMO LQG and the joint PD through the FMU
-    (:func:`controllers.multijoint.compare`), figures printed or as JSON, the plot."""
+    (:func:`controllers.multijoint.compare`), figures printed or as JSON, the plot; what a repeated command
+    needs stored under ``key`` (:mod:`controllers.design_cache`)."""
     from controllers.manoeuvre import _check_times
-    from controllers.multijoint import check_multijoint, compare, joint_pd_gains, plan
+    from controllers.multijoint import JointPDLaw, MimoLQGLaw, check_multijoint, compare, joint_pd_gains, plan
     from flexlink.export.fmu import cached_fmu
 
     if args.noise:
@@ -454,17 +457,44 @@ def _run_multijoint(args, d, targets, run_params) -> int:
         plot_multijoint(args.plot, runs, title=f"{d.plant.model.scene.name}: {move} in {args.duration:g} s; LQG "
                                                "(MIMO, Kalman) against joint PD with the LQG's peak torques")
     kp, kd = joint_pd_gains(d)
+    info = {"name": d.plant.model.scene.name, "dt": d.dt, "joints": d.actuated_joints, "sensors": d.kalman.sensors,
+            "move": move, "kp": kp.tolist(), "kd": kd.tolist()}
+    doc = None
     if args.json:
         rob = _robustness_json(d, "lqr")
         rob["pd"] = _pd_robustness(d, runs["pd"])
-        print(json.dumps({"lqg": runs["lqr"].metrics, "pd": runs["pd"].metrics, "joints": d.actuated_joints,
-                          "targets_deg": [math.degrees(t) for t in targets], "duration_s": args.duration,
-                          "settle_s": args.settle, "sample_time_s": d.dt, "sensors": d.kalman.sensors,
-                          "pd_gains": {"kp": kp.tolist(), "kd": kd.tolist()}, "parameters": run_params,
-                          "robustness": rob}))
-        return 0
-    _print_comparison(args, d, runs, move, kp, kd)
+        doc = {"joints": d.actuated_joints, "targets_deg": [math.degrees(t) for t in targets],
+               "duration_s": args.duration, "settle_s": args.settle, "sample_time_s": d.dt,
+               "sensors": d.kalman.sensors, "pd_gains": {"kp": kp.tolist(), "kd": kd.tolist()}, "robustness": rob}
+    if key is not None:
+        from controllers.design_cache import load, store
+
+        ref = runs["lqr"].reference
+        store(key, {"kind": "multijoint", "plan": pl, "reference": ref, "x0": d.plant.x0.copy(),
+                    "lqg": MimoLQGLaw(d, [d.lqr.torque_limits[j] for j in pl.joints], ref),
+                    "pd": JointPDLaw(d, [1.0] * len(pl.joints)), "info": info,
+                    "json": doc if doc is not None else (load(key) or {}).get("json")})
+    _report_multijoint(args, info, runs, run_params, doc)
     return 0
+
+
+def _run_multijoint_cached(args, scene, entry: dict, run_params: dict) -> int:
+    """A repeated multi-joint command: the cached plan, reference and laws through the FMU."""
+    from controllers.multijoint import compare_laws
+    from flexlink.export.fmu import cached_fmu
+
+    with _loop(cached_fmu(scene), run_params) as loop:
+        runs = compare_laws(loop, entry["plan"], entry["reference"], entry["lqg"], entry["pd"], entry["x0"],
+                            parameters=run_params)
+    _report_multijoint(args, entry["info"], runs, run_params, entry.get("json"))
+    return 0
+
+
+def _report_multijoint(args, info: dict, runs: dict, run_params: dict, doc: dict | None) -> None:
+    if args.json:
+        print(json.dumps({"lqg": runs["lqr"].metrics, "pd": runs["pd"].metrics, **doc, "parameters": run_params}))
+        return
+    _print_comparison(args, info, runs)
 
 
 def _loop(fmu, run_params):
@@ -565,14 +595,14 @@ def _pd_robustness(d, pd_run) -> dict:
     return robustness_figures({"pd": loop_at_a_time(P, -law.G, law.inputs)})["pd"]
 
 
-def _print_comparison(args, d, runs, move, kp, kd) -> None:
+def _print_comparison(args, info: dict, runs: dict) -> None:
     lqg, pd = runs["lqr"].metrics, runs["pd"].metrics
-    print(f"{d.plant.model.scene.name}: rest-to-rest {move} in {args.duration:g} s (+ {args.settle:g} s settle), "
-          f"sample time {d.dt:g} s; feedforward: the model's inverse dynamics along the joints' quintics")
-    print(f"  LQG: LQR on {', '.join(d.actuated_joints)} + Kalman ({', '.join(d.kalman.sensors)}), torque limits "
+    print(f"{info['name']}: rest-to-rest {info['move']} in {args.duration:g} s (+ {args.settle:g} s settle), "
+          f"sample time {info['dt']:g} s; feedforward: the model's inverse dynamics along the joints' quintics")
+    print(f"  LQG: LQR on {', '.join(info['joints'])} + Kalman ({', '.join(info['sensors'])}), torque limits "
           + ", ".join(f"{v:g}" for v in lqg["torque_limits_nm"].values()) + " N m")
-    print("  PD:  kp " + ", ".join(f"{v:.4g}" for v in kp) + " N m/rad, kd " + ", ".join(f"{v:.4g}" for v in kd)
-          + " N m s/rad, torque limits = the LQG run's peaks")
+    print("  PD:  kp " + ", ".join(f"{v:.4g}" for v in info["kp"]) + " N m/rad, kd "
+          + ", ".join(f"{v:.4g}" for v in info["kd"]) + " N m s/rad, torque limits = the LQG run's peaks")
 
     _print_table({"LQG": lqg, "PD": pd})
     if args.plot:

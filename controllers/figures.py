@@ -6,10 +6,31 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["manoeuvre_figures"]
+from controllers.trajectory import Reference
+
+__all__ = ["ManoeuvreResult", "manoeuvre_figures"]
+
+
+@dataclass
+class ManoeuvreResult:
+    """One closed-loop run: named time series (``series``), SCENE.md's figures (``metrics``) and what
+    produced them."""
+
+    controller: str
+    target: float
+    duration: float
+    settle: float
+    series: dict[str, np.ndarray]
+    reference: Reference
+    metrics: dict
+    parameters: dict = field(default_factory=dict)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.series[name]
 
 
 def manoeuvre_figures(series: Mapping[str, np.ndarray], *, joint: str, link: str, torque_input: str,

@@ -31,6 +31,7 @@ import numpy as np
 from controllers.closedloop import margins, predict
 from controllers.cosim import FmuLoop, LoopResult
 from controllers.design import KalmanDesign, LQRDesign, PDDesign, design_kalman, design_lqr, design_pd
+from controllers.figures import ManoeuvreResult
 from controllers.laws import LQGLaw, PDLaw, SampledLaw
 from controllers.trajectory import Reference, min_jerk_reference, quintic_reference
 from controllers.trajectory import check_times as _check_times
@@ -202,24 +203,6 @@ def reference(d: ControlDesign, controller: str, target: float, duration: float,
     if controller == "pd":
         return quintic_reference(d.plant, delta, duration, total, d.dt, d.pd.inertia)
     raise FlexlinkError(f"--controller: expected one of {CONTROLLERS}, got {controller!r}")
-
-
-@dataclass
-class ManoeuvreResult:
-    """One closed-loop run: named time series (``series``), SCENE.md's figures (``metrics``) and what
-    produced them."""
-
-    controller: str
-    target: float
-    duration: float
-    settle: float
-    series: dict[str, np.ndarray]
-    reference: Reference
-    metrics: dict
-    parameters: dict = field(default_factory=dict)
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        return self.series[name]
 
 
 def _metrics(d: ControlDesign, series: Mapping[str, np.ndarray], target: float, duration: float, settle: float,

@@ -31,11 +31,10 @@ import casadi as ca
 import numpy as np
 
 from controllers.cosim import FmuLoop
-from controllers.design import DesignError, torque_inputs
 from controllers.trajectory import Reference, quintic
 from flexlink.errors import FlexlinkError
 
-__all__ = ["JointPDLaw", "MimoLQGLaw", "compare", "default_torque_limit", "inverse_dynamics_reference",
+__all__ = ["JointPDLaw", "MimoLQGLaw", "compare", "compare_laws", "default_torque_limit", "inverse_dynamics_reference",
            "joint_pd_gains", "plan", "run"]
 
 
@@ -43,6 +42,8 @@ def check_multijoint(d) -> None:
     """What the multi-joint run drives: every joint torque-driven (no built-in law to carry along the path),
     starting at rest; sensors whose outputs are linear in the state.  An elastic joint's torque turns its
     motor (:func:`drive_coordinate`)."""
+    from controllers.design import DesignError
+
     model = d.plant.model
     for j in model.scene.joints:
         if j.drive != "torque":
@@ -137,6 +138,8 @@ def inverse_dynamics_reference(plant, pl: Plan, dt: float, duration: float, sett
     """Quintic path of every joint from its start to its target in ``duration``, the elastic coordinates and
     the joint torques along it from the model's inverse dynamics (module docstring); then rest at
     the targets for ``settle``.  Deviations from the design's operating point; ``u_ff`` is (N + 1, m)."""
+    from controllers.design import torque_inputs
+
     p, model = plant, plant.model
     n = model.n_q
     n_move, n_total = int(round(duration / dt)), int(round((duration + settle) / dt))
@@ -191,6 +194,8 @@ def default_torque_limit(plant, targets: Sequence[float], duration: float, dt: f
     up to 0.5 N m: the torque limit of every joint (and Bryson's R) of a multi-joint run when none is given.
     One number for all joints: a smaller limit on the elbow than on the shoulder weighs its torque more and
     gave an LQG that the elbow's motion destabilised (two_link_payload, 60°/40° in 1 s)."""
+    from controllers.design import torque_inputs
+
     pl = plan(plant, targets)
     ref = inverse_dynamics_reference(plant, pl, dt, duration, dt)
     peak = float(np.max(np.abs(ref.u_ff + plant.u0[torque_inputs(plant)])))
@@ -205,6 +210,8 @@ class MimoLQGLaw:
     kind = "lqr"
 
     def __init__(self, d, limits: Sequence[float], reference: Reference):
+        from controllers.design import torque_inputs
+
         p = d.plant
         self.dt, self.sensors, self.inputs = d.dt, list(d.kalman.sensors), list(d.lqr.inputs)
         self.u0 = p.u0[torque_inputs(p)]
@@ -265,6 +272,8 @@ class JointPDLaw:
     kind = "pd"
 
     def __init__(self, d, limits: Sequence[float], zeta: float = 0.7):
+        from controllers.design import torque_inputs
+
         p = d.plant
         self.dt, self.inputs = d.dt, list(d.lqr.inputs)
         joints = d.actuated_joints
@@ -329,19 +338,20 @@ def metrics(pl: Plan, series: Mapping[str, np.ndarray], duration: float, limits:
 
 
 def run(d, loop: FmuLoop, pl: Plan, ref: Reference, law, *, parameters: Mapping[str, float] | None = None,
-        band_deg: float = 0.1, band_m: float = 1e-3):
+        band_deg: float = 0.1, band_m: float = 1e-3, x0: np.ndarray | None = None):
     """One closed-loop run of ``law`` along ``ref`` through the FMU; a
     :class:`controllers.manoeuvre.ManoeuvreResult` with :func:`metrics` (``series`` also holds each joint's
     ``theta_ref``)."""
-    from controllers.manoeuvre import ManoeuvreResult
+    from controllers.figures import ManoeuvreResult
 
     for name in [f"{j}.theta" for j in pl.joints] + [f"{lk}.tip.v" for lk in pl.tip_static]:
         if name not in loop.record:
             loop.record.append(name)
     res = loop.run(law, ref, parameters=parameters)
+    x0 = d.plant.x0 if x0 is None else x0             # the operating point (without a design: the cached one)
     series = dict(res.series)
     for k, j in enumerate(pl.joints):
-        series[f"{j}.theta_ref"] = ref.x[:, pl.angle_index[k]] + d.plant.x0[pl.angle_index[k]]
+        series[f"{j}.theta_ref"] = ref.x[:, pl.angle_index[k]] + x0[pl.angle_index[k]]
     m = metrics(pl, series, ref.duration, law.limits, band_deg, band_m, res.wall_time)
     m.update({"controller": law.kind, "torque_limits_nm": dict(zip(pl.joints, law.limits.tolist(), strict=True))})
     settle = float(ref.time[-1]) - ref.duration
@@ -360,8 +370,14 @@ def compare(d, loop: FmuLoop, targets: Sequence[float], duration: float, settle:
     check_multijoint(d)
     pl = plan(d.plant, targets) if pl is None else pl
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, duration, settle)
-    kw = {"parameters": parameters, "band_deg": band_deg, "band_m": band_m}
-    lqg = run(d, loop, pl, ref, MimoLQGLaw(d, [d.lqr.torque_limits[j] for j in pl.joints], ref), **kw)
-    peaks = [lqg.metrics["joints"][j]["peak_torque_nm"] for j in pl.joints]
-    pd = run(d, loop, pl, ref, JointPDLaw(d, peaks), **kw)
+    laws = (MimoLQGLaw(d, [d.lqr.torque_limits[j] for j in pl.joints], ref), JointPDLaw(d, [1.0] * len(pl.joints)))
+    return compare_laws(loop, pl, ref, *laws, d.plant.x0, parameters=parameters, band_deg=band_deg, band_m=band_m)
+
+
+def compare_laws(loop: FmuLoop, pl: Plan, ref: Reference, lqg_law, pd_law, x0: np.ndarray, **kw) -> dict:
+    """:func:`compare` from its laws (the design cache's too): the LQG run, then the PD's with its torque
+    limits set to the LQG run's peaks."""
+    lqg = run(None, loop, pl, ref, lqg_law, x0=x0, **kw)
+    pd_law.limits = np.asarray([lqg.metrics["joints"][j]["peak_torque_nm"] for j in pl.joints])
+    pd = run(None, loop, pl, ref, pd_law, x0=x0, **kw)
     return {"lqr": lqg, "pd": pd}

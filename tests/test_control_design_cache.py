@@ -67,3 +67,19 @@ def test_corrupt_entry_off_switch_and_other_options(tmp_path, example_fmu):
     assert "control" in heavy and not off.exists()
     _run([*ARGS[:-1], "--sample-time", "2e-3", "--json"], tmp_path)
     assert len(list(tmp_path.glob("*.pickle"))) == 2
+
+
+def test_multi_joint_run_from_the_cache(tmp_path, example_fmu):
+    """The two-link arm's LQG-against-PD comparison: a repeated command replays the cached plan, reference
+    and laws (the PD's limits the new LQG run's peaks) with the designed run's figures."""
+    example_fmu("two_link_payload")
+    args = ["control", str(EXAMPLES / "two_link_payload.toml"), "--target", "60,20", "--duration", "1.5",
+            "--settle", "0.5", "--torque-limit", "60", "--json"]
+    first, heavy_first = _run(args, tmp_path)
+    again, heavy_again = _run(args, tmp_path)
+    assert "control" in heavy_first and heavy_again == []
+    for run in ("lqg", "pd"):
+        for k, v in first[run].items():
+            if k != "realtime_factor":
+                assert again[run][k] == v, (run, k)
+    assert again["robustness"] == first["robustness"] and again["pd_gains"] == first["pd_gains"]
