@@ -1,13 +1,14 @@
 """The design cache of ``flexlink control`` (issue 22: a repeated command starts in under a second).
 
-A one-joint run needs, before its first FMU call, the linearisation, the LQR/Kalman design (python-control:
-seconds of imports alone), the reference and the law's affine form (:class:`controllers.laws.AffineForm`).
-Only the last two and a few numbers enter the run itself.  They are stored, keyed by the parsed scene,
-flexlink's version, the ``controllers`` package's sources and every option the design and the reference
-depend on, in ``~/.cache/flexlink/designs/`` beside the build cache (written to a private file and renamed:
-a reader never sees half an entry).  A repeated command loads them and runs the FMU: it imports neither
-python-control nor the design modules.  A missing, unreadable or outdated entry is a miss, never an error.
-``FLEXLINK_DESIGN_CACHE=0`` turns the cache off; another value is the folder to use instead.
+A run needs, before its first FMU call, the linearisation, the LQR/Kalman design (python-control: seconds
+of imports alone), the reference and the law's affine form (:class:`controllers.laws.AffineForm`).  Only
+the last two and a few numbers enter the run itself.  They are stored, keyed by the parsed scene,
+flexlink's version, the sources of flexlink and of the ``controllers`` package and every option the design
+and the reference depend on, in ``~/.cache/flexlink/designs/`` beside the build cache (written to a
+private file and renamed: a reader never sees half an entry).  A repeated command loads them and runs
+the FMU: it imports neither python-control nor the design modules.  A missing, unreadable or outdated
+entry is a miss, never an error.  ``FLEXLINK_DESIGN_CACHE=0`` turns the cache off; another value is the
+folder to use instead.
 """
 
 from __future__ import annotations
@@ -32,14 +33,17 @@ def enabled() -> bool:
 
 
 def cache_key(scene, options: dict) -> str:
-    """The entry's key: the parsed scene (as the FMU's build cache keys it), flexlink's version, the
-    controllers' sources, the command's design and run options."""
+    """The entry's key: the parsed scene (as the FMU's build cache keys it), flexlink's version, the sources
+    of flexlink (the model, its linearisation) and of the controllers, the command's design and run
+    options."""
     import flexlink
 
     h = hashlib.sha256(f"design-cache {VERSION} {flexlink.__version__}".encode())
     h.update(repr(dataclasses.replace(scene, path=None)).encode())
-    for f in sorted(Path(__file__).resolve().parent.glob("*.py")):
-        h.update(f.read_bytes())
+    for root in (Path(flexlink.__file__).resolve().parent, Path(__file__).resolve().parent):
+        for f in sorted(root.rglob("*.py")):
+            h.update(f.relative_to(root).as_posix().encode())
+            h.update(f.read_bytes())
     h.update(json.dumps(options, sort_keys=True).encode())
     return h.hexdigest()[:24]
 
