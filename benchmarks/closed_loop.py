@@ -16,9 +16,10 @@ waited for a core.  The per-sample split gives the FMU alone: the same three cal
 constant torque and no law.
 
 ``--startup N``: the fixed start-up of ``flexlink control SCENE --target 90 --duration 1.5`` (issue 22: ≤ 1 s),
-N fresh processes after one that fills the FMU cache: the wall time from starting the process to its first
-FMU call (``FmuLoop`` instantiating the FMU), median and spread; and where it goes, from ``python -X
-importtime`` of one more run (the heaviest imports, cumulative).
+N fresh processes each with the design cache off and on (alternated), after one that fills the FMU and
+design caches: the wall time from starting the process to its first FMU call (``FmuLoop`` instantiating the
+FMU), median and spread; and where it goes, from ``python -X importtime`` of one more run of each (the
+heaviest imports, cumulative).
 """
 
 from __future__ import annotations
@@ -84,31 +85,43 @@ sys.exit(main(sys.argv[1:]))
 
 def startup(scene: str, n: int) -> dict:
     """Seconds from process start to the first FMU call of ``flexlink control`` (median of ``n`` fresh
-    processes) and the heaviest imports of one run (``-X importtime``, cumulative seconds)."""
+    processes) with the design cache off (``FLEXLINK_DESIGN_CACHE=0``: imports, linearisation, design) and
+    on (a repeated command), alternated in the same run; the heaviest imports of one cached and one uncached
+    run (``-X importtime``, cumulative seconds)."""
+    import os
     import subprocess
     import sys
 
     argv = [sys.executable, "-c", _FIRST_CALL, "control", scene, "--target", "90", "--duration", "1.5"]
-    subprocess.run(argv, check=True, capture_output=True)           # the FMU cache filled, not timed
-    times = []
+    subprocess.run(argv, check=True, capture_output=True)     # the FMU and design caches filled, not timed
+    envs = {"uncached": {**os.environ, "FLEXLINK_DESIGN_CACHE": "0"}, "cached": dict(os.environ)}
+    envs["cached"].pop("FLEXLINK_DESIGN_CACHE", None)
+    times = {k: [] for k in envs}
     for _ in range(n):
-        t0 = time.perf_counter()
-        proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-        for line in proc.stderr:
-            if line.startswith("FIRST_FMU_CALL"):
-                times.append(time.perf_counter() - t0)
-        proc.wait()
-    out = subprocess.run([argv[0], "-X", "importtime", *argv[1:]], capture_output=True, text=True).stderr
-    cumulative = {}
-    for line in out.splitlines():
-        parts = line.split("|")
-        if line.startswith("import time:") and parts[1].strip().isdigit():
-            name = parts[2].strip()
-            cumulative[name] = max(cumulative.get(name, 0.0), int(parts[1]) * 1e-6)
+        for k, env in envs.items():
+            t0 = time.perf_counter()
+            proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
+            for line in proc.stderr:
+                if line.startswith("FIRST_FMU_CALL"):
+                    times[k].append(time.perf_counter() - t0)
+            proc.wait()
     heavy = ("control", "scipy.signal", "scipy.stats", "matplotlib.pyplot", "scipy.optimize", "casadi",
-             "flexlink.mechanics.model", "flexlink.run.linearize", "controllers.manoeuvre", "numpy")
-    return {"median_s": statistics.median(times), "min_s": min(times), "max_s": max(times), "runs": len(times),
-            "imports_s": {k: cumulative[k] for k in heavy if k in cumulative}}
+             "flexlink.mechanics.model", "flexlink.run.linearize", "controllers.manoeuvre", "fmpy", "numpy")
+    out = {}
+    for k, env in envs.items():
+        err = subprocess.run([argv[0], "-X", "importtime", *argv[1:]], capture_output=True, text=True,
+                             env=env).stderr
+        cumulative = {}
+        for line in err.splitlines():
+            parts = line.split("|")
+            if line.startswith("import time:") and parts[1].strip().isdigit():
+                name = parts[2].strip()
+                cumulative[name] = max(cumulative.get(name, 0.0), int(parts[1]) * 1e-6)
+        ts = times[k]
+        out[k] = {"median_s": statistics.median(ts), "min_s": min(ts), "max_s": max(ts), "runs": len(ts),
+                  "imports_s": {m: cumulative[m] for m in heavy if m in cumulative}}
+    out["ratio"] = statistics.median(u / c for u, c in zip(times["uncached"], times["cached"], strict=True))
+    return out
 
 
 def compare_loops(loop, law, ref, repeats: int) -> dict:
@@ -147,10 +160,14 @@ def main() -> None:
         if args.json:
             print(json.dumps(res))
             return
-        print(f"flexlink control {Path(scene).name} --target 90: process start to first FMU call "
-              f"{res['median_s']:.2f} s (median of {res['runs']}, {res['min_s']:.2f}-{res['max_s']:.2f} s)")
-        print("heaviest imports (cumulative, one run, -X importtime): "
-              + ", ".join(f"{k} {v:.2f} s" for k, v in res["imports_s"].items()))
+        print(f"flexlink control {Path(scene).name} --target 90: process start to first FMU call, median of "
+              f"{res['cached']['runs']} (alternated in this run)")
+        for k in ("uncached", "cached"):
+            r = res[k]
+            print(f"  {k:9s} {r['median_s']:.2f} s ({r['min_s']:.2f}-{r['max_s']:.2f} s); heaviest imports "
+                  "(cumulative, one run, -X importtime): "
+                  + ", ".join(f"{m} {v:.2f} s" for m, v in r["imports_s"].items()))
+        print(f"  uncached / cached (median of the per-run ratios): {res['ratio']:.2f}")
         return
 
     from controllers.cosim import FmuLoop

@@ -87,10 +87,11 @@ def add_control_parsers(subparsers) -> None:
                    help="window after the manoeuvre for the residual vibration and final error (default 1.5)")
     p.add_argument("--controller", choices=("lqr", "pd"), default="lqr",
                    help="lqr: LQR + Kalman estimator with model feedforward; pd: joint PD baseline")
-    p.add_argument("--torque-limit", type=_finite, metavar="NM",
-                   help="saturation and Bryson torque limit of every joint (default: 1.5 x the rigid quintic's "
-                        "peak torque of the first joint; with several joints 1.5 x the largest peak of the "
-                        "inverse-dynamics feedforward)")
+    p.add_argument("--torque-limit", type=_angles, metavar="NM[,NM...]",
+                   help="saturation and Bryson torque limit of every joint, or one per torque-driven joint "
+                        "comma-separated in scene order (default: 1.5 x the rigid quintic's peak torque of the "
+                        "first joint; with several joints 1.5 x the largest peak of the inverse-dynamics "
+                        "feedforward)")
     p.add_argument("--root-moment", type=_finite, metavar="NM",
                    help="Bryson limit of every link's root bending moment in the LQR weights (default: 10 %% of the "
                         "torque limit of the joint carrying the link; the torque limit itself gives the two-link "
@@ -111,8 +112,8 @@ def add_control_parsers(subparsers) -> None:
                         "with the fixed LQG designed at the start (docs/control.md)")
     p.add_argument("--export-fmu", type=output_file, metavar="CTRL.fmu",
                    help="also write the sampled LQG (Kalman current estimator + discrete LQR, saturation) as a "
-                        "pure-C FMI 2.0 Co-Simulation FMU, its sample time the fixed communication step "
-                        "(docs/control.md)")
+                        "pure-C FMI 2.0 Co-Simulation FMU, its sample time the fixed communication step; with "
+                        "--schedule the scheduled LQG, its matrices switched along the path (docs/control.md)")
     p.add_argument("--export-ssp", type=output_file, metavar="SYSTEM.ssp",
                    help="also write an SSP 1.0 package: the scene's FMU and the controller FMU playing the "
                         "--target manoeuvre (needs --target and --duration), connected, the sample time as the "
@@ -188,11 +189,6 @@ def _print_matrix(name: str, M, rows: list[str], cols: list[str]) -> None:
 
 
 def cmd_control(args) -> int:
-    from controllers.cosim import FmuLoop
-    from controllers.manoeuvre import check_scene, design, predict_manoeuvre, rest_to_rest
-    from flexlink.export.fmu import cached_fmu
-    from flexlink.mechanics.model import build_model
-    from flexlink.run.linearize import linear_plant
     from flexlink.run.simulate import parse_assignments
     from flexlink.scene.loader import load_scene
 
@@ -200,8 +196,8 @@ def cmd_control(args) -> int:
         raise FlexlinkError(f"--sample-time must be positive, got {args.sample_time}")
     if args.root_moment is not None and not args.root_moment > 0:
         raise FlexlinkError(f"--root-moment must be positive, got {args.root_moment}")
-    if args.torque_limit is not None and not args.torque_limit > 0:
-        raise FlexlinkError(f"--torque-limit must be positive, got {args.torque_limit}")
+    if args.torque_limit is not None and not all(v > 0 for v in args.torque_limit):
+        raise FlexlinkError(f"--torque-limit must be positive, got {','.join(f'{v:g}' for v in args.torque_limit)}")
     run_params = parse_assignments(args.set)
     if args.schedule is not None and args.schedule < 2:
         raise FlexlinkError(f"--schedule: at least 2 design points along the path (start and target), got "
@@ -211,17 +207,33 @@ def cmd_control(args) -> int:
     if args.design_only and args.torque_limit is None and (args.target is None or args.duration is None):
         raise FlexlinkError("--design-only needs --torque-limit (or --target and --duration for the default)")
     if not args.design_only:
-        from controllers.manoeuvre import _check_times
+        from controllers.trajectory import check_times
 
-        _check_times(args.duration, args.settle, args.sample_time)      # before the model and the FMU are built
-    model = build_model(load_scene(args.scene))
+        check_times(args.duration, args.settle, args.sample_time)       # before the model and the FMU are built
+    scene = load_scene(args.scene)
+    key = _cache_key(args, scene)
+    if key is not None:
+        from controllers.design_cache import load
+
+        entry = load(key)
+        if entry is not None and (not args.json or entry.get("json") is not None):
+            if entry.get("kind") == "multijoint":
+                return _run_multijoint_cached(args, scene, entry, run_params)
+            return _run_cached(args, scene, entry, run_params)
+    from controllers.cosim import FmuLoop
+    from controllers.manoeuvre import check_scene, design, predict_manoeuvre, rest_to_rest
+    from flexlink.export.fmu import cached_fmu
+    from flexlink.mechanics.model import build_model
+    from flexlink.run.linearize import linear_plant
+
+    model = build_model(scene)
     check_scene(model)
     plant = linear_plant(model, outputs=[f"{model.scene.joints[0].name}.theta"])
     targets = [math.radians(v) for v in args.target] if args.target is not None else None
     target = targets[0] if targets else None
     if args.duration is not None and not args.duration > 0:
         raise FlexlinkError(f"--duration must be a positive number of seconds, got {args.duration}")
-    limit = args.torque_limit
+    limit = _torque_limits(plant, args.torque_limit)
     if limit is None:
         limit = _default_limits(plant, targets, args.duration, args.sample_time)
     try:
@@ -231,14 +243,17 @@ def cmd_control(args) -> int:
     if args.schedule is not None and (args.design_only or len(d.actuated_joints) < 2):
         raise FlexlinkError("--schedule: gain scheduling over the path is part of the multi-joint run (several "
                             "torque-driven joints, --target and --duration, no --design-only)")
-    if args.export_fmu:
+    if args.schedule is not None and args.export_ssp:
+        raise FlexlinkError("--export-ssp: the SSP package's controller is the fixed LQG so far; leave --schedule "
+                            "out (--export-fmu writes the scheduled one)")
+    if args.export_fmu and args.schedule is None:      # with --schedule: once the schedule is designed
         _export(args, d)
     if args.export_ssp:
         _export_ssp(args, d, targets)
     if args.design_only:
         return _report_design(args, d)
     if len(d.actuated_joints) > 1:
-        return _run_multijoint(args, d, targets, run_params)
+        return _run_multijoint(args, d, targets, run_params, key)
     if len(targets) > 1:
         raise FlexlinkError(f"--target: {len(targets)} angles for one torque-driven joint")
     fmu = cached_fmu(args.scene)          # built (or found in the cache) before the timed run
@@ -259,20 +274,91 @@ def cmd_control(args) -> int:
         plot_manoeuvre(args.plot, [res], d, [pred],
                        title=f"{model.scene.name}: {args.controller.upper()}, {args.target[0]:g} deg in "
                              f"{args.duration:g} s, torque limit {limit:g} N m")
+    info = {"name": model.scene.name, "start_deg": math.degrees(float(plant.x0[0])), "limit": limit, "wn": wn,
+            "zeta": zeta, "sensors": d.kalman.sensors if args.controller == "lqr" else d.law("pd").sensors}
+    if args.controller == "pd":
+        info.update(kp=d.pd.kp, kd=d.pd.kd, pd_zeta=d.pd.zeta)
+    rob = _robustness_json(d, args.controller) if args.json else None
+    if key is not None:
+        _store(key, args, d, target, info, rob)
+    _report_single(args, info, m, run_params, rob)
+    return 0
+
+
+def _cache_key(args, scene) -> str | None:
+    """The design cache's key of a run (:mod:`controllers.design_cache`); None for what it does not hold
+    (--design-only, --noise, --plot, exports, --schedule) or when it is off."""
+    if (args.design_only or args.noise or args.plot or args.export_fmu or args.export_ssp
+            or args.schedule is not None or args.target is None):
+        return None
+    from controllers.design_cache import cache_key, enabled
+
+    if not enabled():
+        return None
+    return cache_key(scene, {"target": args.target, "duration": args.duration, "settle": args.settle,
+                             "controller": args.controller, "torque_limit": args.torque_limit,
+                             "root_moment": args.root_moment, "sample_time": args.sample_time,
+                             "sensors": args.sensors})
+
+
+def _store(key: str, args, d, target: float, info: dict, rob: dict | None) -> None:
+    """Cache what the run needs (its law's affine form along the reference) and what it prints."""
+    from controllers.design_cache import load, store
+    from controllers.manoeuvre import _target, reference
+
+    law = d.law(args.controller)
+    ref = reference(d, args.controller, target, args.duration, args.settle)
+    law.follow(ref)
+    law.reset()
+    form = law.affine(ref)
+    if form is None:
+        return
+    old = load(key) or {}
+    store(key, {"law": {"kind": law.kind, "dt": law.dt, "sensors": list(law.sensors), "input": law.input,
+                        "form": form},
+                "reference": ref, "info": info, "json": rob if rob is not None else old.get("json"),
+                "context": {"joint": d.joint, "link": d.link, "torque_input": d.plant.inputs[0],
+                            "torque_limit": d.torque_limit, "static_tip": _target(d, target),
+                            "start_angle": d.start_angle}})
+
+
+def _run_cached(args, scene, entry: dict, run_params: dict) -> int:
+    """A repeated one-joint command: the cached law and reference through the FMU, the same figures."""
+    from controllers.design_cache import CachedLaw
+    from controllers.figures import manoeuvre_figures
+    from flexlink.export.fmu import cached_fmu
+
+    c = entry["context"]
+    fmu = cached_fmu(scene)
+    with _loop(fmu, run_params) as loop:
+        loop.record = [f"{c['joint']}.theta", f"{c['link']}.tip.v"]
+        res = loop.run(CachedLaw(**entry["law"]), entry["reference"], parameters=run_params)
+    target = math.radians(args.target[0])
+    m = manoeuvre_figures(res.series, joint=c["joint"], link=c["link"], torque_input=c["torque_input"],
+                          torque_limit=c["torque_limit"], static_tip=c["static_tip"], target=target,
+                          duration=args.duration, settle=args.settle, sample_time=args.sample_time,
+                          controller=args.controller, wall_time=res.wall_time)
+    _report_single(args, entry["info"], m, run_params, entry.get("json"))
+    return 0
+
+
+def _report_single(args, info: dict, m: dict, run_params: dict, rob: dict | None) -> None:
+    """The one-joint run's figures, printed or as JSON."""
     if args.json:
         m = dict(m)
-        m.update({"sensors": d.kalman.sensors if args.controller == "lqr" else d.law("pd").sensors,
-                  "rigid_pair_rad_s": wn, "rigid_pair_zeta": zeta, "parameters": run_params,
-                  "robustness": _robustness_json(d, args.controller)})
+        m.update({"sensors": info["sensors"], "rigid_pair_rad_s": info["wn"], "rigid_pair_zeta": info["zeta"],
+                  "parameters": run_params, "robustness": rob})
         print(json.dumps(m))
-        return 0
-    print(f"{model.scene.name}: {args.controller.upper()} rest-to-rest {math.degrees(float(plant.x0[0])):g} -> "
+        return
+    wn, zeta = info["wn"], info["zeta"]
+    print(f"{info['name']}: {args.controller.upper()} rest-to-rest {info['start_deg']:g} -> "
           f"{args.target[0]:g} deg in {args.duration:g} s (+ {args.settle:g} s settle), sample time "
-          f"{args.sample_time:g} s, torque limit {limit:g} N m")
+          f"{args.sample_time:g} s, torque limit {info['limit']:g} N m")
     if args.controller == "lqr":
-        print(f"  LQR rigid-body pair {wn:.3g} rad/s (zeta {zeta:.2f}); Kalman sensors: {', '.join(d.kalman.sensors)}")
+        print(f"  LQR rigid-body pair {wn:.3g} rad/s (zeta {zeta:.2f}); Kalman sensors: {', '.join(info['sensors'])}")
     else:
-        print(f"  PD kp {d.pd.kp:.4g} N m/rad, kd {d.pd.kd:.4g} N m s/rad (pair at {wn:.3g} rad/s, zeta {d.pd.zeta})")
+        print(f"  PD kp {info['kp']:.4g} N m/rad, kd {info['kd']:.4g} N m s/rad (pair at {wn:.3g} rad/s, zeta "
+              f"{info['pd_zeta']})")
     print(f"  final error          {m['final_error_deg']: .3e} deg")
     print(f"  residual vibration   {m['residual_vibration_rms_m']: .3e} m RMS (tip.v over the settle window)")
     print(f"  peak torque          {m['peak_torque_nm']: .4g} N m (saturated {100 * m['saturated_fraction']:.1f} %)")
@@ -280,18 +366,18 @@ def cmd_control(args) -> int:
     print(f"  realtime factor      {m['realtime_factor']: .1f} (simulated s per wall-clock s)")
     if args.plot:
         print(f"  wrote {args.plot}")
-    return 0
 
 
-def _export(args, d) -> None:
-    """``--export-fmu``: the controller FMU (:func:`controllers.export.export_controller_fmu`); one line on
-    stderr (stdout may carry --json)."""
+def _export(args, d, schedule=None) -> None:
+    """``--export-fmu``: the controller FMU (:func:`controllers.export.export_controller_fmu`), scheduled
+    along the path with ``schedule``; one line on stderr (stdout may carry --json)."""
     import sys
 
     from controllers.export import export_controller_fmu
 
-    path = export_controller_fmu(d, args.export_fmu)
-    print(f"wrote {path}: sampled LQG of {', '.join(d.actuated_joints)} at {d.dt:g} s (inputs: "
+    path = export_controller_fmu(d, args.export_fmu, schedule=schedule, duration=args.duration)
+    what = "sampled LQG" if schedule is None else f"sampled LQG scheduled at {len(schedule.designs)} poses"
+    print(f"wrote {path}: {what} of {', '.join(d.actuated_joints)} at {d.dt:g} s (inputs: "
           f"{', '.join(d.kalman.sensors)}, x_ref, u_ff, w; outputs: {', '.join(d.lqr.inputs)})", file=sys.stderr)
 
 
@@ -318,6 +404,20 @@ def _export_ssp(args, d, targets) -> None:
           f"for {args.duration + args.settle:g} s at a {d.dt:g} s communication step", file=sys.stderr)
 
 
+def _torque_limits(plant, values):
+    """``--torque-limit``: one number for every joint, or a mapping joint → limit (one per torque-driven
+    joint); None when not given."""
+    from controllers.design import actuated_joints
+
+    if values is None or len(values) == 1:
+        return None if values is None else values[0]
+    joints = actuated_joints(plant)
+    if len(values) != len(joints):
+        raise FlexlinkError(f"--torque-limit: one limit for all joints or one per torque-driven joint "
+                            f"({', '.join(joints)}), got {len(values)}")
+    return dict(zip(joints, values, strict=True))
+
+
 def _default_limits(plant, targets, duration, dt):
     """One joint: 1.5 x the rigid quintic's peak torque; several: 1.5 x the largest inverse-dynamics peak."""
     from controllers.design import actuated_joints
@@ -329,11 +429,12 @@ def _default_limits(plant, targets, duration, dt):
     return multijoint_limit(plant, targets, duration, dt)
 
 
-def _run_multijoint(args, d, targets, run_params) -> int:
+def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int:
     """``flexlink control`` with several torque-driven joints: the MIMO LQG and the joint PD through the FMU
-    (:func:`controllers.multijoint.compare`), figures printed or as JSON, the plot."""
+    (:func:`controllers.multijoint.compare`), figures printed or as JSON, the plot; what a repeated command
+    needs stored under ``key`` (:mod:`controllers.design_cache`)."""
     from controllers.manoeuvre import _check_times
-    from controllers.multijoint import check_multijoint, compare, joint_pd_gains, plan
+    from controllers.multijoint import JointPDLaw, MimoLQGLaw, check_multijoint, compare, joint_pd_gains, plan
     from flexlink.export.fmu import cached_fmu
 
     if args.noise:
@@ -342,13 +443,13 @@ def _run_multijoint(args, d, targets, run_params) -> int:
         raise FlexlinkError("--controller: with several torque-driven joints the run compares the LQG and the joint "
                             "PD; leave --controller out")
     check_multijoint(d)                   # the refusals before an FMU is built
-    plan(d.plant, targets)
+    pl = plan(d.plant, targets)
     _check_times(args.duration, args.settle, d.dt)
     fmu = cached_fmu(args.scene)
     if args.schedule is not None:
         return _run_scheduled(args, d, targets, run_params, fmu)
     with _loop(fmu, run_params) as loop:
-        runs = compare(d, loop, targets, args.duration, args.settle, parameters=run_params)
+        runs = compare(d, loop, targets, args.duration, args.settle, parameters=run_params, pl=pl)
     move = _move(d, targets)
     if args.plot:
         from controllers.plots import plot_multijoint
@@ -356,17 +457,44 @@ def _run_multijoint(args, d, targets, run_params) -> int:
         plot_multijoint(args.plot, runs, title=f"{d.plant.model.scene.name}: {move} in {args.duration:g} s; LQG "
                                                "(MIMO, Kalman) against joint PD with the LQG's peak torques")
     kp, kd = joint_pd_gains(d)
+    info = {"name": d.plant.model.scene.name, "dt": d.dt, "joints": d.actuated_joints, "sensors": d.kalman.sensors,
+            "move": move, "kp": kp.tolist(), "kd": kd.tolist()}
+    doc = None
     if args.json:
         rob = _robustness_json(d, "lqr")
         rob["pd"] = _pd_robustness(d, runs["pd"])
-        print(json.dumps({"lqg": runs["lqr"].metrics, "pd": runs["pd"].metrics, "joints": d.actuated_joints,
-                          "targets_deg": [math.degrees(t) for t in targets], "duration_s": args.duration,
-                          "settle_s": args.settle, "sample_time_s": d.dt, "sensors": d.kalman.sensors,
-                          "pd_gains": {"kp": kp.tolist(), "kd": kd.tolist()}, "parameters": run_params,
-                          "robustness": rob}))
-        return 0
-    _print_comparison(args, d, runs, move, kp, kd)
+        doc = {"joints": d.actuated_joints, "targets_deg": [math.degrees(t) for t in targets],
+               "duration_s": args.duration, "settle_s": args.settle, "sample_time_s": d.dt,
+               "sensors": d.kalman.sensors, "pd_gains": {"kp": kp.tolist(), "kd": kd.tolist()}, "robustness": rob}
+    if key is not None:
+        from controllers.design_cache import load, store
+
+        ref = runs["lqr"].reference
+        store(key, {"kind": "multijoint", "plan": pl, "reference": ref, "x0": d.plant.x0.copy(),
+                    "lqg": MimoLQGLaw(d, [d.lqr.torque_limits[j] for j in pl.joints], ref),
+                    "pd": JointPDLaw(d, [1.0] * len(pl.joints)), "info": info,
+                    "json": doc if doc is not None else (load(key) or {}).get("json")})
+    _report_multijoint(args, info, runs, run_params, doc)
     return 0
+
+
+def _run_multijoint_cached(args, scene, entry: dict, run_params: dict) -> int:
+    """A repeated multi-joint command: the cached plan, reference and laws through the FMU."""
+    from controllers.multijoint import compare_laws
+    from flexlink.export.fmu import cached_fmu
+
+    with _loop(cached_fmu(scene), run_params) as loop:
+        runs = compare_laws(loop, entry["plan"], entry["reference"], entry["lqg"], entry["pd"], entry["x0"],
+                            parameters=run_params)
+    _report_multijoint(args, entry["info"], runs, run_params, entry.get("json"))
+    return 0
+
+
+def _report_multijoint(args, info: dict, runs: dict, run_params: dict, doc: dict | None) -> None:
+    if args.json:
+        print(json.dumps({"lqg": runs["lqr"].metrics, "pd": runs["pd"].metrics, **doc, "parameters": run_params}))
+        return
+    _print_comparison(args, info, runs)
 
 
 def _loop(fmu, run_params):
@@ -395,6 +523,8 @@ def _run_scheduled(args, d, targets, run_params, fmu) -> int:
 
     pl = plan(d.plant, targets)
     schedule = design_schedule(d, pl, args.schedule)
+    if args.export_fmu:
+        _export(args, d, schedule)
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, args.duration, args.settle)
     with _loop(fmu, run_params) as loop:
         runs = compare_schedule(d, schedule, loop, pl, ref, parameters=run_params)
@@ -465,14 +595,14 @@ def _pd_robustness(d, pd_run) -> dict:
     return robustness_figures({"pd": loop_at_a_time(P, -law.G, law.inputs)})["pd"]
 
 
-def _print_comparison(args, d, runs, move, kp, kd) -> None:
+def _print_comparison(args, info: dict, runs: dict) -> None:
     lqg, pd = runs["lqr"].metrics, runs["pd"].metrics
-    print(f"{d.plant.model.scene.name}: rest-to-rest {move} in {args.duration:g} s (+ {args.settle:g} s settle), "
-          f"sample time {d.dt:g} s; feedforward: the model's inverse dynamics along the joints' quintics")
-    print(f"  LQG: LQR on {', '.join(d.actuated_joints)} + Kalman ({', '.join(d.kalman.sensors)}), torque limits "
+    print(f"{info['name']}: rest-to-rest {info['move']} in {args.duration:g} s (+ {args.settle:g} s settle), "
+          f"sample time {info['dt']:g} s; feedforward: the model's inverse dynamics along the joints' quintics")
+    print(f"  LQG: LQR on {', '.join(info['joints'])} + Kalman ({', '.join(info['sensors'])}), torque limits "
           + ", ".join(f"{v:g}" for v in lqg["torque_limits_nm"].values()) + " N m")
-    print("  PD:  kp " + ", ".join(f"{v:.4g}" for v in kp) + " N m/rad, kd " + ", ".join(f"{v:.4g}" for v in kd)
-          + " N m s/rad, torque limits = the LQG run's peaks")
+    print("  PD:  kp " + ", ".join(f"{v:.4g}" for v in info["kp"]) + " N m/rad, kd "
+          + ", ".join(f"{v:.4g}" for v in info["kd"]) + " N m s/rad, torque limits = the LQG run's peaks")
 
     _print_table({"LQG": lqg, "PD": pd})
     if args.plot:
@@ -480,12 +610,17 @@ def _print_comparison(args, d, runs, move, kp, kd) -> None:
 
 
 def _robustness_json(d, controller: str) -> dict:
-    """The design's margins as JSON values (``controllers.robustness.robustness_figures``); with the PD, its
-    own sampled loop as ``"pd"`` too."""
+    """The design's margins as JSON values (``controllers.robustness.robustness_figures``): the continuous
+    LQR, the sampled LQG, and with one sample of computation delay the predictive LQG and the LQG unaware of
+    it (sensors without feedthrough); with the PD, its own sampled loop as ``"pd"`` too."""
     from controllers.closedloop import sampled_plant
     from controllers.robustness import loop_at_a_time, robustness_figures
 
     rob = dict(d.robustness())
+    if not np.any(d.kalman.D != 0):
+        from controllers.robustness import delayed_robustness
+
+        rob.update(delayed_robustness(d.lqr, d.kalman))
     if controller == "pd":
         law = d.law("pd")
         rob["pd"] = loop_at_a_time(sampled_plant(d.plant, d.dt, law.sensors), -law.K @ law.S, [law.input])
@@ -511,7 +646,10 @@ def _report_design(args, d) -> int:
     def db(v):
         return "inf" if v is None else f"{v:.3g}"
 
-    for loop, what in (("lqr", "continuous LQR, full state"), ("lqg", f"sampled LQG at {d.dt:g} s")):
+    for loop, what in (("lqr", "continuous LQR, full state"), ("lqg", f"sampled LQG at {d.dt:g} s"),
+                       ("lqg_delay1", "predictive LQG, one sample of delay (the SSP package's)")):
+        if loop not in rob:
+            continue
         r = rob[loop]
         print(f"  {what}: {'stable' if r['stable'] else 'UNSTABLE'}, peak sensitivity "
               f"{db(r['peak_sensitivity'])} (all loops)")
@@ -520,4 +658,7 @@ def _report_design(args, d) -> int:
             print(f"    {a['input']:<16} gain margin {db(a['gain_margin_db'])} dB (down {gr} dB), phase margin "
                   f"{db(a['phase_margin_deg'])} deg at {db(a['gain_crossover_hz'])} Hz, peak sensitivity "
                   f"{db(a['peak_sensitivity'])}")
+    if "lqg_delay1_unaware" in rob:
+        print(f"  the sampled LQG with that delay (not predicting it): "
+              f"{'stable' if rob['lqg_delay1_unaware']['stable'] else 'UNSTABLE'}")
     return 0

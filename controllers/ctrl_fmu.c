@@ -20,6 +20,12 @@
  * sample later.  For such an importer the FMU is built with DELAY 1: it predicts the estimate one sample
  * ahead with the torque being applied and outputs the torque of the next sample (controllers/ssp.py).
  * Before the first step the output is u0 + the feedforward of sample 0.
+ *
+ * Gain scheduling (NSCHED > 0 design points, controllers/schedule.py): sample k uses the matrices (M, C, K,
+ * Ad, Bd) interpolated linearly between the two design points around the path parameter
+ * s(t_k) = tau^3 (10 - 15 tau + 6 tau^2), tau = t_k / TMOVE clipped to [0, 1] (the quintic's; 1 after the
+ * manoeuvre), as controllers.schedule.ScheduledLQGLaw does.  The schedule is a known function of time: no
+ * measured signal enters it, and the estimate is not reset when the matrices change.
  */
 #include <math.h>
 #include <stdarg.h>
@@ -32,15 +38,19 @@
 
 #define NIN (NY + NX + NU + NX)
 #define NVAR (NIN + NU)
+#ifndef NSCHED
+#define NSCHED 0
+#endif
 
 typedef struct {
     fmi2CallbackFunctions cb;
     char *name;
     double in[NIN];
     double z[NX], e[NX], u[NU];
+    double ad[NX][NX], bd[NX][NU], cy[NY][NX], mk[NX][NY], kd[NU][NX];   /* the matrices of this sample */
     double t;
     long k;                 /* samples taken since the start: the row of the built-in reference */
-    int initialising;
+    enum { INSTANTIATED, INITIALISING, STEPPING, FAILED } state;   /* FMI 2.0 CS state machine (§4.2.4) */
 } Ctrl;
 
 static void say(Ctrl *c, fmi2Status s, const char *fmt, ...) {
@@ -67,11 +77,43 @@ static void reference(const Ctrl *c, long k, double *xref, double *uff, double *
 #endif
 }
 
+#if NSCHED > 0
+/* dst = (1 − lam) a + lam b, element by element (numpy's order of operations) */
+static void blend(double *dst, const double *a, const double *b, double lam, int n) {
+    for (int i = 0; i < n; i++) dst[i] = (1.0 - lam) * a[i] + lam * b[i];
+}
+#endif
+
+/* The matrices of sample k: the design's, or the schedule's at the path parameter of t_k. */
+static void load(Ctrl *c, long k) {
+#if NSCHED > 0
+    double tau = (double)k * DT / TMOVE;
+    tau = tau < 0.0 ? 0.0 : (tau > 1.0 ? 1.0 : tau);
+    double s = pow(tau, 3.0) * (10.0 - 15.0 * tau + 6.0 * (tau * tau));
+    int i = 0;
+    while (i < NSCHED - 2 && s >= SSIG[i + 1]) i++;
+    double lam = (s - SSIG[i]) / (SSIG[i + 1] - SSIG[i]);
+    lam = lam < 0.0 ? 0.0 : (lam > 1.0 ? 1.0 : lam);
+    blend(&c->ad[0][0], SAD + i * NX * NX, SAD + (i + 1) * NX * NX, lam, NX * NX);
+    blend(&c->bd[0][0], SBD + i * NX * NU, SBD + (i + 1) * NX * NU, lam, NX * NU);
+    blend(&c->cy[0][0], SCY + i * NY * NX, SCY + (i + 1) * NY * NX, lam, NY * NX);
+    blend(&c->mk[0][0], SMK + i * NX * NY, SMK + (i + 1) * NX * NY, lam, NX * NY);
+    blend(&c->kd[0][0], SKD + i * NU * NX, SKD + (i + 1) * NU * NX, lam, NU * NX);
+#else
+    (void)k;
+    memcpy(c->ad, AD, sizeof c->ad);
+    memcpy(c->bd, BD, sizeof c->bd);
+    memcpy(c->cy, CY, sizeof c->cy);
+    memcpy(c->mk, MK, sizeof c->mk);
+    memcpy(c->kd, KD, sizeof c->kd);
+#endif
+}
+
 /* u = sat(u0 + uff − K e) */
 static void regulate(Ctrl *c, const double *uff, const double *e) {
     for (int i = 0; i < NU; i++) {
         double s = U0[i] + uff[i];
-        for (int j = 0; j < NX; j++) s -= KD[i][j] * e[j];
+        for (int j = 0; j < NX; j++) s -= c->kd[i][j] * e[j];
         c->u[i] = s < -LIM[i] ? -LIM[i] : (s > LIM[i] ? LIM[i] : s);
     }
 }
@@ -83,15 +125,16 @@ static void regulate(Ctrl *c, const double *uff, const double *e) {
 static void sample(Ctrl *c) {
     const double *y = c->in;
     double xref[NX], uff[NU], w[NX], innov[NY], z[NX];
+    if (NSCHED > 0 || c->k == 0) load(c, c->k);
     reference(c, c->k, xref, uff, w);
     for (int i = 0; i < NY; i++) {
         double s = y[i] - Y0[i];
-        for (int j = 0; j < NX; j++) s -= CY[i][j] * (xref[j] + c->z[j]);
+        for (int j = 0; j < NX; j++) s -= c->cy[i][j] * (xref[j] + c->z[j]);
         innov[i] = s;
     }
     for (int i = 0; i < NX; i++) {
         double s = c->z[i];
-        for (int j = 0; j < NY; j++) s += MK[i][j] * innov[j];
+        for (int j = 0; j < NY; j++) s += c->mk[i][j] * innov[j];
         c->e[i] = s;
     }
 #if DELAY == 0
@@ -99,8 +142,8 @@ static void sample(Ctrl *c) {
 #endif
     for (int i = 0; i < NX; i++) {
         double s = -w[i];
-        for (int j = 0; j < NX; j++) s += AD[i][j] * c->e[j];
-        for (int j = 0; j < NU; j++) s += BD[i][j] * (c->u[j] - U0[j] - uff[j]);
+        for (int j = 0; j < NX; j++) s += c->ad[i][j] * c->e[j];
+        for (int j = 0; j < NU; j++) s += c->bd[i][j] * (c->u[j] - U0[j] - uff[j]);
         z[i] = s;
     }
     memcpy(c->z, z, sizeof z);
@@ -116,10 +159,11 @@ static void reset(Ctrl *c) {
     memset(c->z, 0, sizeof c->z);
     double xref[NX], uff[NU], w[NX];
     c->k = 0;
+    load(c, 0);
     reference(c, 0, xref, uff, w);
     regulate(c, uff, c->z);             /* u0 + the feedforward of sample 0 */
     c->t = 0.0;
-    c->initialising = 0;
+    c->state = INSTANTIATED;
 }
 
 FMI2_Export const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
@@ -165,13 +209,26 @@ FMI2_Export fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean tolDe
     return fmi2OK;
 }
 
+/* A call the state machine forbids: fmi2Error, and only fmi2Reset/fmi2FreeInstance after it (§2.1.3). */
+static fmi2Status refuse(Ctrl *c, const char *call) {
+    say(c, fmi2Error, "%s: not allowed in this state of the instance", call);
+    c->state = FAILED;
+    return fmi2Error;
+}
+
 FMI2_Export fmi2Status fmi2EnterInitializationMode(fmi2Component comp) {
-    ((Ctrl *)comp)->initialising = 1;
+    Ctrl *c = comp;
+    if (!c) return fmi2Error;
+    if (c->state != INSTANTIATED) return refuse(c, "fmi2EnterInitializationMode");
+    c->state = INITIALISING;
     return fmi2OK;
 }
 
 FMI2_Export fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
-    ((Ctrl *)comp)->initialising = 0;
+    Ctrl *c = comp;
+    if (!c) return fmi2Error;
+    if (c->state != INITIALISING) return refuse(c, "fmi2ExitInitializationMode");
+    c->state = STEPPING;
     return fmi2OK;
 }
 
@@ -218,8 +275,10 @@ FMI2_Export fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real h, fm
     Ctrl *c = comp;
     if (!c) return fmi2Error;
     (void)noSetPrior;
-    if (fabs(h - DT) > 1e-9 * DT) {
-        say(c, fmi2Error, "fmi2DoStep: the controller samples at %.17g s; got a step of %.17g s", DT, h);
+    if (c->state != STEPPING) return refuse(c, "fmi2DoStep");
+    if (!(fabs(h - DT) <= 1e-9 * DT) || !isfinite(t)) {      /* a NaN step fails the test too */
+        say(c, fmi2Error, "fmi2DoStep: the controller samples at %.17g s; got a step of %.17g s at t = %.17g",
+            DT, h, t);
         return fmi2Error;
     }
     sample(c);
@@ -276,6 +335,33 @@ FMI2_Export fmi2Status fmi2GetRealOutputDerivatives(fmi2Component comp, const fm
     (void)vr; (void)n; (void)order; (void)v; REFUSE("fmi2GetRealOutputDerivatives");
 }
 FMI2_Export fmi2Status fmi2CancelStep(fmi2Component comp) { REFUSE("fmi2CancelStep"); }
+
+/* Model Exchange: not this FMU's interface; exported so that an importer probing them gets fmi2Error */
+FMI2_Export fmi2Status fmi2EnterEventMode(fmi2Component comp) { REFUSE("fmi2EnterEventMode"); }
+FMI2_Export fmi2Status fmi2NewDiscreteStates(fmi2Component comp, fmi2EventInfo *e) {
+    (void)e; REFUSE("fmi2NewDiscreteStates");
+}
+FMI2_Export fmi2Status fmi2EnterContinuousTimeMode(fmi2Component comp) { REFUSE("fmi2EnterContinuousTimeMode"); }
+FMI2_Export fmi2Status fmi2CompletedIntegratorStep(fmi2Component comp, fmi2Boolean noSet, fmi2Boolean *enter,
+                                                   fmi2Boolean *term) {
+    (void)noSet; (void)enter; (void)term; REFUSE("fmi2CompletedIntegratorStep");
+}
+FMI2_Export fmi2Status fmi2SetTime(fmi2Component comp, fmi2Real t) { (void)t; REFUSE("fmi2SetTime"); }
+FMI2_Export fmi2Status fmi2SetContinuousStates(fmi2Component comp, const fmi2Real x[], size_t n) {
+    (void)x; (void)n; REFUSE("fmi2SetContinuousStates");
+}
+FMI2_Export fmi2Status fmi2GetDerivatives(fmi2Component comp, fmi2Real dx[], size_t n) {
+    (void)dx; (void)n; REFUSE("fmi2GetDerivatives");
+}
+FMI2_Export fmi2Status fmi2GetEventIndicators(fmi2Component comp, fmi2Real ind[], size_t n) {
+    (void)ind; (void)n; REFUSE("fmi2GetEventIndicators");
+}
+FMI2_Export fmi2Status fmi2GetContinuousStates(fmi2Component comp, fmi2Real x[], size_t n) {
+    (void)x; (void)n; REFUSE("fmi2GetContinuousStates");
+}
+FMI2_Export fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component comp, fmi2Real x[], size_t n) {
+    (void)x; (void)n; REFUSE("fmi2GetNominalsOfContinuousStates");
+}
 FMI2_Export fmi2Status fmi2GetStatus(fmi2Component comp, const fmi2StatusKind k, fmi2Status *v) {
     (void)k; (void)v; REFUSE("fmi2GetStatus");
 }

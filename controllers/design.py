@@ -326,24 +326,60 @@ def _unreachable(A: np.ndarray, B: np.ndarray, vecs: np.ndarray, lam: np.ndarray
     return out
 
 
+def _at_rest(lam: np.ndarray, k: int) -> bool:
+    """``lam[k]`` is the rigid-body eigenvalue 0 (the cluster test's own zero, :func:`_unreachable`)."""
+    return abs(lam[k]) < 1e-6 * np.sqrt(max(1.0, float(np.max(np.abs(lam)))))
+
+
+def _rigid_blind(K: np.ndarray, G: np.ndarray, tol: float = 1e-6) -> list[np.ndarray]:
+    """The rigid-body motions (null space of the stiffness K, n_q × n_q) that the columns of G (n_q × m: the
+    torques' generalised forces, or the sensors' displacement rows transposed) miss.
+
+    PBH at λ = 0 for ``M q̈ + C q̇ + K q = S u``: ``wᴴ [A, B] = 0`` reduces to ``Kᵀ z = 0, Sᵀ z = 0`` (and
+    ``K v = 0, C_q v = 0`` for the sensors).  Tested on the mechanics rather than on ``[A, B]``: the
+    rigid-body cluster's singular values sit below the stiffest mode's by more than any fixed ratio once a
+    chain has stiff torsion or an elastic joint (the six-axis arm: 7e-16 for a controllable arm)."""
+    import scipy.linalg
+
+    Z = scipy.linalg.null_space(K, rcond=1e-9)
+    if Z.size == 0 or G.size == 0:
+        return [Z[:, k] for k in range(Z.shape[1])] if G.size == 0 else []
+    Gn = G / np.maximum(np.linalg.norm(G, axis=0), 1e-300)
+    U, sv, _ = np.linalg.svd(Z.T @ Gn)
+    sv = np.concatenate([sv, np.zeros(Z.shape[1] - len(sv))]) if len(sv) < Z.shape[1] else sv
+    return [Z @ U[:, k] for k in range(Z.shape[1]) if sv[k] < tol]
+
+
 def stabilizability(plant: LinearPlant, B: np.ndarray | None = None, tol: float = 1e-8) -> list[tuple[complex, str]]:
-    """Modes the joint torques cannot move (PBH test, :func:`_unreachable`) among those on or right of the
-    imaginary axis — the modes no LQR can stabilise.  Returns (eigenvalue, description) pairs, the
-    description naming the frequency and the coordinate that dominates the mode."""
+    """Modes the joint torques cannot move (PBH test, :func:`_unreachable`; the rigid-body modes on the
+    mechanics, :func:`_rigid_blind`) among those on or right of the imaginary axis — the modes no LQR can
+    stabilise.  Returns (eigenvalue, description) pairs, the description naming the frequency and the
+    coordinate that dominates the mode."""
     A = np.asarray(plant.sys.A)
     B = np.asarray(actuated_system(plant).B if B is None else B)
     lam, wl, _ = _modes(A)
     n = plant.model.n_q
-    Minv = np.linalg.inv(plant.mechanics.M)
+    mech = plant.mechanics
+    Minv = np.linalg.inv(mech.M)
     # a left vector (w_q, w_v) of A that B misses: the displacement it weighs is M⁻¹ w_v (undamped)
-    return [(lam[k], _mode_name(plant, lam[k], Minv @ w[n:])) for k, w in _unreachable(A, B, wl, lam, tol)]
+    out = [(lam[k], _mode_name(plant, lam[k], Minv @ w[n:])) for k, w in _unreachable(A, B, wl, lam, tol)
+           if not _at_rest(lam, k)]
+    if any(_at_rest(lam, k) for k in range(len(lam))):
+        out += [(0j, _mode_name(plant, 0j, z)) for z in _rigid_blind(mech.K.T, mech.M @ B[n:])]
+    return out
 
 
 def _detectability(plant: LinearPlant, C: np.ndarray, tol: float = 1e-8) -> list[tuple[complex, str]]:
     """The dual of :func:`stabilizability`: critical modes the sensors C do not see."""
     A = np.asarray(plant.sys.A)
+    C = np.asarray(C)
     lam, _, vr = _modes(A)
-    return [(lam[k], _mode_name(plant, lam[k], v.conj())) for k, v in _unreachable(A.T, C.T, vr.conj(), lam, tol)]
+    n = plant.model.n_q
+    out = [(lam[k], _mode_name(plant, lam[k], v.conj())) for k, v in _unreachable(A.T, C.T, vr.conj(), lam, tol)
+           if not _at_rest(lam, k)]
+    if any(_at_rest(lam, k) for k in range(len(lam))):
+        out += [(0j, _mode_name(plant, 0j, z)) for z in _rigid_blind(plant.mechanics.K, C[:, :n].T)]
+    return out
 
 
 def _check_stabilizable(plant: LinearPlant, B: np.ndarray) -> None:

@@ -48,6 +48,18 @@ def _c_array(name: str, a: np.ndarray) -> str:
     return f"static const double {name}[{a.shape[0]}][{a.shape[1]}] = {{\n    {rows}}};\n"
 
 
+def _schedule_data(schedule, duration: float) -> str:
+    """The design points of a gain schedule (``controllers.schedule.Schedule``): their path parameters and
+    (M, C, K_d, A_d, B_d), each flattened row-major; the manoeuvre time that maps t to the path parameter."""
+    from controllers.schedule import _matrices
+
+    mats = [_matrices(d) for d in schedule.designs]
+    out = f"#define NSCHED {len(mats)}\n#define TMOVE {float(duration):.17g}\n" + _c_array("SSIG", schedule.sigma)
+    for k, name in enumerate(("SMK", "SCY", "SKD", "SAD", "SBD")):
+        out += _c_array(name, np.concatenate([np.asarray(m[k], dtype=float).ravel() for m in mats]))
+    return out
+
+
 def _data(d, limits: np.ndarray, guid: str, tables=None, delay: int = 0) -> str:
     """ctrl_data.h: sizes, the estimator's and regulator's matrices, operating point, limits, sample time;
     with ``tables`` (x_ref, u_ff, w per sample) the built-in reference; the delay it compensates."""
@@ -70,13 +82,12 @@ def _data(d, limits: np.ndarray, guid: str, tables=None, delay: int = 0) -> str:
 def reference_tables(d, reference, limits) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The built-in reference of a controller FMU: ``x_ref``, ``u_ff`` and the prediction's correction ``w``
     of :class:`controllers.multijoint.MimoLQGLaw` per sample; its last row, held after the end, is rest at
-    the reference's final state (``w`` there: what keeps the prediction at rest, 0 at an equilibrium)."""
+    the reference's final state (``w`` 0 there: the prediction is linearised about that rest,
+    :func:`controllers.multijoint.reference_step`)."""
     from controllers.multijoint import MimoLQGLaw
 
     law = MimoLQGLaw(d, limits, reference)
-    x, u, w = reference.x.copy(), reference.u_ff.copy(), law.W.copy()
-    w[-1] = x[-1] - law.Ad @ x[-1] - law.Bd @ u[-1]
-    return x, u, w
+    return reference.x.copy(), reference.u_ff.copy(), law.W.copy()
 
 
 def _variables(d) -> list[tuple[str, str, str, str]]:
@@ -135,14 +146,16 @@ def _model_description(d, ident: str, guid: str) -> str:
 
 
 def export_controller_fmu(d, path: str | os.PathLike, limits=None, identifier: str | None = None,
-                          reference=None, delay: int = 0) -> Path:
+                          reference=None, delay: int = 0, schedule=None, duration: float | None = None) -> Path:
     """Write the design's sampled LQG (:class:`controllers.multijoint.MimoLQGLaw`) as an FMI 2.0 CS FMU.
 
     ``limits``: the torque saturation per actuated joint (default: the design's torque limits).  The sensors
     must be linear in the state (encoders, root strain gauges), as for the multi-joint run.  ``reference``
     (a :class:`controllers.trajectory.Reference` at the design's sample time): built in
     (:func:`reference_tables`).  ``delay=1``: for an importer that applies the output one sample later
-    (Jacobi; :class:`controllers.ssp.PredictiveLQGLaw`)."""
+    (Jacobi; :class:`controllers.ssp.PredictiveLQGLaw`).  ``schedule`` (a
+    :class:`controllers.schedule.Schedule` whose first design is ``d``) with the manoeuvre's ``duration``:
+    the matrices of :class:`controllers.schedule.ScheduledLQGLaw`, switched along the path in the C."""
     from flexlink.export.cbuild import compile_shared_library, fmi_headers_dir
 
     if np.any(d.kalman.D != 0) or any(not s.endswith((".theta", ".root.moment")) for s in d.kalman.sensors):
@@ -161,6 +174,13 @@ def export_controller_fmu(d, path: str | os.PathLike, limits=None, identifier: s
     if delay not in (0, 1):
         raise DesignError(f"delay: 0 or 1 sample, got {delay}")
     data = _data(d, limits, "{GUID}", tables, delay)
+    if schedule is not None:
+        if schedule.designs[0] is not d or duration is None or not duration > 0:
+            raise DesignError("a scheduled controller FMU needs the schedule of this design and the manoeuvre time")
+        if delay or reference is not None:
+            raise DesignError("--schedule: the scheduled controller FMU takes its reference as inputs, undelayed "
+                              "(no --export-ssp with --schedule so far)")
+        data += _schedule_data(schedule, duration)
     guid = hashlib.sha256(data.encode()).hexdigest()[:32]
     guid = f"{{{guid[:8]}-{guid[8:12]}-{guid[12:16]}-{guid[16:20]}-{guid[20:32]}}}"
     with tempfile.TemporaryDirectory(prefix="flexlink-ctrl-") as tmp:

@@ -31,14 +31,18 @@ gauge) and for any small manoeuvre.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import casadi as ca
-import control as ct
 import numpy as np
 
-from controllers.design import KalmanDesign, LQRDesign, PDDesign
 from controllers.trajectory import Reference
-from flexlink.run.linearize import LinearPlant, signal_name
+
+if TYPE_CHECKING:             # python-control (2-7 s of imports) only where a law is designed or analysed
+    import control as ct
+
+    from controllers.design import KalmanDesign, LQRDesign, PDDesign
+    from flexlink.run.linearize import LinearPlant
 
 __all__ = ["AffineForm", "LQGLaw", "MeasurementSchedule", "PDLaw", "SampledLaw", "measurement_schedule",
            "reference_names"]
@@ -193,6 +197,8 @@ class SampledLaw:
         raise NotImplementedError
 
     def _names(self):
+        from flexlink.run.linearize import signal_name
+
         return [signal_name(s) for s in self.sensors] + reference_names(self.n), [signal_name(self.input)]
 
 
@@ -304,6 +310,8 @@ class LQGLaw(SampledLaw):
         else:
             A, B, Cc = Az[:, :n], Bz, Cc[:, :n]
         inputs, outputs = self._names()
+        import control as ct
+
         return ct.ss(A, B, Cc, Dc, self.dt, inputs=inputs, outputs=outputs, states=states, name="lqg")
 
 
@@ -333,5 +341,7 @@ class PDLaw(SampledLaw):
         """Static law u − u0 = u_ff − K (S (y − y0) − x_ref), as a state-less discrete system."""
         inputs, outputs = self._names()
         Dc = np.hstack([-self.K @ self.S, self.K, np.ones((1, 1))])
+        import control as ct
+
         return ct.ss([], np.zeros((0, Dc.shape[1])), np.zeros((1, 0)), Dc, self.dt, inputs=inputs, outputs=outputs,
                      name="pd")

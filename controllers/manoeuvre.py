@@ -31,8 +31,10 @@ import numpy as np
 from controllers.closedloop import margins, predict
 from controllers.cosim import FmuLoop, LoopResult
 from controllers.design import KalmanDesign, LQRDesign, PDDesign, design_kalman, design_lqr, design_pd
+from controllers.figures import ManoeuvreResult
 from controllers.laws import LQGLaw, PDLaw, SampledLaw
 from controllers.trajectory import Reference, min_jerk_reference, quintic_reference
+from controllers.trajectory import check_times as _check_times
 from flexlink.errors import FlexlinkError
 from flexlink.run.linearize import LinearPlant, linear_plant
 
@@ -203,53 +205,14 @@ def reference(d: ControlDesign, controller: str, target: float, duration: float,
     raise FlexlinkError(f"--controller: expected one of {CONTROLLERS}, got {controller!r}")
 
 
-@dataclass
-class ManoeuvreResult:
-    """One closed-loop run: named time series (``series``), SCENE.md's figures (``metrics``) and what
-    produced them."""
+def _metrics(d: ControlDesign, series: Mapping[str, np.ndarray], target: float, duration: float, settle: float,
+             controller: str, wall_time: float | None) -> dict:
+    from controllers.figures import manoeuvre_figures
 
-    controller: str
-    target: float
-    duration: float
-    settle: float
-    series: dict[str, np.ndarray]
-    reference: Reference
-    metrics: dict
-    parameters: dict = field(default_factory=dict)
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        return self.series[name]
-
-
-def _metrics(d: ControlDesign, series: Mapping[str, np.ndarray], target: float, duration: float,
-             wall_time: float | None) -> dict:
-    t = series["time"]
-    tip = series[f"{d.link}.tip.v"]
-    static = _target(d, target)
-    window = t >= duration - 1e-12
-    u = series[d.plant.inputs[0]]
-    out = {
-        "final_error_deg": float(np.degrees(series[f"{d.joint}.theta"][-1] - target)),
-        "residual_vibration_rms_m": float(np.sqrt(np.mean((tip[window] - static) ** 2))),
-        "peak_torque_nm": float(np.max(np.abs(u))),
-        "realtime_factor": float((t[-1] - t[0]) / wall_time) if wall_time else None,
-        "max_tip_deflection_m": float(np.max(np.abs(tip - static))),
-        "saturated_fraction": float(np.mean(np.abs(u) >= d.torque_limit * (1 - 1e-12))),
-    }
-    return out
-
-
-def _check_times(duration: float, settle: float, dt: float) -> None:
-    if not (np.isfinite(duration) and duration > 0):
-        raise FlexlinkError(f"--duration must be a positive number of seconds, got {duration}")
-    if not (np.isfinite(settle) and settle > 0):
-        raise FlexlinkError(f"--settle must be a positive number of seconds, got {settle}")
-    for what, v in (("--duration", duration), ("--settle", settle)):
-        if abs(round(v / dt) * dt - v) > 1e-9 * max(1.0, v):
-            raise FlexlinkError(f"{what} {v} s must be a multiple of the sample time {dt} s")
-    from flexlink.run.simulate import check_run
-
-    check_run(duration + settle, dt, "--duration + --settle", "--sample-time")    # a run that would not end
+    return manoeuvre_figures(series, joint=d.joint, link=d.link, torque_input=d.plant.inputs[0],
+                             torque_limit=d.torque_limit, static_tip=_target(d, target), target=target,
+                             duration=duration, settle=settle, sample_time=d.dt, controller=controller,
+                             wall_time=wall_time)
 
 
 def rest_to_rest(d: ControlDesign, loop: FmuLoop | str | os.PathLike, target: float, duration: float,
@@ -302,9 +265,7 @@ def rest_to_rest(d: ControlDesign, loop: FmuLoop | str | os.PathLike, target: fl
             fl.close()
     series = dict(res.series)
     series[f"{d.joint}.theta_ref"] = ref.theta + d.start_angle
-    metrics = _metrics(d, series, target, duration, res.wall_time)
-    metrics.update({"controller": controller, "target_deg": math.degrees(target), "duration_s": duration,
-                    "settle_s": settle, "sample_time_s": d.dt, "torque_limit_nm": d.torque_limit})
+    metrics = _metrics(d, series, target, duration, settle, controller, res.wall_time)
     return ManoeuvreResult(controller, target, duration, settle, series, ref, metrics, dict(parameters or {}))
 
 

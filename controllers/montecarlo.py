@@ -1,11 +1,15 @@
-"""Monte Carlo robustness of the multi-joint LQG: ``flexlink sweep`` on a scene with several torque-driven joints.
+"""Monte Carlo robustness of the multi-joint LQG or joint PD: ``flexlink sweep`` on a scene with several
+torque-driven joints.
 
 Every case drives the FMU with its parameters drawn (payload mass, link stiffness, ...) and the controller,
 the reference and the feedforward designed once on the scene's nominal values: the sweep tests the fixed
-design against the varied plant.  A case is two runs on one FMU instance:
+design against the varied plant.  ``--controller lqr`` runs the MIMO LQG, ``--controller pd`` the joint PD
+of ``flexlink control``'s comparison (:class:`controllers.multijoint.JointPDLaw`), both saturated at the
+design's torque limits (the sweep has no LQG run whose peak torques would bound the PD).  A case is two runs
+on one FMU instance:
 
 * **hold** — the start pose held after a small torque pulse on every joint (0.1 N m for 5 samples), for
-  1.5 s: ``hold_decay_ratio`` is the largest, over the Kalman sensors' deviations from the operating point,
+  1.5 s: ``hold_decay_ratio`` is the largest, over the law's sensors' deviations from the operating point,
   of the RMS over the last third of the run to the RMS over its first third after the pulse, and ``stable``
   is its verdict (1 when < 1).  It is the closed loop that :func:`linear_verdict` builds from the model: a
   fixed-pose verdict, which the test checks sample by sample.
@@ -54,8 +58,8 @@ def settings(sc, controller: str, target_deg, duration: float, settle: float, sa
     targets = [float(v) for v in np.atleast_1d(target_deg)]
     if len(targets) != len(joints):
         raise FlexlinkError(f"--target: one angle per torque-driven joint ({', '.join(joints)}), got {len(targets)}")
-    if controller != "lqr":
-        raise FlexlinkError("--controller: with several torque-driven joints the sweep runs the MIMO LQG (lqr)")
+    if controller not in ("lqr", "pd"):
+        raise FlexlinkError(f"--controller: expected lqr (the MIMO LQG) or pd (the joint PD), got {controller!r}")
     _check_times(duration, settle, sample_time)
     if torque_limit is not None and not (math.isfinite(torque_limit) and torque_limit > 0):
         raise FlexlinkError(f"--torque-limit must be positive, got {torque_limit}")
@@ -88,11 +92,18 @@ def _rms(x) -> float:
     return float(np.sqrt(np.mean(np.square(x)))) if len(x) else 0.0
 
 
+def law(d, controller: str, reference):
+    """The sweep's law: the MIMO LQG or the joint PD, saturated at the design's torque limits."""
+    from controllers.multijoint import JointPDLaw, MimoLQGLaw
+
+    limits = [d.lqr.torque_limits[j] for j in d.actuated_joints]
+    return MimoLQGLaw(d, limits, reference) if controller == "lqr" else JointPDLaw(d, limits)
+
+
 def hold_decay_ratio(job, params: dict) -> float:
-    """The hold run (module docstring): the nominal LQG at the start pose after a torque pulse; inf when the
+    """The hold run (module docstring): the nominal law at the start pose after a torque pulse; inf when the
     response grows out of the model's validity (the FMU refuses the step)."""
     from controllers.cosim import FmuLoopError
-    from controllers.multijoint import MimoLQGLaw
     from controllers.trajectory import Reference
 
     d = job.design
@@ -100,9 +111,9 @@ def hold_decay_ratio(job, params: dict) -> float:
     u_ff = np.zeros((n + 1, len(d.lqr.inputs)))
     u_ff[:PULSE_SAMPLES] = PULSE_NM
     ref = Reference("pulse", d.dt, 0.0, np.arange(n + 1) * d.dt, np.zeros((n + 1, d.plant.sys.nstates)), u_ff, 0)
+    held = law(d, job.spec.settings.get("controller", "lqr"), ref)
     try:
-        res = job.instance().run(MimoLQGLaw(d, [d.lqr.torque_limits[j] for j in d.actuated_joints], ref), ref,
-                                 parameters=params)
+        res = job.instance().run(held, ref, parameters=params)
     except FmuLoopError as e:
         job.drop_instance()                   # an instance that reported an error is not reused
         if "validity" not in str(e):
@@ -110,7 +121,7 @@ def hold_decay_ratio(job, params: dict) -> float:
         return math.inf
     third = (n - PULSE_SAMPLES) // 3
     ratios = []
-    for s in d.kalman.sensors:
+    for s in held.sensors:
         dev = res[s][PULSE_SAMPLES:] - d.plant.y0[d.plant.output_row(s)]
         ratios.append(_rms(dev[-third:]) / max(_rms(dev[:third]), 1e-300))
     return max(ratios)
@@ -121,7 +132,7 @@ def case(job, params: dict) -> tuple[dict, dict]:
     nominal LQG through the FMU with ``params`` set.  The plan and the reference (seconds of CasADi) are
     made once per worker."""
     from controllers.cosim import FmuLoopError
-    from controllers.multijoint import MimoLQGLaw, inverse_dynamics_reference, plan, run
+    from controllers.multijoint import inverse_dynamics_reference, plan, run
 
     s, d = job.spec.settings, job.design
     if getattr(job, "plan", None) is None:
@@ -130,10 +141,9 @@ def case(job, params: dict) -> tuple[dict, dict]:
     pl, ref = job.plan, job.reference
     ratio = hold_decay_ratio(job, params)
     out = {"stable": float(ratio < 1.0), "hold_decay_ratio": ratio}
-    law = MimoLQGLaw(d, [d.lqr.torque_limits[j] for j in pl.joints], ref)
     try:
-        res = run(d, job.instance(), pl, ref, law, parameters=params, band_deg=s["settle_band_deg"],
-                  band_m=s["settle_band_m"])
+        res = run(d, job.instance(), pl, ref, law(d, s["controller"], ref), parameters=params,
+                  band_deg=s["settle_band_deg"], band_m=s["settle_band_m"])
     except FmuLoopError as e:
         job.drop_instance()                   # an instance that reported an error is not reused
         if "validity" not in str(e):
@@ -178,18 +188,23 @@ def stability_summary(df) -> str:
     return "\n".join(lines)
 
 
-def linear_verdict(d, params: dict) -> float:
-    """The spectral radius of the nominal sampled LQG (:func:`controllers.robustness.lqg_compensator`) in
-    loop with the plant linearised at the start pose with ``params`` and sampled (python-control): < 1 is
-    stable."""
+def linear_verdict(d, params: dict, controller: str = "lqr") -> float:
+    """The spectral radius of the nominal sampled law — the LQG (:func:`controllers.robustness.lqg_compensator`)
+    or the joint PD (its static gain on the encoders and rates) — in loop with the plant linearised at the
+    start pose with ``params`` and sampled (python-control): < 1 is stable."""
     import control as ct
 
     from controllers.closedloop import sampled_plant
     from controllers.design import torque_inputs
+    from controllers.multijoint import JointPDLaw
     from controllers.robustness import lqg_compensator
     from flexlink.run.linearize import linear_plant
 
-    sensors = list(d.kalman.sensors)
+    if controller == "lqr":
+        sensors, comp = list(d.kalman.sensors), lqg_compensator(d.lqr, d.kalman)
+    else:
+        pd = JointPDLaw(d, [d.lqr.torque_limits[j] for j in d.actuated_joints])
+        sensors, comp = pd.sensors, ct.ss([], [], [], -pd.G, d.dt)
     p = linear_plant(d.plant.model, parameters=params, outputs=sensors)
     P = sampled_plant(p, d.dt, sensors)[:, torque_inputs(p)]
-    return float(np.max(np.abs(ct.feedback(P, lqg_compensator(d.lqr, d.kalman), sign=1).poles())))
+    return float(np.max(np.abs(ct.feedback(P, comp, sign=1).poles())))

@@ -31,17 +31,19 @@ import casadi as ca
 import numpy as np
 
 from controllers.cosim import FmuLoop
-from controllers.design import DesignError, torque_inputs
 from controllers.trajectory import Reference, quintic
 from flexlink.errors import FlexlinkError
 
-__all__ = ["JointPDLaw", "MimoLQGLaw", "compare", "default_torque_limit", "inverse_dynamics_reference",
+__all__ = ["JointPDLaw", "MimoLQGLaw", "compare", "compare_laws", "default_torque_limit", "inverse_dynamics_reference",
            "joint_pd_gains", "plan", "run"]
 
 
 def check_multijoint(d) -> None:
-    """What the multi-joint run drives: every joint torque-driven (no built-in law or motor coordinate to
-    carry along the path), starting at rest; sensors whose outputs are linear in the state."""
+    """What the multi-joint run drives: every joint torque-driven (no built-in law to carry along the path),
+    starting at rest; sensors whose outputs are linear in the state.  An elastic joint's torque turns its
+    motor (:func:`drive_coordinate`)."""
+    from controllers.design import DesignError
+
     model = d.plant.model
     for j in model.scene.joints:
         if j.drive != "torque":
@@ -50,66 +52,94 @@ def check_multijoint(d) -> None:
         if j.initial_rate != 0.0:
             raise DesignError(f'joint "{j.name}": a rest-to-rest manoeuvre starts at rest; initial_rate = '
                               f"{j.initial_rate} rad/s")
-    extra = [c for c in model.coordinates if c.endswith(".motor_theta")]
-    if extra:
-        raise DesignError(f"elastic joints ({', '.join(extra)}): the multi-joint run prescribes the link-side angles "
-                          "and cannot plan the motor's")
     if np.any(d.kalman.D != 0) or any(not s.endswith((".theta", ".root.moment")) for s in d.kalman.sensors):
         raise DesignError(f"sensors {d.kalman.sensors}: the multi-joint run reads the encoders and root strain gauges "
                           "(--sensors strain)")
 
 
+def drive_coordinate(model, joint: str) -> str:
+    """The coordinate a joint's torque turns: its angle, or an elastic joint's motor angle."""
+    motor = f"{joint}.motor_theta"
+    return motor if motor in model.coordinates else f"{joint}.theta"
+
+
 @dataclass
 class Plan:
-    """Where the manoeuvre goes: joint coordinate indices, start and target angles (rad), the final rest
-    state (absolute) and its holding torques, and the static ``<link>.tip.v`` there."""
+    """Where the manoeuvre goes: the driven coordinates' indices (:func:`drive_coordinate`), their start and
+    final angles (rad), the joints' target angles (link side), the final rest state (absolute) and its
+    holding torques, the static ``<link>.tip.v`` there, and the joint angles' coordinate indices."""
 
     joints: list[str]
     index: list[int]
     start: np.ndarray
-    target: np.ndarray
+    drive_target: np.ndarray
     x_end: np.ndarray
     u_end: np.ndarray
     tip_static: dict
+    target: np.ndarray
+    angle_index: list[int]
+    angle_start: np.ndarray
 
 
 def plan(plant, targets: Sequence[float]) -> Plan:
-    """The final rest state at ``targets`` (rad, one per actuated joint): the elastic coordinates at their
-    static deflection there (zero without gravity), the torques that hold it, the tips' static deflection."""
+    """The final rest state at ``targets`` (rad, one per actuated joint, link side): the elastic coordinates
+    at their static deflection there (zero without gravity), the torques that hold it, the tips' static
+    deflection.  An elastic joint's motor ends where its spring holds the link at the target: its motor
+    angle is moved by the link's static lag, a few fixed-point passes (the lag changes little with it)."""
     from controllers.design import actuated_joints
-    from flexlink.mechanics.analysis import static_deflection
     from flexlink.run.linearize import explicit_functions
 
     p, model = plant, plant.model
     joints = actuated_joints(plant)
     if len(targets) != len(joints):
         raise FlexlinkError(f"--target: one angle per torque-driven joint ({', '.join(joints)}), got {len(targets)}")
-    idx = [model.coordinates.index(f"{j}.theta") for j in joints]
-    n = model.n_q
-    q = p.op.q.copy()
-    q[idx] = targets
-    free = [k for k in range(n) if k not in idx]
-    u = p.op.u.copy()
+    idx = [model.coordinates.index(drive_coordinate(model, j)) for j in joints]
+    angle = [model.coordinates.index(f"{j}.theta") for j in joints]
+    targets = np.asarray(targets, dtype=float)
     names = [s.name for s in model.inputs]
     cols = [names.index(f"{j}.tau") for j in joints]
+    u = p.op.u.copy()
     u[cols] = 0.0
-    q = static_deflection(model, q, np.zeros(n), u, p.op.p, free)
-    r = np.asarray(model.residual(q, np.zeros(n), np.zeros(n), u, p.op.p), dtype=float).ravel()
+    drive = targets.copy()
+    for _ in range(6):
+        q = _rest_at(model, p, idx, drive, u)
+        lag = q[angle] - targets
+        if np.max(np.abs(lag)) < 1e-10:        # at once without elastic joints (their lag is 0)
+            break
+        drive -= lag
+    else:
+        raise FlexlinkError(f"--target: the elastic joints' static lag at the targets does not converge "
+                            f"({np.max(np.abs(lag)):.3g} rad left)")
+    r = np.asarray(model.residual(q, np.zeros(model.n_q), np.zeros(model.n_q), u, p.op.p), dtype=float).ravel()
     u_end = r[idx]
     u[cols] = u_end
-    x_end = np.concatenate([q, np.zeros(n)])
+    x_end = np.concatenate([q, np.zeros(model.n_q)])
     _, h = explicit_functions(model)
     y = np.asarray(h(x_end, u, p.op.p), dtype=float).ravel()
     names = [s.name for s in model.outputs]
     tips = {lk.name: float(y[names.index(f"{lk.name}.tip.v")]) for lk in model.scene.links
             if f"{lk.name}.tip.v" in names}
-    return Plan(joints, idx, p.x0[idx].copy(), np.asarray(targets, dtype=float), x_end, u_end, tips)
+    return Plan(joints, idx, p.x0[idx].copy(), q[idx].copy(), x_end, u_end, tips, targets, angle,
+                p.x0[angle].copy())
+
+
+def _rest_at(model, p, idx, drive, u) -> np.ndarray:
+    """The static configuration with the driven coordinates held at ``drive``, the others free."""
+    from flexlink.mechanics.analysis import static_deflection
+
+    n = model.n_q
+    q = p.op.q.copy()
+    q[idx] = drive
+    free = [k for k in range(n) if k not in idx]
+    return static_deflection(model, q, np.zeros(n), u, p.op.p, free)
 
 
 def inverse_dynamics_reference(plant, pl: Plan, dt: float, duration: float, settle: float) -> Reference:
     """Quintic path of every joint from its start to its target in ``duration``, the elastic coordinates and
     the joint torques along it from the model's inverse dynamics (module docstring); then rest at
     the targets for ``settle``.  Deviations from the design's operating point; ``u_ff`` is (N + 1, m)."""
+    from controllers.design import torque_inputs
+
     p, model = plant, plant.model
     n = model.n_q
     n_move, n_total = int(round(duration / dt)), int(round((duration + settle) / dt))
@@ -122,7 +152,7 @@ def inverse_dynamics_reference(plant, pl: Plan, dt: float, duration: float, sett
     s = tau**3 * (10 - 15 * tau + 6 * tau**2)
     sd = 30 * tau**2 * (1 - tau) ** 2 / duration
     sdd = 60 * tau * (1 - tau) * (1 - 2 * tau) / duration**2
-    delta = pl.target - pl.start
+    delta = pl.drive_target - pl.start
     q, v, a = [ca.SX.zeros(n) for _ in range(3)]
     for k, i in enumerate(idx):
         q[i], v[i], a[i] = pl.start[k] + delta[k] * s, delta[k] * sd, delta[k] * sdd
@@ -164,6 +194,8 @@ def default_torque_limit(plant, targets: Sequence[float], duration: float, dt: f
     up to 0.5 N m: the torque limit of every joint (and Bryson's R) of a multi-joint run when none is given.
     One number for all joints: a smaller limit on the elbow than on the shoulder weighs its torque more and
     gave an LQG that the elbow's motion destabilised (two_link_payload, 60°/40° in 1 s)."""
+    from controllers.design import torque_inputs
+
     pl = plan(plant, targets)
     ref = inverse_dynamics_reference(plant, pl, dt, duration, dt)
     peak = float(np.max(np.abs(ref.u_ff + plant.u0[torque_inputs(plant)])))
@@ -178,6 +210,8 @@ class MimoLQGLaw:
     kind = "lqr"
 
     def __init__(self, d, limits: Sequence[float], reference: Reference):
+        from controllers.design import torque_inputs
+
         p = d.plant
         self.dt, self.sensors, self.inputs = d.dt, list(d.kalman.sensors), list(d.lqr.inputs)
         self.u0 = p.u0[torque_inputs(p)]
@@ -208,11 +242,17 @@ class MimoLQGLaw:
 def reference_step(reference: Reference, Ad: np.ndarray, Bd: np.ndarray) -> np.ndarray:
     """Where the reference stops being a trajectory of the plant (from the manoeuvre's end: its jump to rest
     at the targets), the deviation's prediction carries the reference's own step: ``e⁺ = A_d e + B_d (u −
-    u_ff) − w_k``, ``w_k = x_ref,k+1 − A_d x_ref,k − B_d u_ff,k`` (0 along the inverse dynamics)."""
+    u_ff) − w_k`` with ``w_k = x_ref,k+1 − F(x_ref,k, u_ff,k)`` (0 along the inverse dynamics).  The plant's
+    step F is linearised about the final rest (an equilibrium of the plant: ``F(x_end, u_end) = x_end``),
+    so that ``w_k = 0`` once at rest: ``w_k = (x_ref,k+1 − x_end) − A_d (x_ref,k − x_end) − B_d (u_ff,k −
+    u_end)``.  Linearised about the start pose instead, gravity's pose-dependent torques make the rest at
+    the target a moving state of the model, and the estimator a steady bias (the six-axis arm: 0.11° at
+    the shoulder)."""
     x, uf = reference.x, reference.u_ff
+    dx, du = x - x[-1], uf - uf[-1]
     W = np.zeros_like(x)
     n_move = int(round(reference.duration / reference.dt))
-    W[n_move:-1] = x[n_move + 1:] - x[n_move:-1] @ Ad.T - uf[n_move:-1] @ Bd.T
+    W[n_move:-1] = dx[n_move + 1:] - dx[n_move:-1] @ Ad.T - du[n_move:-1] @ Bd.T
     return W
 
 
@@ -221,7 +261,7 @@ def joint_pd_gains(d, zeta: float = 0.7) -> tuple[np.ndarray, np.ndarray]:
     locked-arm inertia M_jj: ``kp = M_jj ω_n²``, ``kd = 2 ζ ω_n M_jj``."""
     wn, _ = d.lqr.rigid_pair
     model = d.plant.model
-    J = np.array([d.plant.mechanics.M[i, i] for i in (model.coordinates.index(f"{j}.theta")
+    J = np.array([d.plant.mechanics.M[i, i] for i in (model.coordinates.index(drive_coordinate(model, j))
                                                       for j in d.actuated_joints)])
     return J * wn**2, 2 * zeta * wn * J
 
@@ -232,6 +272,8 @@ class JointPDLaw:
     kind = "pd"
 
     def __init__(self, d, limits: Sequence[float], zeta: float = 0.7):
+        from controllers.design import torque_inputs
+
         p = d.plant
         self.dt, self.inputs = d.dt, list(d.lqr.inputs)
         joints = d.actuated_joints
@@ -296,19 +338,20 @@ def metrics(pl: Plan, series: Mapping[str, np.ndarray], duration: float, limits:
 
 
 def run(d, loop: FmuLoop, pl: Plan, ref: Reference, law, *, parameters: Mapping[str, float] | None = None,
-        band_deg: float = 0.1, band_m: float = 1e-3):
+        band_deg: float = 0.1, band_m: float = 1e-3, x0: np.ndarray | None = None):
     """One closed-loop run of ``law`` along ``ref`` through the FMU; a
     :class:`controllers.manoeuvre.ManoeuvreResult` with :func:`metrics` (``series`` also holds each joint's
     ``theta_ref``)."""
-    from controllers.manoeuvre import ManoeuvreResult
+    from controllers.figures import ManoeuvreResult
 
     for name in [f"{j}.theta" for j in pl.joints] + [f"{lk}.tip.v" for lk in pl.tip_static]:
         if name not in loop.record:
             loop.record.append(name)
     res = loop.run(law, ref, parameters=parameters)
+    x0 = d.plant.x0 if x0 is None else x0             # the operating point (without a design: the cached one)
     series = dict(res.series)
     for k, j in enumerate(pl.joints):
-        series[f"{j}.theta_ref"] = ref.x[:, pl.index[k]] + d.plant.x0[pl.index[k]]
+        series[f"{j}.theta_ref"] = ref.x[:, pl.angle_index[k]] + x0[pl.angle_index[k]]
     m = metrics(pl, series, ref.duration, law.limits, band_deg, band_m, res.wall_time)
     m.update({"controller": law.kind, "torque_limits_nm": dict(zip(pl.joints, law.limits.tolist(), strict=True))})
     settle = float(ref.time[-1]) - ref.duration
@@ -316,17 +359,25 @@ def run(d, loop: FmuLoop, pl: Plan, ref: Reference, law, *, parameters: Mapping[
 
 
 def compare(d, loop: FmuLoop, targets: Sequence[float], duration: float, settle: float, *,
-            parameters: Mapping[str, float] | None = None, band_deg: float = 0.1, band_m: float = 1e-3) -> dict:
+            parameters: Mapping[str, float] | None = None, band_deg: float = 0.1, band_m: float = 1e-3,
+            pl: Plan | None = None) -> dict:
     """The MIMO LQG and the joint PD, each through the FMU along the same reference and feedforward, the
-    PD's torque limit the LQG run's peak torque of each joint.  Returns ``{"lqr": result, "pd": result}``."""
+    PD's torque limit the LQG run's peak torque of each joint.  Returns ``{"lqr": result, "pd": result}``.
+    ``pl``: the :func:`plan` to ``targets`` if the caller has it already."""
     from controllers.manoeuvre import _check_times
 
     _check_times(duration, settle, d.dt)
     check_multijoint(d)
-    pl = plan(d.plant, targets)
+    pl = plan(d.plant, targets) if pl is None else pl
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, duration, settle)
-    kw = {"parameters": parameters, "band_deg": band_deg, "band_m": band_m}
-    lqg = run(d, loop, pl, ref, MimoLQGLaw(d, [d.lqr.torque_limits[j] for j in pl.joints], ref), **kw)
-    peaks = [lqg.metrics["joints"][j]["peak_torque_nm"] for j in pl.joints]
-    pd = run(d, loop, pl, ref, JointPDLaw(d, peaks), **kw)
+    laws = (MimoLQGLaw(d, [d.lqr.torque_limits[j] for j in pl.joints], ref), JointPDLaw(d, [1.0] * len(pl.joints)))
+    return compare_laws(loop, pl, ref, *laws, d.plant.x0, parameters=parameters, band_deg=band_deg, band_m=band_m)
+
+
+def compare_laws(loop: FmuLoop, pl: Plan, ref: Reference, lqg_law, pd_law, x0: np.ndarray, **kw) -> dict:
+    """:func:`compare` from its laws (the design cache's too): the LQG run, then the PD's with its torque
+    limits set to the LQG run's peaks."""
+    lqg = run(None, loop, pl, ref, lqg_law, x0=x0, **kw)
+    pd_law.limits = np.asarray([lqg.metrics["joints"][j]["peak_torque_nm"] for j in pl.joints])
+    pd = run(None, loop, pl, ref, pd_law, x0=x0, **kw)
     return {"lqr": lqg, "pd": pd}

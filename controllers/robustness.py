@@ -28,7 +28,8 @@ import numpy as np
 from controllers.closedloop import margin_entries
 from controllers.design import KalmanDesign, LQRDesign, torque_inputs
 
-__all__ = ["compensator", "loop_at_a_time", "lqg_compensator", "lqg_plant", "robustness", "robustness_figures"]
+__all__ = ["compensator", "delayed_plant", "delayed_robustness", "loop_at_a_time", "lqg_compensator", "lqg_plant",
+           "predictive_compensator", "robustness", "robustness_figures"]
 
 
 def lqg_plant(lqr: LQRDesign, kalman: KalmanDesign) -> ct.StateSpace:
@@ -149,6 +150,44 @@ def robustness(lqr: LQRDesign, kalman: KalmanDesign | None = None, n_points: int
     if kalman is not None:
         out["lqg"] = loop_at_a_time(lqg_plant(lqr, kalman), lqg_compensator(lqr, kalman), lqr.inputs, n_points)
     return out
+
+
+def delayed_plant(lqr: LQRDesign, kalman: KalmanDesign) -> ct.StateSpace:
+    """:func:`lqg_plant` with one sample of computation delay at its inputs, as a Jacobi master (libcosim's
+    fixed-step algorithm) applies a controller FMU's output: ``x⁺ = A_d x + B_d v``, ``v⁺ = u``, ``y = C x``
+    (the state augmented with the torque being applied)."""
+    P = lqg_plant(lqr, kalman)
+    A, B, C = np.asarray(P.A), np.asarray(P.B), np.asarray(P.C)
+    n, m = B.shape
+    Aa = np.block([[A, B], [np.zeros((m, n + m))]])
+    Ba = np.vstack([np.zeros((n, m)), np.eye(m)])
+    return ct.ss(Aa, Ba, np.hstack([C, np.zeros((C.shape[0], m))]), np.zeros((C.shape[0], m)), lqr.dt)
+
+
+def predictive_compensator(lqr: LQRDesign, kalman: KalmanDesign) -> ct.StateSpace:
+    """The LQG made for that delay (``DELAY 1`` in ``ctrl_fmu.c``, :class:`controllers.ssp.PredictiveLQGLaw`),
+    linear part: the estimate corrected with y_k, ``x̂ = F z + M y``, predicted to the next sample with the
+    torque it output a sample ago, ``z⁺ = A_d x̂ + B_d v``, and the next sample's torque ``u = −K_d z⁺``,
+    which it holds as ``v⁺ = u``.  State (z, v)."""
+    if np.any(kalman.D[:, torque_inputs(lqr.plant)] != 0):
+        raise ValueError("the predictive law reads sensors without feedthrough (encoders, strain gauges)")
+    Ad, Bd, K, M, C = (np.asarray(a, dtype=float) for a in (lqr.plant_d.A, lqr.plant_d.B, lqr.Kd, kalman.Md,
+                                                             kalman.C))
+    n, m = Bd.shape
+    F = np.eye(n) - M @ C
+    Az = np.hstack([Ad @ F, Bd])                     # z⁺ from (z, v)
+    A = np.vstack([Az, -K @ Az])
+    B = np.vstack([Ad @ M, -K @ Ad @ M])
+    return ct.ss(A, B, -K @ Az, -K @ Ad @ M, lqr.dt)
+
+
+def delayed_robustness(lqr: LQRDesign, kalman: KalmanDesign, n_points: int = 4000) -> dict:
+    """The loops with one sample of computation delay (:func:`delayed_plant`): ``"lqg_delay1"``, the
+    predictive LQG that the SSP package's controller FMU runs; ``"lqg_delay1_unaware"``, the LQG designed
+    without the delay in that loop (its verdict: what ignoring the delay costs)."""
+    P = delayed_plant(lqr, kalman)
+    return {"lqg_delay1": loop_at_a_time(P, predictive_compensator(lqr, kalman), lqr.inputs, n_points),
+            "lqg_delay1_unaware": loop_at_a_time(P, lqg_compensator(lqr, kalman), lqr.inputs, n_points)}
 
 
 def robustness_figures(rob: dict) -> dict:

@@ -96,7 +96,7 @@ def _matrices(d) -> tuple[np.ndarray, ...]:
 
 
 def _pose(pl: Plan, s: float) -> dict:
-    return {j: float(a + s * (b - a)) for j, a, b in zip(pl.joints, pl.start, pl.target, strict=True)}
+    return {j: float(a + s * (b - a)) for j, a, b in zip(pl.joints, pl.angle_start, pl.target, strict=True)}
 
 
 def plant_at(d, pose: Mapping[str, float]):

@@ -1083,7 +1083,8 @@ def add_sweep_parser(subparsers) -> None:
                    help="closed loop: the rest-to-rest manoeuvre of `flexlink control` with this controller")
     p.add_argument("--target", type=_angles, metavar="DEG[,DEG...]",
                    help="closed loop: final angle of the first joint; with several torque-driven joints one per "
-                        "joint, comma-separated (the MIMO LQG's manoeuvre, its stability verdict)")
+                        "joint, comma-separated (the MIMO LQG's or, with --controller pd, the joint PD's "
+                        "manoeuvre, its stability verdict)")
     p.add_argument("--duration", type=float, metavar="S", help="closed loop: manoeuvre time")
     p.add_argument("--settle", type=float, default=1.5, metavar="S",
                    help="window after the manoeuvre (closed loop) / at the end (open loop) for the residual "

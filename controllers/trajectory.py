@@ -16,12 +16,14 @@ All quantities are deviations from the plant's operating point (the start pose).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import control as ct
 import numpy as np
-import scipy.linalg
 
-__all__ = ["Reference", "min_jerk_feedforward", "min_jerk_reference", "quintic", "quintic_reference"]
+if TYPE_CHECKING:
+    import control as ct
+
+__all__ = ["Reference", "check_times", "min_jerk_feedforward", "min_jerk_reference", "quintic", "quintic_reference"]
 
 
 def quintic(t, delta: float, duration: float):
@@ -100,6 +102,8 @@ def min_jerk_feedforward(plant_d: ct.StateSpace, x_final, n_steps: int) -> np.nd
     bands = np.zeros((2, n_steps))
     bands[0, 1:] = -1.0
     bands[1, :] = 2.0
+    import scipy.linalg
+
     HiGt = scipy.linalg.solveh_banded(bands, G.T)
     S = G @ HiGt
     lam = np.linalg.lstsq(S, g, rcond=1e-13)[0]
@@ -127,3 +131,18 @@ def min_jerk_reference(plant_d: ct.StateSpace, joint_index: int, delta: float, d
         x[k + 1] = A @ x[k] + B * u[k]
     x[n_move:] = x_final
     return Reference("min-jerk", dt, duration, t, x, u, joint_index)
+
+
+def check_times(duration: float, settle: float, dt: float) -> None:
+    """A manoeuvre's times: positive, multiples of the sample time, a run that ends (one clear message)."""
+    from flexlink.errors import FlexlinkError
+    from flexlink.run.simulate import check_run
+
+    if not (np.isfinite(duration) and duration > 0):
+        raise FlexlinkError(f"--duration must be a positive number of seconds, got {duration}")
+    if not (np.isfinite(settle) and settle > 0):
+        raise FlexlinkError(f"--settle must be a positive number of seconds, got {settle}")
+    for what, v in (("--duration", duration), ("--settle", settle)):
+        if abs(round(v / dt) * dt - v) > 1e-9 * max(1.0, v):
+            raise FlexlinkError(f"{what} {v} s must be a multiple of the sample time {dt} s")
+    check_run(duration + settle, dt, "--duration + --settle", "--sample-time")    # a run that would not end

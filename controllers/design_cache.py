@@ -1,0 +1,101 @@
+"""The design cache of ``flexlink control`` (issue 22: a repeated command starts in under a second).
+
+A run needs, before its first FMU call, the linearisation, the LQR/Kalman design (python-control: seconds
+of imports alone), the reference and the law's affine form (:class:`controllers.laws.AffineForm`).  Only
+the last two and a few numbers enter the run itself.  They are stored, keyed by the parsed scene,
+flexlink's version, the sources of flexlink and of the ``controllers`` package and every option the design
+and the reference depend on, in ``~/.cache/flexlink/designs/`` beside the build cache (written to a
+private file and renamed: a reader never sees half an entry).  A repeated command loads them and runs
+the FMU: it imports neither python-control nor the design modules.  A missing, unreadable or outdated
+entry is a miss, never an error.  ``FLEXLINK_DESIGN_CACHE=0`` turns the cache off; another value is the
+folder to use instead.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import hashlib
+import json
+import os
+import pickle
+import tempfile
+from pathlib import Path
+
+__all__ = ["CachedLaw", "cache_key", "enabled", "load", "store"]
+
+VERSION = 1
+ENV = "FLEXLINK_DESIGN_CACHE"
+
+
+def enabled() -> bool:
+    return os.environ.get(ENV) != "0"
+
+
+def cache_key(scene, options: dict) -> str:
+    """The entry's key: the parsed scene (as the FMU's build cache keys it), flexlink's version, the sources
+    of flexlink (the model, its linearisation) and of the controllers, the command's design and run
+    options."""
+    import flexlink
+
+    h = hashlib.sha256(f"design-cache {VERSION} {flexlink.__version__}".encode())
+    h.update(repr(dataclasses.replace(scene, path=None)).encode())
+    for root in (Path(flexlink.__file__).resolve().parent, Path(__file__).resolve().parent):
+        for f in sorted(root.rglob("*.py")):
+            h.update(f.relative_to(root).as_posix().encode())
+            h.update(f.read_bytes())
+    h.update(json.dumps(options, sort_keys=True).encode())
+    return h.hexdigest()[:24]
+
+
+def _path(key: str) -> Path:
+    if os.environ.get(ENV):
+        return Path(os.environ[ENV]) / f"{key}.pickle"
+    from flexlink.export.fmu import cache_dir
+
+    return cache_dir() / "designs" / f"{key}.pickle"
+
+
+def load(key: str) -> dict | None:
+    """The entry, or None (absent, unreadable, another format)."""
+    try:
+        with open(_path(key), "rb") as f:
+            entry = pickle.load(f)
+    except (OSError, EOFError, pickle.UnpicklingError, AttributeError, ImportError, ValueError):
+        return None
+    return entry if isinstance(entry, dict) and entry.get("version") == VERSION else None
+
+
+def store(key: str, entry: dict) -> None:
+    """Write the entry atomically; a cache that cannot be written is left alone (the run does not need it)."""
+    path = _path(key)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".design-", suffix=".tmp")
+        with os.fdopen(fd, "wb") as f:
+            pickle.dump({**entry, "version": VERSION}, f, protocol=pickle.HIGHEST_PROTOCOL)
+        os.replace(tmp, path)
+    except OSError:
+        with contextlib.suppress(OSError, UnboundLocalError):
+            os.unlink(tmp)
+
+
+@dataclasses.dataclass
+class CachedLaw:
+    """A law as :class:`controllers.cosim.FmuLoop`'s fast loop runs it: its affine form along the cached
+    reference (the same arithmetic as the designed law's; :meth:`controllers.laws.SampledLaw.affine`)."""
+
+    kind: str
+    dt: float
+    sensors: list
+    input: str
+    form: object
+
+    def reset(self) -> None:
+        pass
+
+    def affine(self, reference):
+        return self.form
+
+    def step(self, y, x_ref, u_ff):
+        raise RuntimeError("a cached law runs in the fast loop only (its affine form)")
