@@ -183,10 +183,12 @@ def _output_functions(model: SymbolicModel):
 
 
 def _output_jacobians(model: SymbolicModel, op: OperatingPoint, A: np.ndarray, B: np.ndarray):
-    """(y, ∂y/∂x, ∂y/∂u) at the operating point by the chain rule through the acceleration: the outputs'
-    own partial derivatives in (q, v, a, u), the acceleration's rows of A and B.  The same numbers as
-    differentiating the explicit form (:func:`_output_functions`), without differentiating through ``M⁻¹``
-    symbolically: on the six-axis arm that took 70 s, this takes well under one."""
+    """(y, ∂y/∂x, ∂y/∂u) at the operating point by the chain rule through the acceleration.
+
+    The outputs' own partial derivatives in (q, v, a, u), the acceleration's rows of A and B.  The same
+    numbers as differentiating the explicit form (:func:`_output_functions`), without differentiating
+    through ``M⁻¹`` symbolically: on the six-axis arm that took 70 s, this takes well under one.
+    """
     n = model.n_q
     q, v, a, u, p = (ca.MX.sym(k, *model.residual.size_in(i)) for i, k in enumerate("qvaup"))
     y = model.outputs_function(q, v, a, u, p)
