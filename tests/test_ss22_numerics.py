@@ -108,23 +108,30 @@ def test_order_four_option_converges_at_order_four(tmp_path):
     stability bound (ω_max Δt ≤ 0.3, tests/test_richardson.py): 1 ms at this link's 34 Hz is 0.21."""
     from fmpy.fmi1 import FMICallException
 
+    fmu, errors, orders = _observed_orders("examples/rotating_link_linear.toml", 2.5, (1e-3, 5e-4, 2.5e-4),
+                                           {"solver.order": 4})
+    assert all(abs(p - 4.0) < 0.5 for p in orders), (errors, orders)
+    with SlaveRunner(fmu) as runner, pytest.raises(FMICallException):
+        runner.run(0.1, 0.01, start={"solver.order": 4, "solver.theta1": 0.6, "solver.theta2": 0.6})
+
+
+def _observed_orders(scene_path: str, stop: float, steps, start: dict):
+    """The FMU of a scene, its bench manoeuvre's error against the CVODES reference of the same equations at
+    each ``solver.step`` of ``steps`` (with the ``start`` values), and the orders observed between halvings."""
     from flexlink.tools.bench import default_case, reference_outputs, relative_error
 
-    scene = load_scene("examples/rotating_link_linear.toml")
+    scene = load_scene(scene_path)
     model = build_model(scene)
     fmu = cached_fmu(scene, model=model)
-    case = default_case(model, stop=2.5)
+    case = default_case(model, stop=stop)
     ref = reference_outputs(case)
     errors = []
     with SlaveRunner(fmu) as runner:
-        for h in (1e-3, 5e-4, 2.5e-4):
-            res = runner.run(case.stop, 0.01, inputs=case.inputs_at, start={"solver.step": h, "solver.order": 4},
+        for h in steps:
+            res = runner.run(case.stop, 0.01, inputs=case.inputs_at, start={"solver.step": h, **start},
                              outputs=case.outputs)
             errors.append(relative_error(case, res, ref))
-        orders = [np.log2(a / b) for a, b in zip(errors[:-1], errors[1:], strict=True)]
-        assert all(abs(p - 4.0) < 0.5 for p in orders), (errors, orders)
-        with pytest.raises(FMICallException):
-            runner.run(0.1, 0.01, start={"solver.order": 4, "solver.theta1": 0.6, "solver.theta2": 0.6})
+    return fmu, errors, [np.log2(a / b) for a, b in zip(errors[:-1], errors[1:], strict=True)]
 
 
 def test_a_law_with_jerk_converges_at_second_order():
@@ -135,17 +142,5 @@ def test_a_law_with_jerk_converges_at_second_order():
     first order (relative errors 1.04e-3, 4.7e-4, 2.2e-4: orders 1.15, 1.07).  Against the CVODES reference
     of the same equations, halving solver.step divides the error by 4.  (Order 4 is refused at such steps on
     this FE beam: ω_max Δt > 0.3, tests/test_richardson.py.)"""
-    from flexlink.tools.bench import default_case, reference_outputs, relative_error
-
-    scene = load_scene("examples/aluminium_arm_smooth.toml")
-    model = build_model(scene)
-    fmu = cached_fmu(scene, model=model)
-    case = default_case(model, stop=1.0)
-    ref = reference_outputs(case)
-    errors = []
-    with SlaveRunner(fmu) as runner:
-        for h in (2e-3, 1e-3, 5e-4):
-            res = runner.run(case.stop, 0.01, inputs=case.inputs_at, start={"solver.step": h}, outputs=case.outputs)
-            errors.append(relative_error(case, res, ref))
-    orders = [np.log2(a / b) for a, b in zip(errors[:-1], errors[1:], strict=True)]
+    _, errors, orders = _observed_orders("examples/aluminium_arm_smooth.toml", 1.0, (2e-3, 1e-3, 5e-4), {})
     assert all(abs(p - 2.0) < 0.3 for p in orders), (errors, orders)
