@@ -62,6 +62,7 @@ typedef struct {
     int available;
     double time, kinetic, potential;
     double force[FMU_SZ(N_Q)], q[FMU_SZ(N_Q)];             /* Q of the force inputs, the coordinates */
+    double v[FMU_SZ(N_Q)];                                  /* the rates (Model Exchange's work)      */
     double law_torque[FMU_SZ(N_LAWS)], law_angle[FMU_SZ(N_LAWS)], law_rate[FMU_SZ(N_LAWS)];
 } EnergyPoint;
 
@@ -195,6 +196,11 @@ fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h);
 fmi2Status fmu_set_time(Instance *inst, fmi2Real time);
 fmi2Status fmu_set_states(Instance *inst, const fmi2Real x[], size_t nx);
 /* the accepted state passes the guards (guards.c), else fmi2Discard and *terminate = fmi2True */
+/* Model Exchange: the energy at the last completed integrator step no longer starts the next interval (an
+ * event, or an input or parameter that jumps at its time): the next interval is not judged (guards.c).
+ * New states set at that time are not a jump: an explicit integrator sets the next step's states before
+ * its time. */
+void fmu_energy_forget(FmuData *d);
 fmi2Status fmu_completed_integrator_step(Instance *inst, fmi2Boolean *terminate);
 fmi2Status fmu_get_states(Instance *inst, fmi2Real x[], size_t nx);
 fmi2Status fmu_get_derivatives(Instance *inst, fmi2Real dx[], size_t nx);

@@ -149,7 +149,9 @@ fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h) {
             memcpy(d, &inst->backup, sizeof(*d));
             return status;
         }
-        if (fmu_guard_energy(inst, &e0, &e1) != fmi2OK) {
+        /* the SS22 steps taken, sub-steps and order 4's three solves a step included */
+        const double taken = (double)(d->ss22.steps - inst->backup.ss22.steps);
+        if (fmu_guard_energy(inst, &e0, &e1, taken) != fmi2OK) {
             memcpy(d, &inst->backup, sizeof(*d));
             fmu_log(inst, fmi2Discard, LOG_STATUS_DISCARD, "fmi2DoStep: %s; the step is discarded and the FMU is "
                     "back at t = %.17g", inst->guard_reason, d->time);

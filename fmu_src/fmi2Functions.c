@@ -214,6 +214,7 @@ fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReferenc
 fmi2Status fmi2EnterEventMode(fmi2Component c) {
     ME_BEGIN("fmi2EnterEventMode", PHASE_EVENT | PHASE_CONTINUOUS);
     inst->d.phase = PHASE_EVENT;
+    fmu_energy_forget(&inst->d);
     return fmi2OK;
 }
 

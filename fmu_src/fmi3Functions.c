@@ -203,6 +203,7 @@ fmi3Status fmi3ExitInitializationMode(fmi3Instance instance) {
 fmi3Status fmi3EnterEventMode(fmi3Instance instance) {
     ME_BEGIN("fmi3EnterEventMode", PHASE_EVENT | PHASE_CONTINUOUS);
     inst->d.phase = PHASE_EVENT;
+    fmu_energy_forget(&inst->d);
     return fmi3OK;
 }
 

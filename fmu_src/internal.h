@@ -48,7 +48,7 @@ void fmu_guard_init(Instance *inst, const double *u);
  * (EnergyPoint, cosimulation.h; outputs brought up to date at the current time, `function` names the caller
  * in messages), then fmi2OK or fmi2Discard with the reason in inst->guard_reason. */
 fmi2Status fmu_energy_point(Instance *inst, EnergyPoint *e, const char *function);
-fmi2Status fmu_guard_energy(Instance *inst, const EnergyPoint *e0, const EnergyPoint *e1);
+fmi2Status fmu_guard_energy(Instance *inst, const EnergyPoint *e0, const EnergyPoint *e1, double internal_steps);
 
 /* fmu_state.c: frees the FMU states inst handed out and the host did not free (fmi2FreeInstance). */
 void fmu_free_all_states(Instance *inst);

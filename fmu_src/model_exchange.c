@@ -109,7 +109,7 @@ fmi2Status fmu_completed_integrator_step(Instance *inst, fmi2Boolean *terminate)
     if (status > fmi2Warning) return status;
     /* a step of the importer's: forward in time (an event iteration completes no step) */
     if (now.available && d->energy_last.available && now.time > d->energy_last.time &&
-        fmu_guard_energy(inst, &d->energy_last, &now) != fmi2OK) {
+        fmu_guard_energy(inst, &d->energy_last, &now, 1.0) != fmi2OK) {
         *terminate = fmi2True;
         fmu_log(inst, fmi2Discard, LOG_STATUS_DISCARD, "fmi2CompletedIntegratorStep: %s; terminate the "
                 "simulation", inst->guard_reason);

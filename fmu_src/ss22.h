@@ -61,7 +61,8 @@ void ss22_invalidate(SS22 *s);
  * moves as SS22 would move it with the law's mean acceleration over the step, (rate1 - rate0)/dt: its
  * weighted rate is then the average of its exact rates, as the free coordinates' is, and a law whose jerk
  * is not zero keeps the scheme second-order (landing on the end position instead is off the mean
- * acceleration by dt x'''/6 at every step: first order, docs/integrator.md). */
+ * acceleration by dt x'''/6 at every step: first order, docs/integrator.md); its weighted angle is
+ * (x0 + x1)/2 for theta = 1/2, symmetric in time as order 4's extrapolation needs. */
 void ss22_weighted_inputs(const SS22 *s, double dt, const double *u0, const double *u1, double *u_bar);
 
 /* One step of size dt from (q, v).  alpha: in, an initial guess (e.g. the previous step's);

@@ -307,6 +307,11 @@ static fmi2Status set_values(Instance *inst, const char *function, int is_intege
         const VarInfo *v = &MODEL_VARS[vr[i]];
         const double x = is_integer ? (double)integer[i] : real[i];
         if (v->kind == VAR_INPUT) rebase_law(d, v->index);
+        /* Model Exchange: an input or parameter that jumps at the last completed step's time */
+        if ((v->kind == VAR_INPUT || v->kind == VAR_PARAMETER) && *fmu_slot(d, v) != x &&
+            d->time == d->energy_last.time) {
+            fmu_energy_forget(d);
+        }
         *fmu_slot(d, v) = x;
         if (v->kind == VAR_START_Q) d->q[v->index] = x;       /* before initialization only */
         if (v->kind == VAR_START_V) d->v[v->index] = x;

@@ -96,7 +96,10 @@ def build(directory: str | os.PathLike, name: str, *, variant: str = "oscillator
     binaries.mkdir(parents=True, exist_ok=True)
     _, nx = VARIANTS[variant]
     flags = [f"-DNX={nx}", *(["-DSTAIR"] if variant == "stair" else []), *(["-DBALL"] if variant == "ball" else []),
-             *(f"-D{x}" for x in defects)]
+             *(f"-D{x}" for x in defects),
+             # an FMU with one interface exports only its functions and the common ones, as FMI 2.0 §2.3 allows
+             *(["-DNO_ME_FUNCTIONS"] if "ME" not in interfaces else []),
+             *(["-DNO_CS_FUNCTIONS"] if "CS" not in interfaces else [])]
     headers = Path(fmpy.__file__).parent / "c-code"
     compile_shared_library([SOURCE], [headers], binaries / f"{name}.so", extra_cflags=flags)
     xml = _model_description(name, variant, interfaces, capabilities)

@@ -175,3 +175,20 @@ def test_model_exchange_an_explicit_integrator_gaining_energy_is_stopped():
     refusal = [m for m in messages if "fmi2CompletedIntegratorStep" in m][-1]
     assert "energy balance failed" in refusal and "importer's integrator" in refusal, refusal
     assert float(re.search(r"over \[[0-9.eE+-]+, ([0-9.eE+-]+)\]", refusal).group(1)) < 0.1
+
+
+def test_model_exchange_an_input_step_is_not_a_gain_of_energy():
+    """Found in review: in Model Exchange the energy at the last completed integrator step started the next
+    interval even when the importer then stepped an input (0 → 0.5 N m on the hub at t = 0.1 s).  The work of
+    that interval was taken as the average of the old and the new torque over the distance moved, half the
+    true work from rest, and CVODE's sound step was refused ("grew by 1.2275e-06 J where the inputs did
+    6.14e-07 J").  An event, or an input, parameter or state that jumps at that time, now starts afresh."""
+    import fmpy
+
+    fmu = cached_fmu(load_scene(EXAMPLES / "rotating_link.toml"))
+    table = np.array([(0.0, 0.0), (0.1, 0.0), (0.1, 0.5), (0.3, 0.5)], dtype=[("time", float), ("hub.tau", float)])
+    for rtol in (1e-6, 1e-9):
+        res = fmpy.simulate_fmu(str(fmu), fmi_type="ModelExchange", solver="CVode", relative_tolerance=rtol,
+                                stop_time=0.3, output_interval=1e-3, input=table, output=["energy.kinetic"])
+        assert res["time"][-1] == pytest.approx(0.3)
+        assert res["energy.kinetic"][-1] > 0.0

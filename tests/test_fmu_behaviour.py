@@ -466,8 +466,8 @@ def test_variable_communication_steps_agree_within_the_ss22_error(new_slave):
 
 
 def test_irregular_steps_land_exactly_on_the_communication_points(new_slave):
-    """Built-in law θ(t) = π/4 (1 − cos πt): SS22 lands on the law's position at the end of every internal
-    step, so at every communication point base.theta is the law at tc + h, to rounding — the FMU is exactly
+    """Built-in law θ(t) = π/4 (1 − cos πt): at every communication point the output base.theta is the law
+    at tc + h, to rounding (the outputs take the law's exact angle at the FMU's time) — the FMU is exactly
     there, neither short nor beyond."""
     steps = [0.0131, 0.0007, 0.05, 0.00001, 0.0363, 0.1, 0.0219] * 4
     times, rows = _run_steps(new_slave("steel_beam_raise"), steps, ["base.theta", "base.tau"])

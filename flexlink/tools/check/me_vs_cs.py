@@ -60,7 +60,10 @@ def _smooth_excitation(f: Fmu, stop: float, interval: float) -> tuple[dict, np.n
     return {n: 0.0 for n in target}, table
 
 
-def _simulate(f: Fmu, stop: float, interval: float, start: dict, ramp, cs_step: float, rtol: float):
+def _simulate(f: Fmu, stop: float, interval: float, start: dict, ramp, cs_step: float, rtol: float,
+              logs: dict[str, list[str]] | None = None):
+    """fmpy's ME (CVODE) and CS runs; what the FMU logs with a status above warning goes to ``logs``."""
+    logs = {"ME": [], "CS": []} if logs is None else logs
     import fmpy
     import fmpy.sundials as sundials
 
@@ -83,7 +86,6 @@ def _simulate(f: Fmu, stop: float, interval: float, start: dict, ramp, cs_step: 
             return state_event, roots, t_reached
 
     cs_start = {**start, "solver.step": cs_step} if f.is_flexlink else start
-    logs: dict[str, list[str]] = {"ME": [], "CS": []}
 
     def logger_of(interface):
         def logger(component, instance, status, category, message):
@@ -102,8 +104,8 @@ def _simulate(f: Fmu, stop: float, interval: float, start: dict, ramp, cs_step: 
 
         inst = f.instance(kind, name="me-vs-cs")
         callbacks = logging_callbacks(logger_of(kind))
-        inst.instantiate(callbacks=callbacks)
         try:
+            inst.instantiate(callbacks=callbacks)
             return fmpy.simulate_fmu(f.dir, fmi_type=fmi_type, model_description=f.md, fmu_instance=inst,
                                      **options)
         finally:
@@ -118,18 +120,25 @@ def _simulate(f: Fmu, stop: float, interval: float, start: dict, ramp, cs_step: 
                  input=ramp)
     finally:
         sundials.CVodeSolver = original
-    return me, cs, events, logs
+    return me, cs, events
 
 
-def _ended_early(runs: dict, logs: dict[str, list[str]], stop: float, interval: float) -> list[str]:
+def _last_said(f: Fmu, logs: list[str]) -> str:
+    """What the FMU last logged with a status above warning (FMI 3 FMUs' messages are not collected)."""
+    if logs:
+        return logs[-1]
+    return "its messages are not collected for FMI 3 FMUs" if f.fmi3 else "nothing logged"
+
+
+def _ended_early(f: Fmu, runs: dict, logs: dict[str, list[str]], stop: float, interval: float) -> list[str]:
     """A line for each run that stopped before ``stop`` (fmpy ends a run quietly when the FMU discards a step),
     with the last thing the FMU said: the reason is the finding, not the differing time grids it leaves."""
     lines = []
     for interface, run in runs.items():
         end = float(run["time"][-1]) if len(run) else 0.0
         if end < stop - 0.5 * interval:
-            said = logs[interface][-1] if logs[interface] else "nothing logged"
-            lines.append(f"the {interface} run ended at t = {end:.9g} of {stop:.9g} s; the FMU: {said}")
+            lines.append(f"the {interface} run ended at t = {end:.9g} of {stop:.9g} s; the FMU: "
+                         f"{_last_said(f, logs[interface])}")
     return lines
 
 
@@ -203,16 +212,19 @@ def check_me_vs_cs(f: Fmu, stop_time: float | None = None, tolerance: float | No
               "flexlink tolerances" if f.is_flexlink else "not judged: the FMU does not describe its CS solver")
     ref = (f"ME: CVODE rtol {rtol}; CS: " + (f"SS22 step {cs_step} s" if f.is_flexlink else "its own solver")
            + f"; {judged}")
+    logs: dict[str, list[str]] = {"ME": [], "CS": []}
     try:
-        me, cs, events, logs = _simulate(f, stop, interval, start, ramp, cs_step, rtol)
+        me, cs, events = _simulate(f, stop, interval, start, ramp, cs_step, rtol, logs)
     except Exception as e:
         from flexlink.tools.check import isolation
 
-        return CheckResult("me-vs-cs", desc, ref, f"{type(e).__name__}: {e}", seconds=time.perf_counter() - t0,
-                           findings=[Finding("legal-call", f"a simulation failed: {type(e).__name__}: {e}",
+        said = "; ".join(f"{k}: {_last_said(f, v)}" for k, v in logs.items() if v)
+        why = f"{type(e).__name__}: {e}" + (f" (the FMU: {said})" if said else "")
+        return CheckResult("me-vs-cs", desc, ref, why, seconds=time.perf_counter() - t0,
+                           findings=[Finding("legal-call", f"a simulation failed: {why}",
                                              sequence=isolation.recent())])
     found, details, worst, worst_name = _compare(f, me, cs, tolerance)
-    details[:0] = _ended_early({"ME": me, "CS": cs}, logs, stop, interval)
+    details[:0] = _ended_early(f, {"ME": me, "CS": cs}, logs, stop, interval)
     result = f"worst {worst_name}: {worst:.2e} of the peak" + (f"; {len(found)} failure(s)" if found else "")
     if f.nz:
         result += f"; ME: {len(events)} state event(s)"

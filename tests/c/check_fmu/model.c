@@ -356,6 +356,7 @@ fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReferenc
     return fmi2OK;
 }
 
+#ifndef NO_CS_FUNCTIONS   /* an ME-only FMU need not export the Co-Simulation functions (FMI 2.0 §2.3) */
 /* ---------------------------------------------------------------- Co-Simulation */
 
 static void euler(Data *d, double h) {
@@ -427,6 +428,9 @@ fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind k, fmi2Stri
     Inst *s = c; (void)k; (void)v; IN(s, ANY); return fmi2Discard;
 }
 
+#endif
+
+#ifndef NO_ME_FUNCTIONS   /* a CS-only FMU need not export the Model Exchange functions (FMI 2.0 §2.3) */
 /* ---------------------------------------------------------------- Model Exchange */
 
 #define ME_ONLY(s) do { if ((s)->cs) return fail(s, "not a Model Exchange instance"); } while (0)
@@ -502,3 +506,4 @@ fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x[], size
     for (size_t k = 0; k < nx; k++) x[k] = 1.0;
     return fmi2OK;
 }
+#endif
