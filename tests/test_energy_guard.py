@@ -23,6 +23,7 @@ from fmpy.fmi1 import FMICallException
 from flexlink.errors import FlexlinkError
 from flexlink.export.fmu import cached_fmu
 from flexlink.mechanics.model import build_model
+from flexlink.run.host import FmuHost
 from flexlink.run.simulate import SlaveRunner
 from flexlink.scene.loader import load_scene
 from flexlink.tools.bench import default_case
@@ -164,15 +165,13 @@ def test_model_exchange_an_explicit_integrator_gaining_energy_is_stopped():
     model = build_model(scene)
     fmu = cached_fmu(scene, model=model)
     h = 1.0 / (2 * np.pi * max(natural_frequencies(model).frequencies_hz))
-    messages = []
-
-    def logger(component, instance, status, category, message):
-        messages.append(message.decode(errors="replace") if isinstance(message, bytes) else str(message))
-
-    with pytest.raises(FMICallException, match="fmi2CompletedIntegratorStep"):
+    # the FMU's messages through flexlink's logger router (fmpy's logger= is process-wide and freed after the
+    # run: the next FMU to log in this process would call it)
+    with FmuHost(fmu, interface="ModelExchange") as host, pytest.raises(FMICallException,
+                                                                          match="fmi2CompletedIntegratorStep"):
         fmpy.simulate_fmu(str(fmu), fmi_type="ModelExchange", solver="Euler", step_size=h, stop_time=2.0,
-                          output_interval=h, start_values={"hub.tau": 0.5}, logger=logger)
-    refusal = [m for m in messages if "fmi2CompletedIntegratorStep" in m][-1]
+                          output_interval=h, start_values={"hub.tau": 0.5}, fmu_instance=host.instance)
+    refusal = [m for m in host.messages if "fmi2CompletedIntegratorStep" in m][-1]
     assert "energy balance failed" in refusal and "importer's integrator" in refusal, refusal
     assert float(re.search(r"over \[[0-9.eE+-]+, ([0-9.eE+-]+)\]", refusal).group(1)) < 0.1
 
