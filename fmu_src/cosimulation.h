@@ -56,7 +56,6 @@ extern const char *const LOG_CATEGORY_NAMES[N_LOG_CATEGORIES];
 
 #define FMU_SZ(n) ((n) > 0 ? (n) : 1)   /* C99 has no zero-length arrays */
 
-/* Everything numeric: an FMU state is a copy of this struct. */
 /* The mechanical energy at one time and what the inputs' work between two such points needs (guards.c). */
 typedef struct {
     int available;
@@ -66,6 +65,7 @@ typedef struct {
     double law_torque[FMU_SZ(N_LAWS)], law_angle[FMU_SZ(N_LAWS)], law_rate[FMU_SZ(N_LAWS)];
 } EnergyPoint;
 
+/* Everything numeric: an FMU state is a copy of this struct. */
 typedef struct {
     int phase;                        /* Phase                                                  */
     int model_exchange;               /* 1: instantiated as Model Exchange, 0: Co-Simulation    */
@@ -195,12 +195,12 @@ fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h);
 /* ----------------------------------------------------------- Model Exchange */
 fmi2Status fmu_set_time(Instance *inst, fmi2Real time);
 fmi2Status fmu_set_states(Instance *inst, const fmi2Real x[], size_t nx);
-/* the accepted state passes the guards (guards.c), else fmi2Discard and *terminate = fmi2True */
 /* Model Exchange: the energy at the last completed integrator step no longer starts the next interval (an
  * event, or an input or parameter that jumps at its time): the next interval is not judged (guards.c).
  * New states set at that time are not a jump: an explicit integrator sets the next step's states before
  * its time. */
 void fmu_energy_forget(FmuData *d);
+/* the accepted state passes the guards (guards.c), else fmi2Discard and *terminate = fmi2True */
 fmi2Status fmu_completed_integrator_step(Instance *inst, fmi2Boolean *terminate);
 fmi2Status fmu_get_states(Instance *inst, fmi2Real x[], size_t nx);
 fmi2Status fmu_get_derivatives(Instance *inst, fmi2Real dx[], size_t nx);
