@@ -7,6 +7,18 @@
 
 static const char *const F = "fmi2GetDirectionalDerivative";
 
+#if !MODEL_DIRECTIONAL_DERIVATIVES
+/* [fmu] directional_derivatives = false: the forward derivatives were not generated (the model description
+ * says providesDirectionalDerivative="false"); a call is refused with the reason. */
+fmi2Status fmu_directional_derivative(Instance *inst, const fmi2ValueReference unknown[], size_t n_unknown,
+                                      const fmi2ValueReference known[], size_t n_known, const fmi2Real dv_known[],
+                                      fmi2Real dv_unknown[]) {
+    (void)unknown; (void)n_unknown; (void)known; (void)n_known; (void)dv_known; (void)dv_unknown;
+    return fmu_error(inst, "%s: this FMU was built without directional derivatives ([fmu] "
+                     "directional_derivatives = false: providesDirectionalDerivative is false)", F);
+}
+#else
+
 /* The seeds dd_q, dd_v, dd_u, dd_p from the knowns (states, inputs, tunable parameters). */
 static fmi2Status read_knowns(Instance *inst, const fmi2ValueReference known[], size_t n_known,
                               const fmi2Real dv_known[]) {
@@ -118,3 +130,4 @@ fmi2Status fmu_directional_derivative(Instance *inst, const fmi2ValueReference u
     }
     return status;
 }
+#endif

@@ -25,6 +25,9 @@ CASES = 10_000 if os.environ.get("FLEXLINK_FULL") else 150
 # wall-clock bound of one call: a doStep takes at most 1e6 internal steps (cs_step.c) of about 10 µs at -O2,
 # here unoptimised and sanitised (about 10× slower) on a shared machine: 60 s leaves room, a hang does not pass
 CALL_BOUND_S = 60.0
+# the whole run's backstop (the host bounds each call itself): every case's calls at their bound, at most
+# 8 hours (the full size's 10 000 cases × 20 calls × 60 s would overflow the poll timeout of subprocess)
+RUN_BOUND_S = min(CASES * 20 * CALL_BOUND_S, 8 * 3600.0)
 
 
 def _kinds(md) -> tuple[str, list[str]]:
@@ -66,7 +69,7 @@ def test_fuzz_parameters_and_steps(host, name):
     kinds, start = _kinds(md)
     env = dict(os.environ, ASAN_OPTIONS="detect_leaks=1", UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1")
     res = subprocess.run([str(exe), str(lib), md.guid, kinds, str(CASES), "21", str(CALL_BOUND_S), *start],
-                         capture_output=True, text=True, env=env, timeout=CASES * 20 * CALL_BOUND_S, check=False)
+                         capture_output=True, text=True, env=env, timeout=RUN_BOUND_S, check=False)
     assert res.returncode == 0, (res.stdout + res.stderr)[-4000:]
     counts = dict(zip(res.stdout.split()[::2], map(int, res.stdout.split()[1::2]), strict=True))
     # the fuzz exercised both sides: runs that stepped and values that were refused

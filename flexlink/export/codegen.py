@@ -146,12 +146,22 @@ def dense_newton_matrix(model: SymbolicModel) -> bool:
     return model.n_q <= min(NEWTON_DENSE_MAX_COORDINATES, EXPAND_MAX_COORDINATES)
 
 
+def needs_residual_forward(model: SymbolicModel) -> bool:
+    """Whether the residual's forward derivative is compiled.
+
+    The Newton matrix by columns is made of it, and ``fmi2GetDirectionalDerivative`` needs it ([fmu]
+    directional_derivatives).
+    """
+    return model.scene.fmu.directional_derivatives or not dense_newton_matrix(model)
+
+
 def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> list[ca.Function]:
     """The CasADi functions to generate, named for the model.
 
-    Residual, outputs, the forward derivatives of residual and outputs, the validity ratios, and either the
-    dense Newton matrix or the mass matrix (the columns of the Newton matrix come from the residual's forward
-    derivative).
+    Residual, outputs, the validity ratios, and either the dense Newton matrix or the mass matrix (the
+    columns of the Newton matrix come from the residual's forward derivative); the forward derivatives of
+    residual and outputs where they are used (:func:`needs_residual_forward`, [fmu] directional_derivatives):
+    a generated model holds only what its scene asks for.
     """
 
     def prepare(f: ca.Function) -> ca.Function:
@@ -174,13 +184,32 @@ def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> list[
         newton = prepare(model.newton_matrix_function())
     else:
         newton = prepare(model.mass_matrix_function())
-    residual_fwd, outputs_fwd = (prepare(f) for f in forward_functions(model))
     if model.validity is None:
         raise BuildError("the model has no validity function (flexlink.mechanics.model.build_model makes one)")
-    functions = [residual, newton, outputs, residual_fwd, outputs_fwd, prepare(model.validity)]
+    functions = [residual, newton, outputs]
+    residual_fwd, outputs_fwd = forward_functions(model)
+    if needs_residual_forward(model):
+        functions.append(prepare(residual_fwd))
+    if model.scene.fmu.directional_derivatives:
+        functions.append(prepare(outputs_fwd))
+    functions.append(prepare(model.validity))
     if model.parameter_check is not None:
         functions.append(prepare(model.parameter_check))
     return functions
+
+
+def generated_functions(model: SymbolicModel) -> dict[str, tuple[ca.Function, int]]:
+    """The functions a build generates for ``model``, as ``flexlink explain`` reports them.
+
+    By name (without the model identifier), each with its count of elementary operations as compiled
+    (scalar, after CSE).
+    """
+    ident = model.scene.model_identifier
+    expanded = model.n_q <= EXPAND_MAX_COORDINATES
+    out = {}
+    for f in _casadi_functions(model, ident, expanded):
+        out[f.name().removeprefix(f"{ident}_")] = (f, int((f if expanded else f.expand()).n_instructions()))
+    return out
 
 
 def _guid(casadi_c: str, variables: list[FmuVariable], model: SymbolicModel) -> str:
@@ -200,6 +229,7 @@ def _config_h(model: SymbolicModel, guid: str, variables: list[FmuVariable], sz:
         n_static=len(model.static_coordinates), n_vars=len(variables), n_validity=len(model.validity_names),
         n_parameter_checks=len(model.parameter_check_names),
         linear_in_state=int(model.linear_in_state), jacobian_constant=int(model.jacobian_constant),
+        directional_derivatives=int(model.scene.fmu.directional_derivatives),
         **{f"sz_{k}": v for k, v in sz.items()},
     )
 
@@ -254,7 +284,25 @@ def _model_c(model: SymbolicModel, variables: list[FmuVariable], units: list[str
         validity_names="\n".join(f"    {_c_string(name)}," for name in model.validity_names) or '    ""',
         parameter_check_names="\n".join(f"    {_c_string(n)}," for n in model.parameter_check_names) or '    ""',
         parameter_check_body=_parameter_check_body(model),
+        residual_forward_body=_forward_body(model, "residual_forward_all", "dr", needs_residual_forward(model)),
+        outputs_forward_body=_forward_body(model, "outputs_forward", "dy", model.scene.fmu.directional_derivatives),
     )
+
+
+def _forward_body(model: SymbolicModel, function: str, result: str, compiled: bool) -> str:
+    """The body of model_residual_forward or model_outputs_forward.
+
+    A call of the generated function, or a failure where the scene left it out (derivatives.c refuses
+    before, from MODEL_DIRECTIONAL_DERIVATIVES).
+    """
+    arguments = ("q", "v", "a", "u", "p", "dq", "dv", "da", "du", "dp")
+    if not compiled:
+        return "    " + " ".join(f"(void){x};" for x in (*arguments, result, "work")) + "\n    return 1;"
+    ident = model.scene.model_identifier
+    lines = [f"    work->arg[{i}] = {x};" for i, x in enumerate(arguments)]
+    lines.append(f"    work->res[0] = {result};")
+    lines.append(f"    return {ident}_{function}(work->arg, work->res, work->iw, work->w, 0);")
+    return "\n".join(lines)
 
 
 def _parameter_check_body(model: SymbolicModel) -> str:

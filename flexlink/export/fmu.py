@@ -182,6 +182,7 @@ def log_categories_and_experiment(scene: Scene) -> list[str]:
 def model_description(model: SymbolicModel, gen: GeneratedModel, sources: list[str]) -> str:
     scene = model.scene
     units = sorted({v.unit for v in gen.variables if v.unit})
+    derivatives = "true" if scene.fmu.directional_derivatives else "false"
     lines = [
         '<?xml version="1.0" encoding="UTF-8"?>',
         f'<fmiModelDescription fmiVersion="2.0" modelName={quoteattr(scene.name)} guid="{gen.guid}"',
@@ -193,7 +194,7 @@ def model_description(model: SymbolicModel, gen: GeneratedModel, sources: list[s
         f'  <ModelExchange modelIdentifier="{gen.identifier}" needsExecutionTool="false"',
         '    completedIntegratorStepNotNeeded="false" canBeInstantiatedOnlyOncePerProcess="false"',
         '    canNotUseMemoryManagementFunctions="false" canGetAndSetFMUstate="true" canSerializeFMUstate="true"',
-        '    providesDirectionalDerivative="true">',
+        f'    providesDirectionalDerivative="{derivatives}">',
         "    <SourceFiles>",
         *[f'      <File name="{s}"/>' for s in sources],
         "    </SourceFiles>",
@@ -201,7 +202,7 @@ def model_description(model: SymbolicModel, gen: GeneratedModel, sources: list[s
         f'  <CoSimulation modelIdentifier="{gen.identifier}" canHandleVariableCommunicationStepSize="true"',
         '    canInterpolateInputs="false" maxOutputDerivativeOrder="0" canRunAsynchronuously="false"',
         '    canBeInstantiatedOnlyOncePerProcess="false" canNotUseMemoryManagementFunctions="false"',
-        '    canGetAndSetFMUstate="true" canSerializeFMUstate="true" providesDirectionalDerivative="true">',
+        f'    canGetAndSetFMUstate="true" canSerializeFMUstate="true" providesDirectionalDerivative="{derivatives}">',
         "    <SourceFiles>",
         *[f'      <File name="{s}"/>' for s in sources],
         "    </SourceFiles>",

@@ -524,6 +524,7 @@ class _Parser(_Values):
         tunable = checks.tunable_names(self.source, self.get(t, "fmu", "tunable"), joints, links)
         tip_load_inputs = self.boolean(self.get(t, "fmu", "tip_load_inputs"), "fmu.tip_load_inputs")
         newton_matrix = self.choice_key(t, "fmu", "newton_matrix", "fmu")
+        directional = self.boolean(self.get(t, "fmu", "directional_derivatives"), "fmu.directional_derivatives")
         solver = SolverSettings(step=step, theta=(th1, th2), tolerance=tolerance)
         return FmuSettings(solver=solver, integrator=integrator, tunable=tunable, tip_load_inputs=tip_load_inputs,
-                           newton_matrix=newton_matrix)
+                           newton_matrix=newton_matrix, directional_derivatives=directional)

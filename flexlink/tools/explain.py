@@ -7,12 +7,17 @@ from __future__ import annotations
 
 import numpy as np
 
+from flexlink.export.codegen import generated_functions
 from flexlink.mechanics.analysis import natural_frequencies
 from flexlink.mechanics.model import build_model
 from flexlink.scene.loader import load_scene
 from flexlink.tools.fidelity import MAX_HALVINGS, check_level, checked_recommendation, run_ladder
 
 STEPS_PER_PERIOD = 20     # Θ = ½: phase error per period ≈ (2π/20)²/12 · 2π ≈ 0.5 %
+# the generated functions a Co-Simulation step evaluates (fmu_src/ss22.c, cs_step.c, guards.c), and with a
+# Newton matrix by columns (mass_matrix generated) the residual's derivative it is made of; the rest serve the
+# directional derivatives, or a parameter change (parameter_check)
+CO_SIMULATION_STEP_FUNCTIONS = ("residual", "newton_matrix", "mass_matrix", "outputs", "model_validity")
 
 
 def _fmt(vector) -> str:
@@ -70,6 +75,7 @@ def explain(scene_path) -> dict:
         "jacobian_constant": model.jacobian_constant,
         "operations": {"residual": int(model.residual.expand().n_instructions()),
                        "outputs": int(model.outputs_function.expand().n_instructions())},
+        "generated_operations": {name: ops for name, (_, ops) in generated_functions(model).items()},
         "frequencies_hz": modes.frequencies_hz,
         "unstable_hz": modes.unstable_hz,
         "recommended_step": step,
@@ -93,6 +99,14 @@ def format_explanation(info: dict) -> str:
           "linear in the state (one solve per step)" if info["linear_in_state"] else
           "nonlinear (Newton iterations in every SS22 step)")
     lines.append(f"equations: {eq}; {info['operations']['residual']} operations per residual")
+    generated = info["generated_operations"]
+    lines.append(f"generated C: {sum(generated.values())} operations (scalar, after CSE) in "
+                 + ", ".join(f"{name} {ops}" for name, ops in generated.items()))
+    in_step = set(CO_SIMULATION_STEP_FUNCTIONS) | ({"residual_forward_all"} if "mass_matrix" in generated else set())
+    step = sum(ops for name, ops in generated.items() if name in in_step)
+    lines.append(f"  a Co-Simulation step evaluates {step} of them (residual, Newton matrix or mass matrix and the "
+                 "residual's derivative, validity, outputs); the forward derivatives serve "
+                 "fmi2GetDirectionalDerivative ([fmu] directional_derivatives)")
     freqs = info["frequencies_hz"]
     lines.append("natural frequencies (Hz): " + ", ".join(f"{f:.4g}" for f in freqs[:12])
                  + (f", … ({len(freqs)} in all)" if len(freqs) > 12 else ""))

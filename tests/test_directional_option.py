@@ -1,0 +1,91 @@
+"""``[fmu] directional_derivatives = false``: the forward derivatives behind fmi2GetDirectionalDerivative are
+left out of the generated C (issue 22: a generated model holds only what its scene asks for; issue 15's code
+size), the FMU says so in its model description and refuses the call with the reason, and nothing else
+changes: its Co-Simulation and Model Exchange results equal, bit for bit, those of the FMU built with them."""
+
+from __future__ import annotations
+
+import tomllib
+import zipfile
+from pathlib import Path
+
+import fmpy
+import numpy as np
+import pytest
+from fmpy.fmi1 import FMICallException
+
+from flexlink.export.fmu import cached_fmu
+from flexlink.run.host import FmuHost
+from flexlink.scene.loader import parse_scene
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+def _scene(name: str, **fmu):
+    data = tomllib.loads((EXAMPLES / f"{name}.toml").read_text())
+    data.setdefault("fmu", {}).update(fmu)
+    return parse_scene(data, f"{name} with [fmu] {fmu}")
+
+
+def _generated(fmu: Path) -> set[str]:
+    with zipfile.ZipFile(fmu) as z:
+        return {Path(n).name for n in z.namelist() if n.startswith("sources/") and n.endswith(".c")}
+
+
+def _torque_run(fmu: Path, interface: str) -> np.ndarray:
+    """A torque ramp on rotating_link's hub, every output recorded (fmpy's own loop in each interface)."""
+    signal = np.array([(0.0, 0.0), (0.05, 0.5), (0.3, 0.5)], dtype=[("time", float), ("hub.tau", float)])
+    kwargs = {"solver": "CVode", "relative_tolerance": 1e-8} if interface == "ModelExchange" else {}
+    res = fmpy.simulate_fmu(str(fmu), fmi_type=interface, stop_time=0.3, output_interval=1e-3, input=signal,
+                            **kwargs)
+    return np.array([res[n] for n in res.dtype.names])
+
+
+@pytest.fixture(scope="module")
+def pair():
+    """rotating_link (4 coordinates: dense Newton matrix) built with and without the derivatives."""
+    return cached_fmu(_scene("rotating_link")), cached_fmu(_scene("rotating_link", directional_derivatives=False))
+
+
+def test_the_fmu_declares_no_derivatives_and_leaves_their_code_out(pair):
+    with_d, without = pair
+    md = fmpy.read_model_description(str(without))
+    assert md.coSimulation.providesDirectionalDerivative is False
+    assert md.modelExchange.providesDirectionalDerivative is False
+    assert fmpy.read_model_description(str(with_d)).coSimulation.providesDirectionalDerivative is True
+    left_out = _generated(with_d) - _generated(without)
+    assert left_out == {"rotating_link_outputs_forward.c", "rotating_link_residual_forward_all.c"}
+    assert not fmpy.validation.validate_fmu(str(without))
+
+
+def test_the_call_is_refused_with_the_reason(pair):
+    _, without = pair
+    with FmuHost(without) as host:
+        host.initialize()
+        with pytest.raises(FMICallException) as refused:
+            host.call("fmi2GetDirectionalDerivative", host.instance.getDirectionalDerivative,
+                      [host.value_reference("arm.tip.v")], [host.value_reference("hub.tau")], [1.0])
+    assert "directional_derivatives = false" in str(refused.value)
+
+
+@pytest.mark.parametrize("interface", ["CoSimulation", "ModelExchange"])
+def test_the_results_are_those_of_the_fmu_with_derivatives(pair, interface):
+    with_d, without = pair
+    np.testing.assert_array_equal(_torque_run(without, interface), _torque_run(with_d, interface))
+
+
+def test_a_newton_matrix_by_columns_keeps_the_residual_derivative_it_is_made_of():
+    with_d = cached_fmu(_scene("rotating_link", newton_matrix="columns"))
+    without = cached_fmu(_scene("rotating_link", newton_matrix="columns", directional_derivatives=False))
+    assert _generated(with_d) - _generated(without) == {"rotating_link_outputs_forward.c"}
+    np.testing.assert_array_equal(_torque_run(without, "CoSimulation"), _torque_run(with_d, "CoSimulation"))
+
+
+def test_fmi3_declares_neither_derivative_kind():
+    fmu = cached_fmu(_scene("rotating_link", directional_derivatives=False), fmi_version=3)
+    with zipfile.ZipFile(fmu) as z:
+        xml = z.read("modelDescription.xml").decode()
+    # fmpy reads FMI 3's providesDirectionalDerivatives into FMI 2's attribute name: read the XML itself
+    for kind in ("providesDirectionalDerivatives", "providesAdjointDerivatives"):
+        assert xml.count(f'{kind}="false"') == 2 and f'{kind}="true"' not in xml
+    assert not fmpy.validation.validate_fmu(str(fmu))
