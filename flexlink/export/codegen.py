@@ -149,19 +149,31 @@ def dense_newton_matrix(model: SymbolicModel) -> bool:
 def needs_residual_forward(model: SymbolicModel) -> bool:
     """Whether the residual's forward derivative is compiled.
 
-    The Newton matrix by columns is made of it, and ``fmi2GetDirectionalDerivative`` needs it ([fmu]
-    directional_derivatives).
+    Where ``fmi2GetDirectionalDerivative`` needs it ([fmu] directional_derivatives); the Newton matrix by
+    columns is then made of it, and otherwise of the mass matrix and differences of the residual
+    (:func:`newton_matrix_template`).
     """
-    return model.scene.fmu.directional_derivatives or not dense_newton_matrix(model)
+    return model.scene.fmu.directional_derivatives
+
+
+def newton_matrix_template(model: SymbolicModel) -> str:
+    """The C template of ``model_newton_matrix``.
+
+    A dense symbolic Jacobian, or column by column from the residual's forward derivative (exact) or,
+    without it, from M and forward differences of the residual.
+    """
+    if dense_newton_matrix(model):
+        return "newton_matrix.c.in"
+    return "newton_matrix_columns.c.in" if needs_residual_forward(model) else "newton_matrix_differences.c.in"
 
 
 def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> list[ca.Function]:
     """The CasADi functions to generate, named for the model.
 
     Residual, outputs, the validity ratios, and either the dense Newton matrix or the mass matrix (the
-    columns of the Newton matrix come from the residual's forward derivative); the forward derivatives of
-    residual and outputs where they are used (:func:`needs_residual_forward`, [fmu] directional_derivatives):
-    a generated model holds only what its scene asks for.
+    columns of the Newton matrix come from it and the residual's forward derivative or differences); the
+    forward derivatives of residual and outputs where they are used (:func:`needs_residual_forward`, [fmu]
+    directional_derivatives): a generated model holds only what its scene asks for.
     """
 
     def prepare(f: ca.Function) -> ca.Function:
@@ -274,7 +286,7 @@ def _model_c(model: SymbolicModel, variables: list[FmuVariable], units: list[str
     if model.static_coordinates:
         static = ("const int MODEL_STATIC_COORDS[N_STATIC] = {"
                   + ", ".join(str(i) for i in model.static_coordinates) + "};\n")
-    newton = _template("newton_matrix.c.in" if dense_newton_matrix(model) else "newton_matrix_columns.c.in")
+    newton = _template(newton_matrix_template(model))
     return _template("model.c.in").substitute(
         scene=model.scene.name, identifier=ident, casadi_units=", ".join(f"{u}.c" for u in units),
         casadi_includes="\n".join(f'#include "{u}.h"' for u in units),
