@@ -14,8 +14,10 @@ import numpy as np
 import pytest
 from fmpy.fmi1 import FMICallException
 
+from flexlink.errors import FlexlinkError
 from flexlink.export.fmu import cached_fmu
 from flexlink.run.host import FmuHost
+from flexlink.run.linearize import fmu_state_space
 from flexlink.scene.loader import parse_scene
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -66,6 +68,12 @@ def test_the_call_is_refused_with_the_reason(pair):
             host.call("fmi2GetDirectionalDerivative", host.instance.getDirectionalDerivative,
                       [host.value_reference("arm.tip.v")], [host.value_reference("hub.tau")], [1.0])
     assert "directional_derivatives = false" in str(refused.value)
+
+
+def test_linearising_such_an_fmu_says_what_it_lacks(pair):
+    _, without = pair
+    with pytest.raises(FlexlinkError, match="directional_derivatives = false"):
+        fmu_state_space(without, outputs=["arm.tip.v"])
 
 
 @pytest.mark.parametrize("interface", ["CoSimulation", "ModelExchange"])

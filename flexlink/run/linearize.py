@@ -308,7 +308,8 @@ def fmu_state_space(fmu: str | os.PathLike, *, outputs: Sequence[str] | None = N
 
     md = fmpy.read_model_description(os.fspath(fmu))
     if md.modelExchange is None or not md.modelExchange.providesDirectionalDerivative:
-        raise FlexlinkError(f"{fmu}: needs Model Exchange with directional derivatives")
+        raise FlexlinkError(f"{fmu}: needs Model Exchange with directional derivatives (a flexlink FMU has them "
+                            "unless its scene sets [fmu] directional_derivatives = false)")
     vr = {v.name: v.valueReference for v in md.modelVariables}
     all_outputs = [v.name for v in md.modelVariables if v.causality == "output"]
     outputs = list(all_outputs if outputs is None else outputs)
