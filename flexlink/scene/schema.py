@@ -501,9 +501,10 @@ KEYS: tuple[Key, ...] = (
                    "code n times the residual's), columns of the residual's derivative (code like the residual's), "
                    "or auto (dense up to 12 coordinates)"),
     _K("fmu", "directional_derivatives", "boolean", "", True,
-       description="compile the outputs' forward derivative (and the residual's where the Newton matrix does "
-                   "not need it) for fmi2GetDirectionalDerivative; false leaves them out of the generated C "
-                   "(39 % of the six-axis arm's) and declares providesDirectionalDerivative=\"false\""),
+       description="compile the forward derivatives of the residual and the outputs that "
+                   "fmi2GetDirectionalDerivative needs; false leaves them out of the generated C (the six-axis "
+                   "arm's 1.64 MB become 0.61 MB), builds a Newton matrix by columns from differences of the "
+                   "residual and declares providesDirectionalDerivative=\"false\""),
 )
 del _K, _SOLVER
 
