@@ -41,10 +41,8 @@ DEFAULT = ["rotating_link.toml", "rotating_link_payload.toml"]
 def fmu_only(loop, names: list[str], torque: str, n_steps: int, dt: float, repeats: int) -> float:
     """Median wall time per sample of getReal + setReal + doStep alone (constant torque, no law), called as
     the fast loop calls them."""
-    from controllers.cosim import _raw
-
     s = loop.slave
-    get_real, set_real, do_step = (_raw(s, f) for f in ("fmi2GetReal", "fmi2SetReal", "fmi2DoStep"))
+    get_real, set_real, do_step = (loop.host.raw(f) for f in ("fmi2GetReal", "fmi2SetReal", "fmi2DoStep"))
     vr_out = (ctypes.c_uint * len(names))(*[loop.vr(n) for n in names])
     val_out = (ctypes.c_double * len(names))()
     vr_in = (ctypes.c_uint * 1)(loop.vr(torque))
@@ -52,10 +50,7 @@ def fmu_only(loop, names: list[str], torque: str, n_steps: int, dt: float, repea
     a_out, a_vr_out, a_in, a_vr_in = (ctypes.addressof(x) for x in (val_out, vr_out, val_in, vr_in))
     walls = []
     for _ in range(repeats):
-        s.reset()
-        s.setupExperiment(startTime=0.0)
-        s.enterInitializationMode()
-        s.exitInitializationMode()
+        loop.host.initialize()
         comp = s.component
         t0 = time.perf_counter()
         for k in range(n_steps):
@@ -65,7 +60,6 @@ def fmu_only(loop, names: list[str], torque: str, n_steps: int, dt: float, repea
                 raise RuntimeError(f"fmi2DoStep failed at step {k}")
         walls.append((time.perf_counter() - t0) / n_steps)
         s.terminate()
-    loop._fresh = False
     return statistics.median(walls)
 
 

@@ -17,29 +17,33 @@ run up to rounding (tests/test_control_fmu.py):
 * :meth:`FmuLoop._run_stepped` — any law (multi-joint, scheduled, noisy): ``law.step`` per sample on fmpy's
   ctypes functions and value arrays allocated once.
 
-Errors the FMU reports reach the caller as :class:`FmuLoopError` with the FMU's own log messages.
+The instance lives on one :class:`flexlink.run.host.FmuHost` (extraction, the log router, initialisation,
+clean-up, the raw ctypes functions of the fast loop); errors the FMU reports reach the caller as
+:class:`FmuLoopError` (the host's :class:`~flexlink.run.host.FmuCallError`) with the FMU's own log messages.
 """
 
 from __future__ import annotations
 
 import ctypes
 import os
-import shutil
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from fmpy.fmi1 import FMICallException
 
 from controllers.laws import AffineForm, SampledLaw
 from controllers.trajectory import Reference
 from flexlink.errors import FlexlinkError
+from flexlink.run.host import FmuCallError, FmuHost
 
 __all__ = ["FmuLoop", "FmuLoopError", "LoopResult"]
 
 
-class FmuLoopError(FlexlinkError):
-    """The FMU refused a call during a closed-loop run (message: the call and the FMU's log)."""
+#: A call the FMU refused during a closed-loop run: :class:`flexlink.run.host.FmuCallError` (the call, its status,
+#: the FMU's logged reason and, for a sample, the step and time at which it failed).
+FmuLoopError = FmuCallError
 
 
 @dataclass
@@ -85,71 +89,29 @@ class FmuLoop:
     """
 
     def __init__(self, fmu: str | os.PathLike, record: Sequence[str] = (), instance_name: str = "flexlink_loop"):
-        import fmpy
-        from fmpy.fmi2 import (
-            FMU2Slave,
-            fmi2CallbackAllocateMemoryTYPE,
-            fmi2CallbackFreeMemoryTYPE,
-            fmi2CallbackFunctions,
-            fmi2CallbackLoggerTYPE,
-        )
-
-        self.path = os.fspath(fmu)
-        self.md = fmpy.read_model_description(self.path)
-        if self.md.coSimulation is None:
-            raise FlexlinkError(f"{self.path}: not a Co-Simulation FMU")
-        self.variables = {v.name: v for v in self.md.modelVariables}
+        self.host = FmuHost(fmu, interface="CoSimulation", instance_name=instance_name)
+        self.path = self.host.path
+        self.md = self.host.model_description
+        self.variables = self.host.variables
         self.record = list(record)
-        self.messages: list[str] = []
-        self._unzipdir = fmpy.extract(self.path)
-        self.slave = FMU2Slave(guid=self.md.guid, unzipDirectory=self._unzipdir,
-                               modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=instance_name)
 
-        def logger(env, instance, status, category, message):
-            text = message.decode(errors="replace") if isinstance(message, bytes) else str(message)
-            self.messages.append(text.replace("%%", "%"))   # FMI messages are printf formats
+    @property
+    def slave(self):
+        """The fmpy ``FMU2Slave`` of the host (for loops that call it directly)."""
+        return self.host.instance
 
-        from fmpy import calloc, free
-
-        cb = fmi2CallbackFunctions()
-        cb.logger = fmi2CallbackLoggerTYPE(logger)
-        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        self._callbacks = cb
-        self._logger = logger
-        self._fresh = True
-        self._call("instantiate", lambda: self.slave.instantiate(callbacks=cb, loggingOn=False))
-
-    # -------------------------------------------------------------------------------------- helpers
-    def _call(self, what: str, f):
-        from fmpy.fmi1 import FMICallException
-
-        n = len(self.messages)
-        try:
-            return f()
-        except FMICallException as e:
-            detail = "; ".join(self.messages[n:]) or "no message from the FMU"
-            raise FmuLoopError(f"{os.path.basename(self.path)}: {what} failed ({e}): {detail}") from None
-        except Exception as e:  # fmpy raises a bare Exception when fmi2Instantiate returns NULL
-            detail = "; ".join(self.messages[n:]) or str(e)
-            raise FmuLoopError(f"{os.path.basename(self.path)}: {what} failed: {detail}") from None
+    @property
+    def messages(self) -> list[str]:
+        """What the FMU logged, in order (FMI printf formats: ``%%`` for a percent sign)."""
+        return self.host.messages
 
     def vr(self, name: str) -> int:
-        try:
-            return self.variables[name].valueReference
-        except KeyError:
-            raise FlexlinkError(f"{os.path.basename(self.path)} has no variable {name!r}") from None
+        """The value reference of ``name`` (an unknown name: a :class:`FlexlinkError` naming close ones)."""
+        return self.host.value_reference(name)
 
     def close(self) -> None:
-        if self.slave is not None:
-            try:
-                self.slave.terminate()
-            except Exception:  # noqa: BLE001 (already terminated or in error: free anyway)
-                pass
-            self.slave.freeInstance()
-            self.slave.freeLibrary()
-            self.slave = None
-        shutil.rmtree(self._unzipdir, ignore_errors=True)
+        """Terminate and free the instance and its library (once), delete the extracted files."""
+        self.host.close()
 
     def __enter__(self):
         return self
@@ -215,7 +177,7 @@ class FmuLoop:
                                          noise, seed)
         finally:
             wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-        self._call("fmi2Terminate", self.slave.terminate)
+        self.host.call("fmi2Terminate", self.slave.terminate)
         series = {"time": reference.time.copy()}
         for i, name in enumerate(names):
             series[name] = Y[:, i].copy()
@@ -224,27 +186,14 @@ class FmuLoop:
         return LoopResult(series, wall, params, cpu)
 
     def _initialise(self, params: Mapping[str, float]) -> None:
-        """Reset (after a first run), set up, set the parameters, initialise."""
-        s = self.slave
-        if not self._fresh:
-            self._call("fmi2Reset", s.reset)
-        self._fresh = False
-        self._call("fmi2SetupExperiment", lambda: s.setupExperiment(startTime=0.0))
-        if params:
-            pvr = list(params)
-            self._call("fmi2SetReal (parameters)", lambda: s.setReal([self.vr(n) for n in pvr],
-                                                                     [float(params[n]) for n in pvr]))
-        self._call("fmi2EnterInitializationMode", s.enterInitializationMode)
-        self._call("fmi2ExitInitializationMode", s.exitInitializationMode)
+        """Reset (after a first run), set the parameters (each with its type's setter), initialise."""
+        self.host.initialize(params)
 
-    def _step_failed(self, k: int, dt: float, e: Exception) -> FmuLoopError:
-        detail = "; ".join(self.messages[-3:]) or "no message from the FMU"
-        return FmuLoopError(f"{os.path.basename(self.path)}: step {k} (t = {k * dt:.6g} s) failed ({e}): {detail}")
+    def _step_failed(self, k: int, dt: float, e: FMICallException) -> FmuCallError:
+        return self.host.refusal(e.function, e.status, where=f"step {k} (t = {k * dt:.6g} s)")
 
     def _run_stepped(self, law, sensor_idx: list[int], vr_out, vr_in, reference: Reference, noise, seed: int):
         """The reference loop: fmpy's ctypes functions on arrays allocated once, ``law.step`` per sample."""
-        from fmpy.fmi1 import FMICallException
-
         s, dt = self.slave, reference.dt
         n_out, m, p = len(vr_out), len(vr_in), len(sensor_idx)
         val_out, val_in = (ctypes.c_double * n_out)(), (ctypes.c_double * m)()
@@ -275,6 +224,8 @@ class FmuLoop:
                 u_in[:] = u
                 set_real(comp, vr_in, m, val_in)
                 do_step(comp, k * dt, dt, 1)
+        except FmuCallError:
+            raise                  # a law on an FMU of its own (controllers.export.FmuLaw) reports its own refusal
         except FMICallException as e:
             raise self._step_failed(k, dt, e) from None
         return Y, U
@@ -287,8 +238,6 @@ class FmuLoop:
         the clipped torque overwrites v_k there and ``fmi2SetReal`` reads it from there.  The recorded
         outputs and torques are columns of ``H``: nothing is copied or allocated per sample.
         """
-        from fmpy.fmi1 import FMICallException
-
         dt, n_out, ns = reference.dt, len(vr_out), form.n_state
         n_steps = len(reference.time) - 1
         iu = n_out + ns                                        # column of u_{k−1}
@@ -299,7 +248,7 @@ class FmuLoop:
         H = np.zeros((n_steps + 2, iu + 2))
         H[:, iu + 1] = 1.0
         H[0, iu] = form.u0
-        get_real, set_real, do_step = (_raw(self.slave, f) for f in ("fmi2GetReal", "fmi2SetReal", "fmi2DoStep"))
+        get_real, set_real, do_step = (self.host.raw(f) for f in ("fmi2GetReal", "fmi2SetReal", "fmi2DoStep"))
         comp, base, rb = self.slave.component, H.ctypes.data, H.strides[0]
         u_addr = base + rb + 8 * iu                           # &H[k + 1, iu] = u_addr + k rb
         n_vr_out, p_vr_out, p_vr_in = len(vr_out), ctypes.addressof(vr_out), ctypes.addressof(vr_in)
@@ -328,10 +277,3 @@ class FmuLoop:
             raise self._step_failed(k, dt, e) from None
         return H[:-1, :n_out], H[1:, iu:iu + 1]
 
-
-def _raw(slave, name: str):
-    """The FMU's own ``name`` as a ctypes function taking addresses (ints): the call without fmpy's Python
-    wrapper and its status check, and without ctypes converting arrays (the caller checks the status)."""
-    proto = {"fmi2DoStep": (ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int)}.get(
-        name, (ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p))
-    return ctypes.CFUNCTYPE(ctypes.c_int, *proto)((name, slave.dll))

@@ -213,10 +213,10 @@ class FmuLaw:
     kind = "lqr-fmu"
 
     def __init__(self, fmu: str | os.PathLike, W: np.ndarray | None = None, builtin: bool = False):
-        import fmpy
-        from fmpy.fmi2 import FMU2Slave
+        from flexlink.run.host import FmuHost
 
-        self.md = fmpy.read_model_description(os.fspath(fmu))
+        self.host = FmuHost(fmu, interface="CoSimulation", instance_name="controller")
+        self.md = self.host.model_description
         self.dt = float(self.md.defaultExperiment.stepSize)
         vs = self.md.modelVariables
         names = [v.name for v in vs if v.causality == "input"]
@@ -225,30 +225,28 @@ class FmuLaw:
         self.sensors = names[: n_in - 2 * nx - len(self.inputs)]
         self.builtin = builtin
         self.W = None if W is None else np.asarray(W, dtype=float)
-        self._dir = fmpy.extract(os.fspath(fmu))
-        self.slave = FMU2Slave(guid=self.md.guid, unzipDirectory=self._dir,
-                               modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName="controller")
-        self.slave.instantiate()
         self.vr_in = (ctypes.c_uint * n_in)(*range(n_in))
         self.val_in = (ctypes.c_double * n_in)()
         self.in_ = np.frombuffer(self.val_in, dtype=np.float64)
         m = len(self.inputs)
         self.vr_out = (ctypes.c_uint * m)(*range(n_in, n_in + m))
         self.val_out = (ctypes.c_double * m)()
-        self._fresh = True
         self.k = 0
 
+    @property
+    def slave(self):
+        """The fmpy ``FMU2Slave`` of the host."""
+        return self.host.instance
+
     def reset(self) -> None:
-        s = self.slave
-        if not self._fresh:
-            s.reset()
-        self._fresh = False
-        s.setupExperiment(startTime=0.0)
-        s.enterInitializationMode()
-        s.exitInitializationMode()
+        """Reset (after a first run) and initialise the controller FMU: sample 0 next."""
+        self.host.initialize()
         self.k = 0
 
     def step(self, y, x_ref, u_ff) -> np.ndarray:
+        """Set sample k's inputs, step the controller FMU over one sample, return its torques."""
+        from fmpy.fmi1 import FMICallException
+
         ny, nx = len(self.sensors), len(x_ref)
         self.in_[:ny] = y
         if not self.builtin:
@@ -256,16 +254,15 @@ class FmuLaw:
             self.in_[ny + nx:ny + nx + len(self.inputs)] = u_ff
             self.in_[ny + nx + len(self.inputs):] = self.W[self.k]
         s = self.slave
-        s.fmi2SetReal(s.component, self.vr_in, len(self.in_), self.val_in)
-        s.fmi2DoStep(s.component, self.k * self.dt, self.dt, 1)
-        s.fmi2GetReal(s.component, self.vr_out, len(self.inputs), self.val_out)
+        try:
+            s.fmi2SetReal(s.component, self.vr_in, len(self.in_), self.val_in)
+            s.fmi2DoStep(s.component, self.k * self.dt, self.dt, 1)
+            s.fmi2GetReal(s.component, self.vr_out, len(self.inputs), self.val_out)
+        except FMICallException as e:
+            raise self.host.refusal(e.function, e.status, where=f"controller sample {self.k}") from None
         self.k += 1
         return np.frombuffer(self.val_out, dtype=np.float64).copy()
 
     def close(self) -> None:
-        if self.slave is not None:
-            self.slave.terminate()
-            self.slave.freeInstance()
-            self.slave.freeLibrary()
-            self.slave = None
-        shutil.rmtree(self._dir, ignore_errors=True)
+        """Terminate and free the controller FMU (once) and delete its extracted files."""
+        self.host.close()

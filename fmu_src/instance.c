@@ -6,7 +6,7 @@
 #include "internal.h"
 #include "linalg.h"
 
-#define STATIC_MAX_ITERATIONS 50
+/* STATIC_MAX_ITERATIONS and the solver's limits: solver_settings.h (from flexlink/scene/solver.py) */
 
 /* ===================================================================== start values */
 
@@ -248,23 +248,24 @@ fmi2Status fmu_exit_initialization(Instance *inst) {
                          solver_name(SOLVER_STEP), step);
     }
     if (!(theta1 >= SOLVER_THETA_MIN && theta2 >= theta1 && theta2 <= SOLVER_THETA_MAX)) {
-        return fmu_error(inst, "fmi2ExitInitializationMode: SS22 needs 0.5 <= %s <= %s <= 1 (unconditional "
-                         "stability), got %g and %g", solver_name(SOLVER_THETA1), solver_name(SOLVER_THETA2),
-                         theta1, theta2);
+        return fmu_error(inst, "fmi2ExitInitializationMode: SS22 needs %g <= %s <= %s <= %g (unconditional "
+                         "stability), got %g and %g", SOLVER_THETA_MIN, solver_name(SOLVER_THETA1),
+                         solver_name(SOLVER_THETA2), SOLVER_THETA_MAX, theta1, theta2);
     }
     if (!(tolerance > 0.0 && isfinite(tolerance))) {
         return fmu_error(inst, "fmi2ExitInitializationMode: %s = %g: must be > 0",
                          solver_name(SOLVER_TOLERANCE), tolerance);
     }
     if (d->solver[SOLVER_ORDER] != SOLVER_ORDER_SS22 && d->solver[SOLVER_ORDER] != SOLVER_ORDER_RICHARDSON) {
-        return fmu_error(inst, "fmi2ExitInitializationMode: %s = %g: must be 2 (SS22) or 4 (SS22 with "
-                         "Richardson extrapolation)", solver_name(SOLVER_ORDER), d->solver[SOLVER_ORDER]);
+        return fmu_error(inst, "fmi2ExitInitializationMode: %s = %g: must be %d (SS22) or %d (SS22 with "
+                         "Richardson extrapolation)", solver_name(SOLVER_ORDER), d->solver[SOLVER_ORDER],
+                         SOLVER_ORDER_SS22, SOLVER_ORDER_RICHARDSON);
     }
     if (d->solver[SOLVER_ORDER] == SOLVER_ORDER_RICHARDSON &&
         !(theta1 == SOLVER_THETA_MIN && theta2 == SOLVER_THETA_MIN)) {
-        return fmu_error(inst, "fmi2ExitInitializationMode: %s = 4 extrapolates the symmetric SS22: it needs "
-                         "%s = %s = 0.5, got %g and %g", solver_name(SOLVER_ORDER), solver_name(SOLVER_THETA1),
-                         solver_name(SOLVER_THETA2), theta1, theta2);
+        return fmu_error(inst, "fmi2ExitInitializationMode: %s = %d extrapolates the symmetric SS22: it needs "
+                         "%s = %s = %g, got %g and %g", solver_name(SOLVER_ORDER), SOLVER_ORDER_RICHARDSON,
+                         solver_name(SOLVER_THETA1), solver_name(SOLVER_THETA2), SOLVER_THETA_MIN, theta1, theta2);
     }
     /* the host's experiment tolerance may tighten the Newton tolerance, never loosen it */
     if (d->experiment_tolerance_defined && d->experiment_tolerance < tolerance) {

@@ -62,19 +62,20 @@ fmi2Status fmu_check_richardson(Instance *inst, double dt) {
     FmuData *d = &inst->d;
     if (!d->omega_max_known) {
         const double lambda = largest_eigenvalue(inst);
-        if (lambda == -2.0) return fmu_error(inst, "fmi2DoStep: solver.order = 4: out of memory");
+        if (lambda == -2.0) return fmu_error(inst, "fmi2DoStep: solver.order = %d: out of memory",
+                                             SOLVER_ORDER_RICHARDSON);
         if (lambda < 0.0) {
-            return fmu_error(inst, "fmi2DoStep: solver.order = 4: the highest natural frequency could not be "
-                             "found (mass or stiffness matrix not finite or singular)");
+            return fmu_error(inst, "fmi2DoStep: solver.order = %d: the highest natural frequency could not be "
+                             "found (mass or stiffness matrix not finite or singular)", SOLVER_ORDER_RICHARDSON);
         }
         d->omega_max = sqrt(lambda);
         d->omega_max_known = 1;
     }
     if (d->omega_max * dt <= RICHARDSON_MAX_OMEGA_STEP) return fmi2OK;
-    fmu_log(inst, fmi2Discard, LOG_STATUS_DISCARD, "fmi2DoStep: solver.order = 4 (Richardson extrapolation) "
+    fmu_log(inst, fmi2Discard, LOG_STATUS_DISCARD, "fmi2DoStep: solver.order = %d (Richardson extrapolation) "
             "is unstable at an internal step of %g s: the highest natural frequency, %.4g Hz, is not resolved "
-            "(w dt = %.3g > %g); use order 2, or internal steps of at most %.3g s (the FMU stays at "
-            "t = %.17g)", dt, d->omega_max / TWO_PI, d->omega_max * dt, RICHARDSON_MAX_OMEGA_STEP,
-            RICHARDSON_MAX_OMEGA_STEP / d->omega_max, d->time);
+            "(w dt = %.3g > %g); use order %d, or internal steps of at most %.3g s (the FMU stays at "
+            "t = %.17g)", SOLVER_ORDER_RICHARDSON, dt, d->omega_max / TWO_PI, d->omega_max * dt,
+            RICHARDSON_MAX_OMEGA_STEP, SOLVER_ORDER_SS22, RICHARDSON_MAX_OMEGA_STEP / d->omega_max, d->time);
     return fmi2Discard;
 }

@@ -33,5 +33,11 @@ typedef enum {
 #define DOSTEP_MAX_INTERNAL_STEPS 1000000.0
 /* Newton iterations of one SS22 step before it counts as not converged (then sub-stepped). */
 #define SS22_MAX_ITERATIONS 20
+/* A Newton iteration that stalls (a fresh matrix no longer contracts) within this factor of the tolerance
+ * has reached the rounding floor of the residual and is accepted (ss22.c). */
+#define SS22_ROUNDING_FACTOR 100.0
+/* Full Newton iterations of the static equilibrium of the scene's static coordinates at
+ * fmi2ExitInitializationMode (instance.c). */
+#define STATIC_MAX_ITERATIONS 50
 
 #endif /* FLEXLINK_SOLVER_SETTINGS_H */

@@ -17,9 +17,7 @@
 #include <stdint.h>
 #include "model.h"
 
-/* A Newton iteration that stalls (a fresh matrix no longer contracts) within this factor of the tolerance
- * has reached the rounding floor of the residual and is accepted. */
-#define SS22_ROUNDING_FACTOR 100.0
+/* SS22_MAX_ITERATIONS and SS22_ROUNDING_FACTOR: solver_settings.h (from flexlink/scene/solver.py) */
 
 #define SS22_CACHE 4     /* factorisations kept: the regular step, a shortened last one, and the Δt/2 of the
                             order-4 option with their rounding variants (2 entries thrashed: 1800 LUs in 15000 steps) */

@@ -203,7 +203,8 @@ static const char *outside_domain(const VarInfo *v, double x, char *why, size_t 
         snprintf(why, n, "%s = %.15g: an Integer, must be a whole number", v->name, x);
     } else if (v->kind == VAR_SOLVER && v->index == SOLVER_ORDER && x != SOLVER_ORDER_SS22 &&
                x != SOLVER_ORDER_RICHARDSON) {
-        snprintf(why, n, "%s = %.15g: must be 2 (SS22) or 4 (SS22 with Richardson extrapolation)", v->name, x);
+        snprintf(why, n, "%s = %.15g: must be %d (SS22) or %d (SS22 with Richardson extrapolation)", v->name, x,
+                 SOLVER_ORDER_SS22, SOLVER_ORDER_RICHARDSON);
     } else {
         return NULL;
     }

@@ -67,3 +67,43 @@ def test_model_exchange_and_clean_up(fmu) -> None:
     assert not os.path.exists(extracted)
     with pytest.raises(ValueError, match="interface"):
         FmuHost(fmu, interface="Scheduled")
+
+
+def test_the_raw_calls_of_a_loop_and_their_refusal(fmu) -> None:
+    """The ctypes functions a closed loop calls each sample: the values fmpy's wrapper reads, the status the
+    FMU returns, and the refusal built from it carries the FMU's reason and the loop's place."""
+    import ctypes
+
+    step = 1e-9
+    with FmuHost(fmu) as host:
+        host.initialize({"solver.step": 1e-3})
+        get_real, do_step = host.raw("fmi2GetReal"), host.raw("fmi2DoStep")
+        comp = host.instance.component
+        assert do_step(comp, 0.0, 0.01, 1) == 0
+        refs = (ctypes.c_uint * 2)(host.vr["hub.theta"], host.vr["hub.omega"])
+        values = (ctypes.c_double * 2)()
+        assert get_real(comp, ctypes.addressof(refs), 2, ctypes.addressof(values)) == 0
+        assert list(values) == host.get_real(["hub.theta", "hub.omega"])
+        host.initialize({"solver.step": step})
+        status = host.raw("fmi2DoStep")(host.instance.component, 0.0, 1e-2, 1)
+        assert status == 2
+        e = host.refusal("fmi2DoStep", status, where="step 0 (t = 0 s)")
+        assert f"at most {solver.DOSTEP_MAX_INTERNAL_STEPS}" in e.reason
+        assert str(e).startswith(f"{os.path.basename(fmu)}: step 0 (t = 0 s) failed (fmi2DoStep failed with "
+                                 "status 2 (discard)): ")
+        with pytest.raises(ValueError, match="fmi2DoStep"):
+            host.raw("fmi2GetFMUstate")
+
+
+def test_the_library_is_freed_once(fmu, monkeypatch) -> None:
+    """fmpy's freeInstance unloads the library itself: the host's clean-up must not unload it again."""
+    import fmpy.fmi1
+
+    closed = []
+    unload = fmpy.fmi1.freeLibrary
+    monkeypatch.setattr(fmpy.fmi1, "freeLibrary", lambda handle: (closed.append(handle), unload(handle)))
+    host = FmuHost(fmu)
+    host.initialize()
+    host.close()
+    host.close()
+    assert len(closed) == 1

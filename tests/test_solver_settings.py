@@ -30,8 +30,39 @@ def test_the_c_glue_has_no_hand_copy_of_the_limits() -> None:
         if path.name == solver_header.HEADER:
             continue
         text = path.read_text()
-        for name in ("SUBSTEP_MAX", "DOSTEP_MAX_INTERNAL_STEPS", "RICHARDSON_MAX_OMEGA_STEP", "N_SOLVER_SETTINGS"):
+        for name in ("SUBSTEP_MAX", "DOSTEP_MAX_INTERNAL_STEPS", "RICHARDSON_MAX_OMEGA_STEP", "N_SOLVER_SETTINGS",
+                     "SS22_MAX_ITERATIONS", "SS22_ROUNDING_FACTOR", "STATIC_MAX_ITERATIONS"):
             assert f"#define {name}" not in text and f"{name}\n}} SolverSetting" not in text, (path.name, name)
+
+
+def test_the_c_messages_print_the_limits_rather_than_spell_them() -> None:
+    """A message that spells a limit as text ("must be 2 (SS22) or 4", "= 0.5") would go stale when the owner
+    changes it: the C string literals print the generated values instead."""
+    import re
+
+    spelled = [f"or {solver.ORDER_RICHARDSON}", f"solver.order = {solver.ORDER_RICHARDSON}",
+               f"order {solver.ORDER_SS22},", f"%s = {solver.THETA_MIN:g}", f"{solver.THETA_MIN:g} <= %s",
+               f"%s <= {solver.THETA_MAX:g}"]
+    for path in fmu_src_dir().glob("*.c"):
+        for literal in re.findall(r'"((?:[^"\\\n]|\\.)*)"', path.read_text()):
+            assert not [t for t in spelled if t in literal], (path.name, literal)
+
+
+def test_the_fmu_refusals_name_the_owner_limits(example_fmu) -> None:
+    """What the FMU says when it refuses a setting carries the owner's numbers (printed from the header)."""
+    from flexlink.run.host import FmuCallError, FmuHost
+
+    order_rule = f"must be {solver.ORDER_SS22} (SS22) or {solver.ORDER_RICHARDSON} (SS22 with Richardson"
+    theta_rule = f"SS22 needs {solver.THETA_MIN:g} <= solver.theta1 <= solver.theta2 <= {solver.THETA_MAX:g}"
+    symmetric = (f"solver.order = {solver.ORDER_RICHARDSON} extrapolates the symmetric SS22: it needs "
+                 f"solver.theta1 = solver.theta2 = {solver.THETA_MIN:g}, got 0.6 and 0.6")
+    with FmuHost(example_fmu("rotating_link")) as host:
+        for start, rule in (({"solver.order": 3}, order_rule), ({"solver.theta1": 0.8, "solver.theta2": 0.6},
+                                                                 theta_rule),
+                            ({"solver.order": 4, "solver.theta1": 0.6, "solver.theta2": 0.6}, symmetric)):
+            with pytest.raises(FmuCallError) as info:
+                host.initialize(start)
+            assert rule in info.value.reason, (start, info.value.reason)
 
 
 CASES = [

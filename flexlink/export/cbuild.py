@@ -34,17 +34,30 @@ GENERIC_SOURCES: tuple[str, ...] = (
     "fmi2Functions.c", "calls.c", "logging.c", "instance.c", "variables.c", "cs_step.c", "model_exchange.c",
     "derivatives.c", "fmu_state.c", "guards.c", "richardson.c", "ss22.c", "linalg.c",
 )
-#: The FMI API layer of each FMI version: an FMU carries one (the functions behind it are shared).
-API_SOURCE = {2: "fmi2Functions.c", 3: "fmi3Functions.c"}
+#: The FMI API layer of each FMI version, by concern: an FMU carries one (the functions behind it are shared).
+API_SOURCES: dict[int, tuple[str, ...]] = {
+    2: ("fmi2Functions.c",),
+    3: ("fmi3Functions.c", "fmi3_variables.c", "fmi3_model_exchange.c", "fmi3_state.c", "fmi3_unsupported.c"),
+}
+#: The headers of an API layer's own (beside GENERIC_HEADERS).
+API_HEADERS: dict[int, tuple[str, ...]] = {2: (), 3: ("fmi3_internal.h",)}
 #: The FMI versions an FMU can be exported as.
 FMI_VERSIONS: tuple[int, ...] = (2, 3)
 
 
 def generic_sources(fmi_version: int = 2) -> tuple[str, ...]:
     """The generic C sources of an FMI ``fmi_version`` FMU: GENERIC_SOURCES with the API layer of that version."""
-    if fmi_version not in API_SOURCE:
+    if fmi_version not in API_SOURCES:
         raise BuildError(f"unknown FMI version {fmi_version!r}: choose 2 or 3")
-    return tuple(API_SOURCE[fmi_version] if f == API_SOURCE[2] else f for f in GENERIC_SOURCES)
+    api, fmi2 = API_SOURCES[fmi_version], API_SOURCES[2]
+    return (*api, *(f for f in GENERIC_SOURCES if f not in fmi2))
+
+
+def generic_headers(fmi_version: int = 2) -> tuple[str, ...]:
+    """The generic headers an FMI ``fmi_version`` FMU's sources include: GENERIC_HEADERS and its API layer's."""
+    if fmi_version not in API_HEADERS:
+        raise BuildError(f"unknown FMI version {fmi_version!r}: choose 2 or 3")
+    return (*GENERIC_HEADERS, *API_HEADERS[fmi_version])
 
 
 def fmi_headers(fmi_version: int = 2) -> list[Path]:

@@ -31,13 +31,13 @@ import flexlink
 from flexlink.errors import BuildError
 from flexlink.export.cbuild import (
     FMI_VERSIONS,
-    GENERIC_HEADERS,
     LIBRARY_SUFFIX,
     PLATFORM_FOLDER,
     compile_shared_library,
     compiler,
     fmi_headers,
     fmu_src_dir,
+    generic_headers,
     generic_sources,
     parse_platforms,
 )
@@ -356,7 +356,7 @@ def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, ke
         gen = generate(model, src)
         t2 = time.perf_counter()
         generic = fmu_src_dir()
-        for name in [*generic_sources(fmi_version), *GENERIC_HEADERS]:
+        for name in [*generic_sources(fmi_version), *generic_headers(fmi_version)]:
             shutil.copyfile(generic / name, src / name)
         for h in fmi_headers(fmi_version):
             shutil.copyfile(h, src / h.name)

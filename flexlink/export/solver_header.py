@@ -1,10 +1,11 @@
 """``fmu_src/solver_settings.h`` from :mod:`flexlink.scene.solver`, the one owner of the solver's numbers.
 
 The C glue's slots and limits of the solver settings (Θ range, orders, the Richardson bound, sub-step and
-doStep limits, Newton iterations) are the same numbers as the scene loader's and the FMU variables'; the
-header is written from the Python module rather than kept equal by hand.  It is committed (the fixed C of
-every FMU, hand-written test models included, compiles against it) and ``tests/test_solver_settings.py``
-fails when it differs from :func:`render`.  Regenerate with ``python -m flexlink.export.solver_header``.
+doStep limits, Newton iterations and rounding floor, the static equilibrium's iterations) are the same
+numbers as the scene loader's and the FMU variables'; the header is written from the Python module rather
+than kept equal by hand.  It is committed (the fixed C of every FMU, hand-written test models included,
+compiles against it) and ``tests/test_solver_settings.py`` fails when it differs from :func:`render`.
+Regenerate with ``python -m flexlink.export.solver_header``.
 """
 
 from __future__ import annotations
@@ -34,7 +35,9 @@ def render() -> str:
         default_theta=_c_double(defaults.theta[0]), default_tolerance=_c_double(defaults.tolerance),
         richardson_max_omega_step=_c_double(solver.RICHARDSON_MAX_OMEGA_STEP),
         substep_max=solver.SUBSTEP_MAX, dostep_max_internal_steps=_c_double(solver.DOSTEP_MAX_INTERNAL_STEPS),
-        newton_max_iterations=solver.NEWTON_MAX_ITERATIONS)
+        newton_max_iterations=solver.NEWTON_MAX_ITERATIONS,
+        newton_rounding_factor=_c_double(solver.NEWTON_ROUNDING_FACTOR),
+        static_max_iterations=solver.STATIC_MAX_ITERATIONS)
 
 
 def main() -> None:

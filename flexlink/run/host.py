@@ -14,6 +14,7 @@ router that dispatches on ``componentEnvironment`` (:func:`logging_callbacks`).
 
 from __future__ import annotations
 
+import ctypes
 import difflib
 import itertools
 import os
@@ -43,6 +44,14 @@ STATISTICS = re.compile(r"(\d+) SS22 steps, (\d+) Newton iterations, (\d+) facto
 STATISTICS_KEYS = ("steps", "newton_iterations", "factorisations", "residual_evaluations")
 
 
+#: The argument types of the functions :meth:`FmuHost.raw` returns (FMI 2.0, ``fmi2FunctionTypes.h``).
+RAW_PROTOTYPES: dict[str, tuple[Any, ...]] = {
+    **{f"fmi2{verb}{kind}": (ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p)
+       for verb in ("Get", "Set") for kind in ("Real", "Integer", "Boolean")},
+    "fmi2DoStep": (ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int),
+    "fmi2SetTime": (ctypes.c_void_p, ctypes.c_double)}
+
+
 class FmuCallError(FlexlinkError, FMICallException):
     """An FMI call the FMU refused, with the reason the FMU logged.
 
@@ -59,13 +68,18 @@ class FmuCallError(FlexlinkError, FMICallException):
         Its return status (2 discard, 3 error, 4 fatal).
     reason : str
         The FMU's last logged messages of that call, or a note that it logged none.
+    where : str, optional
+        Where in the caller's run the call failed (``"step 3 (t = 0.003 s)"``), for a loop that calls the
+        FMU many times.
     """
 
-    def __init__(self, fmu: str, function: str, status: int, reason: str):
+    def __init__(self, fmu: str, function: str, status: int, reason: str, where: str | None = None):
         FMICallException.__init__(self, function, status)
         label = STATUS_LABELS[status] if 0 <= status < len(STATUS_LABELS) else "illegal return code"
         self.reason = reason
-        self.args = (f"{fmu}: {function} failed with status {status} ({label}): {reason}",)
+        self.where = where
+        failed = f"{function} failed with status {status} ({label})"
+        self.args = (f"{fmu}: {where} failed ({failed}): {reason}" if where else f"{fmu}: {failed}: {reason}",)
 
     def __str__(self) -> str:
         return str(self.args[0])
@@ -159,15 +173,38 @@ class FmuHost:
         except FmuCallError:
             raise
         except FMICallException as e:
-            raise FmuCallError(self.name, function, e.status, self._reason(seen)) from None
+            raise self.refusal(function, e.status, seen) from None
         except Exception as e:  # fmpy raises a bare Exception when fmi2Instantiate returns NULL
             if function != "fmi2Instantiate":
                 raise
             raise FmuCallError(self.name, function, 3, self._reason(seen, str(e))) from None
 
+    def refusal(self, function: str, status: int, seen: int | None = None, where: str | None = None
+                ) -> FmuCallError:
+        """The :class:`FmuCallError` of a refused call made without :meth:`call` (a loop on :meth:`raw`).
+
+        ``seen``: the number of messages before the call (default: the last three logged are the reason);
+        ``where``: the loop's place of the call, for the message.
+        """
+        return FmuCallError(self.name, function, status,
+                            self._reason(len(self.messages) - 3 if seen is None else seen), where)
+
     def _reason(self, seen: int, fallback: str = "the FMU logged no reason") -> str:
-        logged = [m.replace("%%", "%") for m in self.messages[seen:][-3:]]
+        logged = [m.replace("%%", "%") for m in self.messages[max(seen, 0):][-3:]]
         return "; ".join(logged) or fallback
+
+    def raw(self, function: str) -> Any:
+        """The FMU's own FMI 2 ``function`` as a ctypes function on addresses (ints) that returns the status.
+
+        Without fmpy's Python wrapper, its status check and ctypes' conversion of arrays: the call a closed
+        loop makes every sample (issue 22: fmpy's wrappers were most of a sample's time).  The caller checks
+        the status (> 1: :meth:`refusal`).  Known: the get/set functions of Real, Integer and Boolean
+        (``component, vr*, size_t, values*``), ``fmi2DoStep`` and ``fmi2SetTime``.
+        """
+        proto = RAW_PROTOTYPES.get(function)
+        if proto is None:
+            raise ValueError(f"raw {function!r}: expected one of {sorted(RAW_PROTOTYPES)}")
+        return ctypes.CFUNCTYPE(ctypes.c_int, *proto)((function, self.instance.dll))
 
     # ------------------------------------------------------------------------------------ variables
 
@@ -237,9 +274,16 @@ class FmuHost:
         self._release(free_instance=self._live)
 
     def _release(self, free_instance: bool) -> None:
+        """Free the instance and its library, once.
+
+        fmpy's ``freeInstance`` unloads the library itself (a further ``freeLibrary`` would close it twice);
+        after a refused instantiation the library alone is freed.
+        """
         if free_instance:
             self.instance.freeInstance()            # fmpy frees the library with it
             self._live = False
+        elif self._unzipdir is not None:
+            self.instance.freeLibrary()             # instantiation refused: nothing else unloads it
         release_logging_callbacks(self._callbacks)
         if self._unzipdir is not None:
             shutil.rmtree(self._unzipdir, ignore_errors=True)

@@ -15,6 +15,11 @@ Why these numbers:
   is refused (an unexcited mode then grows at most 2× over one doStep's :data:`DOSTEP_MAX_INTERNAL_STEPS`).
 * A failed internal step is retried as 2, 4, … :data:`SUBSTEP_MAX` sub-steps; a doStep needing more than
   :data:`DOSTEP_MAX_INTERNAL_STEPS` internal steps is refused (bounded time, no overflow of the count).
+* Newton on a step's acceleration stops after :data:`NEWTON_MAX_ITERATIONS`; one that stalls within
+  :data:`NEWTON_ROUNDING_FACTOR` times the tolerance has reached the residual's rounding floor and is
+  accepted (a tighter tolerance than the arithmetic can meet must not sub-step forever).  The static
+  equilibrium of a scene's ``static`` coordinates at initialisation gets :data:`STATIC_MAX_ITERATIONS`
+  full Newton iterations (it starts from the scene's guess, farther than a step's predictor).
 * The model description's default communication step is the SS22 step, but never below
   :data:`MIN_DEFAULT_COMMUNICATION_STEP`: a fine internal step does not make hosts sample every step.
 """
@@ -28,11 +33,13 @@ __all__ = [
     "DOSTEP_MAX_INTERNAL_STEPS",
     "MIN_DEFAULT_COMMUNICATION_STEP",
     "NEWTON_MAX_ITERATIONS",
+    "NEWTON_ROUNDING_FACTOR",
     "ORDERS",
     "ORDER_RICHARDSON",
     "ORDER_SS22",
     "RICHARDSON_MAX_OMEGA_STEP",
     "SETTINGS",
+    "STATIC_MAX_ITERATIONS",
     "SUBSTEP_MAX",
     "THETA_MAX",
     "THETA_MIN",
@@ -51,6 +58,8 @@ RICHARDSON_MAX_OMEGA_STEP = 0.3
 SUBSTEP_MAX = 8
 DOSTEP_MAX_INTERNAL_STEPS = 1_000_000
 NEWTON_MAX_ITERATIONS = 20
+NEWTON_ROUNDING_FACTOR = 100.0
+STATIC_MAX_ITERATIONS = 50
 MIN_DEFAULT_COMMUNICATION_STEP = 1e-3
 
 
