@@ -92,9 +92,11 @@ def check_fmu(path: str | os.PathLike, *, fuzz: int = CI_FUZZ, seed: int = 0, im
                 results.append(function(check)(f))
                 continue
             options = {**_options(check.name, fuzz, seed, stop_time, tolerance), "interfaces": list(interfaces)}
-            replay = (lambda k: f"--fuzz {k + 1} --seed {seed}") if check.name == "fuzz" else None
+            fuzzing = check.name == "fuzz"
+            replay = (lambda k: f"--fuzz {k + 1} --seed {seed}") if fuzzing else None
+            carry = (lambda found: {"earlier": [x.message for x in found]}) if fuzzing else None
             results.append(run_isolated(check.name, fmu, options, call_limit=call_limit, limit=CHECK_LIMIT,
-                                        item=check.item, replay=replay))
+                                        item=check.item, replay=replay, carry=carry))
     finally:
         f.close()
         os.chdir(cwd)
