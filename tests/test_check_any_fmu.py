@@ -448,3 +448,42 @@ def test_fmi3_an_accepted_illegal_call_is_an_error(foreign_fmi3):
     assert [(x.rule, x.severity) for x in bad.findings] == [("state-machine", "error")]
     assert "'doStep with a zero step' (CS): expected fmi3Error (3), got 0" in bad.findings[0].message
     assert "must return fmi3Error" in RULES["state-machine"].sources[0].quote
+
+
+CLOCKED_FMI3 = """<?xml version="1.0" encoding="UTF-8"?>
+<fmiModelDescription fmiVersion="3.0" modelName="clocked" instantiationToken="{clocked}">
+  <CoSimulation modelIdentifier="clocked" hasEventMode="true"/>
+  <ScheduledExecution modelIdentifier="clocked"/>
+  <ModelVariables>
+    <Float64 name="time" valueReference="0" causality="independent" variability="continuous"/>
+    <UInt64 name="n" valueReference="1" causality="structuralParameter" variability="fixed" start="3"/>
+    <Clock name="tick" valueReference="2" causality="input" intervalVariability="constant" intervalDecimal="0.1"/>
+    <Float64 name="y" valueReference="3" causality="output" variability="discrete" clocks="2"/>
+  </ModelVariables>
+  <ModelStructure><Output valueReference="3"/></ModelStructure>
+</fmiModelDescription>
+"""
+
+
+def test_what_fmi3_declares_and_no_check_covers_is_said(fmus, tmp_path):
+    """An FMI 3.0 model description with a Clock, a clocked output, a structural parameter and Scheduled
+    Execution (a hand-written XML, no binary: nothing of it is run): the report has one ``skip`` row for each
+    of the three features, naming what is declared and why no check covers it; they are notes and change
+    nothing in the exit status.  An FMI 2.0 FMU gets none."""
+    import zipfile
+
+    from flexlink.tools.check.driver import NAMES
+    from flexlink.tools.check.report import passed
+
+    path = tmp_path / "clocked.fmu"
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("modelDescription.xml", CLOCKED_FMI3)
+    res = check_fmu(path, skip=NAMES)
+    assert [(r.name, r.status) for r in res] == [("clocks", "skip"), ("configuration-mode", "skip"),
+                                                 ("scheduled-execution", "skip")]
+    clocks, configuration, scheduled = (r.result for r in res)
+    assert "1 Clock(s) (tick), 1 clocked variable(s): not covered" in clocks
+    assert "1 structural parameter(s) (n)" in configuration and "fmi3EnterConfigurationMode" in configuration
+    assert "<ScheduledExecution> declared: not covered" in scheduled
+    assert passed(res) and not any(r.findings for r in res)
+    assert check_fmu(fmus("oscillator_CSME", variant="oscillator"), skip=NAMES) == []

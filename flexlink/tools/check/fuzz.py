@@ -18,6 +18,7 @@ bisection), and the event handled, so that a correct FMU with state events is ne
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -43,12 +44,15 @@ TOLERANCE = 1e-5     # relative error per integrator step (Euler against Heun)
 
 
 class Fuzzer:
-    """One instance per interface, re-instantiated for each sequence; every call's status is checked
-    against what the standard allows and the surprises are collected in ``findings``."""
+    """The fuzz's state: one instance per interface, re-instantiated for each sequence.
+
+    Every call's status is checked against what the standard allows and the surprises are collected in
+    ``findings``.
+    """
 
     LEGAL = (OK, WARNING)
 
-    def __init__(self, f: Fmu, seed: int, earlier: list[str] = ()):
+    def __init__(self, f: Fmu, seed: int, earlier: Sequence[str] = ()):
         self.f = f
         self.seed = seed
         self.rng = np.random.default_rng(seed)
@@ -77,19 +81,24 @@ class Fuzzer:
         self.fixed_step = float(step) if step else 1e-2
 
     def expect(self, ok_statuses, status, what: str) -> None:
+        """Count the call; a status outside ``ok_statuses`` is a ``legal-call`` finding."""
         self.calls += 1
         if status not in ok_statuses:
-            self.report("legal-call", f"sequence {self.sequence}: {what}: status {status}")
+            self.report(Finding("legal-call", f"sequence {self.sequence}: {what}: status {status}",
+                                sequence=isolation.recent()))
 
-    def report(self, rule: str, message: str) -> None:
-        """A finding, unless one of its kind was reported already (in this process or an earlier one of this
-        fuzz) or MAX_FINDINGS were."""
-        key = _key(message)
+    def report(self, finding: Finding) -> None:
+        """Add a finding, unless one of its kind was reported already or MAX_FINDINGS were.
+
+        "Already" counts this process and the earlier ones of this fuzz.
+        """
+        key = _key(finding.message)
         if key not in self.seen and self.earlier + len(self.findings) < MAX_FINDINGS:
             self.seen.add(key)
-            self.findings.append(Finding(rule, message, sequence=isolation.recent()))
+            self.findings.append(finding)
 
     def init(self, inst, kind: str) -> None:
+        """Initialise the instance; Model Exchange: through the event iteration to continuous-time mode."""
         legal = self.LEGAL
         self.expect(legal, call(inst.setupExperiment, None, 0.0, None), "setupExperiment")
         self.expect(legal, call(inst.enterInitializationMode), "enterInitializationMode")
@@ -124,8 +133,11 @@ class Fuzzer:
         self.expect(self.LEGAL, call(inst.setReal, [self.tunable[j].valueReference for j in group], values), what)
 
     def legal_sequence(self, k: int) -> None:
-        """Sequence k, on interface k mod the number of interfaces, with its own generator: instantiate, maybe
-        change a parameter, initialise, 3 to 14 random legal operations, maybe reset, terminate, free."""
+        """Sequence k, on interface k mod the number of interfaces, with its own generator.
+
+        Instantiate, maybe change a parameter, initialise, 3 to 14 random legal operations, maybe reset,
+        terminate, free.
+        """
         kind = self.f.interfaces[k % len(self.f.interfaces)]
         self.sequence, self.rng = k, np.random.default_rng((self.seed, k))
         inst = self.insts[kind]
@@ -192,12 +204,15 @@ class Fuzzer:
         self.expect(self.LEGAL, call(set_value, inst, v, value), f"set{v.type}({v.name} = {value})")
 
     def _model_exchange_step(self, inst, t0: float, t: float) -> float:
-        """What an integrator does from the current time t0 towards t (not past the next time event): up to
-        MAX_SUBSTEPS accepted steps (:meth:`_integrator_step`), each completed, until t or an event.  Returns
-        the time reached."""
+        """What an integrator does from the current time t0 towards t (not past the next time event).
+
+        Up to MAX_SUBSTEPS accepted steps (:meth:`_integrator_step`), each completed, until t or an event.
+        Returns the time reached.
+        """
         event = self.next_event.get("ME")
         at_event = event is not None and t >= event
-        t = event if at_event else t
+        if event is not None and at_event:
+            t = event
         for _ in range(MAX_SUBSTEPS):
             reached, handled = self._integrator_step(inst, t0, t, at_event)
             if handled or reached == t0 or reached >= t:
@@ -206,10 +221,12 @@ class Fuzzer:
         return t0
 
     def _integrator_step(self, inst, t0: float, t: float, time_event: bool) -> tuple[float, bool]:
-        """One error-controlled step (:meth:`_integrate`) towards t, the first zero crossing of the event
-        indicators in it located (:meth:`_locate`), the step completed (which may discard a state outside the
-        model's validity), then a time event at t, a state event or a step event handled.  Returns the time
-        reached and whether an event was handled."""
+        """One error-controlled step (:meth:`_integrate`) towards t, completed, and its event handled.
+
+        The first zero crossing of the event indicators in the step is located (:meth:`_locate`), the step
+        completed (which may discard a state outside the model's validity), then a time event at t, a state
+        event or a step event handled.  Returns the time reached and whether an event was handled.
+        """
         legal = self.LEGAL
         z0 = self._vector(inst.getEventIndicators, self.f.nz, "getEventIndicators")
         reached = self._integrate(inst, t0, t)
@@ -237,8 +254,10 @@ class Fuzzer:
         return t1, handled
 
     def _vector(self, getter, n: int, what: str) -> np.ndarray | None:
-        """fmi2GetContinuousStates / fmi2GetDerivatives / fmi2GetEventIndicators into a new array (None on
-        fmi2Discard, which an integrator answers with a smaller step; an error is a finding)."""
+        """fmi2GetContinuousStates / fmi2GetDerivatives / fmi2GetEventIndicators into a new array.
+
+        None on fmi2Discard, which an integrator answers with a smaller step; an error is a finding.
+        """
         if n == 0:
             return np.zeros(0)
         out = np.zeros(n)
@@ -257,10 +276,13 @@ class Fuzzer:
         return True
 
     def _integrate(self, inst, t0: float, t: float):
-        """Heun's method with Euler's as its error estimate (TOLERANCE), halving the step on a larger error
-        or an fmi2Discard (as FMI 2.0 §2.1.3 tells an integrator to), up to 40 times: a stiff model gets a step
-        it is stable at, as a real integrator would give it.  Returns (t1, x0, dx0, x1), the FMU left at t1 and x1,
-        or None if no step was accepted (the FMU is put back at t0)."""
+        """One step of Heun's method with Euler's as its error estimate (TOLERANCE).
+
+        The step is halved on a larger error or an fmi2Discard (as FMI 2.0 §2.1.3 tells an integrator to), up
+        to 40 times: a stiff model gets a step it is stable at, as a real integrator would give it.  Returns
+        (t1, x0, dx0, x1), the FMU left at t1 and x1, or None if no step was accepted (the FMU is put back at
+        t0).
+        """
         nx = self.f.nx
         x0 = self._vector(inst.getContinuousStates, nx, "getContinuousStates")
         dx0 = self._vector(inst.getDerivatives, nx, "getDerivatives")
@@ -281,9 +303,11 @@ class Fuzzer:
         return None
 
     def _locate(self, inst, path: _Hermite, z0: np.ndarray) -> float:
-        """Bisection in time for the first sign change of an event indicator along the step's interpolant, to
-        1e-12 of the step; the FMU is left just after it, where the sign has changed, as fmpy's Model Exchange
-        loop leaves it at CVODE's root.  Returns that time."""
+        """Bisection in time for the first sign change of an event indicator along the step's interpolant.
+
+        To 1e-12 of the step; the FMU is left just after it, where the sign has changed, as fmpy's Model
+        Exchange loop leaves it at CVODE's root.  Returns that time.
+        """
         lo, hi = 0.0, 1.0
         while hi - lo > 1e-12:
             mid = 0.5 * (lo + hi)
@@ -308,22 +332,28 @@ class Fuzzer:
                 inst.freeFMUstate(s2)
             self.calls += 6 if serialize else 3
         except Exception as e:
-            self.report("fmu-state", f"sequence {self.sequence}: FMU state round trip: {e}")
+            self.report(Finding("fmu-state", f"sequence {self.sequence}: FMU state round trip: {e}",
+                                sequence=isolation.recent()))
 
 
 def _key(message: str) -> str:
-    """What makes findings repeats of each other: the call without its arguments and the outcome
-    ("sequence 3: doStep(0.1, 0.01): status 3" -> "doStep: status 3"); other messages (a hang or a crash
-    reported by the harness, an FMU state round trip) as they are, less their sequence."""
+    """What makes findings repeats of each other.
+
+    The call without its arguments and the outcome ("sequence 3: doStep(0.1, 0.01): status 3" -> "doStep:
+    status 3"); other messages (a hang or a crash reported by the harness, an FMU state round trip) as they
+    are, less their sequence.
+    """
     text = message.split(": ", 1)[1] if message.startswith("sequence ") else message
     call, _, outcome = text.rpartition(": ")
     return f"{call.split('(')[0]}: {outcome}" if call else text
 
 
 class _Hermite:
-    """The cubic Hermite interpolant of a step from (t0, x0, dx0) to (t1, x1, dx1), as an integrator's dense
-    output (exact where the solution is a cubic, a free fall for one): ``path(s)`` is (t, x) at the fraction
-    s of the step."""
+    """The cubic Hermite interpolant of a step from (t0, x0, dx0) to (t1, x1, dx1).
+
+    It is an integrator's dense output (exact where the solution is a cubic, a free fall for one):
+    ``path(s)`` is (t, x) at the fraction s of the step.
+    """
 
     def __init__(self, t0: float, t1: float, x0: np.ndarray, dx0: np.ndarray, x1: np.ndarray, dx1: np.ndarray):
         self.t0, self.h, self.x0, self.dx0, self.x1, self.dx1 = t0, t1 - t0, x0, dx0, x1, dx1
@@ -335,14 +365,21 @@ class _Hermite:
 
 
 def _crossing(z0: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """Which event indicators changed sign from z0 to z (from nonzero to zero or to the other sign), as
-    CVODE's root-finding in fmpy's Model Exchange loop counts them."""
+    """Which event indicators changed sign from z0 to z.
+
+    From nonzero to zero or to the other sign, as CVODE's root-finding in fmpy's Model Exchange loop counts
+    them.
+    """
     return (z0 != 0.0) & ((z == 0.0) | (np.sign(z) != np.sign(z0)))
 
 
-def check_fuzz(f: Fmu, n: int = CI_FUZZ, seed: int = 0, first: int = 0, earlier: list[str] = ()) -> CheckResult:
-    """Sequences ``first`` .. n - 1 (the harness starts again after one that hangs or crashes, handing over
-    the messages of what was ``earlier`` found)."""
+def check_fuzz(f: Fmu, n: int = CI_FUZZ, seed: int = 0, first: int = 0,
+               earlier: Sequence[str] = ()) -> CheckResult:
+    """Sequences ``first`` .. n - 1 of the fuzz.
+
+    The harness starts again after one that hangs or crashes, handing over the messages of what was
+    ``earlier`` found.
+    """
     inp = f"{n} random legal sequences (seed {seed}) over {', '.join(f.interfaces) or 'no interface'}"
     ref = "every legal call returns fmi2OK/fmi2Warning (doStep, completedIntegratorStep may discard)"
     if not f.interfaces:

@@ -102,8 +102,10 @@ def recent(n: int = 6) -> list[str]:
 
 
 def emit(found: list[Finding]) -> None:
-    """Print findings as they are made (``FINDING <json>`` lines): a check that is killed later, by a hang
-    or a crash, keeps them."""
+    """Print findings as they are made (``FINDING <json>`` lines).
+
+    A check that is killed later, by a hang or a crash, keeps them.
+    """
     for x in found:
         print("FINDING " + json.dumps(x.as_dict()), flush=True)
 
@@ -161,10 +163,13 @@ def _watch(p: subprocess.Popen, trace: str, call_limit: float, deadline: float) 
 
 def run_isolated(name: str, fmu: str, options: dict, *, call_limit: float, limit: float,
                  item: str | None = None, replay=None, carry=None) -> CheckResult:
-    """Run check ``name`` in a child process; see the module docstring.  ``item``: what a resumable check
-    counts its progress in ("sequence", "catalogue item"; None: not resumable); ``replay(k)``: the options
-    that replay it up to item k, for the reproduction; ``carry(found)``: the options that hand a resumed
-    child what the earlier ones found (the fuzz's limit on repeated findings holds for the whole check)."""
+    """Run check ``name`` in a child process; see the module docstring.
+
+    ``item``: what a resumable check counts its progress in ("sequence", "catalogue item"; None: not
+    resumable); ``replay(k)``: the options that replay it up to item k, for the reproduction;
+    ``carry(found)``: the options that hand a resumed child what the earlier ones found (the fuzz's limit on
+    repeated findings holds for the whole check).
+    """
     t0 = time.monotonic()
     found: list[Finding] = []
     bad_items: list[str] = []
