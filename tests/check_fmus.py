@@ -5,7 +5,8 @@ tests/c/check_fmu/model.c with gcc against fmpy's FMI 2.0 headers, with a hand-w
 Variants: ``oscillator`` (2 states, Real input/outputs/tunable parameter), ``typed`` (the oscillator plus
 Integer, Boolean, Enumeration and String variables), ``nostates`` (no states, no Real outputs), ``stair``
 (no states; an Integer counter stepping at time events), ``ball`` (a bouncing ball: height x from 1 m,
-gravity 9.81 m/s², restitution 0.7, one event indicator, the height).  ``defects`` are the DEFECT_* macros of model.c.
+gravity 9.81 m/s², restitution 0.7, one event indicator, the height), ``low_ball`` (the ball from
+LOW_BALL_HEIGHT, so that it reaches the floor within a fuzz sequence).  ``defects`` are the DEFECT_* macros of model.c.
 """
 
 from __future__ import annotations
@@ -45,6 +46,8 @@ STAIR = [("counter", "Integer", 3, 'causality="output" variability="discrete"', 
 VARIANTS = {"oscillator": (OSCILLATOR, 2), "typed": (OSCILLATOR + TYPED, 2), "nostates": (NOSTATES, 0),
             "stair": (STAIR, 0), "ball": (OSCILLATOR, 2)}
 BALL = {"height": 1.0, "g": 9.81, "restitution": 0.7}      # as model.c's x start, G and E
+LOW_BALL_HEIGHT = 0.001                                     # m: 14 ms of fall
+VARIANTS["low_ball"] = ([(v[:4] + (f'start="{LOW_BALL_HEIGHT}"',) if v[0] == "x" else v) for v in OSCILLATOR], 2)
 
 
 def _model_description(name: str, variant: str, interfaces, capabilities) -> str:
@@ -77,7 +80,7 @@ def _model_description(name: str, variant: str, interfaces, capabilities) -> str
 
     return (f'<?xml version="1.0" encoding="UTF-8"?>\n<fmiModelDescription fmiVersion="2.0" modelName="{name}" '
             f'guid="{GUID}" generationTool="tests/check_fmus.py" '
-            f'numberOfEventIndicators="{1 if variant == "ball" else 0}">\n{interface_xml}'
+            f'numberOfEventIndicators="{1 if variant.endswith("ball") else 0}">\n{interface_xml}'
             f"{types}"
             f'  <DefaultExperiment startTime="0" stopTime="1" stepSize="0.01"/>\n'
             f"  <ModelVariables>\n" + "\n".join(rows) + "\n  </ModelVariables>\n  <ModelStructure>\n"
@@ -95,7 +98,9 @@ def build(directory: str | os.PathLike, name: str, *, variant: str = "oscillator
     binaries = d / "binaries" / "linux64"
     binaries.mkdir(parents=True, exist_ok=True)
     _, nx = VARIANTS[variant]
-    flags = [f"-DNX={nx}", *(["-DSTAIR"] if variant == "stair" else []), *(["-DBALL"] if variant == "ball" else []),
+    flags = [f"-DNX={nx}", *(["-DSTAIR"] if variant == "stair" else []),
+             *(["-DBALL"] if variant.endswith("ball") else []),
+             *([f"-DBALL_HEIGHT={LOW_BALL_HEIGHT}"] if variant == "low_ball" else []),
              *(f"-D{x}" for x in defects),
              # an FMU with one interface exports only its functions and the common ones, as FMI 2.0 §2.3 allows
              *(["-DNO_ME_FUNCTIONS"] if "ME" not in interfaces else []),

@@ -9,7 +9,7 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
-from check_fmus import BALL, CAPABILITIES, build
+from check_fmus import BALL, CAPABILITIES, LOW_BALL_HEIGHT, build
 
 from flexlink.cli import main
 from flexlink.tools.check import check_fmu
@@ -78,6 +78,39 @@ def test_a_fixed_communication_step_is_respected(fmus):
     assert variable["fuzz"].status == "fail"
 
 
+def test_the_fuzz_locates_state_events(fmus, monkeypatch):
+    """The ball from 1 mm (check_fmus.LOW_BALL_HEIGHT) reaches the floor within a fuzz sequence; it refuses a
+    completed integrator step below the floor (fmi2Error: a state event stepped over).  The fuzz's Model
+    Exchange steps locate the zero crossing of its event indicator and handle the event: no finding, events
+    located, and each sequence's first one at the analytic time of the fall, sqrt(2 h / (g - u)) with the
+    input u of 0 or 0.1 the fuzz may set.  With the crossings not looked for (in-process, the fuzz's crossing
+    test switched off) the same sequences step over the floor and the ball says so."""
+    from flexlink.tools.check import fuzz
+    from flexlink.tools.check.fmu import Fmu
+
+    n = 30
+    path = fmus("low_ball", variant="low_ball")
+    r = _run(path, only=["fuzz"], fuzz=n)["fuzz"]
+    assert not r.findings, [x.line() for x in r.findings]
+    assert int(r.result.rsplit(", ", 1)[1].split(" state event")[0]) >= 3
+    f = Fmu(path, ("CS", "ME"))
+    try:
+        fuzzer = fuzz.Fuzzer(f, 0)
+        for k in range(n):
+            fuzzer.legal_sequence(k)
+        assert not fuzzer.findings
+        first = {}
+        for k, t in fuzzer.state_events:
+            first.setdefault(k, t)
+        falls = [np.sqrt(2 * LOW_BALL_HEIGHT / (BALL["g"] - u)) for u in (0.0, 0.1)]
+        assert len(first) >= 3 and all(falls[0] - 1e-9 <= t <= falls[1] + 1e-9 for t in first.values()), first
+        monkeypatch.setattr(fuzz, "_crossing", lambda z0, z: np.zeros(len(z), dtype=bool))
+        blind = fuzz.check_fuzz(f, n, 0)
+    finally:
+        f.close()
+    assert blind.findings and blind.findings[0].message.endswith("completedIntegratorStep: status 3")
+
+
 def test_a_call_that_never_returns_is_reported_with_its_seconds(fmus, tmp_path, monkeypatch):
     """fmi2DoStep(t, NaN) loops for ever: one error naming the call and its seconds, the rest of the
     catalogue still run (resumed after it); the killed child's temporary files are removed all the same."""
@@ -127,6 +160,22 @@ def test_a_legal_call_that_hangs_ends_one_fuzz_sequence_not_the_fuzz(fmus):
     replay = _run(path, only=["fuzz"], fuzz=items[0] + 1)["fuzz"]
     assert [x.message.split(" did not")[0] for x in replay.findings] == [hangs[0].message.split(" did not")[0]]
     assert not _run(fmus("oscillator_CSME", variant="oscillator"), only=["fuzz"], fuzz=n)["fuzz"].findings
+
+
+def test_a_repeated_finding_is_reported_once_across_resumed_processes(fmus):
+    """A binary that hangs in its third doStep (DEFECT_STEP_HANG) and refuses the directional derivatives it
+    declares (NO_OPTIONAL): the fuzz resumes in a fresh process after each hang, and
+    each kind of refusal (call and status) is still reported once for the whole fuzz, not once per process:
+    the later processes are handed what the earlier ones found, and the limit on findings counts them too."""
+    path = fmus("hang_and_refuse", defects=("DEFECT_STEP_HANG", "NO_OPTIONAL"),
+                capabilities=("canHandleVariableCommunicationStepSize", "providesDirectionalDerivative"))
+    r = _run(path, only=["fuzz"], fuzz=60, seed=1)["fuzz"]          # seed 1: hangs in 3 sequences
+    hangs = [x for x in r.findings if x.rule == "returns"]
+    assert len(hangs) >= 2, r.result                                 # three processes at least
+    refusals = [x.message.split(": ", 1)[1] for x in r.findings if x.rule != "returns"]
+    kinds = [m.split("(")[0] + m.rsplit(":", 1)[1] if m.endswith(tuple("01234")) else m for m in refusals]
+    assert sum(k.startswith("getDirectionalDerivative") for k in kinds) == 1, refusals   # 3 without the carry
+    assert len(kinds) == len(set(kinds)), refusals
 
 
 def test_a_crash_ends_one_item_not_the_harness(fmus):
@@ -399,3 +448,42 @@ def test_fmi3_an_accepted_illegal_call_is_an_error(foreign_fmi3):
     assert [(x.rule, x.severity) for x in bad.findings] == [("state-machine", "error")]
     assert "'doStep with a zero step' (CS): expected fmi3Error (3), got 0" in bad.findings[0].message
     assert "must return fmi3Error" in RULES["state-machine"].sources[0].quote
+
+
+CLOCKED_FMI3 = """<?xml version="1.0" encoding="UTF-8"?>
+<fmiModelDescription fmiVersion="3.0" modelName="clocked" instantiationToken="{clocked}">
+  <CoSimulation modelIdentifier="clocked" hasEventMode="true"/>
+  <ScheduledExecution modelIdentifier="clocked"/>
+  <ModelVariables>
+    <Float64 name="time" valueReference="0" causality="independent" variability="continuous"/>
+    <UInt64 name="n" valueReference="1" causality="structuralParameter" variability="fixed" start="3"/>
+    <Clock name="tick" valueReference="2" causality="input" intervalVariability="constant" intervalDecimal="0.1"/>
+    <Float64 name="y" valueReference="3" causality="output" variability="discrete" clocks="2"/>
+  </ModelVariables>
+  <ModelStructure><Output valueReference="3"/></ModelStructure>
+</fmiModelDescription>
+"""
+
+
+def test_what_fmi3_declares_and_no_check_covers_is_said(fmus, tmp_path):
+    """An FMI 3.0 model description with a Clock, a clocked output, a structural parameter and Scheduled
+    Execution (a hand-written XML, no binary: nothing of it is run): the report has one ``skip`` row for each
+    of the three features, naming what is declared and why no check covers it; they are notes and change
+    nothing in the exit status.  An FMI 2.0 FMU gets none."""
+    import zipfile
+
+    from flexlink.tools.check.driver import NAMES
+    from flexlink.tools.check.report import passed
+
+    path = tmp_path / "clocked.fmu"
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("modelDescription.xml", CLOCKED_FMI3)
+    res = check_fmu(path, skip=NAMES)
+    assert [(r.name, r.status) for r in res] == [("clocks", "skip"), ("configuration-mode", "skip"),
+                                                 ("scheduled-execution", "skip")]
+    clocks, configuration, scheduled = (r.result for r in res)
+    assert "1 Clock(s) (tick), 1 clocked variable(s): not covered" in clocks
+    assert "1 structural parameter(s) (n)" in configuration and "fmi3EnterConfigurationMode" in configuration
+    assert "<ScheduledExecution> declared: not covered" in scheduled
+    assert passed(res) and not any(r.findings for r in res)
+    assert check_fmu(fmus("oscillator_CSME", variant="oscillator"), skip=NAMES) == []

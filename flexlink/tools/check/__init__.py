@@ -1,5 +1,6 @@
-"""``flexlink check FMU``: a compliance harness for FMI 2.0 and 3.0 FMUs, flexlink's and any other
-(docs/check.md).
+"""``flexlink check FMU``: a compliance harness for FMI 2.0 and 3.0 FMUs.
+
+It checks flexlink's FMUs and any other (docs/check.md).
 
 Like fmpy's validation it collects problems instead of stopping at the first one.  Every check gives a row
 in the style of the FMI cross-check results (input, reference, result, status) and the findings behind it,
@@ -13,6 +14,9 @@ d. ``fmu-state`` (:mod:`.state`): get/set/serialize round trips and reset.
 e. ``directional-derivatives`` (:mod:`.derivatives`): against central differences.
 f. ``illegal-calls`` (:mod:`.illegal`): forbidden calls give fmi2Error; a wrong GUID is refused.
 g. ``libcosim``, ``fmutool`` (:mod:`.importer_checks`): independent importers.
+
+An FMI 3.0 FMU that declares Clocks, structural parameters or Scheduled Execution, which no check covers,
+gets a ``skip`` row saying so for each (:mod:`.coverage`).
 
 The fuzz size is small by default (CI); the full-size run is ``flexlink check OUT.fmu --fuzz 5000``.
 """

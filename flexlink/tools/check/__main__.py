@@ -1,5 +1,8 @@
-"""``python -m flexlink.tools.check --child NAME FMU TRACE OPTIONS``: one check in a child process (see
-isolation.py); ``python -m flexlink.tools.check FMU ...``: the command ``flexlink check``."""
+"""Entry point of ``python -m flexlink.tools.check``.
+
+``python -m flexlink.tools.check --child NAME FMU TRACE OPTIONS`` runs one check in a child process (see
+isolation.py); ``python -m flexlink.tools.check FMU ...`` is the command ``flexlink check``.
+"""
 
 import json
 import sys

@@ -46,8 +46,11 @@ class Elements:
         return [e for n in names for e in self.of.get(n, [n])]
 
     def _slots(self, refs) -> tuple[list[int], list[int], list[int | None]]:
-        """The FMI 3 references to call (each once, in first-seen order), their offsets in the values, and for
-        each of ``refs`` the offset of its value (None: a whole array, at its reference's offset)."""
+        """The FMI 3 references to call for ``refs``, with where their values lie.
+
+        Returns the references (each once, in first-seen order), their offsets in the values, and for each of
+        ``refs`` the offset of its value (None: a whole array, at its reference's offset).
+        """
         vrs: list[int] = []
         where: list[int | None] = []
         for r in map(int, refs):
@@ -59,7 +62,7 @@ class Elements:
         return vrs, offsets, where
 
     def _pick(self, refs, vrs, offsets, where, values) -> list:
-        out = []
+        out: list = []
         for r, k in zip(map(int, refs), where, strict=True):
             vr = self.table[r - ELEMENT_BASE][0] if r >= ELEMENT_BASE else r
             o = offsets[vrs.index(vr)]
@@ -72,8 +75,10 @@ class Elements:
         return self._pick(refs, vrs, offsets, where, list(getter(vrs, nValues=offsets[-1])))
 
     def set(self, getter, setter, refs, values) -> None:
-        """fmi3SetFloat64 of elements, scalars and whole arrays: an element is set with its array, whose other
-        elements keep the values read just before."""
+        """fmi3SetFloat64 of elements, scalars and whole arrays.
+
+        An element is set with its array, whose other elements keep the values read just before.
+        """
         vrs, offsets, where = self._slots(refs)
         arrays = [vr for vr in vrs if vr in self.sizes]
         full = np.zeros(offsets[-1])
@@ -93,8 +98,10 @@ class Elements:
         setter(vrs, list(full))
 
     def directional(self, derivative, unknowns, knowns, seed) -> list:
-        """fmi3GetDirectionalDerivative with elements among the unknowns (their arrays are asked for) and the
-        knowns (the seed is zero on their arrays' other elements)."""
+        """fmi3GetDirectionalDerivative with array elements among the unknowns and the knowns.
+
+        The unknowns' whole arrays are asked for; the seed is zero on the knowns' arrays' other elements.
+        """
         u_vrs, u_offsets, u_where = self._slots(unknowns)
         k_vrs, k_offsets, k_where = self._slots(knowns)
         full = np.zeros(k_offsets[-1])

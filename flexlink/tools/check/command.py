@@ -86,8 +86,8 @@ def run_check(args) -> int:
         print(json.dumps(as_json(results, args.fmu, args.strict), indent=2))
     else:
         for r in results:
-            e, w = r.counts()
-            counts = f" [{e} error(s), {w} warning(s)]" if r.findings else ""
+            n_errors, n_warnings = r.counts()
+            counts = f" [{n_errors} error(s), {n_warnings} warning(s)]" if r.findings else ""
             print(f"{r.status.upper():5s} {r.name:24s} {r.result}{counts}  ({r.seconds:.1f} s)")
             for x in r.findings[:10]:
                 print(f"      {x.line()}")
@@ -108,6 +108,7 @@ def run_check(args) -> int:
 
 
 def add_parser(sub) -> None:
+    """The ``check`` subcommand and its options, on the CLI's subparsers ``sub``."""
     p = sub.add_parser("check", help="FMU compliance harness: validation, ME vs CS, fuzzing, illegal calls, FMU "
                                      "state, directional derivatives, independent importers (docs/check.md)")
     p.add_argument("fmu", metavar="FMU", help="the FMU file to check")

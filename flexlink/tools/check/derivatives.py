@@ -1,6 +1,8 @@
-"""Check ``directional-derivatives``: ``fmi2GetDirectionalDerivative`` against central finite differences
-(Model Exchange: derivatives and outputs w.r.t. states and inputs; Co-Simulation: outputs w.r.t. inputs),
-in each interface that declares ``providesDirectionalDerivative``; Real outputs and inputs only."""
+"""Check ``directional-derivatives``: ``fmi2GetDirectionalDerivative`` against central finite differences.
+
+Model Exchange: derivatives and outputs w.r.t. states and inputs; Co-Simulation: outputs w.r.t. inputs;
+in each interface that declares ``providesDirectionalDerivative``; Real outputs and inputs only.
+"""
 
 from __future__ import annotations
 
@@ -45,8 +47,11 @@ FD_STEP_FACTORS = (1.0, 10.0, 100.0)
 
 
 def _central_differences(g, steps: list[float]) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Per factor of FD_STEP_FACTORS: the quotients (g(j, h) − g(j, −h)) / 2h, one column per known j, with
-    h = factor × steps[j], and the same with 2h (their difference is the reference's own error estimate)."""
+    """Central difference quotients, with h and with 2h, per factor of FD_STEP_FACTORS.
+
+    The quotients (g(j, h) − g(j, −h)) / 2h, one column per known j, with h = factor × steps[j], and the same
+    with 2h (their difference is the reference's own error estimate).
+    """
     pairs = []
     for factor in FD_STEP_FACTORS:
         hs = [factor * h for h in steps]
@@ -65,10 +70,13 @@ class _Comparison:
         self.details: list[str] = []
 
     def __call__(self, label: str, J: np.ndarray, pairs, scale: np.ndarray, names: tuple[list, list]) -> None:
-        """Columns scaled by the knowns' nominal values, then each row by its largest entry: the error
+        """The entries of J that disagree with the finite differences at every step.
+
+        Columns are scaled by the knowns' nominal values, then each row by its largest entry: the error
         relative to the size of that unknown's sensitivity.  An entry fails only if at every step of
         ``pairs`` (see FD_STEP_FACTORS) it is off by more than FD_TOLERANCE and by more than 4 |F − F2|, the
-        differences' own error estimate there."""
+        differences' own error estimate there.
+        """
         Js = J * scale
         rows = np.max(np.abs(Js), axis=1, initial=0.0)
         for F, _ in pairs:
@@ -150,6 +158,7 @@ def _co_simulation(f: Fmu, compare: _Comparison) -> None:
 
 
 def check_directional_derivatives(f: Fmu, seed: int = 1) -> CheckResult:
+    """The check, in each interface that declares ``providesDirectionalDerivative`` (skipped otherwise)."""
     declared = [k for k in f.interfaces if f.can(k, "providesDirectionalDerivative")]
     me = "ME" in declared and (f.nx or f.inputs) and (f.nx or f.outputs)
     cs = "CS" in declared and f.inputs and f.outputs

@@ -1,6 +1,8 @@
-"""Check ``model-description``: fmpy's schema and semantic validation, plus what it does not notice (every
-value reference of the XML read back through the binary by its type, in each declared interface; every
-output in ``<Outputs>``; every ``derivative=`` state in ``<Derivatives>``)."""
+"""Check ``model-description``: fmpy's schema and semantic validation, plus what it does not notice.
+
+Every value reference of the XML is read back through the binary by its type, in each declared interface;
+every output must be in ``<Outputs>``; every ``derivative=`` state in ``<Derivatives>``.
+"""
 
 from __future__ import annotations
 
@@ -21,12 +23,14 @@ _GETTER3 = {t: f"get{t}" for t in ("Float32", "Float64", "Int8", "UInt8", "Int16
 
 
 def _structure(f: Fmu) -> list[Finding]:
-    found = []
+    found: list[Finding] = []
     root = ET.parse(os.path.join(f.dir, "modelDescription.xml")).getroot()
-    variables = root.find("ModelVariables").findall("ScalarVariable")
+    variables = root.findall("ModelVariables/ScalarVariable")
     structure = root.find("ModelStructure")
+    if structure is None:                   # fmpy's validation reports it
+        return found
     outputs = structure.find("Outputs")
-    listed = {int(u.get("index")) for u in (outputs if outputs is not None else [])}
+    listed = {int(u.get("index", "0")) for u in (outputs if outputs is not None else [])}
     for i, v in enumerate(variables, 1):
         if v.get("causality") == "output" and i not in listed:
             found.append(Finding("outputs-listed", f"output {v.get('name')} (index {i}) is missing from "
@@ -34,7 +38,7 @@ def _structure(f: Fmu) -> list[Finding]:
     if f.md.modelExchange is None:          # "A Co- Simulation FMU does not need to expose these state derivatives."
         return found
     ders = structure.find("Derivatives")
-    listed_d = {int(u.get("index")) for u in (ders if ders is not None else [])}
+    listed_d = {int(u.get("index", "0")) for u in (ders if ders is not None else [])}
     for i, v in enumerate(variables, 1):
         real = v.find("Real")
         if real is not None and real.get("derivative") and i not in listed_d:
@@ -53,9 +57,11 @@ def _initialised(f: Fmu, kind: str):
 
 
 def _read_back(f: Fmu, kind: str) -> list[Finding]:
-    """Every variable read through the binary after initialisation, with the getter of its type; after a
-    refusal (fmi2Error leaves the instance unusable, §2.1.3) the next variable gets a fresh instance."""
-    found = []
+    """Every variable read through the binary after initialisation, with the getter of its type.
+
+    After a refusal (fmi2Error leaves the instance unusable, §2.1.3) the next variable gets a fresh instance.
+    """
+    found: list[Finding] = []
     inst = None
     getters = _GETTER3 if f.fmi3 else _GETTER
     for name, v in f.vars.items():
@@ -79,6 +85,7 @@ def _read_back(f: Fmu, kind: str) -> list[Finding]:
 
 
 def check_model_description(f: Fmu) -> CheckResult:
+    """The check: fmpy's validation, the value references through the binary, the model structure."""
     from fmpy.validation import validate_fmu
 
     t0 = time.perf_counter()

@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
+from flexlink.tools.check.coverage import not_covered
 from flexlink.tools.check.findings import CheckResult, skipped
 from flexlink.tools.check.fuzz import CI_FUZZ
 
@@ -18,6 +19,8 @@ CHECK_LIMIT = 1800.0     # seconds one check may take in all
 
 @dataclass(frozen=True)
 class Check:
+    """A check of the harness: its name, where it is, and how it runs."""
+
     name: str
     function: str            # "module:function" under flexlink.tools.check
     isolated: bool = True    # False: the check starts its own processes (the importers)
@@ -41,6 +44,7 @@ NAMES = [c.name for c in CHECKS]
 
 
 def function(check: Check):
+    """The function that runs the check."""
     import importlib
 
     module, name = check.function.split(":")
@@ -48,8 +52,9 @@ def function(check: Check):
 
 
 def _options(name: str, fuzz: int, seed: int, stop_time: float | None, tolerance: float | None) -> dict:
-    return {"me-vs-cs": {"stop_time": stop_time, "tolerance": tolerance},
-            "fuzz": {"n": fuzz, "seed": seed}}.get(name, {})
+    options: dict[str, dict] = {"me-vs-cs": {"stop_time": stop_time, "tolerance": tolerance},
+                                "fuzz": {"n": fuzz, "seed": seed}}
+    return options.get(name, {})
 
 
 def run_child(name: str, fmu: str, options: dict) -> CheckResult:
@@ -68,8 +73,10 @@ def check_fmu(path: str | os.PathLike, *, fuzz: int = CI_FUZZ, seed: int = 0, im
               stop_time: float | None = None, tolerance: float | None = None,
               interfaces: tuple[str, ...] = ("CS", "ME"), only: list[str] | None = None,
               skip: list[str] | None = None, call_limit: float = CALL_LIMIT) -> list[CheckResult]:
-    """Run the checks on the FMU at ``path`` (all, or ``only`` those, less ``skip``); see the package
-    docstring."""
+    """Run the checks on the FMU at ``path`` (all, or ``only`` those, less ``skip``).
+
+    See the package docstring.
+    """
     from flexlink.tools.check.fmu import Fmu
     from flexlink.tools.check.isolation import run_isolated
 
@@ -78,7 +85,7 @@ def check_fmu(path: str | os.PathLike, *, fuzz: int = CI_FUZZ, seed: int = 0, im
     cwd = os.getcwd()
     fmu = os.path.abspath(os.fspath(path))
     f = Fmu(fmu, interfaces)
-    results = []
+    results = not_covered(f)
     try:
         for check in CHECKS:
             if (only and check.name not in only) or check.name in (skip or []):
@@ -92,9 +99,11 @@ def check_fmu(path: str | os.PathLike, *, fuzz: int = CI_FUZZ, seed: int = 0, im
                 results.append(function(check)(f))
                 continue
             options = {**_options(check.name, fuzz, seed, stop_time, tolerance), "interfaces": list(interfaces)}
-            replay = (lambda k: f"--fuzz {k + 1} --seed {seed}") if check.name == "fuzz" else None
+            fuzzing = check.name == "fuzz"
+            replay = (lambda k: f"--fuzz {k + 1} --seed {seed}") if fuzzing else None
+            carry = (lambda found: {"earlier": [x.message for x in found]}) if fuzzing else None
             results.append(run_isolated(check.name, fmu, options, call_limit=call_limit, limit=CHECK_LIMIT,
-                                        item=check.item, replay=replay))
+                                        item=check.item, replay=replay, carry=carry))
     finally:
         f.close()
         os.chdir(cwd)

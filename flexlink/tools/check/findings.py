@@ -29,11 +29,14 @@ class Source:
     quote: str
 
     def cite(self) -> str:
+        """The quotation with its version and section, for a report."""
         return f"{self.standard} {self.section}: \u201c{self.quote}\u201d"
 
 
 @dataclass(frozen=True)
 class Rule:
+    """A rule a finding rests on: its default severity, its kind and the standard's sentences behind it."""
+
     id: str
     severity: str          # the default severity of a finding against this rule
     kind: str              # STANDARD, RECOMMENDATION or FLEXLINK
@@ -42,8 +45,11 @@ class Rule:
 
     @property
     def reference(self) -> str:
-        """"FMI 2.0 §x.y: summary" for a requirement of the standard, "robustness recommendation: summary
-        (§x.y)" for the others."""
+        """The rule in one line, with its first source's section.
+
+        "FMI 2.0 §x.y: summary" for a requirement of the standard, "robustness recommendation: summary
+        (§x.y)" for the others.
+        """
         first = self.sources[0]
         number = first.section.split(" ", 1)[0]
         if self.kind == STANDARD:
@@ -51,6 +57,7 @@ class Rule:
         return f"{self.kind}: {self.summary} ({first.standard[:7]} {number})"
 
     def quotes(self) -> list[dict]:
+        """The quotations as JSON objects (standard, section, text)."""
         return [{"standard": x.standard, "section": x.section, "text": x.quote} for x in self.sources]
 
 
@@ -177,6 +184,8 @@ RULES = {r.id: r for r in [
 
 @dataclass
 class Finding:
+    """One thing wrong with the FMU (see the module docstring)."""
+
     rule: str                      # a key of RULES
     message: str                   # what was seen
     severity: str = ""             # error | warning; default: the rule's
@@ -189,15 +198,18 @@ class Finding:
 
     @property
     def reference(self) -> str:
+        """The rule's one-line reference."""
         return RULES[self.rule].reference
 
     def as_dict(self) -> dict:
+        """The finding as a JSON object, with its rule's reference and quotations."""
         return {"severity": self.severity, "rule": self.rule, "reference": self.reference,
                 "quotes": RULES[self.rule].quotes(), "message": self.message, "sequence": self.sequence,
                 "reproduce": self.reproduce}
 
     @classmethod
     def from_dict(cls, d: dict) -> Finding:
+        """The finding of ``as_dict``'s object (from a child process's ``FINDING`` line)."""
         return cls(d["rule"], d["message"], d["severity"], list(d.get("sequence", [])), d.get("reproduce", ""))
 
     def line(self) -> str:
@@ -207,9 +219,11 @@ class Finding:
 
 @dataclass
 class CheckResult:
-    """One row of the report, in the style of the FMI cross-check results (input, reference, result), with
-    the findings behind its status: ``fail`` with an error, ``warn`` with warnings only, ``skip`` when the
-    FMU does not declare what the check needs (``result`` says why)."""
+    """One row of the report, in the style of the FMI cross-check results (input, reference, result).
+
+    It carries the findings behind its status: ``fail`` with an error, ``warn`` with warnings only, ``skip``
+    when the FMU does not declare what the check needs (``result`` says why).
+    """
 
     name: str
     input: str
@@ -225,23 +239,28 @@ class CheckResult:
             self.status = self.judged()
 
     def judged(self) -> str:
+        """The status the findings give: ``fail``, ``warn`` or ``pass``."""
         if any(f.severity == ERROR for f in self.findings):
             return "fail"
         return "warn" if self.findings else "pass"
 
     def counts(self) -> tuple[int, int]:
+        """The numbers of error and of warning findings."""
         return (sum(f.severity == ERROR for f in self.findings), sum(f.severity == WARNING for f in self.findings))
 
     def as_dict(self) -> dict:
+        """The row as a JSON object, with its findings."""
         return {"name": self.name, "input": self.input, "reference": self.reference, "result": self.result,
                 "status": self.status, "seconds": self.seconds, "details": self.details,
                 "findings": [f.as_dict() for f in self.findings]}
 
     @classmethod
     def from_dict(cls, d: dict) -> CheckResult:
+        """The row of ``as_dict``'s object (from a child process's ``RESULT`` line)."""
         return cls(d["name"], d["input"], d["reference"], d["result"], d["status"], d["seconds"],
                    list(d["details"]), [Finding.from_dict(x) for x in d["findings"]])
 
 
 def skipped(name: str, why: str) -> CheckResult:
+    """A ``skip`` row that says why."""
     return CheckResult(name, "-", "-", why, "skip")

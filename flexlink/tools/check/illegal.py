@@ -1,5 +1,7 @@
-"""Check ``illegal-calls``: a catalogue of calls the state machine or the argument rules forbid, each on a
-fresh instance; each should give fmi2Error, after which ``fmi2Reset`` must revive the instance.
+"""Check ``illegal-calls``: a catalogue of calls the state machine or the argument rules forbid.
+
+Each is made on a fresh instance; each should give fmi2Error, after which ``fmi2Reset`` must revive the
+instance.
 
 FMI 2.0 makes a legal calling sequence the importer's duty, so for FMUs in general a forbidden call that is
 accepted is a *warning* (rule ``illegal-call``, a robustness recommendation); for flexlink FMUs it is an
@@ -20,6 +22,7 @@ from __future__ import annotations
 import ctypes
 import math
 import time
+from typing import Any
 
 from flexlink.tools.check import isolation
 from flexlink.tools.check.findings import CheckResult, Finding, skipped
@@ -108,7 +111,7 @@ def _model_exchange(f: Fmu, illegal) -> None:
 
 
 def _flexlink(f: Fmu, illegal) -> None:
-    """flexlink's parameter checks (flexlink FMUs only: see fmu.py for how they are recognised)."""
+    """The catalogue of flexlink's parameter checks (flexlink FMUs only: see fmu.py for how they are recognised)."""
     tunable = [f.vr[n] for n in f.tunable]
     if tunable:
         illegal("setReal(parameter) = NaN", None, lambda i: i.setReal([tunable[0]], [NAN]), "CS")
@@ -128,8 +131,10 @@ def _flexlink(f: Fmu, illegal) -> None:
 
 
 def catalogue(f: Fmu) -> list[tuple[str, str, str | None, object, bool]]:
-    """(name, interface, "init" or None, call, whether only a value is wrong) for the FMU's declared
-    interfaces."""
+    """The catalogue for the FMU's declared interfaces.
+
+    Each item is (name, interface, "init" or None, call, whether only a value is wrong).
+    """
     items: list[tuple] = []
 
     def add(name, setup, fn, kind, value=False):
@@ -153,8 +158,11 @@ def _init(inst, kind: str) -> None:
 
 
 def _rule(f: Fmu, value: bool) -> str:
-    """flexlink's contract on flexlink FMUs; FMI 3.0's "must return fmi3Error" for a call out of sequence or
-    with an illegal argument; a robustness recommendation otherwise (see the module docstring)."""
+    """The rule an accepted forbidden call breaks.
+
+    flexlink's contract on flexlink FMUs; FMI 3.0's "must return fmi3Error" for a call out of sequence or
+    with an illegal argument; a robustness recommendation otherwise (see the module docstring).
+    """
     if f.is_flexlink:
         return "flexlink-contract"
     return "state-machine" if f.fmi3 and not value else "illegal-call"
@@ -207,11 +215,12 @@ def _wrong_guid(f: Fmu) -> list[Finding]:
 
 
 def check_illegal_calls(f: Fmu, first: int = 0) -> CheckResult:
+    """The catalogue from item ``first`` (the harness resumes after an item that hangs or crashes)."""
     if not f.interfaces:
         return skipped("illegal-calls", "no interface")
     t0 = time.perf_counter()
     items = catalogue(f)
-    insts = {k: f.instance(k, f"illegal{k}") for k in f.interfaces}
+    insts: dict[str, Any] = {k: f.instance(k, f"illegal{k}") for k in f.interfaces}
     found: list[Finding] = []
     for k in range(first, len(items)):
         isolation.progress(k)

@@ -39,8 +39,10 @@ def _has_independent(f: Fmu) -> bool:
 
 
 def _missing_starts(f: Fmu) -> list[str]:
-    """Variables that FMI 2.0 §2.2.7 requires a start value of (inputs, parameters, constants, initial =
-    exact or approx) but that have none."""
+    """Variables that FMI 2.0 §2.2.7 requires a start value of but that have none.
+
+    Those are inputs, parameters, constants, and variables of initial = exact or approx.
+    """
     out = []
     for v in f.md.modelVariables:
         needs = (v.causality in ("input", "parameter") or v.variability == "constant"
@@ -52,7 +54,8 @@ def _missing_starts(f: Fmu) -> list[str]:
 
 def _classify(f: Fmu, log: str) -> tuple[list[str], list[str]]:
     """The log's [error]/[warning] lines split into (known noise, the rest)."""
-    noise, other = [], []
+    noise: list[str] = []
+    other: list[str] = []
     for line in log.splitlines():
         if "[error]" not in line.lower() and "[warning]" not in line.lower():
             continue
@@ -62,6 +65,7 @@ def _classify(f: Fmu, log: str) -> tuple[list[str], list[str]]:
 
 
 def check_libcosim(f: Fmu) -> CheckResult:
+    """The FMU's Co-Simulation run by libcosim for 0.05 s (see the module docstring for the judgement)."""
     from flexlink.tools.importers import libcosim_available, run_libcosim
 
     if "CS" not in f.interfaces:
@@ -90,6 +94,7 @@ def check_libcosim(f: Fmu) -> CheckResult:
 
 
 def check_fmutool(f: Fmu) -> CheckResult:
+    """fmu-manipulation-toolbox's ``fmutool -check`` on the FMU."""
     from flexlink.tools.importers import fmutool_check
 
     t0 = time.perf_counter()

@@ -102,8 +102,10 @@ def recent(n: int = 6) -> list[str]:
 
 
 def emit(found: list[Finding]) -> None:
-    """Print findings as they are made (``FINDING <json>`` lines): a check that is killed later, by a hang
-    or a crash, keeps them."""
+    """Print findings as they are made (``FINDING <json>`` lines).
+
+    A check that is killed later, by a hang or a crash, keeps them.
+    """
     for x in found:
         print("FINDING " + json.dumps(x.as_dict()), flush=True)
 
@@ -160,10 +162,14 @@ def _watch(p: subprocess.Popen, trace: str, call_limit: float, deadline: float) 
 
 
 def run_isolated(name: str, fmu: str, options: dict, *, call_limit: float, limit: float,
-                 item: str | None = None, replay=None) -> CheckResult:
-    """Run check ``name`` in a child process; see the module docstring.  ``item``: what a resumable check
-    counts its progress in ("sequence", "catalogue item"; None: not resumable); ``replay(k)``: the options
-    that replay it up to item k, for the reproduction."""
+                 item: str | None = None, replay=None, carry=None) -> CheckResult:
+    """Run check ``name`` in a child process; see the module docstring.
+
+    ``item``: what a resumable check counts its progress in ("sequence", "catalogue item"; None: not
+    resumable); ``replay(k)``: the options that replay it up to item k, for the reproduction;
+    ``carry(found)``: the options that hand a resumed child what the earlier ones found (the fuzz's limit on
+    repeated findings holds for the whole check).
+    """
     t0 = time.monotonic()
     found: list[Finding] = []
     bad_items: list[str] = []
@@ -174,7 +180,8 @@ def run_isolated(name: str, fmu: str, options: dict, *, call_limit: float, limit
         first = 0
         while True:
             with open(os.path.join(tmp, "out"), "w+") as out, open(os.path.join(tmp, "err"), "w+") as err:
-                p = _launch(name, fmu, {**options, **({"first": first} if resumable else {})}, trace, out, err)
+                resumed = {"first": first, **(carry(found) if carry is not None and first else {})}
+                p = _launch(name, fmu, {**options, **(resumed if resumable else {})}, trace, out, err)
                 bad = _watch(p, trace, call_limit, t0 + limit)
                 out.seek(0)
                 err.seek(0)

@@ -13,6 +13,7 @@ is measured and reported, not judged, unless the user gives ``--tolerance`` (whi
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 
@@ -38,13 +39,16 @@ FOREIGN_STOP = 10.0         # other FMUs: their default stop time, at most this
 
 
 def _smooth_excitation(f: Fmu, stop: float, interval: float) -> tuple[dict, np.ndarray | None]:
-    """flexlink FMUs: the inputs of ``Fmu.excitation`` reached by a smooth step s(t/stop) = τ³(10 − 15τ + 6τ²),
+    """The excitation of the runs: start values and fmpy's input table.
+
+    flexlink FMUs: the inputs of ``Fmu.excitation`` reached by a smooth step s(t/stop) = τ³(10 − 15τ + 6τ²),
     sampled at the output points, instead of at once: a step at t = 0 rings every mode of the link, up to
     the top of its shape functions (16 kHz for examples/fast_two_link.toml), undamped by SS22 at Θ = ½, and
     two integrators sample that ringing at different phases after thousands of periods; the smooth step
     leaves those modes still.  Returns the start values (inputs at 0) and fmpy's input table (None without
     inputs).  An FMU without inputs (a pendulum hanging at rest) would compare rounding noise: its joints
-    start at 0.5 rad/s instead.  Other FMUs: their excitation as constant start values, no table."""
+    start at 0.5 rad/s instead.  Other FMUs: their excitation as constant start values, no table.
+    """
     target = f.excitation()
     if not f.is_flexlink:
         return target, None
@@ -55,25 +59,27 @@ def _smooth_excitation(f: Fmu, stop: float, interval: float) -> tuple[dict, np.n
     s = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
     table = np.zeros(len(t), dtype=[("time", float)] + [(n, float) for n in target])
     table["time"] = t
-    for n, v in target.items():
+    for n, v in f.real_excitation().items():       # a flexlink FMU's excitation is all Real
         table[n] = v * s
     return {n: 0.0 for n in target}, table
 
 
 def _simulate(f: Fmu, stop: float, interval: float, start: dict, ramp, cs_step: float, rtol: float,
               logs: dict[str, list[str]] | None = None):
-    """fmpy's ME (CVODE) and CS runs; what the FMU logs with a status above warning goes to ``logs``."""
+    """The ME (fmpy's CVODE) and CS runs; what the FMU logs with a status above warning goes to ``logs``."""
     logs = {"ME": [], "CS": []} if logs is None else logs
     import fmpy
     import fmpy.sundials as sundials
 
-    original = sundials.CVodeSolver
+    original: Any = sundials.CVodeSolver
     events: list[float] = []
 
     class _CVode(original):
-        """fmpy's CVODE, which root-finds on the event indicators (the event iteration with
-        fmi2NewDiscreteStates is fmpy's simulateME), without fmpy's cap of 500 steps per output interval, and
-        noting the time of each state event it locates."""
+        """fmpy's CVODE without its cap of 500 steps per output interval, noting the state events it locates.
+
+        CVODE root-finds on the event indicators (the event iteration with fmi2NewDiscreteStates is fmpy's
+        simulateME); the time of each state event it locates is noted.
+        """
 
         def __init__(self, *args, **kwargs):
             kwargs["maxNumSteps"] = 10**7
@@ -95,9 +101,12 @@ def _simulate(f: Fmu, stop: float, interval: float, start: dict, ramp, cs_step: 
         return logger
 
     def run(kind: str, fmi_type: str, **options):
-        """fmpy's run of one interface.  FMI 2: on an instance whose messages reach ``logs`` through
-        flexlink's logger router (fmpy's own ``logger=`` would register a process-wide callback that is
-        freed after the run, and the next FMU to log would call it: a crash in a later check)."""
+        """The run of one interface by fmpy.
+
+        FMI 2: on an instance whose messages reach ``logs`` through flexlink's logger router (fmpy's own
+        ``logger=`` would register a process-wide callback that is freed after the run, and the next FMU to
+        log would call it: a crash in a later check).
+        """
         if f.fmi3:
             return fmpy.simulate_fmu(f.dir, fmi_type=fmi_type, model_description=f.md, **options)
         from flexlink.run.simulate import logging_callbacks, release_logging_callbacks
@@ -131,8 +140,11 @@ def _last_said(f: Fmu, logs: list[str]) -> str:
 
 
 def _ended_early(f: Fmu, runs: dict, logs: dict[str, list[str]], stop: float, interval: float) -> list[str]:
-    """A line for each run that stopped before ``stop`` (fmpy ends a run quietly when the FMU discards a step),
-    with the last thing the FMU said: the reason is the finding, not the differing time grids it leaves."""
+    """A line for each run that stopped before ``stop``, with the last thing the FMU said.
+
+    fmpy ends a run quietly when the FMU discards a step: the reason is the finding, not the differing time
+    grids it leaves.
+    """
     lines = []
     for interface, run in runs.items():
         end = float(run["time"][-1]) if len(run) else 0.0
@@ -143,8 +155,11 @@ def _ended_early(f: Fmu, runs: dict, logs: dict[str, list[str]], stop: float, in
 
 
 def _compare(f: Fmu, me, cs, tolerance: float | None) -> tuple[list[Finding], list[str], float, str]:
-    """Each numeric output's max |ME − CS| over its peak (see SMALL_SIGNAL); findings beyond the tolerance
-    (flexlink's own when ``tolerance`` is None on a flexlink FMU; none for other FMUs without one)."""
+    """Each numeric output's max |ME − CS| over its peak (see SMALL_SIGNAL), and the findings.
+
+    A finding for each output beyond the tolerance (flexlink's own when ``tolerance`` is None on a flexlink
+    FMU; none for other FMUs without one).
+    """
     n = min(len(me), len(cs))
     names = [v.name for v in f.typed_outputs if v.type != "String"]
 
@@ -189,6 +204,7 @@ def _compare(f: Fmu, me, cs, tolerance: float | None) -> tuple[list[Finding], li
 
 def check_me_vs_cs(f: Fmu, stop_time: float | None = None, tolerance: float | None = None,
                    cs_step: float = 2e-6, rtol: float = 1e-9) -> CheckResult:
+    """The check: both interfaces run by fmpy and compared (see docs/check.md, ME against CS)."""
     if not {"CS", "ME"} <= set(f.interfaces):
         return skipped("me-vs-cs", "needs both interfaces (declared or selected: " + (", ".join(f.interfaces)
                                                                                       or "none") + ")")

@@ -1,6 +1,8 @@
-"""Reports of a check run: ``report.json`` and ``report.md`` (cross-check style table), JSON for stdout,
-and JUnit XML for CI (one test case per check; an error finding is a failure, a skipped check skipped,
-warnings in the case's output)."""
+"""Reports of a check run: files, JSON for stdout, JUnit XML for CI.
+
+``report.json`` and ``report.md`` (cross-check style table), JSON for stdout, and JUnit XML for CI (one test
+case per check; an error finding is a failure, a skipped check skipped, warnings in the case's output).
+"""
 
 from __future__ import annotations
 
@@ -22,11 +24,13 @@ def totals(results: list[CheckResult]) -> tuple[int, int]:
 
 
 def passed(results: list[CheckResult], strict: bool = False) -> bool:
+    """No error finding (and, if ``strict``, no warning either)."""
     errors, warnings = totals(results)
     return errors == 0 and not (strict and warnings)
 
 
 def as_json(results: list[CheckResult], fmu: str, strict: bool = False) -> dict:
+    """The run as a JSON object: the verdict, the counts, and every check with its findings."""
     errors, warnings = totals(results)
     return {"fmu": os.fspath(fmu), "passed": passed(results, strict), "strict": strict, "errors": errors,
             "warnings": warnings, "checks": [r.as_dict() for r in results]}
@@ -86,7 +90,7 @@ def write_junit(results: list[CheckResult], path: str | os.PathLike, fmu: str) -
             ET.SubElement(case, "system-out").text = "\n".join(x.line() for x in warn)
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
-    tree = ET.ElementTree(ET.Element("testsuites"))
-    tree.getroot().append(suite)
-    tree.write(p, encoding="utf-8", xml_declaration=True)
+    root = ET.Element("testsuites")
+    root.append(suite)
+    ET.ElementTree(root).write(p, encoding="utf-8", xml_declaration=True)
     return p

@@ -1,5 +1,7 @@
-"""Check ``fmu-state``: get/set/serialize round trips reproduce a run bit for bit, and ``fmi2Reset`` gives
-what a fresh instance gives.
+"""Check ``fmu-state``: FMU state round trips and ``fmi2Reset``.
+
+Get/set/serialize round trips must reproduce a run bit for bit, and ``fmi2Reset`` must give what a fresh
+instance gives.
 
 Round trips only where declared (``canGetAndSetFMUstate``, ``canSerializeFMUstate``, per interface);
 the reset comparison always (fmi2Reset is mandatory).  Outputs of every type are compared.
@@ -104,6 +106,7 @@ def _model_exchange(f: Fmu, found: list[Finding]) -> None:
 
 
 def check_fmu_state(f: Fmu) -> CheckResult:
+    """The check, in each declared interface."""
     if not f.interfaces:
         return skipped("fmu-state", "no interface")
     t0 = time.perf_counter()
