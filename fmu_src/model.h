@@ -25,6 +25,12 @@
 #include "config.h"
 #include "solver_settings.h"   /* SolverSetting and the solver's limits, from flexlink/scene/solver.py */
 
+/* A model half that does not say ([fmu] directional_derivatives in config.h) provides the forward
+ * derivatives of model_residual_forward and model_outputs_forward. */
+#ifndef MODEL_DIRECTIONAL_DERIVATIVES
+#define MODEL_DIRECTIONAL_DERIVATIVES 1
+#endif
+
 /* ---------------------------------------------------------------- variables */
 
 typedef enum {
