@@ -16,7 +16,7 @@ import shutil
 import subprocess
 import sys
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 _LIBCOSIM_CHILD = r'''
 import json, sys
@@ -65,8 +65,11 @@ print("RESULT " + json.dumps({"ok": ok, "rows": rows}))
 '''
 
 
+Value = TypeVar("Value", float, list[float])   # a last value, or a series (an SSP run)
+
+
 @dataclass
-class ImporterRun:
+class ImporterRun(Generic[Value]):
     """What one run of an independent importer showed, whether or not the importer finished.
 
     The importers abort, crash or hang on a faulty FMU, so a run is a record rather than an exception: the
@@ -76,7 +79,7 @@ class ImporterRun:
     ----------
     ok : bool
         The run completed and logged no ``[error]``/``[warning]`` line (the bar flexlink's own FMUs meet).
-    values : dict
+    values : dict of str to Value
         Variable → its last value (:func:`run_libcosim`), or ``"element:variable"`` → its value after each
         step (:func:`run_libcosim_ssp`); empty when the run gave no result.
     log : str
@@ -88,7 +91,7 @@ class ImporterRun:
     """
 
     ok: bool
-    values: dict[str, float] | dict[str, list[float]] = field(default_factory=dict)
+    values: dict[str, Value] = field(default_factory=dict)
     log: str = ""
     completed: bool = False
     why: str = ""
@@ -104,7 +107,7 @@ def libcosim_available() -> bool:
 
 
 def run_libcosim(fmu: str | os.PathLike, stop_time: float, step: float, outputs: list[str],
-                 start_values: dict[str, float] | None = None, timeout: float = 120) -> ImporterRun:
+                 start_values: dict[str, float] | None = None, timeout: float = 120) -> ImporterRun[float]:
     """Co-simulate the FMU alone in libcosim and return the outputs' last values.
 
     The run happens in a child process: libcosim aborts the whole process when an FMU returns an error, and
@@ -137,7 +140,7 @@ def run_libcosim(fmu: str | os.PathLike, stop_time: float, step: float, outputs:
 
 
 def run_libcosim_ssp(ssp: str | os.PathLike, n_steps: int, record: dict[str, list[str]],
-                     timeout: float = 300) -> ImporterRun:
+                     timeout: float = 300) -> ImporterRun[list[float]]:
     """Load an SSP package in libcosim and take ``n_steps`` steps of its own master algorithm.
 
     ``CosimExecution.from_ssp_file`` takes the fixed-step algorithm and the step size from the package, so the
@@ -161,6 +164,7 @@ def run_libcosim_ssp(ssp: str | os.PathLike, n_steps: int, record: dict[str, lis
         stopped early is neither ``ok`` nor ``completed``.
     """
     cmd = [sys.executable, "-c", _LIBCOSIM_SSP_CHILD, os.fspath(ssp), str(int(n_steps)), json.dumps(record)]
+    run: ImporterRun[list[float]]
     run, data = _child(cmd, timeout)
     if data is not None:
         names = [f"{el}:{n}" for el, ns in record.items() for n in ns]
@@ -172,7 +176,7 @@ def run_libcosim_ssp(ssp: str | os.PathLike, n_steps: int, record: dict[str, lis
     return run
 
 
-def _child(cmd: list[str], timeout: float) -> tuple[ImporterRun, dict[str, Any] | None]:
+def _child(cmd: list[str], timeout: float) -> tuple[ImporterRun[Value], dict[str, Any] | None]:
     """Run a libcosim child process and read its ``RESULT`` line.
 
     Returns the run (``ok``: completed without an ``[error]``/``[warning]`` line) and its ``RESULT`` document,
@@ -195,7 +199,7 @@ def _child(cmd: list[str], timeout: float) -> tuple[ImporterRun, dict[str, Any] 
                        "the execution reported a failed step"), data
 
 
-def fmutool_check(fmu: str | os.PathLike, timeout: float = 120) -> ImporterRun:
+def fmutool_check(fmu: str | os.PathLike, timeout: float = 120) -> ImporterRun[float]:
     """Run fmu-manipulation-toolbox's ``fmutool -check`` (schema and semantic checks) on an FMU.
 
     A second reading of the model description by a tool that is not fmpy, so that a fault fmpy tolerates is
