@@ -1,4 +1,4 @@
-"""TOML scene → validated, typed, SI objects (the contract of SCENE.md).
+"""TOML scene → validated, typed, SI objects (the contract of docs/scene.md).
 
 Everything downstream trusts these objects, so every check happens here, once, and every mistake is
 reported as one :class:`SceneError` of the form ``FILE: KEY: expected WHAT, got VALUE`` (or ``FILE: KEY:

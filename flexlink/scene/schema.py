@@ -141,7 +141,7 @@ class Joint:
 
     @property
     def is_elastic(self) -> bool:
-        """An elastic joint adds a motor coordinate (SCENE.md: only if stiffness > 0)."""
+        """An elastic joint adds a motor coordinate (docs/scene.md: only if stiffness > 0)."""
         return self.stiffness > 0.0
 
     def placement_rotation(self) -> np.ndarray:
@@ -164,7 +164,7 @@ class Payload:
 
     @property
     def is_present(self) -> bool:
-        """SCENE.md: a payload is in the model only if its mass or inertia is non-zero."""
+        """docs/scene.md: a payload is in the model only if its mass or inertia is non-zero."""
         inertia = self.inertia if isinstance(self.inertia, tuple) else (self.inertia,)
         return self.mass != 0.0 or any(j != 0.0 for j in inertia)
 
@@ -324,7 +324,7 @@ class Scene:
 
     @property
     def has_gravity(self) -> bool:
-        """SCENE.md: gravity terms are generated only if the vector is non-zero."""
+        """docs/scene.md: gravity terms are generated only if the vector is non-zero."""
         return any(g != 0.0 for g in self.gravity)
 
 

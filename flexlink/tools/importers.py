@@ -1,4 +1,4 @@
-"""Independent FMI importers from PyPI, run against our FMUs (FMI-NOTES.md).
+"""Independent FMI importers from PyPI, run against our FMUs (docs/check.md).
 
 * libcosimpy (Open Simulation Platform's libcosim, on the Modelica Association's FMI Library): it
   aborts or crashes when an FMU returns an error, so it runs in a child process.  ``ok`` is a completed run
