@@ -1,5 +1,7 @@
-"""Controllers for flexible-link FMUs: LQR and Kalman design on the linearised model, the joint PD
-baseline, and closed-loop co-simulation through fmpy.
+"""Controllers for flexible-link FMUs: design on the linearised model, and closed loops through fmpy.
+
+LQR and Kalman design on the linearised model, the joint PD baseline, and closed-loop co-simulation
+through fmpy.
 
 One module per concern (python-control's layout):
 
@@ -11,7 +13,7 @@ One module per concern (python-control's layout):
 ``closedloop``         python-control closed loop: prediction, loop transfer, margins
 ``robustness``         multi-joint: loop-at-a-time margins at each actuator, peak sensitivity, poles
 ``cosim``              ``FmuLoop``: the FMU instantiated once with ``FMU2Slave``, reset between runs
-``manoeuvre``          design everything on one plant; rest-to-rest runs and SCENE.md's figures
+``manoeuvre``          design everything on one plant; rest-to-rest runs and their figures
 ``multijoint``         every joint's rest-to-rest run: inverse-dynamics feedforward, MIMO LQG against joint PD
 ``plots``              time responses, closed-loop poles, loop Bode with margins
 ``cli``, ``demo``      ``flexlink control`` / ``flexlink linearize``; the README's control job

@@ -47,8 +47,11 @@ def sampled_plant(plant: LinearPlant, dt: float, outputs: Sequence[str] | None =
 
 
 def closed_loop(plant: LinearPlant, law: SampledLaw, outputs: Sequence[str] | None = None) -> ct.StateSpace:
-    """Discrete closed loop (unsaturated law): inputs ``xref[i]``, ``uff``; outputs the plant's ``outputs``
-    (FMU names, default all of the plant's) then the torque."""
+    """The discrete closed loop of the unsaturated law on the sampled linear plant, as one state-space system.
+
+    Inputs ``xref[i]``, ``uff``; outputs the plant's ``outputs`` (FMU names, default all of the plant's) then
+    the torque: the linear prediction a run through the FMU is compared with.
+    """
     outputs = list(plant.outputs if outputs is None else outputs)
     needed = list(dict.fromkeys([*outputs, *law.sensors]))
     P = sampled_plant(plant, law.dt, needed)
@@ -62,8 +65,11 @@ def closed_loop(plant: LinearPlant, law: SampledLaw, outputs: Sequence[str] | No
 
 
 def predict(plant: LinearPlant, law: SampledLaw, reference: Reference, outputs: Sequence[str]) -> dict:
-    """Closed-loop response to ``reference`` (python-control ``forced_response``): a dict of named time
-    series, absolute values (operating point added), ``time`` and the torque under the input's name."""
+    """The predicted closed-loop response to ``reference`` (python-control ``forced_response``).
+
+    A dict of named time series in absolute values (operating point added), ``time`` and the torque under
+    the input's name: the same names as a run through the FMU, so that the two plot together.
+    """
     cl = closed_loop(plant, law, outputs)
     U = np.vstack([reference.x.T, reference.u_ff[None, :]])
     resp = ct.forced_response(cl, T=reference.time, U=U)
@@ -76,8 +82,11 @@ def predict(plant: LinearPlant, law: SampledLaw, reference: Reference, outputs: 
 
 
 def loop_transfer(plant: LinearPlant, law: SampledLaw) -> ct.StateSpace:
-    """The loop broken at the torque input: ``L = −C_y P`` (negative-feedback convention of
-    ``control.stability_margins``), C_y the law from the measurements to the torque."""
+    """The loop broken at the torque input, where a gain or delay error of the actuator enters.
+
+    ``L = −C_y P`` (negative-feedback convention of ``control.stability_margins``), C_y the law from the
+    measurements to the torque.
+    """
     P = sampled_plant(plant, law.dt, law.sensors)
     K = law.statespace()
     Ky = K[:, : len(law.sensors)]
@@ -85,8 +94,9 @@ def loop_transfer(plant: LinearPlant, law: SampledLaw) -> ct.StateSpace:
 
 
 def margins(plant: LinearPlant, law: SampledLaw, n_points: int = 20000) -> dict:
-    """Classical margins of the loop broken at the torque input, from its frequency response on a dense
-    logarithmic grid up to the Nyquist frequency, and closed-loop stability from the poles.
+    """Classical margins of the loop broken at the torque input, and closed-loop stability from the poles.
+
+    The margins come from its frequency response on a dense logarithmic grid up to the Nyquist frequency.
 
     Returns a dict: ``gain_margin_db`` (smallest gain increase that destabilises, dB, ``inf`` if none),
     ``gain_reduction_margin_db`` (largest gain decrease tolerated, negative dB, ``-inf`` if none — with a
@@ -119,9 +129,12 @@ def margins(plant: LinearPlant, law: SampledLaw, n_points: int = 20000) -> dict:
 
 
 def margin_entries(gms, pms, wpcs, wgcs) -> dict:
-    """The margins of a loop from all its crossovers (gains 1/|L| at the phase crossovers wpcs [rad/s], phase
-    margins at the gain crossovers wgcs): the smallest gain increase and decrease, the smallest phase margin,
-    and where they are [Hz]; inf/−inf/nan where there is none."""
+    """The margins of a loop from all its crossovers: the worst of each kind, and where they are.
+
+    From the gains 1/|L| at the phase crossovers wpcs [rad/s] and the phase margins at the gain crossovers
+    wgcs: the smallest gain increase and decrease, the smallest phase margin, and where they are [Hz];
+    inf/−inf/nan where there is none.
+    """
     gms, pms = np.asarray(gms, dtype=float), np.asarray(pms, dtype=float)
     up, down = np.flatnonzero(gms > 1), np.flatnonzero(gms < 1)
     k_up = up[np.argmin(gms[up])] if len(up) else None

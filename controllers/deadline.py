@@ -24,9 +24,12 @@ def _raise_in(thread_id: int, exc: type[BaseException] | None) -> None:
 
 
 class Deadline:
-    """``with Deadline(seconds): ...`` raises :class:`CaseTimeout` in the block once ``seconds`` of wall
-    clock have passed (``None``: no limit). An expiry that races with the block's end still ends in
-    CaseTimeout (the block did run past the limit), never in an exception delivered after the ``with``."""
+    """A wall-clock limit on a block: ``with Deadline(seconds): ...`` raises :class:`CaseTimeout` in it.
+
+    Raised once ``seconds`` of wall clock have passed (``None``: no limit). An expiry that races with the
+    block's end still ends in CaseTimeout (the block did run past the limit), never in an exception delivered
+    after the ``with``.
+    """
 
     def __init__(self, seconds: float | None):
         self.seconds = seconds

@@ -21,6 +21,12 @@ import os
 import pickle
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:                    # a cached run imports neither the design modules nor python-control
+    from controllers.laws import AffineForm
+    from controllers.trajectory import Reference
+    from flexlink.scene.schema import Scene
 
 __all__ = ["CachedLaw", "cache_key", "enabled", "load", "store"]
 
@@ -29,13 +35,16 @@ ENV = "FLEXLINK_DESIGN_CACHE"
 
 
 def enabled() -> bool:
+    """Whether the cache is used: always, unless ``FLEXLINK_DESIGN_CACHE=0`` (a fresh design each run)."""
     return os.environ.get(ENV) != "0"
 
 
-def cache_key(scene, options: dict) -> str:
-    """The entry's key: the parsed scene (as the FMU's build cache keys it), flexlink's version, the sources
-    of flexlink (the model, its linearisation) and of the controllers, the command's design and run
-    options."""
+def cache_key(scene: Scene, options: dict[str, Any]) -> str:
+    """The entry's key: a hash of everything a design depends on, so that a stale entry is never found.
+
+    The parsed scene (as the FMU's build cache keys it), flexlink's version, the sources of flexlink (the
+    model, its linearisation) and of the controllers, the command's design and run options.
+    """
     import flexlink
 
     h = hashlib.sha256(f"design-cache {VERSION} {flexlink.__version__}".encode())
@@ -82,20 +91,26 @@ def store(key: str, entry: dict) -> None:
 
 @dataclasses.dataclass
 class CachedLaw:
-    """A law as :class:`controllers.cosim.FmuLoop`'s fast loop runs it: its affine form along the cached
-    reference (the same arithmetic as the designed law's; :meth:`controllers.laws.SampledLaw.affine`)."""
+    """A law as :class:`controllers.cosim.FmuLoop`'s fast loop runs it: its affine form along the reference.
+
+    The form is the designed law's along the cached reference (the same arithmetic;
+    :meth:`controllers.laws.SampledLaw.affine`), so that a repeated run needs neither the design nor
+    python-control.
+    """
 
     kind: str
     dt: float
     sensors: list
     input: str
-    form: object
+    form: AffineForm
 
     def reset(self) -> None:
-        pass
+        """Nothing to reset: the affine form carries its state in the loop, not in the law."""
 
-    def affine(self, reference):
+    def affine(self, reference: Reference) -> AffineForm:
+        """The cached form, whatever ``reference``: it was computed along the cached reference itself."""
         return self.form
 
-    def step(self, y, x_ref, u_ff):
+    def step(self, y: object, x_ref: object, u_ff: object) -> float:
+        """Refused: a cached law has no estimator to step, only its affine form."""
         raise RuntimeError("a cached law runs in the fast loop only (its affine form)")

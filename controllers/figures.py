@@ -1,6 +1,8 @@
-"""The figures of a one-joint rest-to-rest run (SCENE.md's, ``flexlink control``), from its recorded series
-alone: what :func:`controllers.manoeuvre.rest_to_rest` reports, and a run from the design cache
-(:mod:`controllers.design_cache`) reports without a design at hand."""
+"""The figures of a one-joint rest-to-rest run (``flexlink control``), from its recorded series alone.
+
+What :func:`controllers.manoeuvre.rest_to_rest` reports, and what a run from the design cache
+(:mod:`controllers.design_cache`) reports without a design at hand.
+"""
 
 from __future__ import annotations
 
@@ -17,8 +19,10 @@ __all__ = ["ManoeuvreResult", "manoeuvre_figures"]
 
 @dataclass
 class ManoeuvreResult:
-    """One closed-loop run: named time series (``series``), SCENE.md's figures (``metrics``) and what
-    produced them."""
+    """One closed-loop run: named time series (``series``), its figures (``metrics``) and what produced them.
+
+    Indexing by a series name (``result["time"]``) gives that series, as fmpy's result arrays do.
+    """
 
     controller: str
     target: float
@@ -36,9 +40,12 @@ class ManoeuvreResult:
 def manoeuvre_figures(series: Mapping[str, np.ndarray], *, joint: str, link: str, torque_input: str,
                       torque_limit: float, static_tip: float, target: float, duration: float, settle: float,
                       sample_time: float, controller: str, wall_time: float | None) -> dict:
-    """Final error, residual vibration (RMS of ``<link>.tip.v`` minus its static value ``static_tip`` at the
-    target, over the window after the manoeuvre), peak torque, realtime factor, largest tip deflection,
-    saturated fraction; and the run's settings."""
+    """The figures of one rest-to-rest run, and the run's settings, as JSON-ready values.
+
+    Final error, residual vibration (RMS of ``<link>.tip.v`` minus its static value ``static_tip`` at the
+    target, over the window after the manoeuvre: the vibration the controller leaves, not the static sag),
+    peak torque, realtime factor (None without ``wall_time``), largest tip deflection, saturated fraction.
+    """
     t = series["time"]
     tip = series[f"{link}.tip.v"]
     window = t >= duration - 1e-12

@@ -55,8 +55,12 @@ def reference_names(n: int) -> list[str]:
 
 @dataclass
 class MeasurementSchedule:
-    """The sensors' outputs linearised along a reference, per sample k: ``y_ref[k] = h(x₀ + x_ref[k],
-    u₀ + u_ff[k−1])`` (absolute), ``C[k] = ∂h/∂x``, ``D[k] = ∂h/∂u`` there."""
+    """The sensors' outputs linearised along a reference, per sample k.
+
+    ``y_ref[k] = h(x₀ + x_ref[k], u₀ + u_ff[k−1])`` (absolute), ``C[k] = ∂h/∂x``, ``D[k] = ∂h/∂u`` there: a
+    sensor that is not affine in the state (a tip position far from the rest pose) is read by the estimator
+    as it is along the manoeuvre, not as at rest.
+    """
 
     y_ref: np.ndarray   # (N, p)
     C: np.ndarray       # (N, p, n)
@@ -65,8 +69,10 @@ class MeasurementSchedule:
 
 
 def _sensor_function(plant: LinearPlant, sensors: list[str]) -> ca.Function | None:
-    """(x, u, p) → (y, ∂y/∂x, ∂y/∂u) of the sensors as a scalar (SX) function, or None when the sensors
-    are affine in (x, u) (the rest-pose model is then exact).  Cached on the plant."""
+    """The sensors as a scalar (SX) function (x, u, p) → (y, ∂y/∂x, ∂y/∂u), cached on the plant.
+
+    None when the sensors are affine in (x, u): the rest-pose model is then exact.
+    """
     key = ("sensor_function", tuple(sensors))
     if key in plant.cache:
         return plant.cache[key]
@@ -95,8 +101,11 @@ def _sensor_function(plant: LinearPlant, sensors: list[str]) -> ca.Function | No
 
 
 def measurement_schedule(plant: LinearPlant, sensors: list[str], reference: Reference) -> MeasurementSchedule | None:
-    """Linearise the sensors' outputs about every sample of ``reference``; None when they are affine in
-    the state and input (encoder, strain gauge): the rest-pose model is then the same."""
+    """Linearise the sensors' outputs about every sample of ``reference``.
+
+    None when they are affine in the state and input (encoder, strain gauge): the rest-pose model is then
+    the same.
+    """
     f = _sensor_function(plant, sensors)
     if f is None:
         return None
@@ -116,8 +125,10 @@ def measurement_schedule(plant: LinearPlant, sensors: list[str], reference: Refe
 
 @dataclass
 class AffineForm:
-    """A law along one reference as one matrix product per sample (issue 22: the closed loop through fmpy
-    spends its time in Python, so a sample must be as few calls as possible).
+    """A law along one reference as one matrix product per sample.
+
+    Issue 22: the closed loop through fmpy spends its time in Python, so a sample must be as few calls as
+    possible.
 
     With ``w_k = (y_k, s_k, u_{k−1}, 1)`` — the measurements (FMU values), the law's state, the torque
     applied at the previous sample (absolute; ``u0`` before the first) and 1 — one sample is::
@@ -140,6 +151,7 @@ class AffineForm:
 
     @property
     def n_state(self) -> int:
+        """The number of the law's own states (0 for the static PD)."""
         return self.Gs.shape[1]
 
 
@@ -166,10 +178,13 @@ class SampledLaw:
         self.k = 0
 
     def follow(self, reference: Reference | None) -> None:
-        """Use the measurement model linearised along ``reference`` in the next runs (None: the rest-pose
-        model).  Only the LQG's estimator uses it."""
+        """Use the measurement model linearised along ``reference`` in the next runs (None: the rest-pose one).
+
+        Only the LQG's estimator uses it.
+        """
 
     def estimate(self, y: np.ndarray, x_ref: np.ndarray) -> np.ndarray:
+        """The state deviation x̂_k the law feeds back, from the measurements y_k (each law its own)."""
         raise NotImplementedError
 
     def step(self, y, x_ref: np.ndarray, u_ff: float) -> float:
@@ -185,8 +200,10 @@ class SampledLaw:
         """Told the deviation torque actually applied (after saturation)."""
 
     def affine(self, reference: Reference) -> AffineForm | None:
-        """This law along ``reference`` as an :class:`AffineForm`, or None when it has none (then the loop
-        calls :meth:`step`).  Call after :meth:`follow`."""
+        """The law along ``reference`` as an :class:`AffineForm`, or None when it has none.
+
+        With None the loop calls :meth:`step`.  Call after :meth:`follow`.
+        """
         return None
 
     def _offsets(self, reference: Reference) -> np.ndarray:
@@ -194,6 +211,7 @@ class SampledLaw:
         return self.u0 + reference.u_ff + reference.x @ self.K[0]
 
     def statespace(self) -> ct.StateSpace:
+        """The unsaturated law as a discrete python-control system, for the linear closed loop and margins."""
         raise NotImplementedError
 
     def _names(self):
@@ -231,17 +249,21 @@ class LQGLaw(SampledLaw):
         self.reset()
 
     def reset(self) -> None:
+        """Back to rest: also the estimate at the operating point and no torque held."""
         super().reset()
         self.z = np.zeros(self.n)       # prior estimate x̂_k|k−1
         self.u_prev = 0.0               # deviation torque held while y_k was sampled
         self.xh = np.zeros(self.n)
 
     def follow(self, reference: Reference | None) -> None:
+        """Read the sensors along ``reference`` (:func:`measurement_schedule`; None: as at rest)."""
         self.schedule = None if reference is None else measurement_schedule(self.plant, self.sensors, reference)
 
     def step(self, y, x_ref: np.ndarray, u_ff: float) -> float:
-        """:meth:`SampledLaw.step`; without a measurement schedule in the composed form (same arithmetic up to
-        rounding)."""
+        """One sample, as :meth:`SampledLaw.step`.
+
+        Without a measurement schedule in the composed form (same arithmetic up to rounding).
+        """
         if self.schedule is not None and self.k < len(self.schedule.y_ref):
             return super().step(y, x_ref, u_ff)
         n, zy, xu = self.n, self._zy, self._xu
@@ -260,9 +282,12 @@ class LQGLaw(SampledLaw):
         return u
 
     def affine(self, reference: Reference) -> AffineForm | None:
-        """Without a measurement schedule: the state is ``s = A_d x̂`` (the prediction without the torque's
-        part, which comes in through ``u_{k−1}``), so ``x̂_k = X (y_k, s_k, u_{k−1}, 1)`` with
-        ``X = [M, I − MC, (I − MC) B_d − MD, −M y₀ − ((I − MC) B_d − MD) u₀]``; ``v = −K x̂``, ``s⁺ = A_d x̂``."""
+        """The LQG as an :class:`AffineForm`; None with a measurement schedule (it varies per sample).
+
+        The state is ``s = A_d x̂`` (the prediction without the torque's part, which comes in through
+        ``u_{k−1}``), so ``x̂_k = X (y_k, s_k, u_{k−1}, 1)`` with
+        ``X = [M, I − MC, (I − MC) B_d − MD, −M y₀ − ((I − MC) B_d − MD) u₀]``; ``v = −K x̂``, ``s⁺ = A_d x̂``.
+        """
         if self.schedule is not None:
             return None
         IMC = np.eye(self.n) - self.M @ self.C
@@ -274,6 +299,7 @@ class LQGLaw(SampledLaw):
                           self.u0, self.torque_limit)
 
     def estimate(self, y: np.ndarray, x_ref: np.ndarray) -> np.ndarray:
+        """The Kalman filter's corrected estimate x̂_k|k from its prediction and the innovation y_k − ŷ_k."""
         sc, k = self.schedule, self.k
         if sc is None or k >= len(sc.y_ref):
             y_hat = self.y0 + self.C @ self.z + self.D * self.u_prev
@@ -283,6 +309,7 @@ class LQGLaw(SampledLaw):
         return self.xh
 
     def applied(self, du: float) -> None:
+        """Predict the next state with the torque actually applied (after saturation), not the one asked."""
         self.z = self.Ad @ self.xh + self.Bd * du
         self.u_prev = du
 
@@ -329,6 +356,7 @@ class PDLaw(SampledLaw):
         self.S[plant.state_index(f"der({joint}.theta)"), 1] = 1.0
 
     def estimate(self, y: np.ndarray, x_ref: np.ndarray) -> np.ndarray:
+        """The measured joint angle and rate placed in the state vector; the rest of x̂ is zero."""
         return self.S @ (y - self.y0)
 
     def affine(self, reference: Reference) -> AffineForm:

@@ -1,5 +1,6 @@
-"""Monte Carlo robustness of the multi-joint LQG or joint PD: ``flexlink sweep`` on a scene with several
-torque-driven joints.
+"""Monte Carlo robustness of the multi-joint LQG or joint PD, for ``flexlink sweep``.
+
+The sweep runs on a scene with several torque-driven joints.
 
 Every case drives the FMU with its parameters drawn (payload mass, link stiffness, ...) and the controller,
 the reference and the feedforward designed once on the scene's nominal values: the sweep tests the fixed
@@ -70,8 +71,10 @@ def settings(sc, controller: str, target_deg, duration: float, settle: float, sa
 
 
 def design(model, s: dict, sample_time: float):
-    """The nominal design (its torque limit: ``--torque-limit`` or the multi-joint default of
-    ``flexlink control``), checked for the multi-joint run."""
+    """The nominal design, checked for the multi-joint run: every case runs this one law.
+
+    Its torque limit is ``--torque-limit`` or the multi-joint default of ``flexlink control``.
+    """
     from controllers.manoeuvre import design as lqg_design
     from controllers.multijoint import check_multijoint, default_torque_limit, plan
     from flexlink.run.linearize import linear_plant
@@ -101,8 +104,10 @@ def law(d, controller: str, reference):
 
 
 def hold_decay_ratio(job, params: dict) -> float:
-    """The hold run (module docstring): the nominal law at the start pose after a torque pulse; inf when the
-    response grows out of the model's validity (the FMU refuses the step)."""
+    """The hold run's decay ratio (module docstring): the nominal law at the start pose after a torque pulse.
+
+    inf when the response grows out of the model's validity (the FMU refuses the step).
+    """
     from controllers.cosim import FmuLoopError
     from controllers.trajectory import Reference
 
@@ -128,9 +133,11 @@ def hold_decay_ratio(job, params: dict) -> float:
 
 
 def case(job, params: dict) -> tuple[dict, dict]:
-    """One Monte Carlo case on a sweep worker (:mod:`controllers.sweep`): the hold and the manoeuvre of the
-    nominal LQG through the FMU with ``params`` set.  The plan and the reference (seconds of CasADi) are
-    made once per worker."""
+    """One Monte Carlo case on a sweep worker (:mod:`controllers.sweep`).
+
+    The hold and the manoeuvre of the nominal LQG through the FMU with ``params`` set.  The plan and the
+    reference (seconds of CasADi) are made once per worker.
+    """
     from controllers.cosim import FmuLoopError
     from controllers.multijoint import inverse_dynamics_reference, plan, run
 
@@ -167,8 +174,11 @@ def case(job, params: dict) -> tuple[dict, dict]:
 
 
 def stability_summary(df) -> str:
-    """The fractions stable (hold verdict), completed and settled (a failed case counts as none of them),
-    and the distributions of the settling time and the residual vibration over the settled cases."""
+    """The sweep's summary in words: how many cases were stable, completed and settled, and how well.
+
+    The fractions stable (hold verdict), completed and settled (a failed case counts as none of them), and
+    the distributions of the settling time and the residual vibration over the settled cases.
+    """
     n = len(df)
     ok = df[~df["failed"]]
 
@@ -189,9 +199,12 @@ def stability_summary(df) -> str:
 
 
 def linear_verdict(d, params: dict, controller: str = "lqr") -> float:
-    """The spectral radius of the nominal sampled law — the LQG (:func:`controllers.robustness.lqg_compensator`)
-    or the joint PD (its static gain on the encoders and rates) — in loop with the plant linearised at the
-    start pose with ``params`` and sampled (python-control): < 1 is stable."""
+    """The linear stability verdict of one case: the closed loop's spectral radius (< 1 is stable).
+
+    The nominal sampled law — the LQG (:func:`controllers.robustness.lqg_compensator`) or the joint PD (its
+    static gain on the encoders and rates) — in loop with the plant linearised at the start pose with
+    ``params`` and sampled (python-control).
+    """
     import control as ct
 
     from controllers.closedloop import sampled_plant

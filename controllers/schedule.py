@@ -47,8 +47,10 @@ __all__ = ["Schedule", "ScheduledLQGLaw", "design_schedule", "frozen_radius", "m
 
 
 def model_at_pose(model, pose: Mapping[str, float]):
-    """The model with its joints' start angles at ``pose`` (joint name → rad): what a scene with those
-    ``initial_angle`` values builds, without building it again; :func:`linear_plant` linearises it there."""
+    """The model with its joints' start angles at ``pose`` (joint name → rad), without building it again.
+
+    What a scene with those ``initial_angle`` values builds; :func:`linear_plant` linearises it there.
+    """
     names = {f"{j.name}.theta": j.name for j in model.scene.joints}
     unknown = set(pose) - set(names.values())
     if unknown:
@@ -56,14 +58,19 @@ def model_at_pose(model, pose: Mapping[str, float]):
     values = []
     for s in model.start_values:
         joint = names.get(model.coordinates[s.coordinate])
-        values.append(dataclasses.replace(s, value=float(pose[joint])) if not s.rate and joint in pose else s)
+        if not s.rate and joint is not None and joint in pose:
+            s = dataclasses.replace(s, value=float(pose[joint]))
+        values.append(s)
     return dataclasses.replace(model, start_values=values)
 
 
 def redesign(d, plant):
-    """The design ``d`` made again on another linearisation ``plant`` of the same model: the same Bryson
-    limits and torque limits (LQR), the same sensors, sensor noise and process noise (Kalman), the same
-    sample time.  A :class:`controllers.manoeuvre.ControlDesign` (no PD)."""
+    """The design ``d`` made again on another linearisation ``plant`` of the same model.
+
+    The same Bryson limits and torque limits (LQR), the same sensors, sensor noise and process noise
+    (Kalman), the same sample time, so that the schedule's points differ by the pose alone.  A
+    :class:`controllers.manoeuvre.ControlDesign` (no PD).
+    """
     from controllers.manoeuvre import ControlDesign
 
     lqr = design_lqr(plant, d.dt, d.lqr.torque_limits, limits=d.lqr.limits)
@@ -76,8 +83,11 @@ def redesign(d, plant):
 
 @dataclass
 class Schedule:
-    """Design points along the path: ``sigma`` (path parameter, ascending from 0 to 1), the pose of each
-    (joint → rad) and its design; ``designs[0]`` is the design about the start pose."""
+    """Design points along the path, between which the law's matrices are interpolated.
+
+    ``sigma`` (path parameter, ascending from 0 to 1), the pose of each (joint → rad) and its design;
+    ``designs[0]`` is the design about the start pose.
+    """
 
     sigma: np.ndarray
     poses: list[dict]
@@ -106,8 +116,10 @@ def plant_at(d, pose: Mapping[str, float]):
 
 
 def design_schedule(d, pl: Plan, points: int) -> Schedule:
-    """``points`` ≥ 2 design points equally spaced in the path parameter; ``d`` (the design about the start
-    pose) is the first, :func:`redesign` on :func:`plant_at` the others."""
+    """A schedule of ``points`` ≥ 2 design points equally spaced in the path parameter.
+
+    ``d`` (the design about the start pose) is the first, :func:`redesign` on :func:`plant_at` the others.
+    """
     if not (isinstance(points, int) and points >= 2):
         raise DesignError(f"--schedule: at least 2 design points along the path (start and target), got {points}")
     sigma = np.linspace(0.0, 1.0, points)
@@ -123,9 +135,11 @@ def path_fraction(reference: Reference) -> np.ndarray:
 
 
 class ScheduledLQGLaw(MimoLQGLaw):
-    """:class:`controllers.multijoint.MimoLQGLaw` with the matrices of :class:`Schedule` at the
-    reference's path parameter (module docstring); its operating point (u₀, y₀) and reference are the
-    start design's, as the fixed law's."""
+    """The multi-joint LQG with the matrices of a :class:`Schedule` at the reference's path parameter.
+
+    A :class:`controllers.multijoint.MimoLQGLaw` (module docstring); its operating point (u₀, y₀) and
+    reference are the start design's, as the fixed law's, so that the two differ by the scheduling alone.
+    """
 
     kind = "scheduled"
 
@@ -137,13 +151,16 @@ class ScheduledLQGLaw(MimoLQGLaw):
         self.W = reference_step(reference, Ad, Bd)
 
     def matrices(self, k: int) -> tuple[np.ndarray, ...]:
+        """(M, C, K_d, A_d, B_d) at sample ``k``, interpolated once per sample at construction."""
         return self._at[k]
 
 
 def frozen_radius(law_matrices: tuple[np.ndarray, ...], plant_design) -> float:
-    """Spectral radius of the sampled LQG with matrices ``(M, C, K_d, A_d, B_d)`` in loop with the plant of
-    ``plant_design`` (its own sampled linearisation, :func:`controllers.robustness.lqg_plant`): < 1 is a
-    loop that holds that pose."""
+    """Spectral radius of a sampled LQG in loop with a frozen-pose plant: < 1 is a loop that holds that pose.
+
+    The LQG has the matrices ``(M, C, K_d, A_d, B_d)``; the plant is that of ``plant_design`` (its own
+    sampled linearisation, :func:`controllers.robustness.lqg_plant`).
+    """
     M, C, K, Ad, Bd = law_matrices
     p = plant_design
     D = p.kalman.D[:, torque_inputs(p.lqr.plant)]
@@ -153,8 +170,11 @@ def frozen_radius(law_matrices: tuple[np.ndarray, ...], plant_design) -> float:
 
 
 def radius_along_path(d, schedule: Schedule, pl: Plan, samples: Sequence[float]) -> list[dict]:
-    """At each path parameter in ``samples``: the pose (deg), and the frozen-pose spectral radius of the
-    fixed design ``d`` and of the schedule there (the plant designed on at that pose: :func:`redesign`)."""
+    """The frozen-pose stability of the fixed design and of the schedule along the path.
+
+    At each path parameter in ``samples``: the pose (deg), and the frozen-pose spectral radius of the fixed
+    design ``d`` and of the schedule there (the plant designed on at that pose: :func:`redesign`).
+    """
     out = []
     for s in samples:
         pose = _pose(pl, float(s))
@@ -166,10 +186,13 @@ def radius_along_path(d, schedule: Schedule, pl: Plan, samples: Sequence[float])
 
 
 def compare_schedule(d, schedule: Schedule, loop, pl: Plan, ref: Reference, **kw) -> dict:
-    """The scheduled LQG and the fixed one (``d``), each through the FMU along the same reference, feedforward
-    and torque limits (:func:`controllers.multijoint.run`; ``kw`` its keywords).  The fixed run comes last:
-    where it leaves the beam model's validity (the FMU refuses the step) its entry is the message
-    instead of a result.  Returns ``{"scheduled": result, "fixed": result or str}``."""
+    """The scheduled LQG and the fixed one (``d``), each through the FMU, on the same manoeuvre.
+
+    The same reference, feedforward and torque limits (:func:`controllers.multijoint.run`; ``kw`` its
+    keywords).  The fixed run comes last: where it leaves the beam model's validity (the FMU refuses the
+    step) its entry is the message instead of a result.  Returns ``{"scheduled": result, "fixed": result or
+    str}``.
+    """
     from controllers.cosim import FmuLoopError
     from controllers.multijoint import run
 

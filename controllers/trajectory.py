@@ -53,10 +53,12 @@ class Reference:
 
     @property
     def theta(self) -> np.ndarray:
+        """The driven joint's reference angle at each sample (a deviation from the start pose), rad."""
         return self.x[:, self.joint_index]
 
     @property
     def omega(self) -> np.ndarray:
+        """The driven joint's reference rate at each sample, rad/s (the rates are the second half of x)."""
         return self.x[:, self.x.shape[1] // 2 + self.joint_index]
 
 
@@ -80,7 +82,9 @@ def quintic_reference(plant, delta: float, duration: float, total: float, dt: fl
 
 
 def min_jerk_feedforward(plant_d: ct.StateSpace, x_final, n_steps: int) -> np.ndarray:
-    """Torque sequence u_0 … u_{N−1} of minimal Σ_{k=0}^{N} (u_k − u_{k−1})² (u_{−1} = u_N = 0) with
+    """The smoothest torque sequence that takes the sampled plant from rest to ``x_final`` in N steps.
+
+    Torque sequence u_0 … u_{N−1} of minimal Σ_{k=0}^{N} (u_k − u_{k−1})² (u_{−1} = u_N = 0) with
     u_0 = u_{N−1} = 0 that takes the sampled plant from x = 0 to ``x_final`` in N steps.
 
     Equality-constrained least squares: u = H⁻¹Gᵀ(G H⁻¹ Gᵀ)⁻¹ g with H the (tridiagonal) second-difference

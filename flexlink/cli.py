@@ -1,4 +1,10 @@
-"""The ``flexlink`` command (SCENE.md "Commands").  Bad input: one message, exit status 2."""
+"""The ``flexlink`` command line: one sub-command per stage or tool, documented in docs/commands.md.
+
+Each sub-command imports its stage only when it runs, so that ``flexlink --help`` and a bad option answer at
+once.  Bad input of any kind (a scene, an option, an output path, a refused FMU call) is one message on
+stderr and exit status 2, never a traceback; the applications above the library (``controllers``) add their
+sub-commands through the ``flexlink.commands`` entry point.
+"""
 
 from __future__ import annotations
 
@@ -11,12 +17,17 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, NoReturn
 
 from flexlink.errors import FlexlinkError
 from flexlink.paths import SCENE_HELP, check_output_paths, film_file, output_file, plot_file, stream_file
 
+if TYPE_CHECKING:                      # the commands import numpy and fmpy only when they run
+    import numpy as np
+    from fmpy.model_description import ModelDescription
 
-def _announce(scene_path) -> None:
+
+def _announce(scene_path: str) -> None:
     """A build expected to take long is said on stderr before it starts (the estimate of flexlink.scene.budget)."""
     from flexlink.scene.budget import ANNOUNCE_SECONDS, estimate
     from flexlink.scene.loader import load_scene
@@ -26,7 +37,7 @@ def _announce(scene_path) -> None:
         print(f"flexlink: {cost.lines()[0]}; building", file=sys.stderr, flush=True)
 
 
-def _cmd_build(args) -> int:
+def _cmd_build(args: argparse.Namespace) -> int:
     from flexlink.export.fmu import build_fmu
 
     _announce(args.scene)
@@ -39,7 +50,7 @@ def _cmd_build(args) -> int:
     return 0
 
 
-def _cmd_modes(args) -> int:
+def _cmd_modes(args: argparse.Namespace) -> int:
     from flexlink.mechanics.analysis import natural_frequencies
     from flexlink.mechanics.model import build_model
     from flexlink.scene.loader import load_scene
@@ -59,7 +70,7 @@ def _cmd_modes(args) -> int:
     return 0
 
 
-def _cmd_simulate(args) -> int:
+def _cmd_simulate(args: argparse.Namespace) -> int:
     import fmpy
 
     from flexlink.export.fmu import cached_fmu
@@ -88,9 +99,12 @@ def _cmd_simulate(args) -> int:
     return 0
 
 
-def _drive(args, fmu, md, start: dict[str, float], step: float | None, outputs: list[str], show_progress):
-    """Run the FMU as ``--input``, ``--interpolation`` and ``--set`` say, with the progress bar
-    (``show_progress``: None on a terminal only), and say after the run which inputs nobody gave."""
+def _drive(args: argparse.Namespace, fmu: Path, md: ModelDescription, start: dict[str, float], step: float | None,
+           outputs: list[str], show_progress: bool | None) -> np.ndarray:
+    """Run the FMU as ``--input``, ``--interpolation`` and ``--set`` say, with the progress bar.
+
+    ``show_progress``: None shows it on a terminal only.  After the run, say which inputs nobody gave.
+    """
     from flexlink.run import progress
     from flexlink.run import simulate as run
 
@@ -105,10 +119,15 @@ def _drive(args, fmu, md, start: dict[str, float], step: float | None, outputs: 
     return result
 
 
-def _warn_unset_inputs(md, input_names: list[str], inputs, start: dict[str, float]) -> None:
-    """One line on stderr for each run whose inputs nobody gives: they keep their start values throughout,
-    which is rarely what a user who forgot ``--input`` meant (an arm that never moves)."""
-    given = set(inputs.dtype.names[1:]) if inputs is not None else set()
+def _warn_unset_inputs(md: ModelDescription, input_names: list[str], inputs: np.ndarray | None,
+                       start: dict[str, float]) -> None:
+    """One line on stderr for each run whose inputs nobody gives.
+
+    They keep their start values throughout, which is rarely what a user who forgot ``--input`` meant (an arm
+    that never moves).
+    """
+    columns = inputs.dtype.names if inputs is not None else None      # read_input_csv: time, then the inputs
+    given = set(columns[1:]) if columns is not None else set()
     unset = [v for v in md.modelVariables if v.name in input_names and v.name not in given and v.name not in start]
     if unset:
         held = ", ".join(f"{v.name} = {v.start}" for v in unset)
@@ -117,7 +136,7 @@ def _warn_unset_inputs(md, input_names: list[str], inputs, start: dict[str, floa
               file=sys.stderr)
 
 
-def _cmd_animate(args) -> int:
+def _cmd_animate(args: argparse.Namespace) -> int:
     import fmpy
 
     from flexlink.export.fmu import cached_fmu
@@ -148,7 +167,7 @@ def _cmd_animate(args) -> int:
     return 0
 
 
-def _add_input_options(p) -> None:
+def _add_input_options(p: argparse.ArgumentParser) -> None:
     """--input, --interpolation and --set: how a run of the FMU is driven (simulate, animate)."""
     from flexlink.run.simulate import INTERPOLATIONS
 
@@ -162,7 +181,7 @@ def _add_input_options(p) -> None:
                    help="start value of a parameter (FMU name, e.g. hub.inertia=0.2; repeat)")
 
 
-def _cmd_explain(args) -> int:
+def _cmd_explain(args: argparse.Namespace) -> int:
     from flexlink.scene.budget import estimate
     from flexlink.scene.loader import load_scene
     from flexlink.tools.explain import explain, fidelity, format_explanation, format_fidelity
@@ -195,7 +214,7 @@ def _cmd_explain(args) -> int:
     return 0
 
 
-def _cmd_bench(args) -> int:
+def _cmd_bench(args: argparse.Namespace) -> int:
     from flexlink.tools.bench import plot_bench, report_markdown, run_bench
 
     rows, info = run_bench(args.scene, quick=args.quick, repeats=args.repeats)
@@ -210,10 +229,12 @@ def _cmd_bench(args) -> int:
     return 0
 
 
-def _add_plugin_commands(sub) -> None:
-    """Sub-commands of the applications built on flexlink (``demo``, ``control``, ``linearize``, ``sweep``
-    from the ``controllers`` package), found through the ``flexlink.commands`` entry points: the library
-    does not import what sits above it."""
+def _add_plugin_commands(sub: argparse._SubParsersAction[_Parser]) -> None:
+    """Add the sub-commands of the applications built on flexlink, found through entry points.
+
+    ``demo``, ``control``, ``linearize``, ``sweep`` from the ``controllers`` package, found through the
+    ``flexlink.commands`` entry points: the library does not import what sits above it.
+    """
     from importlib.metadata import entry_points
 
     for ep in sorted(entry_points(group="flexlink.commands"), key=lambda e: e.name):
@@ -225,16 +246,22 @@ def _add_plugin_commands(sub) -> None:
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse with its usage errors in one line, like every other bad input (argparse prints the usage,
-    which wraps over several lines for the long commands, then the error); ``--help`` still shows the usage."""
+    """An argparse parser whose usage errors are one line, like every other bad input.
 
-    def error(self, message: str):
+    argparse prints the usage, which wraps over several lines for the long commands, then the error;
+    ``--help`` still shows the usage.
+    """
+
+    def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The whole ``flexlink`` parser, the applications' sub-commands included: what ``main`` parses, and what
-    the command reference (docs/commands.md) is checked against."""
+    """The whole ``flexlink`` parser, the applications' sub-commands included.
+
+    What ``main`` parses, and what the command reference (docs/commands.md) is generated from and checked
+    against.
+    """
     parser = _Parser(prog="flexlink", description="Flexible-link robots as FMI 2.0 and FMI 3.0 FMUs.")
     parser.add_argument("--allow-large", action="store_true",
                         help="build scenes past the size budgets (docs/budget.md); sets FLEXLINK_ALLOW_LARGE=1 "
@@ -326,23 +353,42 @@ def _option_names(parser: argparse.ArgumentParser, command: str) -> dict[str, st
     return {a.dest: max(a.option_strings, key=len) for a in sub.choices[command]._actions if a.option_strings}
 
 
-def _quiet_numerics():
-    """numpy's floating-point warnings off (``length = 1e-300`` overflows in the shape functions): a command's
-    answer is its output or its one-line error, which the checks that notice a non-finite result give (the
-    static equilibrium, the guards, the FMU's refusals); a page of RuntimeWarnings before it helps nobody."""
+def _quiet_numerics() -> np.errstate:
+    """A context with numpy's floating-point warnings off (``length = 1e-300`` overflows in the shape functions).
+
+    A command's answer is its output or its one-line error, which the checks that notice a non-finite result
+    give (the static equilibrium, the guards, the FMU's refusals); a page of RuntimeWarnings before it helps
+    nobody.
+    """
     import numpy as np
 
     return np.errstate(all="ignore")
 
 
 def _quiet_stdout() -> None:
-    """After a closed pipe (``flexlink linearize … | head``): point stdout at /dev/null, so that the
-    interpreter's last flush does not raise again at exit."""
+    """After a closed pipe (``flexlink linearize … | head``): point stdout at /dev/null.
+
+    So that the interpreter's last flush does not raise again at exit.
+    """
     devnull = os.open(os.devnull, os.O_WRONLY)
     os.dup2(devnull, sys.stdout.fileno())
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the ``flexlink`` command line and return its exit status.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments after ``flexlink``; ``sys.argv[1:]`` if None.
+
+    Returns
+    -------
+    int
+        0 on success; 2 for bad input of any kind (a :class:`~flexlink.errors.FlexlinkError`, printed as one
+        line, or a usage error); 141 when the reader of stdout went away (``| head``); 130 on Ctrl-C.  A
+        sub-command may return its own status (``flexlink check``: 1 for findings).
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.allow_large:

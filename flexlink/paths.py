@@ -9,6 +9,7 @@ before it runs the command, so that a bad path is one line and exit status 2, wh
 
 from __future__ import annotations
 
+import argparse
 import os
 from pathlib import Path
 
@@ -45,22 +46,37 @@ FILM_WRITERS = {".gif": "pillow", ".mp4": "ffmpeg"}
 
 
 def output_file(text: str) -> OutputPath:
-    """argparse ``type`` of an option naming a file the command writes."""
+    """The argparse ``type`` of an option naming a file the command writes.
+
+    The value is marked as an :class:`OutputPath`, so that :func:`check_output_paths` finds it among the parsed
+    arguments and checks its folder before the command runs.
+    """
     return OutputPath(text)
 
 
 def plot_file(text: str) -> OutputPath:
-    """argparse ``type`` of an option naming a figure (matplotlib picks the format from the suffix)."""
+    """The argparse ``type`` of an option naming a figure.
+
+    matplotlib picks the format from the suffix, so the path is marked as a plot: its suffix is checked against
+    the formats matplotlib can write before the (possibly long) run, not after it.
+    """
     return _PlotPath(text)
 
 
 def stream_file(text: str) -> OutputPath:
-    """argparse ``type`` of an option naming a file the command writes, or ``-`` for standard output."""
+    """The argparse ``type`` of an option naming a file the command writes, or ``-`` for standard output.
+
+    ``-`` is exempt from the folder checks of :func:`check_output_path`; any other name is checked as a file.
+    """
     return _StreamPath(text)
 
 
 def film_file(text: str) -> OutputPath:
-    """argparse ``type`` of an option naming a film (.gif, or .mp4 if ffmpeg is installed)."""
+    """The argparse ``type`` of an option naming a film (.gif, or .mp4 if ffmpeg is installed).
+
+    The film's writer (:data:`FILM_WRITERS`) is checked before the run: an .mp4 without ffmpeg on PATH is
+    refused in one line rather than after the simulation.
+    """
     return _FilmPath(text)
 
 
@@ -71,8 +87,21 @@ def _plot_formats() -> set[str]:
 
 
 def check_output_path(path: OutputPath, option: str) -> None:
-    """Raise a :class:`FlexlinkError` naming ``option`` if ``path`` cannot be written where it points: an
-    empty name, a folder, a parent folder that does not exist or is not writable, an unknown figure format."""
+    """Refuse an output path that cannot be written where it points, before any work is done.
+
+    Parameters
+    ----------
+    path : OutputPath
+        The value of the option, as its argparse ``type`` marked it (plot, film, stream or plain file).
+    option : str
+        The option as the user typed it (``--plot``), named in the message.
+
+    Raises
+    ------
+    FlexlinkError
+        For an empty name, a folder, a parent folder that does not exist or is not writable, a figure format
+        matplotlib does not know, a film whose writer is missing, or a name the operating system refuses.
+    """
     if not path.strip():
         raise FlexlinkError(f"{option}: expected a file name, got an empty one")
     if path == "-" and isinstance(path, _StreamPath):
@@ -113,9 +142,22 @@ def _check_film_writer(path: Path, option: str) -> None:
                             f"(Pillow, always there) or install ffmpeg")
 
 
-def check_output_paths(args, options: dict[str, str]) -> None:
-    """Check every :class:`OutputPath` among the parsed ``args``; ``options`` maps an argument's ``dest`` to
-    the option as the user typed it (``--plot``), for the message."""
+def check_output_paths(args: argparse.Namespace, options: dict[str, str]) -> None:
+    """Check every :class:`OutputPath` among the parsed arguments with :func:`check_output_path`.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line; a repeatable option's list is checked element by element.
+    options : dict of str to str
+        An argument's ``dest`` → the option as the user typed it (``--plot``), for the message; a ``dest``
+        missing from it is named as is.
+
+    Raises
+    ------
+    FlexlinkError
+        For the first path that cannot be written.
+    """
     for dest, value in vars(args).items():
         values = value if isinstance(value, list) else [value]
         for v in values:

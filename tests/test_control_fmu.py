@@ -244,3 +244,16 @@ def test_demo(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "LQR" in out and (tmp_path / "rotating_link_control.png").exists()
     assert figures["lqr"]["residual_vibration_rms_m"] * 5 <= figures["pd"]["residual_vibration_rms_m"]
+
+
+@pytest.mark.parametrize("name, count", [("two_link_payload", 2), ("steel_beam_two_links", 0)])
+def test_demo_on_a_scene_without_one_torque_joint_is_one_clear_error(tmp_path, name, count):
+    """The demo compares LQR with the single-joint PD baseline: on a scene with two torque-driven joints (or
+    none) it says so before building; two_link_payload used to be built, designed and then fail with an
+    AttributeError on the missing PD design (found by mypy: ``ControlDesign.pd`` is None with several actuated
+    joints)."""
+    from controllers.demo import run_control_demo
+
+    with pytest.raises(FlexlinkError, match=f"one torque-driven joint; this scene has {count} "):
+        run_control_demo(tmp_path / "out", scene=EXAMPLES / f"{name}.toml")
+    assert not (tmp_path / "out").exists()

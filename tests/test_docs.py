@@ -175,6 +175,20 @@ def test_generated_blocks_are_up_to_date():
     assert not stale, f"run `python -m flexlink.tools.reference`: {stale} are stale"
 
 
+def test_commands_page_writes_a_tuple_metavar_as_argparse_does():
+    """An option taking two values (``metavar=("X", "Y")``) is documented as argparse's own usage line spells
+    it, ``X Y``, not as the Python tuple (a bug mypy found in the table writer)."""
+    parser = argparse.ArgumentParser(prog="flexlink")
+    sub = parser.add_subparsers().add_parser("point", help="a point")
+    sub.add_argument("--at", nargs=2, metavar=("X", "Y"), help="where")
+    sub.add_argument("pair", nargs=2, metavar=("A", "B"), help="two names")
+    usage = sub.format_usage()
+    assert "--at X Y" in usage and "A B" in usage
+    block = reference.commands_block(parser)
+    assert "| `--at` | `X Y` | where |" in block
+    assert "| `A B` |  | two names |" in block
+
+
 # ----------------------------------------------------------------------------------------- README, links, site
 
 

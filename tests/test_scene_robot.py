@@ -4,6 +4,7 @@ placed by origin and rpy, a joint axis free for a rigid link, a [tool] frame; ea
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import random
 from pathlib import Path
@@ -16,7 +17,7 @@ from test_scene import _del, _paths, _set, one_clear_message
 from flexlink import cli
 from flexlink.errors import SceneError
 from flexlink.scene.loader import Tool, load_scene, parse_scene
-from flexlink.scene.schema import KEYS, rpy_rotation, section_keys
+from flexlink.scene.schema import KEYS, Shapes, rpy_rotation, section_keys
 
 ROOT = Path(__file__).resolve().parents[1]
 # The scenes that existed before rigid links, joint placements and [tool] (newer examples use them).
@@ -212,6 +213,25 @@ def test_rigid_body_hand_example() -> None:
 def test_rigid_body_of_a_flexible_link_is_a_value_error() -> None:
     with pytest.raises(ValueError, match='link "upper" is flexible'):
         parse_scene(robot(), SOURCE).links[1].rigid_body()
+
+
+def test_rigid_body_built_by_hand_without_its_inertia_is_a_value_error() -> None:
+    """A Link made in code (not by the loader) with a mass but no inertia is refused in words, not by a
+    TypeError from unpacking None (found by mypy)."""
+    link = dataclasses.replace(parse_scene(robot(), SOURCE).links[0], mass=2.0, center_of_mass=(0.1, 0.0, 0.0),
+                               inertia=None)
+    with pytest.raises(ValueError, match="needs center_of_mass and inertia"):
+        link.rigid_body()
+
+
+def test_section_area_of_a_beam_basis_is_a_value_error() -> None:
+    """A beam basis has no shell section: asked for its area it says so, not TypeError on None (found by mypy);
+    a box's area is its mid-surface perimeter times the thickness."""
+    with pytest.raises(ValueError, match='section_area is for a shell basis .*not "clamped-free"'):
+        _ = Shapes().section_area
+    box = Shapes(kind="shell", section="box", width=0.04, height=0.02, thickness=0.002)
+    assert box.section_area == pytest.approx(2 * (0.04 + 0.02) * 0.002, rel=1e-15)
+    assert dataclasses.replace(box, section="plate").section_area == pytest.approx(0.04 * 0.002, rel=1e-15)
 
 
 # ------------------------------------------------------------------------------------------------- rpy

@@ -8,7 +8,7 @@ each a thin call into the CasADi-generated code.  Work memory is passed in by th
 keeps state), so instances never share anything.
 
 Small models are expanded to scalar expressions (fastest calls); larger ones keep CasADi's matrix
-graph, whose code stays compact with constant ``DM`` blocks (DESIGN.md §2).
+graph, whose code stays compact with constant ``DM`` blocks (docs/mechanics.md).
 
 The fixed C text of ``config.h`` and ``model.c`` lives in ``fmu_src/templates/`` (``string.Template``,
 ``$name`` placeholders); this module fills in sizes, the GUID, the variable and law tables and the

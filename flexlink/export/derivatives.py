@@ -1,7 +1,7 @@
 """Derivatives for the FMU, both from CasADi.
 
 Forward-mode functions for ``fmi2GetDirectionalDerivative`` and the structural dependencies of
-``<ModelStructure>`` (DESIGN.md §5).
+``<ModelStructure>`` (docs/fmi.md).
 
 The FMU's continuous state is x = (q, v) (free coordinates and their rates); the derivatives are
 ẋ = (v, a) with the acceleration a from ``M(q) a = −r(q, v, 0, u, p)``.  The generated C gets the two

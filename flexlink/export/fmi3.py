@@ -1,5 +1,7 @@
-"""The FMI 3.0 model description of ``flexlink build --fmi 3``: the FMI 2 one's variables, units, log categories
-and dependencies (flexlink.export.fmu) in FMI 3's elements, with each link's elastic coordinates as arrays.
+"""The FMI 3.0 model description of ``flexlink build --fmi 3``, and the layout table its C glue reads.
+
+The FMI 2 description's variables, units, log categories and dependencies (flexlink.export.fmu) in FMI 3's
+elements, with each link's elastic coordinates as arrays.
 
 What changes against FMI 2: the root's ``instantiationToken`` (the same GUID, checked by fmi3Instantiate*),
 no ``<SourceFiles>`` (``sources/buildDescription.xml`` says it), typed variable elements (``<Float64>``, and
@@ -65,8 +67,11 @@ _PREFIX = {"VAR_OUTPUT": ("", "elastic coordinates of"),
 
 @dataclass(frozen=True)
 class Fmi3Variable:
-    """One variable of the FMI 3 model description: a scalar of the FMI 2 variable table, or an array of
-    ``size`` consecutive ones (value references ``vr`` … ``vr + size - 1`` of the FMI 2 FMU)."""
+    """One variable of the FMI 3 model description: a scalar of the FMI 2 variable table, or an array.
+
+    An array holds ``size`` consecutive FMI 2 variables (value references ``vr`` … ``vr + size - 1`` of the
+    FMI 2 FMU), so that both FMUs hold the same values in the same order.
+    """
 
     name: str
     vr: int
@@ -82,9 +87,11 @@ class Fmi3Variable:
 
 
 def _link_layouts(model: SymbolicModel) -> dict[str, str]:
-    """Link name → which elements of its ``eta`` array are which shape functions, from the model's own account
-    of its terms (``link "arm": 2 clamped-free coordinates for v, 2 ... for w``): ``1-2: v (clamped-free), 3-4:
-    w (clamped-free)``; a shell's ``1-6: modes of a plate``."""
+    """Map each link's name to which elements of its ``eta`` array are which shape functions.
+
+    Read from the model's own account of its terms (``link "arm": 2 clamped-free coordinates for v, 2 ... for
+    w``): ``1-2: v (clamped-free), 3-4: w (clamped-free)``; a shell's ``1-6: modes of a plate``.
+    """
     out = {}
     for term in model.terms:
         m = re.match(r'link "(?P<link>[^"]+)": (?P<rest>.*)', term)
@@ -115,8 +122,11 @@ def _element(v: FmuVariable, elastic: set[str]) -> tuple[str, int, str] | None:
 
 
 def fmi3_variables(model: SymbolicModel, variables: list[FmuVariable]) -> list[Fmi3Variable]:
-    """The FMI 3 variables in value-reference order: runs ``X.eta[1]`` … ``X.eta[n]`` of one kind, at consecutive
-    value references, become the array ``X.eta``; everything else is the FMI 2 scalar."""
+    """The FMI 3 variables in value-reference order, each link's elastic coordinates as one array.
+
+    Runs ``X.eta[1]`` … ``X.eta[n]`` of one kind, at consecutive value references, become the array
+    ``X.eta``; everything else is the FMI 2 scalar.
+    """
     elastic = {c for c, kind in zip(model.coordinates, model.coordinate_kinds, strict=True) if kind == "elastic"}
     layouts = _link_layouts(model)
     out: list[Fmi3Variable] = []
@@ -141,9 +151,11 @@ def fmi3_variables(model: SymbolicModel, variables: list[FmuVariable]) -> list[F
 
 
 def _interfaces(identifier: str, derivatives: bool) -> list[str]:
-    """``<ModelExchange>`` and ``<CoSimulation>``: FMU state and both derivative kinds (unless the scene left
-    them out: [fmu] directional_derivatives); no event mode, no early return, no intermediate update in
-    Co-Simulation."""
+    """``<ModelExchange>`` and ``<CoSimulation>``, with the capabilities the C glue implements.
+
+    FMU state and both derivative kinds (unless the scene left them out: [fmu] directional_derivatives); no
+    event mode, no early return, no intermediate update in Co-Simulation.
+    """
     provided = "true" if derivatives else "false"
     common = (f'canGetAndSetFMUState="true" canSerializeFMUState="true" providesDirectionalDerivatives="{provided}" '
               f'providesAdjointDerivatives="{provided}"')
@@ -157,8 +169,10 @@ def _interfaces(identifier: str, derivatives: bool) -> list[str]:
 
 
 def _variables(layout: list[Fmi3Variable], n_vars: int) -> list[str]:
-    """``<ModelVariables>``: the FMI 2 FMU's variables at the same value references (arrays at their first
-    element's), then ``time``."""
+    """``<ModelVariables>``: the FMI 2 FMU's variables at the same value references, then ``time``.
+
+    Arrays sit at their first element's value reference.
+    """
     lines = ["  <ModelVariables>"]
     for f in layout:
         v = dataclasses.replace(f.variable, name=f.name, description=f.description)
@@ -188,9 +202,11 @@ def _type_definitions() -> list[str]:
 
 
 def _grouped(unknowns: list[Unknown], owner: dict[int, int]) -> list[tuple[int, list[int], list[str]]]:
-    """FMI 2 unknowns (1-based indices) as FMI 3 ones: an array's elements merged into one unknown by its value
-    reference, the dependencies mapped to the variables that hold them; a dependency is ``constant`` only if
-    every element's is."""
+    """FMI 2 unknowns (1-based indices) as FMI 3 ones, by value reference.
+
+    An array's elements are merged into one unknown by its value reference, the dependencies mapped to the
+    variables that hold them; a dependency is ``constant`` only if every element's is.
+    """
     merged: dict[int, dict[int, str]] = {}
     for u in unknowns:
         deps = merged.setdefault(owner[u.index - 1], {})
@@ -214,17 +230,25 @@ def _model_structure(model: SymbolicModel, gen: GeneratedModel, layout: list[Fmi
 
 
 def write_layout(model: SymbolicModel, gen: GeneratedModel, directory: Path) -> str:
-    """``fmi3_layout.c`` in ``directory``: FMI3_ELEMENTS[vr], the number of values of FMI 3 value reference vr
-    (1: a scalar; n: an array of the FMI 2 references vr … vr + n − 1; 0: an element of an array, not a
-    variable of the FMI 3 FMU), and FMI3_TYPES[vr] (TYPE_CODE: which fmi3Get/Set functions take it).  Returns
-    the file's name."""
+    """Write ``fmi3_layout.c`` in ``directory``, the table by which the generic C glue knows the arrays.
+
+    FMI3_ELEMENTS[vr] is the number of values of FMI 3 value reference vr (1: a scalar; n: an array of the
+    FMI 2 references vr … vr + n − 1; 0: an element of an array, not a variable of the FMI 3 FMU), and
+    FMI3_TYPES[vr] its TYPE_CODE (which fmi3Get/Set functions take it).  The glue stays generic: only this
+    table depends on the scene.
+
+    Returns
+    -------
+    str
+        The file's name, for the build's source list.
+    """
     counts = [0] * len(gen.variables)
     types = [0] * len(gen.variables)
     for f in fmi3_variables(model, gen.variables):
         counts[f.vr] = f.size
         types[f.vr:f.vr + f.size] = [TYPE_CODE[f.type]] * f.size
 
-    def rows(values):
+    def rows(values: list[int]) -> str:
         return ",\n".join("    " + ", ".join(map(str, values[i:i + 20])) for i in range(0, len(values), 20))
 
     (Path(directory) / LAYOUT_SOURCE).write_text(
@@ -241,7 +265,11 @@ def write_layout(model: SymbolicModel, gen: GeneratedModel, directory: Path) -> 
 
 
 def model_description_fmi3(model: SymbolicModel, gen: GeneratedModel) -> str:
-    """The FMI 3.0 ``modelDescription.xml`` of the generated model."""
+    """The FMI 3.0 ``modelDescription.xml`` of the generated model.
+
+    The same variables, values and dependencies as the FMI 2 description, so that one scene's FMUs in either
+    version behave alike (``<SourceFiles>`` aside: FMI 3 lists them in ``sources/buildDescription.xml``).
+    """
     scene = model.scene
     units = sorted({v.unit for v in gen.variables if v.unit} | {"s"})
     layout = fmi3_variables(model, gen.variables)

@@ -20,7 +20,7 @@ import sys
 import tempfile
 import time
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
@@ -77,6 +77,12 @@ LOG_CATEGORIES = {
 
 @dataclass
 class BuildReport:
+    """What a build made and what it took: the figures ``flexlink build`` prints and the build benchmark fits.
+
+    ``seconds`` holds the time of each stage (model, codegen, compile, package), so that a slow build says
+    which stage is slow; ``operations`` and the sizes show how the generated model grows with the scene.
+    """
+
     fmu: Path
     guid: str
     seconds: dict[str, float]      # model, codegen, compile, package
@@ -91,9 +97,11 @@ def _num(x: float) -> str:
 
 
 def display_unit(v: FmuVariable) -> str | None:
-    """The unit a tool should show a variable in, for the variables a user reads or sets: angles in deg, rates
-    in deg/s, tip deflections in mm (the value exchanged stays SI).  None for the Model Exchange states and
-    everything else."""
+    """The unit a tool should show a variable in, for the variables a user reads or sets.
+
+    Angles in deg, rates in deg/s, tip deflections in mm (the value exchanged stays SI).  None for the Model
+    Exchange states and everything else.
+    """
     if v.causality == "local":
         return None
     if v.unit in ("rad", "rad/s"):
@@ -104,9 +112,12 @@ def display_unit(v: FmuVariable) -> str | None:
 
 
 def declared_min(v: FmuVariable) -> float:
-    """The ``min`` the model description states: what the FMU accepts, which for an exclusive bound (a stiffness
-    or step that must be > 0) is the smallest double above it; above 0 that is the smallest normal double,
-    as the FMU refuses subnormal values of everything but inputs (fmu_src/variables.c)."""
+    """The ``min`` the model description states: what the FMU accepts.
+
+    For an exclusive bound (a stiffness or step that must be > 0) that is the smallest double above it; above 0
+    that is the smallest normal double, as the FMU refuses subnormal values of everything but inputs
+    (fmu_src/variables.c), so that an importer that honours ``min`` never sends a value the FMU refuses.
+    """
     if not v.min_exclusive:
         return v.min
     if v.min == 0.0 and v.causality != "input":
@@ -114,9 +125,12 @@ def declared_min(v: FmuVariable) -> float:
     return math.nextafter(v.min, math.inf)
 
 
-def variable_attributes(vr: int, v) -> list[str]:
-    """The attributes a variable has in both FMI versions' model descriptions: name, value reference,
-    causality, variability, initial and description."""
+def variable_attributes(vr: int, v: FmuVariable) -> list[str]:
+    """The attributes a variable has in both FMI versions' model descriptions.
+
+    Name, value reference, causality, variability, initial and description: written once here, so that the
+    FMI 2 and FMI 3 descriptions cannot disagree on them.
+    """
     attrs = [f"name={quoteattr(v.name)}", f'valueReference="{vr}"', f'causality="{v.causality}"',
              f'variability="{v.variability}"']
     if v.causality == "parameter":
@@ -129,10 +143,12 @@ def variable_attributes(vr: int, v) -> list[str]:
 
 
 def type_attributes(v: FmuVariable, derivative_ref_offset: int) -> list[str]:
-    """The attributes of a variable's type element (FMI 2 ``<Real>``/``<Integer>``, FMI 3 ``<Float64>``/
-    ``<Int32>`` alike): start (not for outputs and locals, which are calculated), derivative (the state's
-    reference plus ``derivative_ref_offset``: FMI 2 counts from 1, FMI 3 uses value references), unit, display
-    unit, min, max."""
+    """The attributes of a variable's type element, the same in both FMI versions.
+
+    The element is FMI 2's ``<Real>``/``<Integer>`` or FMI 3's ``<Float64>``/``<Int32>``.  Start (not for
+    outputs and locals, which are calculated), derivative (the state's reference plus ``derivative_ref_offset``:
+    FMI 2 counts from 1, FMI 3 uses value references), unit, display unit, min, max.
+    """
     number = (lambda x: str(int(x))) if v.type == "Integer" else _num
     out = []
     if v.causality not in ("output", "local"):
@@ -180,6 +196,17 @@ def log_categories_and_experiment(scene: Scene) -> list[str]:
 
 
 def model_description(model: SymbolicModel, gen: GeneratedModel, sources: list[str]) -> str:
+    """The FMI 2.0 ``modelDescription.xml`` of a generated model, Model Exchange and Co-Simulation.
+
+    Parameters
+    ----------
+    model : SymbolicModel
+        The model the C was generated from (its scene names the FMU; its sparsity gives ``<ModelStructure>``).
+    gen : GeneratedModel
+        The generated C: identifier, GUID and the variable list, whose order is the value references.
+    sources : list of str
+        The C files listed under ``<SourceFiles>``, so that an importer can build the FMU from source.
+    """
     scene = model.scene
     units = sorted({v.unit for v in gen.variables if v.unit})
     derivatives = "true" if scene.fmu.directional_derivatives else "false"
@@ -223,24 +250,30 @@ def model_description(model: SymbolicModel, gen: GeneratedModel, sources: list[s
 
 @dataclass
 class Unknown:
-    """One entry of ``<ModelStructure>``: a variable and what it depends on, as 1-based positions in the variable
-    list (FMI 2's indices; FMI 3 writes the value references, one less)."""
+    """One entry of ``<ModelStructure>``: a variable and what it depends on.
+
+    As 1-based positions in the variable list (FMI 2's indices; FMI 3 writes the value references, one less).
+    """
+
     index: int
     dependencies: list[int]
     kinds: list[str]
 
 
 def dependencies(model: SymbolicModel, gen: GeneratedModel) -> tuple[list[Unknown], list[Unknown], list[Unknown]]:
-    """The outputs and state derivatives with their dependencies on states and inputs (structural, from CasADi's
+    """The content of ``<ModelStructure>`` in both FMI versions: outputs, derivatives and initial unknowns.
+
+    The outputs and state derivatives with their dependencies on states and inputs (structural, from CasADi's
     sparsity: flexlink.export.derivatives), and the initial unknowns (outputs, states, derivatives) with their
-    dependencies on inputs and parameters: the content of ``<ModelStructure>`` in both FMI versions."""
+    dependencies on inputs and parameters.  Structural dependencies let an importer skip what cannot change.
+    """
     st = structure(model)
     n = model.n_q
     index = {(v.kind, v.index): vr + 1 for vr, v in enumerate(gen.variables)}   # 1-based XML indices
-    z_var: list[int | None] = ([index[("VAR_STATE_Q", i)] for i in range(n)]
-                               + [index[("VAR_STATE_V", i)] for i in range(n)]
-                               + [index.get(("VAR_INPUT", j)) for j in range(st.n_u)]
-                               + [index[("VAR_PARAMETER", k)] for k in range(st.n_p)])
+    state = [index[("VAR_STATE_Q", i)] for i in range(n)] + [index[("VAR_STATE_V", i)] for i in range(n)]
+    # an input the FMU does not export (None) is a column no XML index stands for
+    z_var: list[int | None] = [*state, *[index.get(("VAR_INPUT", j)) for j in range(st.n_u)],
+                               *[index[("VAR_PARAMETER", k)] for k in range(st.n_p)]]
     inputs = {index[("VAR_INPUT", j)] for j in range(st.n_u) if ("VAR_INPUT", j) in index}
     params = {index[("VAR_PARAMETER", k)] for k in range(st.n_p)}
     start = {(v.kind, v.index): vr + 1 for vr, v in enumerate(gen.variables)
@@ -248,15 +281,15 @@ def dependencies(model: SymbolicModel, gen: GeneratedModel) -> tuple[list[Unknow
     # at initialization a state is its start value (a coordinate held in static equilibrium: anything)
     init_of: dict[int, set[int]] = {}
     for i in range(n):
-        init_of[z_var[i]] = {start[("VAR_START_Q", i)]} if ("VAR_START_Q", i) in start else set()
-        init_of[z_var[n + i]] = {start[("VAR_START_V", i)]} if ("VAR_START_V", i) in start else set()
+        init_of[state[i]] = {start[("VAR_START_Q", i)]} if ("VAR_START_Q", i) in start else set()
+        init_of[state[n + i]] = {start[("VAR_START_V", i)]} if ("VAR_START_V", i) in start else set()
     if model.static_coordinates:
         everything = inputs | params | set(start.values())
         for i in model.static_coordinates:
-            init_of[z_var[i]] = everything
+            init_of[state[i]] = everything
 
     def deps(row: np.ndarray) -> set[int]:
-        return {z_var[k] for k in np.flatnonzero(row) if z_var[k] is not None}
+        return {var for k in np.flatnonzero(row) if (var := z_var[k]) is not None}
 
     def unknown(vr: int, direct: set[int], kinds: dict[int, str] | None = None, initial: bool = False) -> Unknown:
         if initial:
@@ -269,12 +302,12 @@ def dependencies(model: SymbolicModel, gen: GeneratedModel) -> tuple[list[Unknow
         ds = sorted(direct)
         return Unknown(vr, ds, [(kinds or {}).get(d, "dependent") for d in ds])
 
-    unknowns = {}
+    unknowns: dict[int, set[int]] = {}
     for vr, v in enumerate(gen.variables):
         if v.kind == "VAR_OUTPUT":
             unknowns[vr + 1] = deps(st.outputs[v.index])
         elif v.kind == "VAR_DER_Q":
-            unknowns[vr + 1] = {z_var[n + v.index]}
+            unknowns[vr + 1] = {state[n + v.index]}
         elif v.kind == "VAR_DER_V":
             unknowns[vr + 1] = deps(st.acceleration[v.index])
         elif v.kind in ("VAR_STATE_Q", "VAR_STATE_V"):
@@ -283,7 +316,7 @@ def dependencies(model: SymbolicModel, gen: GeneratedModel) -> tuple[list[Unknow
     derivatives = []
     for vr, v in enumerate(gen.variables):
         if v.kind in ("VAR_DER_Q", "VAR_DER_V"):
-            kinds = {z_var[n + v.index]: "constant"} if v.kind == "VAR_DER_Q" else None
+            kinds = {state[n + v.index]: "constant"} if v.kind == "VAR_DER_Q" else None
             derivatives.append(unknown(vr + 1, unknowns[vr + 1], kinds))
     initial = [unknown(vr, unknowns[vr], initial=True) for vr in sorted(unknowns)]
     return outputs, derivatives, initial
@@ -302,8 +335,11 @@ def model_structure(model: SymbolicModel, gen: GeneratedModel) -> list[str]:
 
 
 def build_description(identifier: str, c_files: list[str]) -> str:
-    """``sources/buildDescription.xml`` (the FMI 3.0 format, which FMI 2.0.4 adopts for 2.0 FMUs): one
-    build configuration, C99, every source file; the headers sit next to them in ``sources/``."""
+    """The text of ``sources/buildDescription.xml``, so that an importer can compile the FMU's sources itself.
+
+    The FMI 3.0 format, which FMI 2.0.4 adopts for 2.0 FMUs: one build configuration, C99, every source file;
+    the headers sit next to them in ``sources/``.
+    """
     lines = ['<?xml version="1.0" encoding="UTF-8"?>', '<fmiBuildDescription fmiVersion="3.0">',
              f'  <BuildConfiguration modelIdentifier="{identifier}">', '    <SourceFileSet language="C99">',
              *[f'      <SourceFile name="{f}"/>' for f in c_files],
@@ -312,9 +348,16 @@ def build_description(identifier: str, c_files: list[str]) -> str:
 
 
 def fmu_path(output: str | os.PathLike, identifier: str) -> Path:
-    """Where ``build_fmu`` writes: ``output`` itself, or ``<identifier>.fmu`` in it when it is an existing
-    folder or ends in a path separator (``-o out/``: a folder, created if missing — pathlib would drop the
-    slash and write a file named ``out``)."""
+    """Where ``build_fmu`` writes: ``output`` itself, or ``<identifier>.fmu`` in it.
+
+    The latter when ``output`` is an existing folder or ends in a path separator (``-o out/``: a folder,
+    created if missing — pathlib would drop the slash and write a file named ``out``).
+
+    Raises
+    ------
+    BuildError
+        For ``out/`` naming an existing file, or a folder where the FMU's file would go.
+    """
     text = os.fspath(output)
     path = Path(text)
     if text.endswith(("/", os.sep)):
@@ -331,12 +374,22 @@ def fmu_path(output: str | os.PathLike, identifier: str) -> Path:
 def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, keep_dir: str | None = None,
               model: SymbolicModel | None = None, platforms: str | Sequence[str] = ("linux64",),
               fmi_version: int = 2) -> BuildReport:
-    """Export ``scene`` as an FMI 2.0 FMU, or with ``fmi_version=3`` an FMI 3.0 FMU (Model Exchange and
-    Co-Simulation) at ``output``; an existing folder as ``output`` receives ``<model identifier>.fmu``.
+    """Export ``scene`` as an FMU (Model Exchange and Co-Simulation) at ``output``.
 
-    ``platforms`` ("linux64", "win64", or both as a sequence or ``"linux64,win64"``) names the binaries
-    compiled from the same sources.  A missing compiler (MinGW-w64 for win64) is a BuildError raised
-    before the model is built, so that the user does not wait for code generation to learn it."""
+    An FMI 2.0 FMU, or with ``fmi_version=3`` an FMI 3.0 one; an existing folder as ``output`` receives
+    ``<model identifier>.fmu``.  ``platforms`` ("linux64", "win64", or both as a sequence or
+    ``"linux64,win64"``) names the binaries compiled from the same sources.  A missing compiler (MinGW-w64 for
+    win64) is a BuildError raised before the model is built, so that the user does not wait for code
+    generation to learn it.  ``model`` reuses a model already built from the same scene; ``keep_dir`` keeps
+    the build folder (generated C, objects) for inspection.
+
+    Raises
+    ------
+    BuildError
+        For an unknown FMI version or platform, a missing compiler, a failed compilation or a bad output path.
+    SceneError
+        For a scene file that cannot be read or is invalid.
+    """
     t0 = time.perf_counter()
     if fmi_version not in FMI_VERSIONS:
         raise BuildError(f"FMI version {fmi_version!r}: choose 2 or 3")
@@ -401,15 +454,19 @@ def build_fmu(scene: Scene | str | os.PathLike, output: str | os.PathLike, *, ke
 
 
 def cache_dir() -> Path:
+    """The folder of :func:`cached_fmu`'s FMUs: ``$XDG_CACHE_HOME/flexlink``, or ``~/.cache/flexlink``."""
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return Path(base) / "flexlink"
 
 
-def cached_fmu(scene, model=None, fmi_version: int = 2) -> Path:
-    """The FMU of a scene file (or of a Scene object), FMI 2.0 or with ``fmi_version=3`` FMI 3.0, rebuilt only
-    when the scene's content, flexlink or the C sources change.  The key is the parsed scene, so a file and the
-    same Scene object share one FMU.  Concurrent callers (Dask workers, test processes) build it once: the
-    first holds a lock file."""
+def cached_fmu(scene: Scene | str | os.PathLike[str], model: SymbolicModel | None = None,
+               fmi_version: int = 2) -> Path:
+    """The FMU of a scene file (or of a Scene object), rebuilt only when something it is made of changed.
+
+    FMI 2.0, or with ``fmi_version=3`` FMI 3.0; rebuilt when the scene's content, flexlink or the C sources
+    change.  The key is the parsed scene, so a file and the same Scene object share one FMU.  Concurrent
+    callers (Dask workers, test processes) build it once: the first holds a lock file.
+    """
     if not isinstance(scene, Scene):
         scene = load_scene(scene)             # first: a missing or bad file is a SceneError
     h = hashlib.sha256(repr(dataclasses.replace(scene, path=None)).encode())
@@ -433,9 +490,12 @@ def cached_fmu(scene, model=None, fmi_version: int = 2) -> Path:
 
 
 @contextlib.contextmanager
-def _exclusive(lock: Path):
-    """An advisory lock on ``lock`` (POSIX flock; elsewhere no lock: at worst an FMU is built twice, each
-    build writes a private file and renames it into place)."""
+def _exclusive(lock: Path) -> Iterator[None]:
+    """An advisory lock on ``lock``, held for the ``with`` block.
+
+    POSIX flock; elsewhere no lock: at worst an FMU is built twice, each build writes a private file and
+    renames it into place.
+    """
     try:
         import fcntl
     except ImportError:                       # Windows

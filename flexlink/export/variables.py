@@ -1,6 +1,6 @@
 """The FMU's variables, in value-reference order: one list for the C tables and the XML alike.
 
-Names follow the contract of SCENE.md.  The value reference of a variable is its position here.
+Names follow the contract of docs/embedding.md ("Variables").  The value reference of a variable is its position here.
 """
 
 from __future__ import annotations

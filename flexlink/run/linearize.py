@@ -210,7 +210,7 @@ def linear_plant(scene_or_model, *, rate: float = 0.0, angle: float | None = Non
     scene_or_model : SymbolicModel, Scene or path
         The model (built from the scene if needed).
     rate : float, optional
-        Steady rate of the first joint, rad/s (SCENE.md ``--rate``).
+        Steady rate of the first joint, rad/s (``flexlink modes --rate``, docs/commands.md).
     angle : float, optional
         Angle of the first joint, rad (default: its initial angle).
     parameters : dict, optional

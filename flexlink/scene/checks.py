@@ -48,10 +48,29 @@ def show(value: Any, limit: int = 60) -> str:
 
 
 def is_number(value: Any) -> bool:
+    """Whether a TOML value is a number: an int or a float, but not a bool (``true`` is an int to Python)."""
     return isinstance(value, int | float) and not isinstance(value, bool)
 
 
 def error(source: str, key: str, expected: str, value: Any = MISSING) -> SceneError:
+    """The scene error in its one form, ``FILE: KEY: expected WHAT, got VALUE``, for the caller to raise.
+
+    Parameters
+    ----------
+    source : str
+        The scene file's name (or ``<string>``), first in the message.
+    key : str
+        The key's dotted path with 1-based table indices (``link[2].EI``).
+    expected : str
+        What the key accepts, in words.
+    value : Any, optional
+        The offending value, shown in TOML spelling; absent (:data:`MISSING`) for a missing key.
+
+    Returns
+    -------
+    SceneError
+        Returned rather than raised, so that ``raise error(...)`` shows the raise at the check.
+    """
     if value is MISSING:
         return SceneError(f"{source}: {key}: missing; expected {expected}")
     return SceneError(f"{source}: {key}: expected {expected}, got {show(value)}")
@@ -61,6 +80,7 @@ def error(source: str, key: str, expected: str, value: Any = MISSING) -> SceneEr
 
 
 def same_count(source: str, n_joints: int, n_links: int) -> None:
+    """Refuse a chain whose joints and links do not pair up: link i is driven by joint i, so the counts match."""
     if n_joints != n_links:
         raise SceneError(
             f"{source}: joint, link: expected as many [[joint]] as [[link]] (link i is driven by "
@@ -70,7 +90,8 @@ def same_count(source: str, n_joints: int, n_links: int) -> None:
 def unique_names(source: str, joints: tuple[Joint, ...], links: tuple[Link, ...]) -> None:
     """Joint and link names share one namespace: both prefix FMU variable names."""
     seen: dict[str, str] = {}
-    for kind, items in (("joint", joints), ("link", links)):
+    groups: tuple[tuple[str, tuple[Joint | Link, ...]], ...] = (("joint", joints), ("link", links))
+    for kind, items in groups:
         for i, item in enumerate(items):
             key = f"{kind}[{i + 1}].name"
             if item.name in seen:
@@ -78,10 +99,15 @@ def unique_names(source: str, joints: tuple[Joint, ...], links: tuple[Link, ...]
             seen[item.name] = key.removesuffix(".name")
 
 
-def joint_axes(source: str, joint_data: list[dict], joints: tuple[Joint, ...], links: tuple[Link, ...]
+def joint_axes(source: str, joint_data: list[dict[str, Any]], joints: tuple[Joint, ...], links: tuple[Link, ...]
                ) -> tuple[Joint, ...]:
-    """A flexible link (beam or shell) bends in the plane normal to its joint's axis, so that axis must be normal
-    to the link's x axis [1, 0, 0] (then stored with x exactly 0); a rigid link turns about any axis."""
+    """Refuse a flexible link's joint axis that is not normal to the link, and clean the axes that are.
+
+    A flexible link (beam or shell) bends in the plane normal to its joint's axis, so that axis must be normal
+    to the link's x axis [1, 0, 0]; it is then stored with x exactly 0, so that round-off within
+    ``AXIS_TOLERANCE`` does not couple the planes.  A rigid link turns about any axis.  Returns the joints,
+    cleaned.
+    """
     out = []
     for i, (joint, link) in enumerate(zip(joints, links, strict=True)):
         if not link.is_rigid:
@@ -95,6 +121,7 @@ def joint_axes(source: str, joint_data: list[dict], joints: tuple[Joint, ...], l
 
 
 def trajectory_needs_position(source: str, key: str, drive: str) -> None:
+    """Refuse a trajectory on a joint not driven in position: only a position drive follows a prescribed angle."""
     if drive != "position":
         raise SceneError(f'{source}: {key}.trajectory: expected only with drive = "position", '
                          f'got drive = "{drive}"')
@@ -103,14 +130,15 @@ def trajectory_needs_position(source: str, key: str, drive: str) -> None:
 # ----------------------------------------------------------------------------------------------- link
 
 
-def no_shell_material(source: str, key: str, t: dict) -> None:
+def no_shell_material(source: str, key: str, t: dict[str, Any]) -> None:
+    """Refuse E and poisson on a beam: a beam's section stiffness is EI, and a second source could disagree."""
     for k in ("E", "poisson"):
         if k in t:
             raise error(source, f"{key}.{k}", 'no value: E and poisson are for shell links (shapes.kind = "shell"); '
                         "a beam takes EI", t[k])
 
 
-def mass_per_length_given_once(source: str, key: str, t: dict) -> bool:
+def mass_per_length_given_once(source: str, key: str, t: dict[str, Any]) -> bool:
     """Exactly one way to give the mass per length, so that the two can never disagree; True: linear_density."""
     has_lin = "linear_density" in t
     has_vol = "density" in t or "area" in t
@@ -122,7 +150,7 @@ def mass_per_length_given_once(source: str, key: str, t: dict) -> bool:
     return has_lin
 
 
-def only_for_rigid(source: str, key: str, t: dict, body_keys: tuple[str, ...]) -> None:
+def only_for_rigid(source: str, key: str, t: dict[str, Any], body_keys: tuple[str, ...]) -> None:
     """A flexible link's mass is its linear density: a body's mass, centre and inertia are refused."""
     for k in body_keys:
         if k in t:
@@ -130,7 +158,7 @@ def only_for_rigid(source: str, key: str, t: dict, body_keys: tuple[str, ...]) -
                         "link's mass is its linear_density", t[k])
 
 
-def not_for_rigid(source: str, key: str, t: dict) -> None:
+def not_for_rigid(source: str, key: str, t: dict[str, Any]) -> None:
     """Stiffness, damping, shape functions, kinematics and a static start mean nothing for a rigid link."""
     for k in NOT_RIGID:
         if k in t:
@@ -141,9 +169,12 @@ def not_for_rigid(source: str, key: str, t: dict) -> None:
                     "rigid link (deformation = []); remove it", t["initial_deformation"])
 
 
-def rigid_mass_form(source: str, key: str, t: dict, body_keys: tuple[str, ...]) -> bool:
-    """A rigid link's mass properties come from exactly one form, so that two can never disagree: a uniform rod
-    (linear_density, or density and area) or a body (mass, with center_of_mass and inertia). True: a body."""
+def rigid_mass_form(source: str, key: str, t: dict[str, Any], body_keys: tuple[str, ...]) -> bool:
+    """Which single form a rigid link's mass properties take; True: a body.
+
+    They come from exactly one form, so that two can never disagree: a uniform rod (linear_density, or density
+    and area) or a body (mass, with center_of_mass and inertia).
+    """
     body = [k for k in body_keys if k in t]
     rod = [k for k in ("linear_density", "density", "area") if k in t]
     if body and rod:
@@ -158,16 +189,21 @@ def rigid_mass_form(source: str, key: str, t: dict, body_keys: tuple[str, ...]) 
     return bool(body)
 
 
-def no_polar_inertia_with_body(source: str, key: str, t: dict) -> None:
+def no_polar_inertia_with_body(source: str, key: str, t: dict[str, Any]) -> None:
+    """Refuse polar_inertia on a rigid body given by mass: its inertia tensor already holds that moment."""
     if "polar_inertia" in t:
         raise error(source, f"{key}.polar_inertia", "no value: the polar inertia of a uniform rod "
                     "(linear_density); a rigid body given by mass takes inertia", t["polar_inertia"])
 
 
 def physical_inertia(source: str, key: str, raw: Any, values: tuple[float, ...]) -> None:
-    """(Ixx, Iyy, Izz, Ixy, Ixz, Iyz) about the centre of mass is the tensor of a body: positive semi-definite,
-    its principal moments satisfying the triangle inequalities (I1 ≤ I2 + I3 …; equivalently ∫ρ r rᵀ is positive
-    semi-definite), to a tolerance relative to the largest moment."""
+    """Refuse an inertia (Ixx, Iyy, Izz, Ixy, Ixz, Iyz) about the centre of mass that no body has.
+
+    A body's tensor is positive semi-definite and its principal moments satisfy the triangle inequalities
+    (I1 ≤ I2 + I3 …; equivalently ∫ρ r rᵀ is positive semi-definite), to a tolerance relative to the largest
+    moment.  An unphysical tensor would give a mass matrix that is positive definite and yet wrong, or a model
+    that gains energy.
+    """
     scale = max(abs(v) for v in values)
     if scale == 0.0:
         return
@@ -187,7 +223,8 @@ def physical_inertia(source: str, key: str, raw: Any, values: tuple[float, ...])
                     "satisfying the triangle inequalities, the largest ≤ the sum of the other two", raw)
 
 
-def density_times_area(source: str, key: str, t: dict, density: float, area: float) -> float:
+def density_times_area(source: str, key: str, t: dict[str, Any], density: float, area: float) -> float:
+    """The mass per length ρA, refused when the product overflows or vanishes although each factor passed."""
     rho_a = density * area
     if not (rho_a > 0 and math.isfinite(rho_a)):
         raise error(source, f"{key}.area", "density·area to be a positive finite number (kg/m)", t["area"])
@@ -205,6 +242,7 @@ def deformation_data(source: str, key: str, deformation: tuple[str, ...], given:
 
 
 def beam_modes(source: str, key: str, kind: str, count: int, modes: int | None) -> None:
+    """Refuse ``modes`` on a basis that is not reduced, or more modes than the finite elements have coordinates."""
     if modes is not None and kind != "fe":
         raise error(source, f"{key}.modes", 'no value: only finite-element links (kind = "fe" or "shell") are '
                     "reduced to modes", modes)
@@ -215,24 +253,28 @@ def beam_modes(source: str, key: str, kind: str, count: int, modes: int | None) 
 # ---------------------------------------------------------------------------------------------- shell
 
 
-def plate_has_no_height(source: str, key: str, t: dict) -> None:
+def plate_has_no_height(source: str, key: str, t: dict[str, Any]) -> None:
+    """Refuse a height on a plate section: only a box has one, and an ignored key would hide a mistake."""
     if "height" in t:
         raise error(source, f"{key}.height", 'no value: a plate has no height (section = "box" has)', t["height"])
 
 
 def thin_wall(source: str, key: str, thickness: float, width: float, height: float | None) -> None:
+    """Refuse a wall thicker than half the section: the shell model holds for thin walls only."""
     if not thickness < min(width, height or width) / 2:
         raise error(source, f"{key}.thickness", "a thickness below half the width and height (a thin wall)",
                     thickness)
 
 
 def symmetric_mesh(source: str, key: str, what: str, mesh: list[int], pattern: str) -> None:
+    """Refuse an odd count across a symmetric mesh: its pattern mirrors the diagonals about the mid-line."""
     if pattern == "symmetric" and any(m % 2 for m in mesh[1:]):
         raise error(source, f"{key}.mesh", f"{what} with even counts across (the symmetric pattern mirrors the "
                     'diagonals about the mid-line), or pattern = "A" or "B"', mesh)
 
 
 def shell_modes(source: str, key: str, section: str, mesh: list[int], modes: int | None) -> None:
+    """Refuse more modes than the shell mesh has translational degrees of freedom off the root."""
     nx, nw = mesh[0], mesh[1]
     with_mass = 3 * nx * (2 * (nw + mesh[2]) if section == "box" else nw + 1)   # translations off the root
     if modes is not None and modes > with_mass:
@@ -244,7 +286,11 @@ def shell_modes(source: str, key: str, section: str, mesh: list[int], modes: int
 
 
 def tunable_names(source: str, value: Any, joints: tuple[Joint, ...], links: tuple[Link, ...]) -> tuple[str, ...]:
-    """``[fmu] tunable`` names parameters of this scene's joints and links."""
+    """Check that ``[fmu] tunable`` names parameters of this scene's joints and links, once each.
+
+    A misspelt name is refused with the closest valid one, rather than exported as a parameter nothing reads.
+    Returns the names, in the order given.
+    """
     allowed = ["gravity"]
     allowed += [f"{link.name}.{p}" for link in links for p in LINK_TUNABLE
                 if not (link.is_rigid and p == "kelvin_voigt")]          # a rigid link has no damping

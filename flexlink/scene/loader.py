@@ -1,4 +1,4 @@
-"""TOML scene → validated, typed, SI objects (the contract of SCENE.md).
+"""TOML scene → validated, typed, SI objects (the contract of docs/scene.md).
 
 Everything downstream trusts these objects, so every check happens here, once, and every mistake is
 reported as one :class:`SceneError` of the form ``FILE: KEY: expected WHAT, got VALUE`` (or ``FILE: KEY:
@@ -39,6 +39,7 @@ from flexlink.scene.schema import (
     Shapes,
     Tool,
     Trajectory,
+    Vec3,
     key_spec,
     section_keys,
 )
@@ -68,7 +69,7 @@ _C_KEYWORDS = frozenset(
 )
 # A beam link knows the shell-only keys, to answer "E and poisson are for shell links" rather than "unknown".
 _SHELL_ONLY = tuple(k for k in section_keys("shell_link") if k not in section_keys("link"))
-_BOUNDS = {"": {}, "> 0": {"positive": True}, "≥ 0": {"minimum": 0}}
+_BOUNDS: dict[str, dict[str, Any]] = {"": {}, "> 0": {"positive": True}, "≥ 0": {"minimum": 0}}
 _RIGID_BODY = ("mass", "center_of_mass", "inertia")     # a rigid link's mass properties given as a body
 
 
@@ -76,7 +77,12 @@ _RIGID_BODY = ("mass", "center_of_mass", "inertia")     # a rigid link's mass pr
 
 
 def sanitise_identifier(name: str) -> str:
-    """modelIdentifier names files and C symbols, so it must be a C identifier (and not a keyword)."""
+    """The scene's name made a C identifier, for use as the FMU's modelIdentifier.
+
+    The modelIdentifier names the FMU's files and prefixes its C symbols, so it must be a C identifier and not a
+    C keyword: other characters become ``_``, a leading digit or an empty name gets a leading ``_``, and a
+    keyword a trailing one.
+    """
     ident = re.sub(r"[^A-Za-z0-9_]", "_", name)
     if not ident or ident[0].isdigit():
         ident = "_" + ident
@@ -106,8 +112,21 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
     return parse_scene(data, source, _path=source)
 
 
-def parse_scene(data: dict, source: str = "<scene>", *, _path: str | None = None) -> Scene:
-    """Validate an already-parsed TOML document (tests, programmatic scenes)."""
+def parse_scene(data: dict[str, Any], source: str = "<scene>", *, _path: str | None = None) -> Scene:
+    """Validate an already-parsed TOML document (tests, programmatic scenes) into a :class:`Scene`.
+
+    Parameters
+    ----------
+    data : dict
+        The document as :func:`tomllib.loads` returns it.
+    source : str
+        The name the messages give the document (a file name, or ``<scene>``).
+
+    Raises
+    ------
+    SceneError
+        The first mistake in reading order, in one line naming its key.
+    """
     return _Parser(source).scene(data, _path)
 
 
@@ -147,9 +166,11 @@ class _Values:
         return MISSING if spec.default is REQUIRED or spec.default is OPTIONAL else spec.toml_default()
 
     def number_key(self, t: dict, section: str, name: str, prefix: str, **bounds: Any) -> float:
-        """A number key with the unit, default and bounds ("> 0", "≥ 0", the part of the row's bounds before a
-        semicolon) of its row of KEYS; ``bounds`` given here replace those; other bounds are checked by the
-        caller."""
+        """A number key with the unit, default and bounds of its row of KEYS.
+
+        The row's bounds the loader reads itself are "> 0" and "≥ 0" (the part of the row's bounds before a
+        semicolon); ``bounds`` given here replace those; other bounds are checked by the caller.
+        """
         spec = key_spec(section, name)
         table_bounds = _BOUNDS.get(spec.bounds.split(";")[0].strip(), {})
         return self.number(self.get(t, section, name), f"{prefix}.{name}", spec.unit, **{**table_bounds, **bounds})
@@ -194,6 +215,11 @@ class _Values:
             raise self.fail(key, expected, value)
         return tuple(self.number(v, f"{key}[{i + 1}]", unit, minimum=minimum) for i, v in enumerate(value))
 
+    def vector3(self, value: Any, key: str, unit: str = "", *, minimum: float | None = None) -> Vec3:
+        """A list of 3 numbers, as the (x, y, z) triple the scene's classes hold."""
+        x, y, z = self.vector(value, key, 3, unit, minimum=minimum)
+        return (x, y, z)
+
     def string(self, value: Any, key: str, choices: tuple[str, ...] | None = None) -> str:
         expected = ("one of " + ", ".join(f'"{c}"' for c in choices)) if choices else "a string"
         if not isinstance(value, str) or (choices is not None and value not in choices):
@@ -228,7 +254,7 @@ class _Parser(_Values):
         name = top["name"]
         if not isinstance(name, str) or not name.strip():
             raise self.fail("name", "a non-empty string (the FMU modelName)", name)
-        gravity = self.vector(self.get(top, "scene", "gravity"), "gravity", 3, key_spec("scene", "gravity").unit)
+        gravity = self.vector3(self.get(top, "scene", "gravity"), "gravity", key_spec("scene", "gravity").unit)
         joint_data = self.array_of_tables(top, "joint")
         link_data = self.array_of_tables(top, "link")
         checks.same_count(self.source, len(joint_data), len(link_data))
@@ -276,10 +302,13 @@ class _Parser(_Values):
                      origin=origin, rpy=rpy)
 
     def axis(self, t: dict, key: str) -> tuple[float, float, float]:
-        """A unit vector (a non-zero vector, normalised); whether it must be normal to the link's x axis
-        depends on the link, checked once the links are read (:func:`checks.joint_axes`)."""
+        """A unit vector (a non-zero vector, normalised).
+
+        Whether it must be normal to the link's x axis depends on the link, checked once the links are read
+        (:func:`checks.joint_axes`).
+        """
         value = self.get(t, "joint", "axis")
-        raw = self.vector(value, f"{key}.axis", 3, key_spec("joint", "axis").unit)
+        raw = self.vector3(value, f"{key}.axis", key_spec("joint", "axis").unit)
         norm = math.hypot(*raw)
         if not norm > 0 or not math.isfinite(norm):
             raise self.fail(f"{key}.axis", "a non-zero finite vector", value)
@@ -288,7 +317,7 @@ class _Parser(_Values):
     def vector_key(self, t: dict, section: str, name: str, prefix: str) -> tuple[float, float, float]:
         """A 3-vector key with the unit and default of its row of KEYS."""
         spec = key_spec(section, name)
-        return self.vector(self.get(t, section, name), f"{prefix}.{name}", 3, spec.unit)
+        return self.vector3(self.get(t, section, name), f"{prefix}.{name}", spec.unit)
 
     def trajectory(self, data: Any, key: str) -> Trajectory:
         t = self.table(data, key, "joint.trajectory", "a table with segments = [{until, poly, cos}, ...]")
@@ -317,7 +346,7 @@ class _Parser(_Values):
         cos_raw = self.get(s, section, "cos")
         if not isinstance(cos_raw, list):
             raise self.fail(f"{key}.cos", "a list of [amp, rad_per_s, phase] triples", cos_raw)
-        cos = tuple(self.vector(c, f"{key}.cos[{k + 1}]", 3) for k, c in enumerate(cos_raw))
+        cos = tuple(self.vector3(c, f"{key}.cos[{k + 1}]") for k, c in enumerate(cos_raw))
         return Segment(until=until, poly=poly, cos=cos)
 
     # ----------------------------------------------------------------------------------------- links
@@ -353,11 +382,17 @@ class _Parser(_Values):
                     initial_deformation=initial_deformation)
 
     def rigid_link(self, t: dict, key: str) -> Link:
-        """A rigid link (deformation = []): a uniform slender rod (linear_density, or density and area, and
-        polar_inertia) or a body (mass, center_of_mass, inertia); its length may be 0."""
+        """A rigid link (deformation = []), as a uniform rod or as a body.
+
+        A uniform slender rod takes linear_density (or density and area) and polar_inertia; a body takes mass,
+        center_of_mass and inertia.  Its length may be 0.
+        """
         name = self.name(self.get(t, "link", "name"), f"{key}.name")
         checks.not_for_rigid(self.source, key, t)
         length = self.number_key(t, "link", "length", key, positive=False, minimum=0)
+        mass: float | None
+        com: Vec3 | None
+        inertia: tuple[float, ...] | None
         if checks.rigid_mass_form(self.source, key, t, _RIGID_BODY):
             checks.no_polar_inertia_with_body(self.source, key, t)
             mass = self.number_key(t, "link", "mass", key)
@@ -367,7 +402,7 @@ class _Parser(_Values):
             inertia = self.rigid_inertia(t, key)
             linear_density, polar_inertia = 0.0, None
         else:
-            mass = com = inertia = None
+            mass, com, inertia = None, None, None
             linear_density = self.linear_density(t, key)
             polar_inertia = self.number_key(t, "link", "polar_inertia", key) if "polar_inertia" in t else None
         payload = self.payload(self.get(t, "link", "payload"), f"{key}.payload")
@@ -377,8 +412,11 @@ class _Parser(_Values):
                     mass=mass, center_of_mass=com, inertia=inertia)
 
     def rigid_inertia(self, t: dict, key: str) -> tuple[float, ...]:
-        """[Ixx, Iyy, Izz] or [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] (kg m², about the centre of mass), as 6 values; the
-        moments ≥ 0, the tensor physical."""
+        """A rigid body's inertia about its centre of mass (kg m²), always as 6 values.
+
+        Given as [Ixx, Iyy, Izz] or [Ixx, Iyy, Izz, Ixy, Ixz, Iyz]; the moments ≥ 0 and the tensor physical
+        (:func:`checks.physical_inertia`).
+        """
         if "inertia" not in t:
             return (0.0,) * 6
         raw = t["inertia"]
@@ -435,22 +473,24 @@ class _Parser(_Values):
         t = self.table(value, key, section, "a table {mass = …, inertia = …, offset = [x, y, z]}")
         mass = self.number_key(t, section, "mass", key)
         raw = self.get(t, section, "inertia")
-        inertia: float | tuple[float, ...]
+        inertia: float | Vec3
         if isinstance(raw, list):
-            inertia = self.vector(raw, f"{key}.inertia", 3, key_spec(section, "inertia").unit, minimum=0)
+            inertia = self.vector3(raw, f"{key}.inertia", key_spec(section, "inertia").unit, minimum=0)
         elif is_number(raw):
             inertia = self.number_key(t, section, "inertia", key)
         else:
             raise self.fail(f"{key}.inertia", "a number ≥ 0 or a list [Jxx, Jyy, Jzz] of numbers ≥ 0 (kg m²)",
                             raw)
-        offset = self.vector(self.get(t, section, "offset"), f"{key}.offset", 3, key_spec(section, "offset").unit)
+        offset = self.vector3(self.get(t, section, "offset"), f"{key}.offset", key_spec(section, "offset").unit)
         return Payload(mass=mass, inertia=inertia, offset=offset)
 
     # ------------------------------------------------------------------------------------ shell links
 
     def shell_link(self, data: dict, key: str) -> Link:
-        """A plate or box-section link of DKT + CST shell elements (seed 001 part 5): material, not section
-        properties, since the mesh integrates them."""
+        """A plate or box-section link of DKT + CST shell elements (seed 001 part 5).
+
+        It takes material properties, not section properties, since the mesh integrates them.
+        """
         section = "shell_link"
         t = self.table(data, key, section, "a table")
         name = self.name(self.get(t, section, "name"), f"{key}.name")

@@ -1,5 +1,7 @@
-"""The scene's vocabulary: its data classes (plain, frozen, SI units), the values its keywords may take, and
-:data:`KEYS`, the table of every key a scene file may hold.
+"""The scene's vocabulary: its data classes, the values its keywords may take, and the table of its keys.
+
+The data classes are plain, frozen and in SI units; :data:`KEYS` is the table of every key a scene file may
+hold.
 
 :mod:`flexlink.scene.loader` turns a TOML file into these objects; everything downstream reads only them.
 The loader takes the keys each section accepts, their defaults, units and bounds from :data:`KEYS`, so the
@@ -57,8 +59,11 @@ Vec3 = tuple[float, float, float]
 
 
 def rpy_rotation(rpy: Vec3) -> np.ndarray:
-    """The 3×3 rotation of a frame placed with roll, pitch, yaw (URDF): R = Rz(yaw)·Ry(pitch)·Rx(roll), whose
-    columns are the placed frame's axes in the parent frame."""
+    """The 3×3 rotation of a frame placed with roll, pitch, yaw, as URDF places its frames.
+
+    R = Rz(yaw)·Ry(pitch)·Rx(roll), whose columns are the placed frame's axes in the parent frame: the same
+    convention as URDF, so that a robot's frames can be copied from its URDF file unchanged.
+    """
     roll, pitch, yaw = rpy
     cr, sr = math.cos(roll), math.sin(roll)
     cp, sp = math.cos(pitch), math.sin(pitch)
@@ -115,9 +120,12 @@ class Trajectory:
 
 @dataclass(frozen=True)
 class Joint:
-    """A revolute joint. Its frame is placed in the parent frame (the previous link's tip frame, the world
-    frame for the first joint) by ``origin`` and ``rpy``; ``axis`` is a unit vector in that joint frame, and the
-    link it drives is clamped in the joint frame turned by the joint angle about ``axis``."""
+    """A revolute joint, placed in its parent frame and driving the next link.
+
+    Its frame is placed in the parent frame (the previous link's tip frame, the world frame for the first
+    joint) by ``origin`` and ``rpy``; ``axis`` is a unit vector in that joint frame, and the link it drives is
+    clamped in the joint frame turned by the joint angle about ``axis``.
+    """
 
     name: str
     axis: Vec3
@@ -133,7 +141,7 @@ class Joint:
 
     @property
     def is_elastic(self) -> bool:
-        """An elastic joint adds a motor coordinate (SCENE.md: only if stiffness > 0)."""
+        """An elastic joint adds a motor coordinate (docs/scene.md: only if stiffness > 0)."""
         return self.stiffness > 0.0
 
     def placement_rotation(self) -> np.ndarray:
@@ -143,21 +151,31 @@ class Joint:
 
 @dataclass(frozen=True)
 class Payload:
+    """A rigid body carried at a link's tip.
+
+    ``mass`` (kg) with its centre at ``offset`` (m, in the tip frame) and its ``inertia`` about that centre
+    (kg m²: one moment about the joint axis, or (Jxx, Jyy, Jzz) about the tip axes).  All zero by default,
+    which means no payload: the model then holds no payload terms (:attr:`is_present`).
+    """
+
     mass: float = 0.0
     inertia: float | Vec3 = 0.0
     offset: Vec3 = (0.0, 0.0, 0.0)
 
     @property
     def is_present(self) -> bool:
-        """SCENE.md: a payload is in the model only if its mass or inertia is non-zero."""
+        """docs/scene.md: a payload is in the model only if its mass or inertia is non-zero."""
         inertia = self.inertia if isinstance(self.inertia, tuple) else (self.inertia,)
         return self.mass != 0.0 or any(j != 0.0 for j in inertia)
 
 
 @dataclass(frozen=True)
 class Shapes:
-    """A beam family (``count`` functions or elements), or a shell mesh; ``modes``: reduce an FE link to its
-    first modes with the joint held (None: keep every finite-element coordinate)."""
+    """A link's shape basis: a beam family (``count`` functions or elements), or a shell mesh.
+
+    ``modes`` reduces an FE link to its first modes with the joint held (None: keep every finite-element
+    coordinate).  The shell fields (``section`` to ``pattern``) are set for a shell link only.
+    """
 
     kind: str = "clamped-free"
     count: int = 3
@@ -171,10 +189,20 @@ class Shapes:
 
     @property
     def section_area(self) -> float:
-        """Area of the shell's cross-section (mid-surface perimeter × thickness)."""
-        if self.section == "box":
-            return 2.0 * (self.width + self.height) * self.thickness
-        return self.width * self.thickness
+        """Area of the shell's cross-section (mid-surface perimeter × thickness).
+
+        Raises
+        ------
+        ValueError
+            For a basis that is not a shell (its section has no width, height or thickness).
+        """
+        width, height, thickness = self.width, self.height, self.thickness
+        if width is None or thickness is None or (self.section == "box" and height is None):
+            raise ValueError(f'section_area is for a shell basis (kind = "shell"), not "{self.kind}": its '
+                             "section's width, height or thickness is not set")
+        if self.section == "box" and height is not None:
+            return 2.0 * (width + height) * thickness
+        return width * thickness
 
 
 @dataclass(frozen=True)
@@ -185,7 +213,8 @@ class Link:
     ``mass`` is None) or a body (``mass``, ``center_of_mass``, ``inertia`` = (Ixx, Iyy, Izz, Ixy, Ixz, Iyz)
     about the centre of mass, all three set, and ``linear_density`` 0); :meth:`rigid_body` gives either as
     (mass, centre, inertia tensor). A rigid link has ``EI`` None and keeps the defaults of the keys that mean
-    nothing for it (shapes, kinematics, kelvin_voigt)."""
+    nothing for it (shapes, kinematics, kelvin_voigt).
+    """
 
     name: str
     length: float
@@ -209,18 +238,37 @@ class Link:
 
     @property
     def is_shell(self) -> bool:
+        """Whether the link is a thin-walled shell, modelled by a triangle mesh rather than a beam basis."""
         return self.shapes.kind == "shell"
 
     @property
     def is_rigid(self) -> bool:
+        """Whether the link does not deform (``deformation = []``): it then has no elastic coordinates."""
         return self.deformation == ()
 
     def rigid_body(self) -> tuple[float, np.ndarray, np.ndarray]:
-        """(mass, centre of mass (3,) in the link frame, inertia (3×3) about the centre of mass, link axes) of a
-        rigid link, from whichever form it was given in; the tip payload is not included."""
+        """The mass properties of a rigid link, from whichever form it was given in.
+
+        Returns
+        -------
+        mass : float
+            In kg.
+        centre : numpy.ndarray
+            The centre of mass (3,) in the link frame, m.
+        inertia : numpy.ndarray
+            The inertia tensor (3×3) about the centre of mass in the link axes, kg m²; the tip payload is not
+            included.
+
+        Raises
+        ------
+        ValueError
+            For a flexible link, or a body given by ``mass`` without its centre of mass or inertia.
+        """
         if not self.is_rigid:
             raise ValueError(f'link "{self.name}" is flexible: rigid_body() is for a rigid link (deformation = [])')
         if self.mass is not None:
+            if self.inertia is None or self.center_of_mass is None:
+                raise ValueError(f'link "{self.name}": a rigid body given by mass needs center_of_mass and inertia')
             ixx, iyy, izz, ixy, ixz, iyz = self.inertia
             tensor = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
             return self.mass, np.array(self.center_of_mass, dtype=float), tensor
@@ -245,8 +293,10 @@ class Tool:
 
 @dataclass(frozen=True)
 class FmuSettings:
-    """The ``[fmu]`` table: the integrator and its settings (:class:`~flexlink.scene.solver.SolverSettings`,
-    their one owner), the terms kept tunable and the optional tip-load inputs."""
+    """The ``[fmu]`` table: the integrator and its settings, the terms kept tunable and the tip-load inputs.
+
+    The settings are a :class:`~flexlink.scene.solver.SolverSettings`, their one owner.
+    """
 
     solver: SolverSettings = SolverSettings()
     integrator: str = "ss22"
@@ -258,6 +308,12 @@ class FmuSettings:
 
 @dataclass(frozen=True)
 class Scene:
+    """A whole scene file: the chain of joints and links, gravity, the tool frame and the FMU settings.
+
+    The one object the loader hands downstream; every later stage reads only it, never the TOML.  ``path`` is
+    the file it was read from (None for a string), which relative paths and messages refer to.
+    """
+
     name: str
     model_identifier: str
     gravity: Vec3
@@ -269,7 +325,7 @@ class Scene:
 
     @property
     def has_gravity(self) -> bool:
-        """SCENE.md: gravity terms are generated only if the vector is non-zero."""
+        """docs/scene.md: gravity terms are generated only if the vector is non-zero."""
         return any(g != 0.0 for g in self.gravity)
 
 

@@ -1,6 +1,7 @@
-"""The fidelity ladder (issue 6, "only what the scene needs"): the same arm at several model levels, the error
-each level leaves and what its FMU costs, so that ``flexlink explain --error-target`` can recommend the cheapest
-level that is accurate enough.
+"""The fidelity ladder (issue 6, "only what the scene needs"): one arm at several model levels, measured.
+
+The same arm at several model levels, the error each level leaves and what its FMU costs, so that ``flexlink
+explain --error-target`` can recommend the cheapest level that is accurate enough.
 
 A level changes the model, never the arm: the shape count (the same on every link), the kinematics, the
 deformation fields.  The truth is the top level (most shapes, second-order, the scene's deformation).  The model
@@ -15,13 +16,23 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from flexlink.errors import FlexlinkError
 from flexlink.scene.loader import Scene, load_scene
+from flexlink.scene.schema import Link
+
+if TYPE_CHECKING:                      # imported where used: the ladder loads the model and bench lazily
+    from flexlink.mechanics.model import SymbolicModel
+    from flexlink.tools.bench import BenchCase
+
+Progress = Callable[[str], None]       # told what is being measured, for a long run's progress line
 
 COUNTS = (1, 2, 3, 4, 6)               # shapes per link (modes, polynomials or elements)
 QUICK_COUNTS = (1, 2, 3)
@@ -33,11 +44,24 @@ SHAPE_WORDS = {"clamped-free": "clamped-free mode", "polynomial": "polynomial", 
 
 @dataclass(frozen=True)
 class Level:
-    count: int                          # shapes per link
+    """One model level of an arm: what changes the model, never the arm.
+
+    Attributes
+    ----------
+    count : int
+        Shapes per link (modes, polynomials or elements; the same on every link).
+    kinematics : str
+        ``linear``, ``first-order`` or ``second-order``.
+    deformation : tuple of str
+        The fields kept; each link keeps those of its own it has.
+    """
+
+    count: int
     kinematics: str
-    deformation: tuple[str, ...]        # fields kept (each link keeps those of its own it has)
+    deformation: tuple[str, ...]
 
     def label(self, scene: Scene) -> str:
+        """The level in words for the report (``3 modes per link, second-order, v+w``), in the scene's terms."""
         kinds = sorted({link.shapes.kind for link in scene.links})
         word = SHAPE_WORDS.get(kinds[0], "shape") if len(kinds) == 1 else "shape"
         if all(_reduced(link) for link in scene.links):
@@ -63,7 +87,8 @@ class Rung:
     truth: bool = False
     scene_level: bool = False           # the scene's own setting
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
+        """The rung as JSON-ready values (``flexlink explain --json``)."""
         return {"level": self.label, "count": self.level.count, "kinematics": self.level.kinematics,
                 "deformation": list(self.level.deformation), "coordinates": self.coordinates,
                 "highest_hz": self.highest_hz, "step": self.step, "model_error": self.model_error,
@@ -74,6 +99,12 @@ class Rung:
 
 @dataclass
 class Ladder:
+    """A scene's measured ladder: its rungs cheapest first, the truth among them, and what limits the figures.
+
+    ``reference_error`` is the truth's CVODES run against one at 1/10 of its tolerance: errors below it are
+    not resolved.  ``notes`` says which levels were left out and why.
+    """
+
     scene: str
     outputs: list[str]
     stop_time: float
@@ -84,6 +115,7 @@ class Ladder:
 
     @property
     def truth(self) -> Rung:
+        """The top level, every other rung's reference."""
         return next(r for r in self.rungs if r.truth)
 
 
@@ -99,12 +131,12 @@ def deformation_levels(scene: Scene) -> list[tuple[str, ...]]:
     return out
 
 
-def _reduced(link) -> bool:
+def _reduced(link: Link) -> bool:
     """A link whose ladder counts modes (a shell, or an FE beam reduced with ``shapes.modes``)."""
     return link.is_shell or link.shapes.modes is not None
 
 
-def _max_modes(link) -> int:
+def _max_modes(link: Link) -> int:
     """Modes a reduced link has: translations off the root (a shell), two per element (a Hermite beam)."""
     s = link.shapes
     if link.is_shell:
@@ -112,7 +144,11 @@ def _max_modes(link) -> int:
     return 2 * s.count
 
 
-def shape_count(link) -> int:
+def shape_count(link: Link) -> int:
+    """The link's own count on the ladder's scale, so that the scene's own level is one of the rungs.
+
+    Its modes when reduced (all of them if not limited), else its shape functions or elements.
+    """
     if not _reduced(link):
         return link.shapes.count
     return link.shapes.modes or _max_modes(link)
@@ -123,18 +159,28 @@ def top_kinematics(scene: Scene) -> str:
     return "first-order" if any(link.is_shell for link in scene.links) else "second-order"
 
 
-def levels(scene: Scene, counts=None, kinematics=None, quick: bool = False) -> list[Level]:
-    """Counts × kinematics with the scene's deformation; the scene's own count is always one, the largest is the
-    truth's."""
-    counts = sorted(set(counts or (QUICK_COUNTS if quick else COUNTS)) | {shape_count(scene.links[0])})
-    counts = [n for n in counts if all(n <= _max_modes(link) for link in scene.links if _reduced(link))]
-    if counts[0] < 1:
-        raise FlexlinkError(f"shape counts must be positive, got {counts}")
+def levels(scene: Scene, counts: Sequence[int] | None = None, kinematics: Sequence[str] | None = None,
+           quick: bool = False) -> list[Level]:
+    """Counts × kinematics with the scene's deformation, the levels the ladder measures.
+
+    The scene's own count is always one of them, so that the ladder says what the scene as written costs; the
+    largest is the truth's.  A count a reduced link cannot have (more modes than coordinates) is left out, and
+    second order only where every link has it.
+
+    Raises
+    ------
+    FlexlinkError
+        For a count below 1.
+    """
+    chosen = sorted(set(counts or (QUICK_COUNTS if quick else COUNTS)) | {shape_count(scene.links[0])})
+    chosen = [n for n in chosen if all(n <= _max_modes(link) for link in scene.links if _reduced(link))]
+    if chosen[0] < 1:
+        raise FlexlinkError(f"shape counts must be positive, got {chosen}")
     top = top_kinematics(scene)
-    kinematics = [k for k in (kinematics or KINEMATICS) if k != "second-order" or top == "second-order"]
-    if top not in kinematics:
-        kinematics.append(top)
-    return [Level(n, k, deformation_levels(scene)[-1]) for k in kinematics for n in counts]
+    orders = [k for k in (kinematics or KINEMATICS) if k != "second-order" or top == "second-order"]
+    if top not in orders:
+        orders.append(top)
+    return [Level(n, k, deformation_levels(scene)[-1]) for k in orders for n in chosen]
 
 
 def variant(scene: Scene, level: Level) -> Scene:
@@ -150,14 +196,14 @@ def variant(scene: Scene, level: Level) -> Scene:
 
 # ---------------------------------------------------------------------------------------- measurements
 
-def variant_fmu(scene: Scene, model=None) -> Path:
+def variant_fmu(scene: Scene, model: SymbolicModel | None = None) -> Path:
     """The variant's FMU from the flexlink cache, keyed on the scene's content (it has no file of its own)."""
     from flexlink.export.fmu import cached_fmu
 
     return cached_fmu(scene, model=model)
 
 
-def recommended_step(model) -> tuple[float, float]:
+def recommended_step(model: SymbolicModel) -> tuple[float, float]:
     """(step, highest frequency in Hz) as ``flexlink explain`` gives them."""
     from flexlink.mechanics.analysis import natural_frequencies
     from flexlink.tools.explain import STEPS_PER_PERIOD
@@ -168,10 +214,13 @@ def recommended_step(model) -> tuple[float, float]:
 
 
 class _Runs:
-    """One level's FMU: its outputs at the case's samples, and its cost (timed as in ``flexlink bench``: one
-    fmi2DoStep per input switch, median of ``repeats`` runs, CPU seconds per simulated second)."""
+    """One level's FMU: its outputs at the case's samples, and its cost.
 
-    def __init__(self, case, fmu: Path):
+    The cost is timed as in ``flexlink bench``: one fmi2DoStep per input switch, median of ``repeats`` runs,
+    CPU seconds per simulated second.
+    """
+
+    def __init__(self, case: BenchCase, fmu: Path):
         from flexlink.run.simulate import SlaveRunner
 
         self.case = case
@@ -196,8 +245,8 @@ class _Measured:
     """A level after its CVODES run (phase 1); its FMU is run and timed in phase 2."""
 
     level: Level
-    case: object                        # flexlink.tools.bench.BenchCase, its model dropped
-    ref: dict
+    case: BenchCase                     # its model dropped (None): phase 2 reads only the manoeuvre
+    ref: dict[str, np.ndarray]
     fmu: Path
     n_q: int
     step: float
@@ -205,7 +254,7 @@ class _Measured:
     model_error: float = 0.0
 
 
-def _measure(scene: Scene, level: Level, stop: float, progress) -> _Measured:
+def _measure(scene: Scene, level: Level, stop: float, progress: Progress) -> _Measured:
     from flexlink.mechanics.model import build_model
     from flexlink.tools.bench import default_case, reference_outputs
 
@@ -216,17 +265,28 @@ def _measure(scene: Scene, level: Level, stop: float, progress) -> _Measured:
     ref = reference_outputs(case, REFERENCE_RTOL)
     step, f_max = recommended_step(model)
     fmu = variant_fmu(sc, model)
-    return _Measured(level, dataclasses.replace(case, model=None), ref, fmu, model.n_q, step, f_max)
+    # the case keeps no model: the CasADi graphs of every level would otherwise stay alive through phase 2,
+    # which reads only the manoeuvre (times, inputs, outputs); BenchCase types the model it needs to be built
+    dropped = dataclasses.replace(case, model=None)  # type: ignore[arg-type]
+    return _Measured(level, dropped, ref, fmu, model.n_q, step, f_max)
 
 
-def run_ladder(scene_path, *, target: float | None = None, quick: bool = False, counts=None, kinematics=None,
-               stop: float | None = None, repeats: int | None = None, progress=None) -> Ladder:
+def run_ladder(scene_path: str | os.PathLike[str] | Scene, *, target: float | None = None, quick: bool = False,
+               counts: Sequence[int] | None = None, kinematics: Sequence[str] | None = None,
+               stop: float | None = None, repeats: int | None = None, progress: Progress | None = None) -> Ladder:
     """Measure the scene's ladder (``quick``: counts 1–3 and the scene's, 2.5 s, one timing run, for CI).
 
     Every count × kinematics with the scene's deformation; a smaller deformation set only at the truth's count
     and kinematics (its best rung), and, when that meets ``target``, at every count × kinematics too.  With a
     target, a rung whose model error meets it has its step halved (at most MAX_HALVINGS times, and not once
-    its cost would pass the cheapest rung already meeting the target) until its error meets it too."""
+    its cost would pass the cheapest rung already meeting the target) until its error meets it too.
+
+    Raises
+    ------
+    FlexlinkError
+        For a bad target, or a scene with no manoeuvre to measure (a free first joint, or a position-driven
+        one without a built-in law).
+    """
     from flexlink.tools.bench import relative_error
 
     if target is not None:
@@ -305,7 +365,7 @@ def run_ladder(scene_path, *, target: float | None = None, quick: bool = False, 
     return Ladder(scene.name, list(truth.case.outputs), stop, rungs, reference_error, target, notes)
 
 
-def _truth_check(scene: Scene, top: Level, stop: float) -> dict:
+def _truth_check(scene: Scene, top: Level, stop: float) -> dict[str, np.ndarray]:
     """The truth's CVODES run at 1/10 of the tolerance (as ``flexlink bench`` checks its reference)."""
     from flexlink.mechanics.model import build_model
     from flexlink.tools.bench import default_case, reference_outputs
@@ -314,6 +374,10 @@ def _truth_check(scene: Scene, top: Level, stop: float) -> dict:
 
 
 def check_target(target: float) -> float:
+    """The error target as a float, refused in one line unless a positive finite number (a relative RMS error).
+
+    Checked before the ladder's minutes of work, not after.
+    """
     if not (isinstance(target, int | float) and math.isfinite(target) and target > 0):
         raise FlexlinkError(f"--error-target must be a positive number (a relative RMS error), got {target}")
     return float(target)
@@ -341,15 +405,19 @@ class Check:
     error: float                      # the largest: what is compared with the target
     passed: bool
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
+        """The check as JSON-ready values (``flexlink explain --json``)."""
         return {"level": self.label, "manoeuvre": self.manoeuvre, "errors": self.errors, "error": self.error,
                 "passed": self.passed}
 
 
-def check_case(case):
-    """The ladder's manoeuvre with other switch times (a torque-driven first joint), so that a level whose model
-    and integration errors happened to cancel on the ladder's manoeuvre is not recommended on that luck; a
-    position-driven joint has one manoeuvre, its built-in law: the check then repeats it, afresh."""
+def check_case(case: BenchCase) -> tuple[BenchCase, str]:
+    """The ladder's manoeuvre with other switch times (a torque-driven first joint), and its description.
+
+    So that a level whose model and integration errors happened to cancel on the ladder's manoeuvre is not
+    recommended on that luck; a position-driven joint has one manoeuvre, its built-in law: the check then
+    repeats it, afresh.
+    """
     if not case.switches:
         return case, "the built-in law (the only manoeuvre of a position-driven first joint)"
     (name, torque), = case.pieces[0][1].items()
@@ -359,10 +427,14 @@ def check_case(case):
             f"{name} = {torque:g} for {t1:g} s, {-torque:g} for {t2 - t1:g} s, then 0")
 
 
-def check_level(scene: Scene, rung: Rung, truth_level: Level, stop: float, target: float, progress=None) -> Check:
-    """Run ``rung``'s FMU (a fresh instance) at its SS22 step over the check manoeuvre and compare each output
-    with the truth's equations under CVODES on the same manoeuvre: the error measured directly, with no part of
-    it taken from the ladder."""
+def check_level(scene: Scene, rung: Rung, truth_level: Level, stop: float, target: float,
+                progress: Progress | None = None) -> Check:
+    """Check a recommended rung directly: its FMU on the check manoeuvre against the truth's equations.
+
+    ``rung``'s FMU (a fresh instance) runs at its SS22 step over the check manoeuvre and each output is
+    compared with the truth's equations under CVODES on the same manoeuvre: the error measured directly, with
+    no part of it taken from the ladder.
+    """
     from flexlink.mechanics.model import build_model
     from flexlink.run.simulate import SlaveRunner
     from flexlink.tools.bench import default_case, reference_outputs
@@ -379,9 +451,13 @@ def check_level(scene: Scene, rung: Rung, truth_level: Level, stop: float, targe
     return Check(rung.label, manoeuvre, errors, error, error < target)
 
 
-def checked_recommendation(candidates: list[Rung], check) -> tuple[Rung | None, list[Check]]:
-    """The cheapest of ``candidates`` (cheapest first, each meeting the target on the ladder) whose direct
-    ``check(rung)`` passes; at most MAX_CHECKS are tried. Returns it (None if none passed) and every check."""
+def checked_recommendation(candidates: list[Rung], check: Callable[[Rung], Check]
+                           ) -> tuple[Rung | None, list[Check]]:
+    """The cheapest of ``candidates`` whose direct ``check(rung)`` passes, and every check made.
+
+    ``candidates`` are cheapest first, each meeting the target on the ladder; at most MAX_CHECKS are tried, a
+    check costing a full run.  Returns the rung (None if none passed) and every check.
+    """
     checks = []
     for rung in candidates[:MAX_CHECKS]:
         checks.append(check(rung))

@@ -1,4 +1,4 @@
-"""Independent FMI importers from PyPI, run against our FMUs (FMI-NOTES.md).
+"""Independent FMI importers from PyPI, run against our FMUs (docs/check.md).
 
 * libcosimpy (Open Simulation Platform's libcosim, on the Modelica Association's FMI Library): it
   aborts or crashes when an FMU returns an error, so it runs in a child process.  ``ok`` is a completed run
@@ -16,6 +16,7 @@ import shutil
 import subprocess
 import sys
 from dataclasses import dataclass, field
+from typing import Any, Generic, TypeVar
 
 _LIBCOSIM_CHILD = r'''
 import json, sys
@@ -64,16 +65,40 @@ print("RESULT " + json.dumps({"ok": ok, "rows": rows}))
 '''
 
 
+Value = TypeVar("Value", float, list[float])   # a last value, or a series (an SSP run)
+
+
 @dataclass
-class ImporterRun:
+class ImporterRun(Generic[Value]):
+    """What one run of an independent importer showed, whether or not the importer finished.
+
+    The importers abort, crash or hang on a faulty FMU, so a run is a record rather than an exception: the
+    caller decides whether a failure is the FMU's or the importer's (:mod:`flexlink.tools.check`).
+
+    Attributes
+    ----------
+    ok : bool
+        The run completed and logged no ``[error]``/``[warning]`` line (the bar flexlink's own FMUs meet).
+    values : dict of str to Value
+        Variable → its last value (:func:`run_libcosim`), or ``"element:variable"`` → its value after each
+        step (:func:`run_libcosim_ssp`); empty when the run gave no result.
+    log : str
+        The importer's standard output and error, for the caller to judge or show.
+    completed : bool
+        The run finished and printed its result, whatever it logged.
+    why : str
+        Why it did not complete (exit status, signal, timeout, a failed step); empty when it did.
+    """
+
     ok: bool
-    values: dict[str, float] = field(default_factory=dict)
+    values: dict[str, Value] = field(default_factory=dict)
     log: str = ""
-    completed: bool = False        # the run finished and printed its result (whatever it logged)
-    why: str = ""                  # why it did not complete
+    completed: bool = False
+    why: str = ""
 
 
 def libcosim_available() -> bool:
+    """Whether libcosimpy imports here: the libcosim checks are skipped, not failed, on a machine without it."""
     try:
         import libcosimpy  # noqa: F401
     except Exception:
@@ -82,8 +107,30 @@ def libcosim_available() -> bool:
 
 
 def run_libcosim(fmu: str | os.PathLike, stop_time: float, step: float, outputs: list[str],
-                 start_values: dict[str, float] | None = None, timeout: float = 120) -> ImporterRun:
-    """Co-simulate the FMU alone in libcosim and return the outputs' last values."""
+                 start_values: dict[str, float] | None = None, timeout: float = 120) -> ImporterRun[float]:
+    """Co-simulate the FMU alone in libcosim and return the outputs' last values.
+
+    The run happens in a child process: libcosim aborts the whole process when an FMU returns an error, and
+    a refused call is exactly what the callers want to see reported.
+
+    Parameters
+    ----------
+    fmu : str or os.PathLike
+        The FMU file.
+    stop_time, step : float
+        The end time and the fixed communication step, in seconds (libcosim counts in nanoseconds).
+    outputs : list of str
+        The variables whose last values are read back.
+    start_values : dict of str to float, optional
+        Real start values set before initialisation.
+    timeout : float
+        Seconds before the child is given up.
+
+    Returns
+    -------
+    ImporterRun
+        ``values`` maps each output to its value at ``stop_time``.
+    """
     cmd = [sys.executable, "-c", _LIBCOSIM_CHILD, os.fspath(fmu), repr(stop_time), repr(step),
            json.dumps(start_values or {}), json.dumps(outputs)]
     run, data = _child(cmd, timeout)
@@ -93,24 +140,48 @@ def run_libcosim(fmu: str | os.PathLike, stop_time: float, step: float, outputs:
 
 
 def run_libcosim_ssp(ssp: str | os.PathLike, n_steps: int, record: dict[str, list[str]],
-                     timeout: float = 300) -> ImporterRun:
-    """Load an SSP package in libcosim (``CosimExecution.from_ssp_file``: its fixed-step algorithm and step
-    size from the package) and take ``n_steps`` steps; ``values`` holds, per element and variable of
-    ``record`` (``{"element:variable": [...]}``), the value after each step (times t_1 … t_n)."""
+                     timeout: float = 300) -> ImporterRun[list[float]]:
+    """Load an SSP package in libcosim and take ``n_steps`` steps of its own master algorithm.
+
+    ``CosimExecution.from_ssp_file`` takes the fixed-step algorithm and the step size from the package, so the
+    run checks the package as a user's SSP tool would read it, not as our own loop would.
+
+    Parameters
+    ----------
+    ssp : str or os.PathLike
+        The .ssp file.
+    n_steps : int
+        The number of communication steps to take.
+    record : dict of str to list of str
+        Element (instance) name → the variables to record after each step.
+    timeout : float
+        Seconds before the child process is given up (a hung importer is a failed run, not a hung caller).
+
+    Returns
+    -------
+    ImporterRun
+        ``values`` maps ``"element:variable"`` to its value after each step (times t_1 … t_n); a run that
+        stopped early is neither ``ok`` nor ``completed``.
+    """
     cmd = [sys.executable, "-c", _LIBCOSIM_SSP_CHILD, os.fspath(ssp), str(int(n_steps)), json.dumps(record)]
+    run: ImporterRun[list[float]]
     run, data = _child(cmd, timeout)
     if data is not None:
         names = [f"{el}:{n}" for el, ns in record.items() for n in ns]
-        cols = list(zip(*data["rows"], strict=True)) if data["rows"] else [[] for _ in names]
+        cols: list[tuple[float, ...]] = list(zip(*data["rows"], strict=True)) if data["rows"] else [
+            () for _ in names]
         run.values = {n: list(c) for n, c in zip(names, cols, strict=True)}
         if len(data["rows"]) != n_steps:
             run.ok, run.completed, run.why = False, False, f"stopped after {len(data['rows'])} of {n_steps} steps"
     return run
 
 
-def _child(cmd: list[str], timeout: float) -> tuple[ImporterRun, dict | None]:
-    """Run a libcosim child process: the run (``ok``: completed without an ``[error]``/``[warning]`` line)
-    and its ``RESULT`` document (None without one)."""
+def _child(cmd: list[str], timeout: float) -> tuple[ImporterRun[Value], dict[str, Any] | None]:
+    """Run a libcosim child process and read its ``RESULT`` line.
+
+    Returns the run (``ok``: completed without an ``[error]``/``[warning]`` line) and its ``RESULT`` document,
+    None when the child printed none (it crashed, timed out or exited with an error).
+    """
     try:
         p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired as e:
@@ -128,8 +199,13 @@ def _child(cmd: list[str], timeout: float) -> tuple[ImporterRun, dict | None]:
                        "the execution reported a failed step"), data
 
 
-def fmutool_check(fmu: str | os.PathLike, timeout: float = 120) -> ImporterRun:
-    """fmu-manipulation-toolbox's conformity and semantic checks."""
+def fmutool_check(fmu: str | os.PathLike, timeout: float = 120) -> ImporterRun[float]:
+    """Run fmu-manipulation-toolbox's ``fmutool -check`` (schema and semantic checks) on an FMU.
+
+    A second reading of the model description by a tool that is not fmpy, so that a fault fmpy tolerates is
+    still found.  ``ok`` is exit status 0 and no ``error`` in the log (its "no semantic error" line aside); a
+    missing fmutool is a failed run that says so.
+    """
     exe = shutil.which("fmutool") or os.path.join(os.path.dirname(sys.executable), "fmutool")
     if not os.path.exists(exe):
         return ImporterRun(False, {}, "fmutool is not installed (pip install fmu-manipulation-toolbox)")

@@ -34,7 +34,7 @@ def _cell(text: str) -> str:
     return str(text).replace("|", "\\|").replace("\n", " ").replace("<", "&lt;")
 
 
-def _toml(value) -> str:
+def _toml(value: object) -> str:
     """A default as it would be written in the scene file."""
     if value is REQUIRED:
         return "**required**"
@@ -81,10 +81,17 @@ def scene_block() -> str:
 
 
 def _subcommands(parser: argparse.ArgumentParser) -> dict[str, tuple[argparse.ArgumentParser, str]]:
-    """name → (sub-parser, one-line help), in the order the parser lists them."""
+    """Map each sub-command's name to its sub-parser and one-line help, in the order the parser lists them."""
     action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     helps = {c.dest: c.help or "" for c in action._choices_actions}
     return {name: (p, helps.get(name, "")) for name, p in action.choices.items()}
+
+
+def _metavar(a: argparse.Action, default: str) -> str:
+    """An argument's value name as argparse's usage line writes it (a tuple metavar ``("X", "Y")`` as ``X Y``)."""
+    if isinstance(a.metavar, tuple):
+        return " ".join(a.metavar)
+    return a.metavar or default
 
 
 def _option_row(a: argparse.Action) -> str | None:
@@ -93,9 +100,9 @@ def _option_row(a: argparse.Action) -> str | None:
     if a.option_strings:
         names = ", ".join(f"`{o}`" for o in a.option_strings)
         takes = a.nargs != 0
-        value = (a.metavar or a.dest.upper()) if takes else ""
+        value = _metavar(a, a.dest.upper()) if takes else ""
     else:
-        names, value = f"`{a.metavar or a.dest}`", ""
+        names, value = f"`{_metavar(a, a.dest)}`", ""
     if a.choices:
         value = " | ".join(f"`{c}`" for c in a.choices)
     notes = []
@@ -147,6 +154,19 @@ def pages(docs: Path = DOCS) -> dict[Path, str]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Rewrite the generated blocks of docs/scene.md and docs/commands.md, or only report them stale.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The command line after the program name (``--check``, ``--docs DIR``); ``sys.argv`` if None.
+
+    Returns
+    -------
+    int
+        The exit status: 1 with ``--check`` when a block differs from what the code writes today (the pages are
+        then left untouched, as tests/test_docs.py needs), 0 otherwise.
+    """
     ap = argparse.ArgumentParser(prog="python -m flexlink.tools.reference", description=__doc__.splitlines()[0])
     ap.add_argument("--check", action="store_true", help="exit 1 if a block is stale; write nothing")
     ap.add_argument("--docs", type=Path, default=DOCS, help="the docs folder (default: the repository's)")
