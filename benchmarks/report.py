@@ -108,8 +108,15 @@ def measure_all(quick: bool, repeats: int | None) -> dict:
 
 # --------------------------------------------------------------------------------------------- judging
 
+def _figures(row: dict) -> list[str]:
+    """A bench row's cost and error, or the FMU's refusal of that setting (a failed row has no figures)."""
+    if row["error"] is None or row["cpu_s_per_simulated_s"] is None:
+        return ["refused", str(row.get("failure") or "no result")[:80]]
+    return [f"{row['cpu_s_per_simulated_s']:.3g}", f"{row['error']:.2e}"]
+
+
 def _cheapest(rows: list[dict], method: str, error: float) -> dict | None:
-    ok = [r for r in rows if r["method"] == method and r["error"] <= error]
+    ok = [r for r in rows if r["method"] == method and r["error"] is not None and r["error"] <= error]
     return min(ok, key=lambda r: r["cpu_s_per_simulated_s"]) if ok else None
 
 
@@ -374,8 +381,7 @@ def report_markdown(data: dict) -> str:
                   f"Reference error {info['reference_error']:.1e}.", "", *bench_summary(data, key), "",
                   "<details><summary>all rows</summary>", "",
                   *_md_table(["method", "setting", "CPU s / sim. s", "error"],
-                             [[r["method"], r["setting"], f"{r['cpu_s_per_simulated_s']:.3g}", f"{r['error']:.2e}"]
-                              for r in b["rows"]]), "", "</details>", ""]
+                             [[r["method"], r["setting"], *_figures(r)] for r in b["rows"]]), "", "</details>", ""]
     lines += ["Not in this report: `python benchmarks/fmu_speed.py --large` (build, size and per-step cost of the "
               "larger examples and the 81-coordinate FE link) and `python benchmarks/closed_loop.py` (LQR/PD closed "
               "loop); their figures are in docs/performance.md.", ""]
@@ -517,8 +523,10 @@ def plot(data: dict, path: Path) -> None:
         rows = data["bench"][key]["rows"]
         series = dict.fromkeys((r["method"], r["setting"].partition(", ")[2]) for r in rows)
         for method, variant in series:       # e.g. SS22 with theta = 0.6 apart from theta = 0.5
+            # a setting the FMU refused is a row without figures (flexlink bench's failed rows)
             pts = sorted((r["error"], r["cpu_s_per_simulated_s"]) for r in rows
-                         if r["method"] == method and r["setting"].partition(", ")[2] == variant)
+                         if r["method"] == method and r["setting"].partition(", ")[2] == variant
+                         and r["error"] is not None and r["cpu_s_per_simulated_s"] is not None)
             ax.loglog([p[0] for p in pts], [p[1] for p in pts], "o-", ms=3,
                       label=method + (f" ({variant})" if variant else ""))
         ax.set_title(f"flexlink bench, {key} (full size)", fontsize=10)
