@@ -271,12 +271,16 @@ static void energy_floor_init(Instance *inst) {
             d->energy_floor * ENERGY_RESOLVED * ENERGY_RESOLVED);
 }
 
+#define GUARDS_TEXT(x) #x
+#define GUARDS_NUMBER(x) GUARDS_TEXT(x)   /* a generated limit of solver_settings.h spelled in a message */
+
 /* What to change when the balance fails: the FMU's own integrator in Co-Simulation, the importer's in Model
  * Exchange. */
 static const char *energy_advice(const Instance *inst) {
     return inst->d.model_exchange ? "a smaller step or a tighter tolerance of the importer's integrator (an "
                                     "implicit one for stiff models), or fewer shape functions"
-                                  : "a smaller solver.step, solver.order = 2 or fewer shape functions";
+                                  : "a smaller solver.step, solver.order = " GUARDS_NUMBER(SOLVER_ORDER_SS22)
+                                    " or fewer shape functions";
 }
 
 void fmu_energy_forget(FmuData *d) {
