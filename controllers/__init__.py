@@ -11,7 +11,7 @@ One module per concern (python-control's layout):
 ``trajectory``         quintic reference; minimum-jerk rest-to-rest feedforward of the flexible model
 ``laws``               sampled laws (LQG, PD), stepped against the FMU or as ``control.StateSpace``
 ``closedloop``         python-control closed loop: prediction, loop transfer, margins
-``robustness``         multi-joint: loop-at-a-time margins at each actuator, peak sensitivity, poles
+``robustness``         multi-joint: loop-at-a-time classical and disk margins, peak sensitivity, poles
 ``cosim``              ``FmuLoop``: the FMU instantiated once with ``FMU2Slave``, reset between runs
 ``manoeuvre``          design everything on one plant; rest-to-rest runs and their figures
 ``multijoint``         every joint's rest-to-rest run: inverse-dynamics feedforward, MIMO LQG against joint PD

@@ -453,9 +453,11 @@ def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int
     move = _move(d, targets)
     if args.plot:
         from controllers.plots import plot_multijoint
+        from controllers.robustness import robustness_figures
 
         plot_multijoint(args.plot, runs, title=f"{d.plant.model.scene.name}: {move} in {args.duration:g} s; LQG "
-                                               "(MIMO, Kalman) against joint PD with the LQG's peak torques")
+                                               "(MIMO, Kalman) against joint PD with the LQG's peak torques",
+                        robustness=robustness_figures({"lqg": d.robustness()["lqg"]})["lqg"])
     kp, kd = joint_pd_gains(d)
     info = {"name": d.plant.model.scene.name, "dt": d.dt, "joints": d.actuated_joints, "sensors": d.kalman.sensors,
             "move": move, "kp": kp.tolist(), "kd": kd.tolist()}
@@ -652,12 +654,13 @@ def _report_design(args, d) -> int:
             continue
         r = rob[loop]
         print(f"  {what}: {'stable' if r['stable'] else 'UNSTABLE'}, peak sensitivity "
-              f"{db(r['peak_sensitivity'])} (all loops)")
+              f"{db(r['peak_sensitivity'])} (all loops); disk margins balanced (skew {r['disk_skew']:g})")
         for a in r["actuators"]:
             gr = "-inf" if a["gain_reduction_margin_db"] is None else f"{a['gain_reduction_margin_db']:.3g}"
             print(f"    {a['input']:<16} gain margin {db(a['gain_margin_db'])} dB (down {gr} dB), phase margin "
                   f"{db(a['phase_margin_deg'])} deg at {db(a['gain_crossover_hz'])} Hz, peak sensitivity "
-                  f"{db(a['peak_sensitivity'])}")
+                  f"{db(a['peak_sensitivity'])}; disk margin {db(a['disk_margin'])}: ±{db(a['disk_gain_margin_db'])}"
+                  f" dB with ±{db(a['disk_phase_margin_deg'])} deg at {db(a['disk_margin_hz'])} Hz")
     if "lqg_delay1_unaware" in rob:
         print(f"  the sampled LQG with that delay (not predicting it): "
               f"{'stable' if rob['lqg_delay1_unaware']['stable'] else 'UNSTABLE'}")

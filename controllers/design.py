@@ -46,6 +46,10 @@ __all__ = [
     "torque_inputs",
 ]
 
+#: The Riccati solver of every LQR and Kalman design: SciPy's, so that a design does not change with whether
+#: Slycot (which ``control.disk_margins`` needs for several loops) is installed.
+RICCATI = "scipy"
+
 #: Default sensor noise, standard deviation per sensor kind (SI): a 16384-count/rev encoder (quantisation
 #: step / √12), a root strain-gauge bridge read as a bending moment, a MEMS accelerometer over a 500 Hz band.
 SENSOR_NOISE = {
@@ -429,9 +433,11 @@ def design_lqr(plant: LinearPlant, dt: float, torque_limit, limits: Mapping[str,
         raise DesignError(f"the LQR weights (limits on {', '.join(limits)}) do not weigh "
                           + "; ".join(d for _, d in unweighted) + ": give it a limit")
     try:
-        K, S, E = ct.lqr(sys, Q, R)
+        # SciPy's Riccati solvers whether or not Slycot is installed (python-control would switch to
+        # Slycot's, which warns "may be inaccurate" on the six-axis arm's lightly damped modes)
+        K, S, E = ct.lqr(sys, Q, R, method=RICCATI)
         plant_d = ct.sample_system(sys, dt, method="zoh", name=plant.sys.name + "_d")
-        Kd, Sd, Ed = ct.dlqr(plant_d, Q, R)
+        Kd, Sd, Ed = ct.dlqr(plant_d, Q, R, method=RICCATI)
     except (ValueError, np.linalg.LinAlgError) as e:
         raise DesignError(f"the LQR Riccati equation has no stabilising solution ({_one_line(e)})") from None
     return LQRDesign(plant, dt, Q, R, np.asarray(K), np.asarray(S), np.asarray(E), np.asarray(Kd), np.asarray(Sd),
@@ -548,12 +554,12 @@ def design_kalman(plant: LinearPlant, dt: float, sensors: Sequence[str] | str = 
                           + ": no estimator can track it (add an encoder or a strain gauge on that part)")
     try:
         # G QN Gᵀ is passed whole (G = I): python-control insists on exact symmetry
-        L, P, E = ct.lqe(plant.sys.A, np.eye(n), C, _sym(G @ QN @ G.T), RN)
+        L, P, E = ct.lqe(plant.sys.A, np.eye(n), C, _sym(G @ QN @ G.T), RN, method=RICCATI)
         plant_d = sample(plant, dt)
         # the disturbance is held over each sample like the torque: G_d = ∫₀^dt e^{Aτ} dτ G; per-sample
         # covariances QN and RN (the continuous design above uses them as spectral densities: same ratio)
         Gd = ct.sample_system(ct.ss(plant.sys.A, G, np.zeros((1, n)), 0), dt, method="zoh").B
-        Ld, Pd, Ed = ct.dlqe(plant_d.A, np.eye(n), C, _sym(Gd @ QN @ Gd.T), RN)
+        Ld, Pd, Ed = ct.dlqe(plant_d.A, np.eye(n), C, _sym(Gd @ QN @ Gd.T), RN, method=RICCATI)
     except (ValueError, np.linalg.LinAlgError) as e:
         raise DesignError(f"the Kalman Riccati equation has no stabilising solution ({_one_line(e)})") from None
     Md = Pd @ C.T @ np.linalg.inv(C @ Pd @ C.T + RN)

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Sequence
 
+import control as ct
 import numpy as np
 
 from controllers.closedloop import closed_loop, loop_transfer, margins
@@ -73,7 +75,8 @@ def plot_poles(ax, design, controllers: Sequence[str] = ("lqr", "pd")) -> None:
 
 
 def plot_loop_bode(ax_mag, ax_phase, design, controllers: Sequence[str] = ("lqr", "pd")) -> dict:
-    """Loop transfer at the torque input, L = −C_y P, with its margins; returns the margins by controller."""
+    """Loop transfer at the torque input, L = −C_y P, with its classical margins and its balanced disk margin
+    (``control.disk_margins``, skew 0); returns the margins by controller."""
     out = {}
     w = np.logspace(-1, np.log10(np.pi / design.dt), 3000)[:-1]
     for k, name in enumerate(controllers):
@@ -81,10 +84,15 @@ def plot_loop_bode(ax_mag, ax_phase, design, controllers: Sequence[str] = ("lqr"
         L = loop_transfer(design.plant, law)
         Lw = np.asarray(L.frequency_response(w).complex).ravel()
         m = margins(design.plant, law)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            dm, dgm, dpm = ct.disk_margins(L, w, skew=0.0)      # balanced: controllers.robustness.DISK_SKEW
+        m = {**m, "disk_margin": float(dm), "disk_gain_margin_db": float(dgm), "disk_phase_margin_deg": float(dpm)}
         out[name] = m
         hz = w / (2 * np.pi)
         ax_mag.semilogx(hz, 20 * np.log10(np.abs(Lw)), f"C{k}", lw=1.0,
-                        label=f"{name.upper()}: GM {m['gain_margin_db']:.1f} dB, PM {m['phase_margin_deg']:.0f}°")
+                        label=f"{name.upper()}: GM {m['gain_margin_db']:.1f} dB, PM {m['phase_margin_deg']:.0f}°; "
+                              f"disk ±{dgm:.1f} dB with ±{dpm:.0f}°")
         phase = np.degrees(np.angle(Lw))
         ax_phase.semilogx(hz, np.where(phase > 0, phase - 360, phase), f"C{k}", lw=1.0)
         if np.isfinite(m["gain_crossover_hz"]):
@@ -127,10 +135,12 @@ def plot_manoeuvre(path: str | os.PathLike, results: Sequence, design, predictio
 LABELS = {"lqr": "LQG", "pd": "PD", "fixed": "fixed LQG", "scheduled": "scheduled LQG"}
 
 
-def plot_multijoint(path: str | os.PathLike, results: dict, title: str = "") -> None:
+def plot_multijoint(path: str | os.PathLike, results: dict, title: str = "", robustness: dict | None = None) -> None:
     """The multi-joint comparison (:func:`controllers.multijoint.compare`): joint angles against their
     references, tracking errors, every link's tip deflection and the torques, LQG and PD, the figures of
-    each run (settling time, residual vibration, peak torque) in the legends."""
+    each run (settling time, residual vibration, peak torque) in the legends; with ``robustness`` (a loop of
+    :func:`controllers.robustness.robustness_figures`, the sampled LQG's), its margins at each actuator
+    under the plot."""
     plt = _pyplot()
     fig, axes = plt.subplots(2, 2, figsize=(13, 8), sharex=True)
     (a_th, a_err), (a_tip, a_tau) = axes
@@ -165,5 +175,23 @@ def plot_multijoint(path: str | os.PathLike, results: dict, title: str = "") -> 
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
+    if robustness is not None:
+        fig.subplots_adjust(bottom=0.09 + 0.017 * (len(robustness["actuators"]) + 1))
+        fig.text(0.01, 0.01, margins_text(robustness), fontsize=7, family="monospace", va="bottom")
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def margins_text(rob: dict) -> str:
+    """One line per actuator of a loop's JSON figures: classical gain and phase margins, balanced disk
+    margin with its simultaneous gain and phase variations."""
+    def f(v, unit):
+        return "inf" if v is None else f"{v:.3g}{unit}"
+
+    lines = [f"sampled LQG, loop at a time: {'stable' if rob['stable'] else 'UNSTABLE'}, peak sensitivity "
+             f"{f(rob['peak_sensitivity'], '')} (all loops)"]
+    for a in rob["actuators"]:
+        lines.append(f"{a['input']:<16} gain margin {f(a['gain_margin_db'], ' dB'):>9}, phase margin "
+                     f"{f(a['phase_margin_deg'], '°'):>6}; disk margin {f(a['disk_margin'], ''):>6}: "
+                     f"±{f(a['disk_gain_margin_db'], ' dB')} with ±{f(a['disk_phase_margin_deg'], '°')}")
+    return "\n".join(lines)

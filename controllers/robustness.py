@@ -15,12 +15,19 @@ positive sign, ``E_o`` the selector of the other channels) and ``L_i = −T_cl[i
 negative-feedback convention of ``control.stability_margins``, which gives the margins from the frequency
 response on a dense grid (``control.frd``, interpolated: its polynomial method loses the digits on these
 high-order loops).  The peak sensitivity is that of the loop at each actuator, ``1/min|1 + L_i|``, and of
-all loops together at the plant input, ``max_ω σ̄((I − T)⁻¹)``.
+all loops together at the plant input, ``max_ω σ̄((I − T)⁻¹)``.  The balanced disk margin at each actuator
+is ``control.disk_margins`` of the same broken loop (:func:`disk_margins`, skew :data:`DISK_SKEW`).
+
+**Speed.** T's response is computed once per loop (:func:`response`) and each broken loop's follows by the
+algebra of ``control.feedback`` at each frequency, where evaluating each broken loop's state space took
+most of the six-axis arm's 16 s of margins; ``control.stability_margins`` evaluates its interpolated FRD in
+one ``splev`` call (:func:`splev_at_once`).  The figures are python-control's own (``benchmarks/margins.py``).
 """
 
 from __future__ import annotations
 
 import warnings
+from contextlib import contextmanager
 
 import control as ct
 import numpy as np
@@ -28,8 +35,9 @@ import numpy as np
 from controllers.closedloop import margin_entries
 from controllers.design import KalmanDesign, LQRDesign, torque_inputs
 
-__all__ = ["compensator", "delayed_plant", "delayed_robustness", "loop_at_a_time", "lqg_compensator", "lqg_plant",
-           "predictive_compensator", "robustness", "robustness_figures"]
+__all__ = ["DISK_SKEW", "compensator", "delayed_plant", "delayed_robustness", "disk_margins", "loop_at_a_time",
+           "lqg_compensator", "lqg_plant", "lu_evaluation", "predictive_compensator", "response", "robustness",
+           "robustness_figures", "splev_at_once"]
 
 
 def lqg_plant(lqr: LQRDesign, kalman: KalmanDesign) -> ct.StateSpace:
@@ -78,8 +86,109 @@ def _grid(T: ct.StateSpace, n_points: int) -> np.ndarray:
     return np.logspace(-3, np.log10(top), n_points)[:-1]
 
 
+def response(sys: ct.StateSpace, w: np.ndarray, chunk: int = 256) -> np.ndarray:
+    """Frequency response of ``sys`` at w (rad/s; z = e^{jω dt} when sampled), shape (len(w), p, m):
+    ``C (xI − A)⁻¹ B + D`` with one LU per frequency, python-control's own fallback evaluation
+    (``StateSpace.horner`` without Slycot) batched in numpy.  Slycot's Hessenberg method, which python-control
+    takes when Slycot is installed, moves these high-order loops' margins in the fourth digit."""
+    A, B, C, D = (np.asarray(M, dtype=float) for M in (sys.A, sys.B, sys.C, sys.D))
+    x = np.exp(1j * w * sys.dt) if sys.isdtime() else 1j * w
+    n = A.shape[0]
+    if n == 0:
+        return np.broadcast_to(D.astype(complex), (len(w), *D.shape)).copy()
+    out = np.empty((len(w), *D.shape), dtype=complex)
+    eye = np.eye(n)
+    for k in range(0, len(w), chunk):
+        xk = x[k:k + chunk, None, None]
+        out[k:k + chunk] = C @ np.linalg.solve(xk * eye - A, np.broadcast_to(B, (len(xk), *B.shape))) + D
+    return out
+
+
+#: python-control's own evaluation of an FRD, which :func:`splev_at_once` puts back.
+_FRD_EVAL = ct.FrequencyResponseData.eval
+
+
+def _eval_at_once(self, omega, squeeze=None):
+    """``FrequencyResponseData.eval`` of an interpolating FRD with one ``splev`` call over all the
+    frequencies (python-control calls it once per frequency); the same values, bit for bit."""
+    if self._ifunc is None or np.size(omega) == 0:          # splev refuses no frequency
+        return _FRD_EVAL(self, omega, squeeze=squeeze)
+    from control.lti import _process_frequency_response
+    from scipy.interpolate import splev
+
+    w = np.array(omega, ndmin=1, dtype=float)
+    out = np.empty((self.noutputs, self.ninputs, len(w)), dtype=complex)
+    for i in range(self.noutputs):
+        for j in range(self.ninputs):
+            re, im = splev(w, self._ifunc[i, j], der=0)
+            out[i, j] = np.asarray(re) + 1j * np.asarray(im)
+    return _process_frequency_response(self, omega, out, squeeze=squeeze)
+
+
+@contextmanager
+def splev_at_once():
+    """Inside: interpolating FRDs evaluate all their frequencies in one ``splev`` call.  Most of the time of
+    ``control.stability_margins`` on a 4000-point grid went to python-control's loop over the frequencies
+    (it copies the FRD it is given, so a subclass would not reach it); the margins are unchanged."""
+    ct.FrequencyResponseData.eval = _eval_at_once
+    try:
+        yield
+    finally:
+        ct.FrequencyResponseData.eval = _FRD_EVAL
+
+
+def _no_laub(self, x):
+    raise NotImplementedError("python-control's LU evaluation (controllers.robustness.lu_evaluation)")
+
+
+@contextmanager
+def lu_evaluation():
+    """Inside: python-control evaluates a state space's frequency response with its own LU solve per frequency
+    (``StateSpace.horner``'s fallback), not with Slycot's Hessenberg method (``tb05ad``), which it takes when
+    Slycot is installed and which is off by 3e-3 relative on the six-axis arm's 88-state loops (the LU
+    evaluation of the same loop in a balanced realisation agrees with it to 4e-13)."""
+    original = ct.StateSpace.slycot_laub
+    ct.StateSpace.slycot_laub = _no_laub
+    try:
+        yield
+    finally:
+        ct.StateSpace.slycot_laub = original
+
+
+#: The skew of every disk margin: 0, the balanced disk (S − T)/2, symmetric in gain (a gain decrease and
+#: its reciprocal increase tolerated alike): the loops here have gain reduction margins as well as increase
+#: margins, and neither side is favoured.
+DISK_SKEW = 0.0
+
+
+def disk_margins(T: ct.StateSpace, Tw: np.ndarray, w: np.ndarray, i: int) -> dict:
+    """``control.disk_margins(L_i, ·, skew=0)`` of the loop broken at actuator i (the others closed), its
+    worst case over the grid w (Tw: T's response on it).
+
+    The balanced margin α tolerates every factor f at that input inside the disk α draws: gains within
+    ±``disk_gain_margin_db`` together with phases within ±``disk_phase_margin_deg``.  python-control
+    evaluates L_i's state space once per frequency (0.8 s a loop on the six-axis arm's 88-state loops, 24 of
+    them), so it is called where the margin is smallest: the 5 grid points around the minimum of
+    1/|S_i − ½| from the response already computed (the same quantity: python-control's figures, one
+    LU evaluation a frequency, :func:`lu_evaluation`)."""
+    m = T.ninputs
+    L = -(ct.feedback(T, np.diag([0.0 if j == i else 1.0 for j in range(m)]), sign=1) if m > 1 else T)[i, i]
+    Sw = 1.0 / (1.0 - broken_loop(Tw, i)[:, 0, 0])
+    k = int(np.argmin(1.0 / np.abs(Sw - 0.5)))
+    near = np.arange(max(k - 2, 0), min(k + 3, len(w)))
+    with lu_evaluation(), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        dm, dgm, dpm = ct.disk_margins(L, w[near], skew=DISK_SKEW, returnall=True)
+    j = int(np.argmin(dm))
+    return {"disk_margin": float(dm[j]), "disk_gain_margin_db": float(dgm[j]),
+            "disk_phase_margin_deg": float(dpm[j]), "disk_margin_hz": float(w[near[j]] / (2 * np.pi))}
+
+
 def loop_at_a_time(P: ct.StateSpace, Kc, names: list[str] | None = None, n_points: int = 4000) -> dict:
     """Margins at each actuator and the peak sensitivity of the loop ``u = K_c(P u)``.
+
+    The broken loops' frequency responses come from that of ``T = K_c P`` (:func:`response`, once) by the
+    algebra of ``control.feedback`` at each frequency.
 
     Parameters
     ----------
@@ -89,6 +198,8 @@ def loop_at_a_time(P: ct.StateSpace, Kc, names: list[str] | None = None, n_point
         Controller from P's outputs to the m actuators (feedback sign inside: ``u = K_c y``).
     names : list of str, optional
         The actuators' names (default ``u[i]``).
+    n_points : int
+        Points of the logarithmic frequency grid (up to Nyquist when sampled).
 
     Returns
     -------
@@ -96,8 +207,10 @@ def loop_at_a_time(P: ct.StateSpace, Kc, names: list[str] | None = None, n_point
         ``actuators``: per actuator ``input``, ``gain_margin_db`` (smallest gain increase that destabilises,
         ``inf`` if none), ``gain_reduction_margin_db`` (largest decrease tolerated, ``-inf`` if none),
         ``phase_margin_deg`` (smallest over the gain crossovers), ``gain_crossover_hz``,
-        ``phase_crossover_hz``, ``peak_sensitivity`` (``1/min|1 + L_i|``); ``peak_sensitivity`` (all loops,
-        at the plant input), ``closed_loop_poles`` (s, or z with ``dt``), ``stable``, ``dt``.
+        ``phase_crossover_hz``, ``peak_sensitivity`` (``1/min|1 + L_i|``), the balanced disk margin
+        ``disk_margin``, ``disk_gain_margin_db``, ``disk_phase_margin_deg``, ``disk_margin_hz``
+        (:func:`disk_margins`); ``peak_sensitivity`` (all loops, at the plant input), ``disk_skew`` (0),
+        ``closed_loop_poles`` (s, or z with ``dt``), ``stable``, ``dt``.
     """
     if not isinstance(Kc, ct.StateSpace):
         Kc = ct.ss([], [], [], np.atleast_2d(np.asarray(Kc, dtype=float)), P.dt)
@@ -105,38 +218,52 @@ def loop_at_a_time(P: ct.StateSpace, Kc, names: list[str] | None = None, n_point
     m = T.ninputs
     names = list(names) if names is not None else [f"u[{i}]" for i in range(m)]
     w = _grid(T, n_points)
+    Tw = response(T, w)
+    D = np.asarray(T.D, dtype=float)
     out = []
     for i in range(m):
-        E = np.diag([0.0 if j == i else 1.0 for j in range(m)])
-        Tcl = ct.feedback(T, E, sign=1) if m > 1 else T
-        L = -Tcl[i, i]
-        out.append({"input": names[i], **siso_margins(L, w)})
+        Lw, LD = -broken_loop(Tw, i)[:, 0, 0], -broken_loop(D[None], i)[0, 0, 0]
+        out.append({"input": names[i], **siso_margins(Lw, w, T.dt, LD if T.isctime() else None),
+                    **disk_margins(T, Tw, w, i)})
     cl = ct.feedback(T, np.eye(m), sign=1)
     poles = cl.poles()
     stable = bool(np.all(np.abs(poles) < 1.0)) if T.isdtime() else bool(np.all(poles.real < 0))
-    Tw = np.asarray(T.frequency_response(w).complex).reshape(m, m, len(w))
-    S = np.linalg.inv(np.eye(m)[None] - np.moveaxis(Tw, -1, 0))
+    S = np.linalg.inv(np.eye(m)[None] - Tw)
     S_peak = float(np.max(np.linalg.svd(S, compute_uv=False)[:, 0]))
     if T.isctime():
-        S_peak = max(S_peak, float(np.linalg.svd(np.linalg.inv(np.eye(m) - np.asarray(T.D)), compute_uv=False)[0]))
+        S_peak = max(S_peak, float(np.linalg.svd(np.linalg.inv(np.eye(m) - D), compute_uv=False)[0]))
     return {"actuators": out, "peak_sensitivity": S_peak, "closed_loop_poles": poles, "stable": stable,
-            "dt": float(T.dt) if T.isdtime() else 0.0}
+            "dt": float(T.dt) if T.isdtime() else 0.0, "disk_skew": DISK_SKEW}
 
 
-def siso_margins(L: ct.StateSpace, w: np.ndarray) -> dict:
-    """``control.stability_margins`` (all crossovers) of L's frequency response on the grid w (an
-    interpolating ``control.frd``), split into the gain increase and decrease margins."""
-    frd = ct.frd(L, w, smooth=True)
-    with warnings.catch_warnings():
+def broken_loop(Tw: np.ndarray, i: int) -> np.ndarray:
+    """``T_cl[i, i]`` (shape (N, 1, 1)) of ``T_cl = T (I − E_o T)⁻¹`` at each frequency, the other channels
+    closed with positive feedback (``control.feedback(T, E_o, sign=1)``, ``E_o`` their selector)."""
+    m = Tw.shape[-1]
+    if m == 1:
+        return Tw[:, :1, :1]
+    E = np.diag([0.0 if j == i else 1.0 for j in range(m)])
+    # row i of T (I − E T)⁻¹ = (I − E T)⁻ᵀ solved for T's row i
+    Mt = np.swapaxes(np.eye(m)[None] - E @ Tw, -1, -2)
+    row = np.linalg.solve(Mt, Tw[:, i, :, None])
+    return row[:, i:i + 1, :]
+
+
+def siso_margins(Lw: np.ndarray, w: np.ndarray, dt=0, L_inf: float | None = None) -> dict:
+    """``control.stability_margins`` (all crossovers) of the loop's frequency response Lw on the grid w (an
+    interpolating ``control.frd``), split into the gain increase and decrease margins; ``L_inf`` is the
+    continuous loop's feedthrough, ``L(j∞)``."""
+    frd = ct.frd(np.asarray(Lw, dtype=complex).reshape(1, 1, -1), w, dt, smooth=True)
+    with warnings.catch_warnings(), splev_at_once():
         warnings.simplefilter("ignore")
         gm, pm, sm, wpc, wgc, wms = ct.stability_margins(frd, returnall=True)
     sm = np.asarray(sm, dtype=float)
     # the distance to −1 on the grid itself as well (stability_margins keeps the local minima inside it)
-    d_min = float(np.min(np.abs(1 + frd.complex.ravel())))
+    d_min = float(np.min(np.abs(1 + frd.frdata.ravel())))
     if len(sm):
         d_min = min(d_min, float(np.min(sm)))
-    if L.isctime():                       # the grid's end: |1 + L(j∞)| = |1 + D|
-        d_min = min(d_min, float(abs(1 + np.asarray(L.D).item())))
+    if L_inf is not None:                 # the grid's end: |1 + L(j∞)| = |1 + D|
+        d_min = min(d_min, float(abs(1 + L_inf)))
     return {**margin_entries(gm, pm, np.asarray(wpc, dtype=float), np.asarray(wgc, dtype=float)),
             "peak_sensitivity": 1.0 / d_min if d_min > 0 else float("inf")}
 
@@ -204,5 +331,6 @@ def robustness_figures(rob: dict) -> dict:
             "stable": r["stable"],
             "sample_time_s": r["dt"] or None,
             "closed_loop_poles": [[float(p.real), float(p.imag)] for p in np.sort_complex(r["closed_loop_poles"])],
+            "disk_skew": r["disk_skew"],
         }
     return out
