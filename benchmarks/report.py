@@ -239,7 +239,7 @@ def not_ahead(data: dict) -> list[str]:
         same = {}
         for b in data["bench"].values():
             for r in b["rows"]:
-                if r["method"] == "ss22 (FMU)" and "theta" not in r["setting"]:
+                if r["method"] == "ss22 (FMU)" and "theta" not in r["setting"] and r["error"] is not None:
                     same.setdefault(r["setting"], r["error"])
         cmp = [f"{r['tip_low_modes']:.1e} at {r['step']:g} s" + (f" (3-mode link: {same[r['setting']]:.1e})"
                                                                   if r["setting"] in same else "") for r in bad]

@@ -139,7 +139,9 @@ def plot(bodies: list[dict], modes: list[dict], fits: dict, path: Path) -> None:
 
 def markdown(table: list[dict], bodies: list[dict], modes: list[dict], fits: dict, info: dict) -> str:
     lines = [f"Measured {info['date']} on {info['machine']} (`{info['command']}`, generated C at "
-             f"{info['optimise']}); builds: median of {info['builds']}, steps: median of {info['repeats']} runs.", "",
+             f"{info['optimise']}); builds: median of {info['builds']}, steps: median of {info['repeats']} runs"
+             + (f"; load average {info['load'][0]:.1f} at the start, {info['load'][1]:.1f} at the end (2 cores: "
+                "above 2, the wall-clock build times grow with it)" if "load" in info else "") + ".", "",
              "| scene | n_q | build [s] (target) | generated C [MB] (target) | µs per SS22 step (target) |",
              "| --- | --- | --- | --- | --- |"]
     for r in table:
@@ -190,6 +192,7 @@ def main(argv: list[str] | None = None) -> None:
     link_counts = (1, 2, 3) if args.quick else (1, 2, 3, 4, 5, 6, 8)
     mode_counts = (2, 4) if args.quick else tuple(m for m in (1, 2, 4, 8, 16, 32) if m <= args.max_modes)
     bodies, modes, table = [], [], []
+    load_at_start = os.getloadavg()[0]          # the machine is shared: the report says how busy it was
     families_from = None
     kept_rows: dict[str, dict] = {}
     if args.table_only:                                # a table row re-measured after a change of the code
@@ -197,7 +200,7 @@ def main(argv: list[str] | None = None) -> None:
         bodies, modes, families_from = kept["bodies"], kept["modes"], kept["info"].get("families_from", kept["info"])
         link_counts, mode_counts = (), ()
         if args.keep_32:
-            kept_rows = {r["label"]: {**r, "kept_from": kept["info"]["date"]} for r in kept["table"]
+            kept_rows = {r["label"]: {**r, "kept_from": r.get("kept_from", kept["info"]["date"])} for r in kept["table"]
                          if r["label"] == TABLE[2][0]}
     for n in link_counts:
         bodies.append(measure(parse_scene(chain_scene(n)), builds=builds, repeats=repeats))
@@ -229,7 +232,8 @@ def main(argv: list[str] | None = None) -> None:
     info = {"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
             "quick": args.quick, "builds": builds, "repeats": repeats,
             "command": " ".join(["python benchmarks/scaling.py", *(argv if argv is not None else sys.argv[1:])]),
-            "optimise": os.environ.get(OPTIMISE_ENV) or "the default levels (-O2, -O1 above 5 000 operations)"}
+            "optimise": os.environ.get(OPTIMISE_ENV) or "the default levels (-O2, -O1 above 5 000 operations)",
+            "load": (load_at_start, os.getloadavg()[0])}
     if families_from is not None:
         info["families_from"] = {k: families_from[k] for k in ("date", "command", "builds", "repeats")}
     args.out.mkdir(parents=True, exist_ok=True)

@@ -554,8 +554,9 @@ KEYS: tuple[Key, ...] = (
                    "link's tip without one (inertial frame)"),
     _K("fmu", "newton_matrix", "string", "", "auto", choices=NEWTON_MATRIX_FORMS,
        description="the SS22 Newton matrix in the generated C: one dense symbolic Jacobian (fastest to refresh, "
-                   "code n times the residual's), columns of the residual's derivative (code like the residual's), "
-                   "or auto (dense up to 12 coordinates)"),
+                   "code n times the residual's), or by columns: of the residual's derivative (code like the "
+                   "residual's), or of differences of the residual without directional derivatives (no code); "
+                   "auto: dense up to 12 coordinates when the derivatives are compiled"),
     _K("fmu", "directional_derivatives", "boolean", "", True,
        description="compile the forward derivatives of the residual and the outputs that "
                    "fmi2GetDirectionalDerivative needs; false leaves them out of the generated C (the six-axis "

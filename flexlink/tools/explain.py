@@ -105,7 +105,7 @@ def format_explanation(info: dict) -> str:
     in_step = set(CO_SIMULATION_STEP_FUNCTIONS) | ({"residual_forward_all"} if "mass_matrix" in generated else set())
     step = sum(ops for name, ops in generated.items() if name in in_step)
     lines.append(f"  a Co-Simulation step evaluates {step} of them (residual, Newton matrix or mass matrix and the "
-                 "residual's derivative, validity, outputs); the forward derivatives serve "
+                 "residual's derivative where it is compiled, validity, outputs); the forward derivatives serve "
                  "fmi2GetDirectionalDerivative ([fmu] directional_derivatives)")
     freqs = info["frequencies_hz"]
     lines.append("natural frequencies (Hz): " + ", ".join(f"{f:.4g}" for f in freqs[:12])
