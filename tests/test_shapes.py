@@ -3,7 +3,6 @@ published roots, beam theory (orthogonality, boundary conditions, frequencies, s
 scipy's adaptive quadrature on ``evaluate``, closed forms and finite differences."""
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -417,19 +416,6 @@ def test_fe_derivatives_jump_only_where_expected():
             for d in (2, 3):
                 right = basis.evaluate(nodes + 1e-10, d)
                 np.testing.assert_allclose(basis.evaluate(nodes, d), right, rtol=1e-6)
-
-
-# --- cost -----------------------------------------------------------------------------------------
-
-
-def test_building_bases_is_fast():
-    def build():
-        start = time.perf_counter()
-        for basis in (make_basis("fe", 40, LENGTH), make_basis("clamped-free", 20, LENGTH, RHO)):
-            assert basis.integrals.curv.shape == (basis.n, basis.n)
-        return time.perf_counter() - start
-
-    assert min(build() for _ in range(3)) < 0.1
 
 
 @pytest.mark.parametrize("kind, count", [("clamped-free", 1), ("clamped-free", 4), ("fe", 3), ("fe", 6),
