@@ -308,7 +308,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stop-time", type=float, required=True, metavar="T", help="end of the run, s")
     _add_input_options(p)
     p.add_argument("-o", "--output", type=film_file, required=True, metavar="OUT.gif",
-                   help="the film: .gif (Pillow) or .mp4 (needs ffmpeg)")
+                   help="the film: .gif (Pillow) or .mp4 (ffmpeg: from PATH, else imageio-ffmpeg's)")
     p.add_argument("--magnify", type=float, metavar="K", help="deflection magnification (the elastic coordinates' "
                    "effect only; joint angles true); default: 1, 2 or 5 × 10ⁿ making the largest deflection "
                    "about 8 %% of the arm's reach; drawn in every frame")

@@ -15,8 +15,8 @@ from pathlib import Path
 
 from flexlink.errors import FlexlinkError
 
-__all__ = ["FILM_WRITERS", "SCENE_HELP", "OutputPath", "check_output_paths", "film_file", "output_file", "plot_file",
-           "stream_file"]
+__all__ = ["FILM_WRITERS", "SCENE_HELP", "OutputPath", "check_output_paths", "film_file", "film_writer",
+           "output_file", "plot_file", "stream_file"]
 
 
 SCENE_HELP = "the scene file (TOML; docs/scene.md)"
@@ -72,10 +72,10 @@ def stream_file(text: str) -> OutputPath:
 
 
 def film_file(text: str) -> OutputPath:
-    """The argparse ``type`` of an option naming a film (.gif, or .mp4 if ffmpeg is installed).
+    """The argparse ``type`` of an option naming a film (.gif or .mp4).
 
-    The film's writer (:data:`FILM_WRITERS`) is checked before the run: an .mp4 without ffmpeg on PATH is
-    refused in one line rather than after the simulation.
+    The film's writer is checked before the run (:func:`film_writer`: ffmpeg from PATH, else imageio-ffmpeg's
+    bundled binary), so a film that cannot be written is refused in one line rather than after the simulation.
     """
     return _FilmPath(text)
 
@@ -128,18 +128,43 @@ def _check_place(path: OutputPath, option: str) -> None:
             raise FlexlinkError(f"{option} {path}: expected a figure file ending in one of "
                                 f"{', '.join('.' + f for f in sorted(formats))}")
     if path.film:
-        _check_film_writer(p, option)
+        film_writer(p, option)
 
 
-def _check_film_writer(path: Path, option: str) -> None:
-    suffix = path.suffix.lower()
+def film_writer(path: str | os.PathLike, option: str = "-o") -> str:
+    """The name of the matplotlib animation writer that makes the film ``path`` (by its suffix), made ready.
+
+    An mp4 needs an ffmpeg binary. The one on PATH (or at matplotlib's ``animation.ffmpeg_path``) is used
+    if there is one; otherwise the one shipped in the imageio-ffmpeg wheel, a dependency of flexlink, so
+    that ``-o arm.mp4`` works after a plain ``pip install`` on a machine without ffmpeg: matplotlib's
+    ``animation.ffmpeg_path`` is pointed at it for this process. Raises a :class:`FlexlinkError` naming
+    ``option`` for a suffix that is not a film, or for an mp4 when no ffmpeg can be found at all.
+    """
+    suffix = Path(path).suffix.lower()
     if suffix not in FILM_WRITERS:
         raise FlexlinkError(f"{option} {path}: expected a film ending in {' or '.join(FILM_WRITERS)}")
+    name = FILM_WRITERS[suffix]
     from matplotlib import animation
 
-    if not animation.writers.is_available(FILM_WRITERS[suffix]):
-        raise FlexlinkError(f"{option} {path}: an mp4 needs ffmpeg, which is not on PATH; write a .gif "
-                            f"(Pillow, always there) or install ffmpeg")
+    if not animation.writers.is_available(name) and name == "ffmpeg":
+        _use_imageio_ffmpeg()
+    if not animation.writers.is_available(name):
+        raise FlexlinkError(f"{option} {path}: an mp4 needs ffmpeg, and there is none on PATH nor from the "
+                            f"imageio-ffmpeg package; write a .gif (Pillow, always there) or install ffmpeg")
+    return name
+
+
+def _use_imageio_ffmpeg() -> None:
+    """Point matplotlib's ffmpeg writer at imageio-ffmpeg's binary, if that package is there and has one."""
+    try:
+        import imageio_ffmpeg
+
+        exe = imageio_ffmpeg.get_ffmpeg_exe()
+    except (ImportError, RuntimeError):     # not installed; installed without a binary for this platform
+        return
+    import matplotlib
+
+    matplotlib.rcParams["animation.ffmpeg_path"] = exe
 
 
 def check_output_paths(args: argparse.Namespace, options: dict[str, str]) -> None:

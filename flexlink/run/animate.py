@@ -12,13 +12,12 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from flexlink.errors import FlexlinkError
 from flexlink.mechanics.centreline import Centreline
-from flexlink.paths import FILM_WRITERS
+from flexlink.paths import film_writer
 
 VIEWS = ("auto", "3d", "xy", "xz", "yz")
 MAX_FRAMES = 3000           # a film of more frames is minutes of drawing: ask for a lower --fps instead
@@ -27,8 +26,11 @@ VISIBLE = 0.08              # default magnification: the largest drawn deflectio
 
 @dataclass
 class ArmFilm:
-    """What is drawn at each frame: ``drawn`` (frames × points × 3, magnified), ``rigid`` (the same with
-    η = 0), the times, the magnification and the largest true deflection."""
+    """What is drawn at each frame, from an FMU run.
+
+    ``drawn`` (frames × points × 3, magnified) and ``rigid`` (the same points with η = 0) at the ``times``;
+    the magnification and the largest true deflection are kept to be written in every frame.
+    """
 
     line: Centreline
     times: np.ndarray
@@ -53,8 +55,12 @@ def nice_floor(x: float) -> float:
 
 
 def arm_film(line: Centreline, result, magnify: float | None = None, frame_step: float | None = None) -> ArmFilm:
-    """The film of an fmpy result that holds every coordinate of ``line`` (the FMU outputs of those names);
-    with ``frame_step``, only its samples on that grid (fmpy adds one at each input jump, between frames)."""
+    """The film of an fmpy result that holds every coordinate of ``line`` (the FMU outputs of those names).
+
+    With ``frame_step``, only the result's samples on that grid are frames (fmpy adds one at each input
+    jump, between frames). ``magnify`` None: the 1, 2 or 5 × 10ⁿ that makes the largest deflection about
+    ``VISIBLE`` of the arm's reach (at least 1).
+    """
     times = np.asarray(result["time"], float)
     keep = np.append(np.diff(times) > 0, True)       # a time sampled twice (an input jump): the later sample
     if frame_step is not None:
@@ -96,8 +102,10 @@ def _limits(points: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 class FilmFigure:
-    """A matplotlib figure of the film and ``draw(k)``, which puts frame k in it (for the writer, a still
-    frame, and the tests that read back what was drawn)."""
+    """A matplotlib figure of the film, and ``draw(k)``, which puts frame k in it.
+
+    One figure serves the animation writer, the still frame, and the tests that read back what was drawn.
+    """
 
     def __init__(self, film: ArmFilm, title: str = "", view: str = "auto"):
         import matplotlib
@@ -155,6 +163,7 @@ class FilmFigure:
             artist.set_data(points[:, i], points[:, j])
 
     def draw(self, k: int) -> list:
+        """Put frame k in the figure; the artists it changed (what ``FuncAnimation`` redraws)."""
         f, line = self.film, self.film.line
         self._set(self.ghost, f.rigid[k, line.polyline])
         self._set(self.arm, f.drawn[k, line.polyline])
@@ -165,6 +174,7 @@ class FilmFigure:
         return [self.ghost, self.arm, self.joints, self.payloads, self.tip, self.clock]
 
     def close(self) -> None:
+        """Free the figure (pyplot keeps every open figure alive)."""
         import matplotlib.pyplot as plt
 
         plt.close(self.fig)
@@ -172,13 +182,17 @@ class FilmFigure:
 
 def write_film(film: ArmFilm, path: str | os.PathLike, *, fps: float, title: str = "", view: str = "auto",
                still: str | os.PathLike | None = None) -> FilmFigure:
-    """Write the film (gif: Pillow; mp4: ffmpeg) and, if asked, a still PNG of the frame of the largest
-    deflection; returns the figure (closed), whose ``view`` says which projection was drawn."""
+    """Write the film (gif: Pillow; mp4: ffmpeg) and, if asked, a still PNG of the frame of the largest deflection.
+
+    Returns the figure (closed), whose ``view`` says which projection was drawn. The writer comes from
+    :func:`flexlink.paths.film_writer`, which finds an ffmpeg for an mp4 or says why there is none.
+    """
     from matplotlib import animation
 
     figure = FilmFigure(film, title, view)
     try:
-        writer = animation.writers[FILM_WRITERS[Path(path).suffix.lower()]](fps=fps)
+        # matplotlib's stubs say int; both writers take a rate in frames per second as a float (--fps 12.5)
+        writer = animation.writers[film_writer(path)](fps=fps)  # type: ignore[arg-type]
         movie = animation.FuncAnimation(figure.fig, figure.draw, frames=len(film.times), blit=False)
         movie.save(str(path), writer=writer, dpi=90)
         if still is not None:
