@@ -1,4 +1,4 @@
-"""Equilibrium, linearisation and natural frequencies of a symbolic model (SCENE.md `flexlink modes`).
+"""Equilibrium, linearisation and natural frequencies of a symbolic model (`flexlink modes`, docs/commands.md).
 
 The operating point: the scene's initial joint angles; the first joint turning steadily at ``rate``;
 torque-driven joints given the constant torque that holds them there (they stay free coordinates
@@ -20,6 +20,11 @@ from flexlink.mechanics.model import SymbolicModel
 
 @dataclass
 class OperatingPoint:
+    """The state and inputs a model is linearised about: coordinates q, rates v, inputs u, parameters p.
+
+    The accelerations are zero there, so this is an equilibrium (or a steady rotation of the first joint).
+    """
+
     q: np.ndarray
     v: np.ndarray
     u: np.ndarray
@@ -36,9 +41,12 @@ class Linearisation:
     B: np.ndarray
 
 
-def _elastic_and_joint_indices(model: SymbolicModel):
-    """Driven joint coordinates (torque or free; a motor for an elastic joint) and the others (elastic
-    coordinates and the link side of elastic joints), which take their static value."""
+def _elastic_and_joint_indices(model: SymbolicModel) -> tuple[list[int], list[int]]:
+    """Indices of the driven joint coordinates and of the others, which take their static value.
+
+    Driven: torque-driven or free joints (the motor side of an elastic joint); the others are the
+    elastic coordinates and the link side of elastic joints.
+    """
     kinds = model.coordinate_kinds
     joints = [i for i, k in enumerate(kinds) if k == "joint"]
     elastic = [i for i, k in enumerate(kinds) if k != "joint"]
@@ -46,10 +54,12 @@ def _elastic_and_joint_indices(model: SymbolicModel):
 
 
 def _joint_name(coordinate: str) -> str:
+    """The joint a coordinate belongs to: its name without ``.theta`` or ``.motor_theta``."""
     return coordinate.removesuffix(".motor_theta").removesuffix(".theta")
 
 
-def _call(f, *args) -> np.ndarray:
+def _call(f: ca.Function, *args: object) -> np.ndarray:
+    """Evaluate a CasADi function numerically and hand back a float array (CasADi returns DM)."""
     return np.asarray(f(*args), dtype=float)
 
 
@@ -73,7 +83,14 @@ def static_deflection(model: SymbolicModel, q: np.ndarray, v: np.ndarray, u: np.
 
 
 def operating_point(model: SymbolicModel, rate: float = 0.0, p: np.ndarray | None = None) -> OperatingPoint:
-    """The equilibrium of SCENE.md's `flexlink modes`, as (q, v, u, p)."""
+    """The equilibrium `flexlink modes` linearises about (docs/commands.md), as (q, v, u, p).
+
+    Raises
+    ------
+    FlexlinkError
+        When ``rate`` is set with gravity across the first joint's axis (no steady rotation exists), or a
+        free joint is not at rest at its initial angle.
+    """
     scene = model.scene
     p = model.p0 if p is None else np.asarray(p, dtype=float)
     if rate != 0.0 and scene.has_gravity:
@@ -128,6 +145,11 @@ def linearise(model: SymbolicModel, op: OperatingPoint) -> Linearisation:
 
 @dataclass
 class Modes:
+    """What `flexlink modes` reports: frequencies (Hz) at a hub ``rate``, the divergent ones apart.
+
+    ``rigid`` counts the rigid-body (zero-frequency) modes left out of both lists.
+    """
+
     rate: float
     frequencies_hz: list[float]
     unstable_hz: list[float]
@@ -136,17 +158,18 @@ class Modes:
 
 def natural_frequencies(model: SymbolicModel, rate: float = 0.0, p: np.ndarray | None = None,
                         rigid_tol: float = 1e-12) -> Modes:
-    """Undamped natural frequencies about the operating point: ascending, rigid-body zeros left out;
-    modes with ω² < 0 (divergence) listed apart, as |ω| in Hz.
+    """Undamped natural frequencies about the operating point: ascending, rigid-body zeros left out.
 
-    A mode is rigid when |ω²| is at rounding level against the largest (``rigid_tol`` × max|ω²|, about
-    5e3 ε): stiff joints and fine meshes span 1e10 in ω², so a looser test would drop physical modes."""
+    Modes with ω² < 0 (divergence) are listed apart, as |ω| in Hz. A mode is rigid when |ω²| is at
+    rounding level against the largest (``rigid_tol`` × max|ω²|, about 5e3 ε): stiff joints and fine
+    meshes span 1e10 in ω², so a looser test would drop physical modes.
+    """
     lin = linearise(model, operating_point(model, rate, p))
     M, C, K = lin.M, lin.C, lin.K
     G = 0.5 * (C - C.T)                      # gyroscopic part; dissipation is left out
-    if np.linalg.norm(G) <= 1e-12 * max(1.0, np.linalg.norm(C)):
+    if np.linalg.norm(G) <= 1e-12 * max(1.0, float(np.linalg.norm(C))):
         w2 = np.real(scipy.linalg.eigvals(K, M))
-        scale = max(1.0, np.max(np.abs(w2)))
+        scale = max(1.0, float(np.max(np.abs(w2))))
         rigid = int(np.sum(np.abs(w2) <= rigid_tol * scale))
         stable = np.sort(np.sqrt(w2[w2 > rigid_tol * scale]))
         unstable = np.sort(np.sqrt(-w2[w2 < -rigid_tol * scale]))
@@ -155,7 +178,7 @@ def natural_frequencies(model: SymbolicModel, rate: float = 0.0, p: np.ndarray |
         Minv = np.linalg.inv(M)
         A = np.block([[np.zeros((n, n)), np.eye(n)], [-Minv @ K, -Minv @ G]])
         lam = np.linalg.eigvals(A)
-        scale = max(1.0, np.max(np.abs(lam)))
+        scale = max(1.0, float(np.max(np.abs(lam))))
         small = np.abs(lam) <= np.sqrt(rigid_tol) * scale
         rigid = int(np.sum(small)) // 2
         osc = lam[~small & (np.abs(lam.imag) >= np.abs(lam.real))]

@@ -34,9 +34,10 @@ from flexlink.mechanics.kinematics import (
     torsion_kinetic,
 )
 from flexlink.mechanics.shapes import make_basis
-from flexlink.mechanics.shapes.body import shell_body
+from flexlink.mechanics.shapes.base import ShapeBasis
+from flexlink.mechanics.shapes.body import BodyIntegrals, shell_body
 from flexlink.mechanics.shapes.reduction import ModalBeamBasis, ModalTorsionBasis
-from flexlink.mechanics.shapes.torsion import make_torsion_basis
+from flexlink.mechanics.shapes.torsion import TorsionBasis, make_torsion_basis
 from flexlink.mechanics.symbolic import Law, Parameter, Signal, StartValue
 from flexlink.scene.loader import Joint, Link, Scene
 
@@ -47,6 +48,11 @@ def _unsupported(scene: Scene, what: str) -> FlexlinkError:
 
 
 def check_supported(scene: Scene) -> None:
+    """Refuse, with the scene's name, a link whose shape family the builder has no kinematics for.
+
+    The scene loader accepts every kind the schema names; this is where a kind the mechanics cannot model
+    yet becomes a clear error instead of a failure deep in the symbolic model.
+    """
     for link in scene.links:
         if not link.is_rigid and link.shapes.kind not in ("clamped-free", "polynomial", "fe", "shell"):
             raise _unsupported(scene, f'link "{link.name}": shapes kind {link.shapes.kind!r}')
@@ -77,9 +83,9 @@ class LinkParts:
 
     eta: list[int]                 # indices of the link's elastic coordinates in the full vector
     fields: dict[str, list[int]]   # "v", "w", "alpha" (or "modes" of a shell) → indices
-    bending: object | None         # ShapeBasis for v and w
-    torsion: object | None         # TorsionBasis
-    body: object | None = None     # BodyIntegrals of a shell link (its modes deform in every direction)
+    bending: ShapeBasis | None     # for v and w
+    torsion: TorsionBasis | ModalTorsionBasis | None
+    body: BodyIntegrals | None = None     # of a shell link (its modes deform in every direction)
     i_rho: int = 0
     i_EI: int | None = None
     i_EIo: int | None = None
@@ -88,7 +94,7 @@ class LinkParts:
     i_kv: int | None = None
     i_pm: int | None = None
     i_pj: int | list[int] | None = None
-    tip: object | None = None      # TipKinematics, once the energies are formed
+    tip: TipKinematics | None = None      # once the energies are formed
     axis: tuple = (0.0, 0.0, 1.0)  # the joint axis in the link frame (z of a beam's basis; any for a rigid link)
     kinematics: str = "second-order"   # the link's own kinematic model
     rigid: bool = False
@@ -98,13 +104,16 @@ class LinkParts:
 
     @property
     def second_order(self) -> bool:
+        """Whether the link keeps the foreshortening (second-order kinematics, docs/mechanics.md)."""
         return self.kinematics == "second-order"
 
 
 @dataclass
 class Frame:
-    """A link's floating frame and its tip frame: origins and their velocities in the world, rotations to
-    the world, angular velocities resolved in the frame itself (body components).
+    """A link's floating frame and its tip frame, with their velocities.
+
+    Origins and their velocities are in the world, rotations map to the world, and angular velocities are
+    resolved in the frame itself (body components).
 
     Origin velocities are propagated from the parent's, ``V_tip = V + Ṙ s_tip + R ṡ_tip``, with the rotation's
     own rate Ṙ carried along the chain too, rather than differentiated from the positions: each body adds
@@ -161,7 +170,8 @@ class ChainAssembly:
         """The coordinate joint i's actuator acts on: the motor angle of an elastic joint, else the joint angle."""
         return self.motor_coord[i] if self.motor_coord[i] is not None else self.joint_coord[i]
 
-    def deformation(self, part: LinkParts, q, v) -> LinkDeformation:
+    def deformation(self, part: LinkParts, q: ca.MX, v: ca.MX) -> LinkDeformation:
+        """The link's elastic coordinates and rates picked out of full vectors ``q``, ``v``, field by field."""
         f = part.fields
 
         def pick(x, name):
@@ -171,8 +181,10 @@ class ChainAssembly:
                                pick(v, "v"), pick(v, "w"), pick(v, "alpha"))
 
     def assemble_kinematics(self) -> None:
-        """The stages every user of the chain's frames needs: coordinates, parameters, inputs, and the frames
-        with their energies (the model adds potential, dissipation and equations; a drawing stops here)."""
+        """Run the stages every user of the chain's frames needs: coordinates, parameters, inputs, energies.
+
+        The model adds potential, dissipation and equations; a drawing (centreline.py) stops here.
+        """
         self.add_coordinates()
         self.add_parameters()
         self.add_inputs()
@@ -186,6 +198,7 @@ class ChainAssembly:
         return len(self.coordinates) - 1
 
     def add_joint_coordinates(self, joint: Joint) -> None:
+        """The joint's angle; an elastic joint has two, the motor's (driven) and the link's (through the spring)."""
         if joint.is_elastic:
             self.motor_coord.append(self._new(f"{joint.name}.motor_theta", "joint"))
             self.joint_coord.append(self._new(f"{joint.name}.theta", "link_angle"))
@@ -194,6 +207,10 @@ class ChainAssembly:
             self.joint_coord.append(self._new(f"{joint.name}.theta", "joint"))
 
     def add_shell_coordinates(self, link: Link) -> None:
+        """A shell link's modal coordinates: its mesh is assembled and reduced here, once, at build time.
+
+        A mesh the shell elements refuse becomes a scene error naming the link.
+        """
         try:
             body = shell_body(link)
         except ValueError as exc:
@@ -205,6 +222,11 @@ class ChainAssembly:
                           f"(mesh {'x'.join(map(str, shape.mesh))}, joint held), {link.kinematics} kinematics")
 
     def add_beam_coordinates(self, link: Link) -> None:
+        """A beam link's η for each of its fields (v, w, α), with nominal values that scale them to metres.
+
+        The nominal value of a coordinate is the inverse of its shape's peak deflection (or slope times
+        length), so that the integrator's error control weighs every η alike whatever the basis.
+        """
         bending = torsion = None
         xs = np.linspace(0.0, link.length, 401)
         if "v" in link.deformation or "w" in link.deformation:
@@ -233,12 +255,14 @@ class ChainAssembly:
                                                               for f in fields) + f", {link.kinematics} kinematics")
 
     def add_rigid_link(self, link: Link) -> None:
+        """A rigid link: no coordinates, only its record (its inertia comes with the parameters)."""
         self.parts.append(LinkParts([], {}, None, None, rigid=True))
         mass, _, inertia = link.rigid_body()
         what = "massless connector" if mass == 0 and not np.any(inertia) else "rigid body"
         self.terms.append(f'link "{link.name}": {what} (deformation = []), no elastic coordinates')
 
     def add_coordinates(self) -> None:
+        """Every coordinate, joint by joint then its link, and the symbols qa, va, aa of the full vectors."""
         for joint, link in zip(self.scene.joints, self.scene.links, strict=True):
             self.add_joint_coordinates(joint)
             if link.is_rigid:
@@ -252,8 +276,10 @@ class ChainAssembly:
 
     # ---- parameters: a term is in the model only if the scene needs it, or [fmu] tunable asks
     def add_rigid_parameters(self, link: Link, part: LinkParts) -> None:
-        """A rigid link's ten inertial parameters (as in robot identification), the ones its scene needs:
-        mass and centre of mass if it has mass, the inertia tensor about the centre if it is non-zero."""
+        """A rigid link's ten inertial parameters (as in robot identification), the ones its scene needs.
+
+        Mass and centre of mass if it has mass, the inertia tensor about the centre if it is non-zero.
+        """
         P = self.P
         mass, centre, inertia = link.rigid_body()
         if mass > 0:
@@ -267,6 +293,7 @@ class ChainAssembly:
                               0.0 if a == b else -np.inf) for k, (a, b) in enumerate(entries)]
 
     def add_link_parameters(self, link: Link, part: LinkParts, tunable: set[str]) -> None:
+        """A link's density (or rigid inertia), its stiffness and damping, and its payload, as FMU parameters."""
         P = self.P
         if link.is_rigid:
             self.add_rigid_parameters(link, part)
@@ -282,6 +309,7 @@ class ChainAssembly:
         self.add_payload_parameters(link, part, tunable)
 
     def add_elastic_parameters(self, link: Link, part: LinkParts, tunable: set[str]) -> None:
+        """The stiffness of each field the link deforms in, and Kelvin–Voigt damping if set or made tunable."""
         P = self.P
         if "v" in part.fields:
             part.i_EI = P.add(f"{link.name}.EI", link.EI, "N.m2", "bending stiffness in the joint's plane", 0.0, True)
@@ -298,6 +326,11 @@ class ChainAssembly:
             self.terms.append(f'link "{link.name}": Kelvin-Voigt structural damping')
 
     def add_payload_parameters(self, link: Link, part: LinkParts, tunable: set[str]) -> None:
+        """The tip payload's mass and inertia (about the axis, or three principal moments) when it has one.
+
+        A payload absent from the scene is still added when ``[fmu] tunable`` names it, so a user can attach it
+        to the FMU later.
+        """
         P = self.P
         pay = link.payload
         if pay.is_present or {f"{link.name}.payload.mass", f"{link.name}.payload.inertia"} & tunable:
@@ -311,6 +344,11 @@ class ChainAssembly:
             self.terms.append(f'link "{link.name}": tip payload')
 
     def add_parameters(self) -> None:
+        """Every parameter the scene needs (links, joints, gravity), then the symbol p that holds them.
+
+        A term absent from the scene (zero damping, no gravity) is left out of the model unless ``[fmu]
+        tunable`` asks for it: a generated model contains only what its scene needs.
+        """
         scene, P = self.scene, self.P
         tunable = set(scene.fmu.tunable)
         for link, part in zip(scene.links, self.parts, strict=True):
@@ -330,6 +368,10 @@ class ChainAssembly:
 
     # ---- inputs: torques, prescribed laws, tip loads
     def add_inputs(self) -> None:
+        """The FMU's inputs: a torque per torque-driven joint, (θ, θ̇, θ̈) per prescribed one, and the tip load.
+
+        A built-in trajectory keeps its three slots (the model reads them) but they are not FMU variables.
+        """
         inputs = self.inputs
         for i, joint in enumerate(self.scene.joints):
             if joint.drive == "torque":
@@ -368,10 +410,13 @@ class ChainAssembly:
         return T, Vg
 
     def floating_body(self, scale, mass, S1, S1d, J, H, relative, VL, RL, wL) -> tuple:
-        """T = ½ scale (m|V|² + 2 RᵀV·(ω×S1 + Ṡ1) + ωᵀJω + 2ω·H + E) of a body in a floating frame (origin
-        velocity V in the world, rotation R, angular velocity ω in the frame) from its inertia invariants: mass
-        m, first moment S1 and inertia J about the origin, relative angular momentum H and kinetic energy E,
-        all per unit of ``scale`` (the density parameter of a flexible link, 1 for a rigid one)."""
+        """T = ½ scale (m|V|² + 2 RᵀV·(ω×S1 + Ṡ1) + ωᵀJω + 2ω·H + E) of a body in a floating frame.
+
+        The frame has origin velocity V in the world, rotation R and angular velocity ω in the frame; the
+        body's inertia invariants are its mass m, first moment S1 and inertia J about the origin, relative
+        angular momentum H and kinetic energy E, all per unit of ``scale`` (the density parameter of a
+        flexible link, 1 for a rigid one).
+        """
         T = 0.5 * scale * (mass * ca.dot(VL, VL) + 2 * ca.dot(ca.mtimes(RL.T, VL), ca.cross(wL, S1) + S1d)
                            + ca.dot(wL, ca.mtimes(J, wL)) + 2 * ca.dot(wL, H) + relative)
         # ∫ρ ṙ = ρ(m V + R(ω×S1 + Ṡ1));  ∫ρ (s × ṙ) = R ρ(S1 × (RᵀV) + J ω + H)
@@ -413,7 +458,8 @@ class ChainAssembly:
             J = J + mass * (ca.dot(centre, centre) * ca.DM.eye(3) - ca.mtimes(centre, centre.T))
         return self.floating_body(1, mass, mass * centre, zero, J, zero, 0, VL, RL, wL)
 
-    def eta_of(self, part: LinkParts, x):
+    def eta_of(self, part: LinkParts, x: ca.MX) -> ca.MX:
+        """The link's elastic coordinates (all fields, in order) picked out of a full vector ``x``."""
         return ca.vertcat(*[x[k] for k in part.eta])
 
     def link_tip(self, link: Link, part: LinkParts, VL, RL, RL_dot, wL) -> Frame:
@@ -464,9 +510,11 @@ class ChainAssembly:
         return T, Vg
 
     def joint_frame(self, joint: Joint, parent: tuple) -> tuple:
-        """Joint i's placed frame on its parent's tip frame (origin self.origin, rotation R, its rate Ṙ,
-        angular velocity w in it, origin velocity V): the fixed placement (origin, rpy).  Moves self.origin
-        to the joint's origin and returns the placed frame's (R, Ṙ, w, V)."""
+        """Joint i's placed frame on its parent's tip frame: the fixed placement (origin, rpy).
+
+        The parent is (rotation R, its rate Ṙ, angular velocity w in it, origin velocity V), with its origin in
+        self.origin.  Moves self.origin to the joint's origin and returns the placed frame's (R, Ṙ, w, V).
+        """
         R, R_dot, w, V = parent
         if not (any(joint.origin) or any(joint.rpy)):
             return parent
@@ -516,8 +564,10 @@ class ChainAssembly:
         self.T, self.Vg = T, Vg
 
     def tool_frame(self, last: Frame) -> Frame:
-        """The end-effector frame ([tool] origin, rpy in the last link's tip frame) as a Frame whose tip_*
-        fields are the tool's; the last tip frame itself without a [tool] table."""
+        """The end-effector frame ([tool] origin, rpy in the last link's tip frame) as a Frame.
+
+        Its tip_* fields are the tool's; without a [tool] table it is the last tip frame itself.
+        """
         tool = self.scene.tool
         if not (any(tool.origin) or any(tool.rpy)):
             return last
@@ -529,6 +579,11 @@ class ChainAssembly:
 
     # ---- elastic potential, dissipation and generalized forces
     def add_potential_and_dissipation(self) -> None:
+        """The elastic energy Ve and Rayleigh's dissipation R of the links' fields and of the joints.
+
+        Kelvin–Voigt damping is the stiffness matrix times its coefficient, so it damps each mode in
+        proportion to its frequency squared.
+        """
         qa, va, p = self.qa, self.va, self.p
         Ve = R = 0
         for i, (joint, part) in enumerate(zip(self.scene.joints, self.parts, strict=True)):
@@ -568,6 +623,11 @@ class ChainAssembly:
 
     # ---- Lagrange's equations by automatic differentiation, then free and prescribed coordinates
     def add_equations(self) -> None:
+        """Lagrange's equations of every coordinate by CasADi's AD, then the residual r of the free ones.
+
+        A prescribed coordinate is replaced by its law's inputs, so the residual the integrator solves has only
+        the free coordinates; the prescribed ones' residuals are the torques their laws need (an output).
+        """
         qa, va, aa = self.qa, self.va, self.aa
         Lag = self.T - self.Ve - self.Vg
         dL_dv = ca.gradient(Lag, va)
@@ -599,9 +659,12 @@ class ChainAssembly:
                                     ["q", "v", "a", "u", "p"], ["r"])
 
     def free_mass_matrix(self) -> ca.Function:
-        """M(q, u, p) = ∂r/∂a of the free coordinates, as the Hessian ∂²T/∂q̇² (r is M a + h and only T
-        holds q̇ quadratically): its scalar code grows with the chain like the residual's, where a
-        Jacobian of the residual repeats the whole residual's derivative for every column."""
+        """M(q, u, p) = ∂r/∂a of the free coordinates, as the Hessian ∂²T/∂q̇².
+
+        r is M a + h and only T holds q̇ quadratically; the Hessian's scalar code grows with the chain like
+        the residual's, where a Jacobian of the residual repeats the whole residual's derivative for every
+        column.
+        """
         H = ca.hessian(self.T, self.va)[0]
         H = ca.substitute(H, self.va, ca.DM.zeros(self.va.numel()))     # T is quadratic in q̇: H has none
         inner = ca.Function("mass_matrix_all", [self.qa, self.u, self.p], [H])
@@ -622,6 +685,11 @@ class ChainAssembly:
 
     # ---- start values and initial deformation
     def start_values(self) -> tuple[list[StartValue], list[int]]:
+        """The start-value parameters (initial angles and rates) and the coordinates started static.
+
+        The second list holds the free coordinates solved for their static deflection at the start
+        (``initial_deformation = "static"``), the link side of an elastic joint included.
+        """
         start: list[StartValue] = []
         static: list[int] = []
         free = self.free
@@ -646,8 +714,10 @@ class ChainAssembly:
 
 
 def structure(residual: ca.Function) -> tuple[bool, bool]:
-    """(linear in the state, Newton matrix constant) — decided on the scalar expansion, where CasADi
-    folds structural zeros that the matrix graph keeps."""
+    """(linear in the state, Newton matrix constant) of a residual.
+
+    Decided on the scalar expansion, where CasADi folds structural zeros that the matrix graph keeps.
+    """
     f = residual.expand()
     q, v, a, u, p = (ca.SX.sym(n, *f.size_in(i)) for i, n in enumerate("qvaup"))
     state = ca.vertcat(q, v, a)

@@ -18,17 +18,22 @@ from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
+import numpy.typing as npt
 
-from flexlink.mechanics.assembly import ChainAssembly
-from flexlink.scene.loader import Scene
+from flexlink.mechanics.assembly import ChainAssembly, Frame, LinkParts
+from flexlink.mechanics.shapes.base import ShapeBasis
+from flexlink.scene.loader import Link, Scene
 
 POINTS_PER_LINK = 21
 
 
 @dataclass
 class Centreline:
-    """``points(qa) -> (n, 3)``: the polyline of the chain (joint origins, link sections, tool point), world
-    frame; ``joints`` and ``payloads`` index the polyline's joint origins and payload points."""
+    """The drawing of a chain: ``points(qa) -> (n, 3)``, its joint origins, link sections and tool point.
+
+    The points are in the world frame; ``joints`` and ``payloads`` index the joint origins and payload points
+    among them, and ``polyline`` those drawn as the arm's line.
+    """
 
     coordinates: list[str]      # the full coordinate vector, named as the FMU's outputs
     elastic: np.ndarray         # boolean mask of the elastic coordinates η in it
@@ -37,11 +42,12 @@ class Centreline:
     payloads: list[int]
     polyline: list[int]         # the indices drawn as the arm's line (payload points are off it)
 
-    def points(self, qa) -> np.ndarray:
+    def points(self, qa: npt.ArrayLike) -> np.ndarray:
+        """The world positions (n, 3) of the drawn points for the coordinate vector ``qa`` (joints and η)."""
         return np.asarray(self.function(np.asarray(qa, float))).T
 
 
-def _foreshortening(basis, xs: np.ndarray, fs_tip: np.ndarray) -> list[np.ndarray]:
+def _foreshortening(basis: ShapeBasis, xs: np.ndarray, fs_tip: np.ndarray) -> list[np.ndarray]:
     """∫₀ˣ φ'φ'ᵀ at each x of ``xs`` (a fine trapezoid; the tip's exact matrix at x = L)."""
     fine = np.linspace(0.0, basis.length, 2001)
     d1 = basis.evaluate(fine, 1)
@@ -54,7 +60,7 @@ def _foreshortening(basis, xs: np.ndarray, fs_tip: np.ndarray) -> list[np.ndarra
     return out
 
 
-def _link_sections(chain: ChainAssembly, i: int, link, part, frame) -> list:
+def _link_sections(chain: ChainAssembly, i: int, link: Link, part: LinkParts, frame: Frame) -> list[ca.MX]:
     """Points s(x) of link i in the world (its root excluded), from its frame and coordinates."""
     qa = chain.qa
     if part.rigid or part.body is not None:
@@ -64,12 +70,13 @@ def _link_sections(chain: ChainAssembly, i: int, link, part, frame) -> list:
     phi = part.bending.evaluate(xs) if part.bending is not None else None
     fs = (_foreshortening(part.bending, xs, part.bending.integrals.fs_tip)
           if part.bending is not None and part.second_order else None)
-    points = []
+    points: list[ca.MX] = []
     for k, x in enumerate(xs):
-        s = [x, 0, 0]
+        s: list[float | ca.MX] = [x, 0, 0]
         for axis, eta in ((1, d.v), (2, d.w)):
             if eta is None:
                 continue
+            assert phi is not None, "a link with v or w coordinates has a bending basis (assembly.py)"
             s[axis] = ca.dot(ca.DM(phi[k]), eta)
             if fs is not None:
                 s[0] = s[0] - 0.5 * ca.dot(eta, ca.mtimes(ca.DM(fs[k]), eta))
@@ -83,7 +90,10 @@ def centreline(scene: Scene) -> Centreline:
     chain = ChainAssembly(scene)
     chain.assemble_kinematics()
     p0 = ca.DM([par.value for par in chain.P.items])
-    points, joints, payloads, polyline = [], [], [], []
+    points: list[ca.MX] = []
+    joints: list[int] = []
+    payloads: list[int] = []
+    polyline: list[int] = []
     for i, (link, part, frame) in enumerate(zip(scene.links, chain.parts, chain.frames, strict=True)):
         joints.append(len(points))
         polyline.append(len(points))

@@ -11,21 +11,33 @@ Everything the kinetic and gravitational energies need from the distributed mass
 *inertia invariants* — ∫ρs, ∫ρssᵀ, ∫ρ s×ṡ, ∫ρ|ṡ|² — polynomials in η with the constant shape integrals
 as coefficients (seed 000 §3.4.2), built as matrix operations on constant ``DM`` blocks so that the
 symbolic expressions stay small whatever the number of shape functions.  Terms of order three and more
-in η are left out: no model keeps them (DESIGN.md §2).
+in η are left out: no model keeps them (docs/mechanics.md).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TypeVar
 
 import casadi as ca
 import numpy as np
+import numpy.typing as npt
 
 from flexlink.mechanics.shapes import ShapeIntegrals
+from flexlink.mechanics.shapes.base import PointRule
+from flexlink.mechanics.shapes.body import BodyIntegrals
 from flexlink.mechanics.shapes.torsion import TorsionIntegrals
 
+#: A CasADi matrix of any kind: numeric (DM) or symbolic (SX, MX); skew() keeps the kind it is given.
+Matrix = TypeVar("Matrix", ca.DM, ca.SX, ca.MX)
+#: A symbolic scalar that is a plain number when the field it comes from is absent (a rigid direction).
+Scalar = ca.MX | float
+#: A factor of the foreshortening sums Σ w a b: a field at the points, absent (None), or named ("u", "u_dot")
+#: when the sums come from ForeshorteningTensors.
+Factor = ca.MX | ca.DM | str | None
 
-def link_basis(axis) -> np.ndarray:
+
+def link_basis(axis: npt.ArrayLike) -> np.ndarray:
     """Columns e_x, e_v = axis × e_x, e_axis of a link's frame, in its joint's parent frame."""
     a = np.asarray(axis, dtype=float)
     a = a / np.linalg.norm(a)
@@ -33,31 +45,40 @@ def link_basis(axis) -> np.ndarray:
     return np.column_stack([ex, np.cross(a, ex), a])
 
 
-def skew(w) -> ca.SX | ca.MX:
+def skew(w: Matrix) -> Matrix:
+    """The cross-product matrix [w×] of a 3-vector, so that [w×] y = w × y (also for numbers, as a DM)."""
     return ca.vertcat(ca.horzcat(0, -w[2], w[1]), ca.horzcat(w[2], 0, -w[0]), ca.horzcat(-w[1], w[0], 0))
 
 
-def rotation(axis, angle):
+def rotation(axis: npt.ArrayLike, angle: ca.MX) -> ca.MX:
     """Rotation by ``angle`` about the unit vector ``axis`` (Rodrigues)."""
     a = ca.DM(np.asarray(axis, dtype=float) / np.linalg.norm(axis))
     K = skew(a)
     return ca.DM.eye(3) + ca.sin(angle) * K + (1 - ca.cos(angle)) * ca.mtimes(K, K)
 
 
-def small_rotation(psi, second_order: bool):
+def small_rotation(psi: ca.MX, second_order: bool) -> ca.MX:
     """The tip rotation by the small rotation vector ψ: I + [ψ×] (first order), + ½[ψ×]² (second)."""
     K = skew(psi)
     R = ca.DM.eye(3) + K
     return R + 0.5 * ca.mtimes(K, K) if second_order else R
 
 
-def _dm(a) -> ca.DM:
+def _dm(a: npt.ArrayLike) -> ca.DM:
+    """A constant block of the model: the numbers enter the expressions as one dense DM, not as scalars."""
     return ca.DM(np.asarray(a, dtype=float))
 
 
-def _quad(x, matrix: np.ndarray, y=None):
+def _quad(x: ca.MX, matrix: np.ndarray, y: ca.MX | None = None) -> ca.MX:
+    """The quadratic (bilinear when ``y`` is given) form xᵀ matrix y with a constant matrix."""
     y = x if y is None else y
     return ca.dot(x, ca.mtimes(_dm(matrix), y))
+
+
+def _rate(eta_dot: ca.MX | None) -> ca.MX:
+    """The rate of a field the caller has found present: LinkDeformation holds a field and its rate, or neither."""
+    assert eta_dot is not None, "a field's rate is set with the field (ChainAssembly.deformation)"
+    return eta_dot
 
 
 @dataclass
@@ -76,18 +97,19 @@ class LinkDeformation:
 class Invariants:
     """Inertia invariants of a link per unit linear density, in the link basis."""
 
-    first_moment: ca.MX           # ∫ s dx                 (3)
-    second_moment: ca.MX          # ∫ s sᵀ dx              (3×3)
-    angular_momentum: ca.MX       # ∫ s × ṡ dx             (3)
-    relative_kinetic: ca.MX       # ∫ |ṡ|² dx
+    first_moment: ca.MX | ca.DM           # ∫ s dx                 (3)    (DM: a link without bending)
+    second_moment: ca.MX | ca.DM          # ∫ s sᵀ dx              (3×3)
+    angular_momentum: ca.MX | ca.DM       # ∫ s × ṡ dx             (3)
+    relative_kinetic: Scalar              # ∫ |ṡ|² dx
 
-    def inertia(self):
+    def inertia(self) -> ca.MX | ca.DM:
         """∫ (|s|² I − s sᵀ) dx, the inertia tensor about the link frame's origin."""
         S = self.second_moment
         return ca.trace(S) * ca.DM.eye(3) - S
 
 
-def beam_invariants(g: ShapeIntegrals, length: float, d: LinkDeformation, rule=None) -> Invariants:
+def beam_invariants(g: ShapeIntegrals, length: float, d: LinkDeformation, rule: PointRule | None = None
+                    ) -> Invariants:
     """Invariants of a link bending in v and/or w (the same shape family in both planes).
 
     Without ``rule``: first-order kinematics, s = (x, v, w), every invariant exact from the constant integrals.
@@ -98,12 +120,18 @@ def beam_invariants(g: ShapeIntegrals, length: float, d: LinkDeformation, rule=N
     consistent").
     """
     L = float(length)
-    zero = 0.0
+    zero: Scalar = 0.0
+    v1: Scalar
+    w1: Scalar
     v1 = ca.dot(_dm(g.phi), d.v) if d.v is not None else zero
     w1 = ca.dot(_dm(g.phi), d.w) if d.w is not None else zero
-    xx, xv, xw = L**3 / 3 + zero, zero, zero
-    vv, ww, vw = zero, zero, zero
-    x_moment = L**2 / 2 + zero
+    xx: Scalar = L**3 / 3
+    xv: Scalar = zero
+    xw: Scalar = zero
+    vv: Scalar = zero
+    ww: Scalar = zero
+    vw: Scalar = zero
+    x_moment: Scalar = L**2 / 2
     if d.v is not None:
         xv = ca.dot(_dm(g.x_phi), d.v)
         vv = _quad(d.v, g.phi_phi)
@@ -113,14 +141,16 @@ def beam_invariants(g: ShapeIntegrals, length: float, d: LinkDeformation, rule=N
     if d.v is not None and d.w is not None:
         vw = _quad(d.v, g.phi_phi, d.w)
     # ∫ s × ṡ = (v ẇ − w v̇, w u̇ − (x+u) ẇ, (x+u) v̇ − v u̇)
-    hx, hy, hz = zero, zero, zero
+    hx: Scalar = zero
+    hy: Scalar = zero
+    hz: Scalar = zero
     if d.v is not None:
-        hz = ca.dot(_dm(g.x_phi), d.v_dot)
+        hz = ca.dot(_dm(g.x_phi), _rate(d.v_dot))
     if d.w is not None:
-        hy = -ca.dot(_dm(g.x_phi), d.w_dot)
+        hy = -ca.dot(_dm(g.x_phi), _rate(d.w_dot))
     if d.v is not None and d.w is not None:
-        hx = _quad(d.v, g.phi_phi, d.w_dot) - _quad(d.w, g.phi_phi, d.v_dot)
-    relative = zero
+        hx = _quad(d.v, g.phi_phi, _rate(d.w_dot)) - _quad(d.w, g.phi_phi, _rate(d.v_dot))
+    relative: Scalar = zero
     for rate in (d.v_dot, d.w_dot):
         if rate is not None:
             relative = relative + _quad(rate, g.phi_phi)
@@ -147,37 +177,40 @@ class _PointFields:
     """u, v, w and their rates at a rule's points (K-vectors; None for an absent field), and Σ w_k a_k b_k."""
 
     weights: ca.DM
-    u: ca.MX
-    u_dot: ca.MX
+    u: ca.MX | ca.DM           # DM (zeros) for a link without bending
+    u_dot: ca.MX | ca.DM
     v: ca.MX | None
     w: ca.MX | None
     v_dot: ca.MX | None
     w_dot: ca.MX | None
 
-    def dot(self, a, b):
+    def dot(self, a: Factor, b: Factor) -> Scalar:
+        """Σ_k w_k a_k b_k over the rule's points; zero when a field is absent."""
         if a is None or b is None:
             return 0.0
+        assert not isinstance(a, str) and not isinstance(b, str), "the point sums hold the factors themselves"
         return ca.dot(self.weights * a, b)
 
 
-def _foreshortening_points(rule, d: LinkDeformation) -> _PointFields:
-    """u = −½∫₀ˣ(v'² + w'²) and u̇ = −∫₀ˣ(v'v̇' + w'ẇ') at the rule's points, with v, w, v̇, ẇ there."""
+def _foreshortening_points(rule: PointRule, d: LinkDeformation) -> _PointFields:
+    """U = −½∫₀ˣ(v'² + w'²) and u̇ = −∫₀ˣ(v'v̇' + w'ẇ') at the rule's points, with v, w, v̇, ẇ there."""
     phi, slope, local, sums, start = (ca.sparsify(ca.DM(m)) for m in (rule.phi, rule.slope, rule.local,
                                                                       rule.panel_sums, rule.start))
 
-    def integral(f):                            # ∫₀^{x_k} f at every point: this panel's part + earlier panels
+    def integral(f: ca.MX | float) -> ca.MX | ca.DM:  # ∫₀^{x_k} f at every point: this panel's + earlier panels
         return ca.mtimes(local, f) + ca.mtimes(start, ca.mtimes(sums, f))
 
-    squares = rates = 0
-    fields = {}
+    squares: ca.MX | float = 0
+    rates: ca.MX | float = 0
+    fields: dict[str, ca.MX | None] = {}
     for name in ("v", "w"):
         eta, eta_dot = getattr(d, name), getattr(d, f"{name}_dot")
         if eta is None:
             fields[name] = fields[f"{name}_dot"] = None
             continue
-        s, s_dot = ca.mtimes(slope, eta), ca.mtimes(slope, eta_dot)
+        s, s_dot = ca.mtimes(slope, eta), ca.mtimes(slope, _rate(eta_dot))
         squares, rates = squares + s * s, rates + s * s_dot
-        fields[name], fields[f"{name}_dot"] = ca.mtimes(phi, eta), ca.mtimes(phi, eta_dot)
+        fields[name], fields[f"{name}_dot"] = ca.mtimes(phi, eta), ca.mtimes(phi, _rate(eta_dot))
     return _PointFields(ca.DM(rule.w), -0.5 * integral(squares), -integral(rates), **fields)
 
 
@@ -209,12 +242,12 @@ class ForeshorteningTensors:
 TENSOR_MAX_SHAPES = 6
 
 
-def use_tensors(rule, fields: int) -> bool:
+def use_tensors(rule: PointRule, fields: int) -> bool:
     """Whether the foreshortening terms are formed from :class:`ForeshorteningTensors` (else from the points)."""
     return fields > 0 and rule.slope.shape[1] <= TENSOR_MAX_SHAPES
 
 
-def foreshortening_tensors(rule) -> ForeshorteningTensors:
+def foreshortening_tensors(rule: PointRule) -> ForeshorteningTensors:
     """The tensors of a point rule (see :class:`ForeshorteningTensors`)."""
     C = rule.local + rule.start @ rule.panel_sums
     G = np.einsum("kj,ja,jb->kab", C, rule.slope, rule.slope)
@@ -230,12 +263,14 @@ def foreshortening_tensors(rule) -> ForeshorteningTensors:
 
 @dataclass
 class _TensorFields:
-    """u, u̇, v, w, v̇, ẇ of a link as the factors of :class:`ForeshorteningTensors`; ``dot(a, b)`` is the
-    same weighted sum Σ w a b as :class:`_PointFields` gives, formed from the tensors."""
+    """u, u̇, v, w, v̇, ẇ of a link as the factors of :class:`ForeshorteningTensors`.
+
+    ``dot(a, b)`` is the same weighted sum Σ w a b as :class:`_PointFields` gives, formed from the tensors.
+    """
 
     t: ForeshorteningTensors
-    p: ca.MX
-    r: ca.MX
+    p: ca.MX | float           # 0 only when no field is present, and then no sum is formed
+    r: ca.MX | float
     v: ca.MX | None
     w: ca.MX | None
     v_dot: ca.MX | None
@@ -243,7 +278,8 @@ class _TensorFields:
     u = "u"
     u_dot = "u_dot"
 
-    def dot(self, a, b):
+    def dot(self, a: Factor, b: Factor) -> Scalar:
+        """Σ w a b from the tensors; ``a`` or ``b`` is the name "u" or "u_dot" of a foreshortening factor."""
         if a is None or b is None:
             return 0.0
         if isinstance(b, str):                  # the sums are symmetric: the named factor first
@@ -258,35 +294,45 @@ class _TensorFields:
         return ca.dot(b, ca.mtimes(_dm(self.t.E), self.r))
 
 
-def _foreshortening_tensors(rule, d: LinkDeformation) -> _TensorFields:
+def _foreshortening_tensors(rule: PointRule, d: LinkDeformation) -> _TensorFields:
+    """The factors p (products η_a η_b) and r (η_a η̇_b) of a link's fields, summed over v and w."""
     t = foreshortening_tensors(rule)
-    p = r = 0
+    p: ca.MX | float = 0
+    r: ca.MX | float = 0
     for eta, rate in ((d.v, d.v_dot), (d.w, d.w_dot)):
         if eta is not None:
             p = p + eta[t.rows.tolist()] * eta[t.cols.tolist()]
-            r = r + ca.vec(ca.mtimes(rate, eta.T))      # column-major vec(η̇ ηᵀ): entry a·n + b is η_a η̇_b
+            r = r + ca.vec(ca.mtimes(_rate(rate), eta.T))      # column-major vec(η̇ ηᵀ): entry a·n + b is η_a η̇_b
     return _TensorFields(t, p, r, d.v, d.w, d.v_dot, d.w_dot)
 
 
-def torsion_kinetic(t: TorsionIntegrals, length: float, d: LinkDeformation, omega_x):
+def torsion_kinetic(t: TorsionIntegrals, length: float, d: LinkDeformation, omega_x: ca.MX) -> ca.MX:
     """∫ (ω_x + α̇)² dx per unit polar mass moment (rotary inertia of sections in bending neglected)."""
-    return (float(length) * omega_x**2 + 2 * omega_x * ca.dot(_dm(t.phi), d.alpha_dot)
-            + _quad(d.alpha_dot, t.phi_phi))
+    alpha_dot = _rate(d.alpha_dot)
+    return (float(length) * omega_x**2 + 2 * omega_x * ca.dot(_dm(t.phi), alpha_dot)
+            + _quad(alpha_dot, t.phi_phi))
 
 
 @dataclass
 class TipKinematics:
     """Tip point s(L) and tip rotation vector ψ = (α(L), −w'(L), v'(L)) in the link basis."""
 
-    position: ca.MX
-    rotation_vector: ca.MX
+    position: ca.MX | ca.DM           # DM for a rigid link
+    rotation_vector: ca.MX | ca.DM
 
 
 def tip_kinematics(g: ShapeIntegrals, t: TorsionIntegrals | None, length: float, d: LinkDeformation,
                    second_order: bool) -> TipKinematics:
-    x_tip = float(length)
-    v_tip = w_tip = 0
-    slope_v = slope_w = twist = 0
+    """The tip point and rotation vector of a beam link from its fields (the bending basis also for w).
+
+    In second-order kinematics the tip is drawn back along x by the foreshortening u(L).
+    """
+    x_tip: Scalar = float(length)
+    v_tip: Scalar = 0.0
+    w_tip: Scalar = 0.0
+    slope_v: Scalar = 0.0
+    slope_w: Scalar = 0.0
+    twist: Scalar = 0.0
     if d.v is not None:
         v_tip = ca.dot(_dm(g.tip), d.v)
         slope_v = ca.dot(_dm(g.tip_slope), d.v)
@@ -294,6 +340,7 @@ def tip_kinematics(g: ShapeIntegrals, t: TorsionIntegrals | None, length: float,
         w_tip = ca.dot(_dm(g.tip), d.w)
         slope_w = ca.dot(_dm(g.tip_slope), d.w)
     if d.alpha is not None:
+        assert t is not None, "a link with twist coordinates has a torsion basis"
         twist = ca.dot(_dm(t.tip), d.alpha)
     if second_order:
         for eta in (d.v, d.w):
@@ -302,21 +349,24 @@ def tip_kinematics(g: ShapeIntegrals, t: TorsionIntegrals | None, length: float,
     return TipKinematics(ca.vertcat(x_tip, v_tip, w_tip), ca.vertcat(twist, -slope_w, slope_v))
 
 
-def body_invariants(b, eta, eta_dot) -> Invariants:
-    """Invariants of a reduced finite-element link (flexlink.mechanics.shapes.body.BodyIntegrals), per unit density:
-    s = X + Φη, first-order kinematics (the membrane strain of large deflections is not in the shell element)."""
+def body_invariants(b: BodyIntegrals, eta: ca.MX, eta_dot: ca.MX) -> Invariants:
+    """Invariants of a reduced finite-element link (its :class:`BodyIntegrals`), per unit density.
+
+    s = X + Φη, first-order kinematics (the membrane strain of large deflections is not in the shell element).
+    """
     first = _dm(b.first) + ca.mtimes(_dm(b.modal), eta)
     lin = ca.vertcat(*[ca.horzcat(*[ca.dot(_dm(b.x_modal[a, c]), eta) for c in range(3)]) for a in range(3)])
     quad = ca.vertcat(*[ca.horzcat(*[_quad(eta, b.pairs[a, c]) for c in range(3)]) for a in range(3)])
     second = _dm(b.second) + lin + lin.T + quad
 
-    def cross(a, c):                        # ∫ s_a ṡ_c
+    def cross(a: int, c: int) -> ca.MX:                        # ∫ s_a ṡ_c
         return ca.dot(_dm(b.x_modal[a, c]), eta_dot) + _quad(eta, b.pairs[a, c], eta_dot)
 
     angular = ca.vertcat(cross(1, 2) - cross(2, 1), cross(2, 0) - cross(0, 2), cross(0, 1) - cross(1, 0))
     return Invariants(first, second, angular, _quad(eta_dot, b.mass_matrix))
 
 
-def body_tip_kinematics(b, eta) -> TipKinematics:
+def body_tip_kinematics(b: BodyIntegrals, eta: ca.MX) -> TipKinematics:
+    """Tip point and end-section rotation vector of a reduced finite-element link, linear in its modes."""
     return TipKinematics(_dm(b.tip_point) + ca.mtimes(_dm(b.tip_translation), eta),
                          ca.mtimes(_dm(b.tip_rotation), eta))

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import casadi as ca
 
-from flexlink.mechanics.assembly import ChainAssembly
+from flexlink.mechanics.assembly import ChainAssembly, LinkParts
+from flexlink.mechanics.kinematics import TipKinematics
 from flexlink.mechanics.symbolic import Signal
 
 #: Largest tip deflection a link's beam model is trusted for, as a fraction of its length.  The mass matrix
@@ -22,20 +23,32 @@ DEFLECTION_LIMIT = 0.2
 ROTATION_LIMIT = 0.35
 
 
-def _link_outputs(chain: ChainAssembly, i: int) -> list[tuple[Signal, object]]:
+def _tip(part: LinkParts) -> TipKinematics:
+    """The link's tip kinematics: ``ChainAssembly.assemble_kinematics`` sets them on every link, rigid ones too."""
+    assert part.tip is not None, "outputs are formed after the chain's kinematics"
+    return part.tip
+
+
+def _stiffness_index(part: LinkParts) -> int:
+    """Where the link's bending stiffness (EI, or E of a shell) sits in p: every elastic link has one."""
+    assert part.i_EI is not None, "a beam link with v, or a shell link, has a stiffness parameter"
+    return part.i_EI
+
+
+def _link_outputs(chain: ChainAssembly, i: int) -> list[tuple[Signal, ca.MX | ca.DM]]:
     """Joint i's angle, rate (and prescribed torque), its link's tip deflections, root moment and coordinates."""
     joint, link, part = chain.scene.joints[i], chain.scene.links[i], chain.parts[i]
     qa, va, p = chain.qa, chain.va, chain.p
-    out: list[tuple[Signal, object]] = [
+    out: list[tuple[Signal, ca.MX | ca.DM]] = [
         (Signal(f"{joint.name}.theta", "rad", "joint angle (link side)"), qa[chain.joint_coord[i]]),
         (Signal(f"{joint.name}.omega", "rad/s", "joint rate (link side)"), va[chain.joint_coord[i]])]
-    if chain.motor_coord[i] is not None:
-        out.append((Signal(f"{joint.name}.motor_theta", "rad", "motor angle of the elastic joint"),
-                    qa[chain.motor_coord[i]]))
+    motor = chain.motor_coord[i]
+    if motor is not None:
+        out.append((Signal(f"{joint.name}.motor_theta", "rad", "motor angle of the elastic joint"), qa[motor]))
     if chain.driven(i) in chain.prescribed:
         out.append((Signal(f"{joint.name}.tau", "N.m", "joint torque the prescribed law needs", feedthrough=True),
                     chain.r_all_expr[chain.driven(i)]))
-    tip = part.tip
+    tip = _tip(part)
     if part.body is not None:
         where = "the mid-point of the free edge" if link.shapes.section == "plate" else "the end section"
         for k, c in ((1, "v"), (2, "w")):
@@ -45,7 +58,7 @@ def _link_outputs(chain: ChainAssembly, i: int) -> list[tuple[Signal, object]]:
                     tip.rotation_vector[0]))
         out.append((Signal(f"{link.name}.root.moment", "N.m", "elastic bending moment at the root about the "
                            "joint axis (clamp reactions of the modes)"),
-                    p[part.i_EI] * ca.dot(ca.DM(part.body.root_moment), chain.eta_of(part, qa))))
+                    p[_stiffness_index(part)] * ca.dot(ca.DM(part.body.root_moment), chain.eta_of(part, qa))))
     if "v" in part.fields:
         out.append((Signal(f"{link.name}.tip.v", "m", "in-plane tip deflection v(L)"), tip.position[1]))
     if "w" in part.fields:
@@ -53,18 +66,21 @@ def _link_outputs(chain: ChainAssembly, i: int) -> list[tuple[Signal, object]]:
     if "alpha" in part.fields:
         out.append((Signal(f"{link.name}.tip.twist", "rad", "tip twist alpha(L)"), tip.rotation_vector[0]))
     if "v" in part.fields:
+        assert part.bending is not None, "a link with v coordinates has a bending basis"
         curv0 = ca.DM(part.bending.evaluate([0.0], 2)[0])
         ev = ca.vertcat(*[qa[k] for k in part.fields["v"]])
         out.append((Signal(f"{link.name}.root.moment", "N.m", "bending moment at the root EI v''(0)"),
-                    p[part.i_EI] * ca.dot(curv0, ev)))
+                    p[_stiffness_index(part)] * ca.dot(curv0, ev)))
     for n_k, k in enumerate(part.eta):
         out.append((Signal(f"{link.name}.eta[{n_k + 1}]", "", f"elastic coordinate {n_k + 1}"), qa[k]))
     return out
 
 
 def _subtree_sums(chain: ChainAssembly) -> list[dict]:
-    """Mass, first moment, momentum and angular momentum (about the world origin) of everything beyond each
-    joint: suffix sums from the tip, so the n subtrees cost n additions, not n²/2."""
+    """Mass, first moment, momentum and angular momentum (about the world origin) beyond each joint.
+
+    Suffix sums from the tip, so the n subtrees cost n additions, not n²/2.
+    """
     n = len(chain.scene.joints)
     sums: list[dict] = [{}] * n
     running = dict(mass=0, moment=ca.DM.zeros(3), momentum=ca.DM.zeros(3), spin=ca.DM.zeros(3))
@@ -75,7 +91,7 @@ def _subtree_sums(chain: ChainAssembly) -> list[dict]:
     return sums
 
 
-def _joint_reactions(chain: ChainAssembly) -> list[tuple[Signal, object]]:
+def _joint_reactions(chain: ChainAssembly) -> list[tuple[Signal, ca.MX | ca.DM]]:
     """The force and moment the parent exerts on everything beyond each joint (seed 001 §2.10).
 
     Newton–Euler on that subtree: F = d/dt Σ∫ṙ − Σ m g − F_tip and
@@ -88,7 +104,7 @@ def _joint_reactions(chain: ChainAssembly) -> list[tuple[Signal, object]]:
     stacked = ca.vertcat(*[ca.vertcat(s["momentum"], s["spin"] - ca.cross(O, s["momentum"]))
                            for s, O in zip(sums, origins, strict=True)])
     rates = ca.jtimes(stacked, qa, va) + ca.jtimes(stacked, va, aa)
-    out: list[tuple[Signal, object]] = []
+    out: list[tuple[Signal, ca.MX | ca.DM]] = []
     for i, (s, (O, Rjf)) in enumerate(zip(sums, chain.joint_frames, strict=True)):
         O_dot = chain.frames[i].velocity
         force = rates[6 * i:6 * i + 3] - s["mass"] * g
@@ -107,7 +123,7 @@ def _joint_reactions(chain: ChainAssembly) -> list[tuple[Signal, object]]:
     return out
 
 
-def _end_effector(chain: ChainAssembly) -> list[tuple[Signal, object]]:
+def _end_effector(chain: ChainAssembly) -> list[tuple[Signal, ca.MX]]:
     """Position, absolute acceleration and accelerometer specific force of the last link's tip."""
     qa, va, aa = chain.qa, chain.va, chain.aa
     last = chain.tool
@@ -122,9 +138,12 @@ def _end_effector(chain: ChainAssembly) -> list[tuple[Signal, object]]:
                 specific[k]) for k, c in enumerate("xyz")])
 
 
-def chain_outputs(chain: ChainAssembly) -> tuple[list[Signal], list]:
-    """Every output of the chain, in the order the FMU lists them: links, reactions, end effector, energies."""
-    out: list[tuple[Signal, object]] = []
+def chain_outputs(chain: ChainAssembly) -> tuple[list[Signal], list[ca.MX | ca.DM | float]]:
+    """Every output of the chain, in the order the FMU lists them: links, reactions, end effector, energies.
+
+    The energies are plain numbers only for a chain without mass or stiffness; the builder takes both.
+    """
+    out: list[tuple[Signal, ca.MX | ca.DM | float]] = []
     for i in range(len(chain.scene.joints)):
         out += _link_outputs(chain, i)
     out += _joint_reactions(chain)
@@ -144,7 +163,7 @@ def validity(chain: ChainAssembly) -> tuple[ca.Function, list[str]]:
     names: list[str] = []
     ratios: list = []
     for link, part in zip(chain.scene.links, chain.parts, strict=True):
-        tip = part.tip
+        tip = _tip(part)
         reach = DEFLECTION_LIMIT * link.length
         offset = part.body.tip_point if part.body is not None else (0.0, 0.0, 0.0)
         bends = [(k, c) for k, c in ((1, "v"), (2, "w")) if c in part.fields or part.body is not None]

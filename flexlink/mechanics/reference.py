@@ -2,21 +2,32 @@
 
 The state is (q, v) and q̈ = −M(q)⁻¹ r(q, v, 0, u, p) (r is affine in the acceleration).  Inputs are
 piecewise constant and built-in joint laws piecewise analytic: the integrator is restarted at every
-switch (FMI-NOTES.md: CVODES fails on one call across an input discontinuity at tight tolerances).
+switch (CVODES, called once across an input discontinuity at tight tolerances, fails: it was observed to).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any, TypeVar
 
 import casadi as ca
 import numpy as np
+import numpy.typing as npt
 
 from flexlink.mechanics.model import SymbolicModel
+from flexlink.scene.loader import Trajectory
+
+Symbol = TypeVar("Symbol", ca.SX, ca.MX)
 
 
 @dataclass
 class ReferenceResult:
+    """The reference trajectory at the requested times: states, accelerations, inputs and outputs.
+
+    Rows are times; ``y`` holds every output of the model, so a test compares any of them with the FMU's.
+    """
+
     time: np.ndarray
     q: np.ndarray          # (len(time), n_q)
     v: np.ndarray
@@ -25,10 +36,11 @@ class ReferenceResult:
     y: np.ndarray          # outputs, in model.outputs order
 
     def output(self, model: SymbolicModel, name: str) -> np.ndarray:
+        """The time series of the output ``name`` (as the FMU names it) of ``model``."""
         return self.y[:, model.output_index(name)]
 
 
-def _law_expression(trajectory, t: ca.MX, t_mid: float):
+def _law_expression(trajectory: Trajectory, t: Symbol, t_mid: float) -> tuple[Symbol, Symbol, Symbol]:
     """(θ, θ̇, θ̈) of the law's segment that holds at t_mid, symbolic in t."""
     seg = trajectory.segments[-1]
     for s in trajectory.segments:
@@ -42,7 +54,10 @@ def _law_expression(trajectory, t: ca.MX, t_mid: float):
     return theta, theta_d, ca.jacobian(theta_d, t)
 
 
-def simulate_reference(model: SymbolicModel, times, *, inputs=None, p=None, q0=None, v0=None,
+def simulate_reference(model: SymbolicModel, times: npt.ArrayLike, *,
+                       inputs: Sequence[tuple[float, Mapping[str, float]]] | None = None,
+                       p: npt.ArrayLike | None = None, q0: npt.ArrayLike | None = None,
+                       v0: npt.ArrayLike | None = None,
                        rtol: float = 1e-11, atol: float = 1e-13) -> ReferenceResult:
     """Integrate the model over ``times`` (increasing, times[0] the start).
 
@@ -59,7 +74,8 @@ def simulate_reference(model: SymbolicModel, times, *, inputs=None, p=None, q0=N
 
     n = model.n_q
     # scalar expressions for small models: CVODES calls them many times, and SX calls are cheap
-    sym = ca.SX if n <= 24 else ca.MX
+    # Any: SX or MX is chosen by size, and CasADi's stubs type each overload for one of them, never their union
+    sym: Any = ca.SX if n <= 24 else ca.MX
     residual = model.residual.expand() if sym is ca.SX else model.residual
     q, v, a = sym.sym("q", n), sym.sym("v", n), sym.sym("a", n)
     t = sym.sym("t")
@@ -118,7 +134,8 @@ def simulate_reference(model: SymbolicModel, times, *, inputs=None, p=None, q0=N
     return ReferenceResult(T, Q, V, A, U, Y)
 
 
-def _inputs_at(model: SymbolicModel, base_inputs, tm: float) -> np.ndarray:
+def _inputs_at(model: SymbolicModel, base_inputs: Callable[[float], np.ndarray], tm: float) -> np.ndarray:
+    """The full input vector at ``tm``: the held inputs, the built-in laws' (θ, θ̇, θ̈) evaluated exactly."""
     u = base_inputs(tm)
     for law in model.laws:
         if law.trajectory is not None:

@@ -1,4 +1,4 @@
-"""Shape functions of one Euler–Bernoulli link and their constant integrals (DESIGN.md §2).
+"""Shape functions of one Euler–Bernoulli link and their constant integrals (docs/mechanics.md).
 
 ``make_basis(kind, count, length, linear_density)`` is the one entry point the model needs; the
 integrals (``basis.integrals``) are for unit density and unit stiffness, to be scaled by ρ and EI.

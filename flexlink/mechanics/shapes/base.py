@@ -10,8 +10,10 @@ from __future__ import annotations
 import abc
 import functools
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from numpy.polynomial.legendre import leggauss
 
 
@@ -57,7 +59,7 @@ class ShapeBasis(abc.ABC):
     def _quadrature(self) -> tuple[np.ndarray, np.ndarray]:
         """Nodes and weights on [0, L] exact (or converged) for every integrand of ShapeIntegrals."""
 
-    def evaluate(self, x, derivative: int = 0) -> np.ndarray:
+    def evaluate(self, x: npt.ArrayLike, derivative: int = 0) -> np.ndarray:
         """d^k φ/dx^k (k = ``derivative``) at the points ``x`` in [0, L]; shape (len(x), n)."""
         if isinstance(derivative, bool) or not isinstance(derivative, (int, np.integer)) or derivative < 0:
             raise ValueError(f"derivative must be a non-negative integer, got {derivative!r}")
@@ -70,6 +72,10 @@ class ShapeBasis(abc.ABC):
 
     @functools.cached_property
     def integrals(self) -> ShapeIntegrals:
+        """The constant integrals of this basis, computed once from its quadrature rule and cached.
+
+        Every model built from the basis shares them, which is why the arrays are read-only.
+        """
         x, w = self._quadrature()
         return integrals_from_rule(self, x, w)
 
@@ -79,6 +85,7 @@ class ShapeBasis(abc.ABC):
 
     @functools.cached_property
     def points(self) -> PointRule:
+        """The material points of the second-order kinematics (:func:`point_rule`), computed once and cached."""
         return point_rule(self)
 
     def __repr__(self) -> str:
@@ -185,7 +192,7 @@ def composite_gauss_legendre(edges: np.ndarray, order: int) -> tuple[np.ndarray,
     return x.ravel(), w.ravel()
 
 
-def _check_count(count) -> int:
+def _check_count(count: object) -> int:
     if isinstance(count, bool) or not isinstance(count, (int, np.integer)):
         raise ValueError(f"shape count must be an integer >= 1, got {count!r}")
     if count < 1:
@@ -193,7 +200,7 @@ def _check_count(count) -> int:
     return int(count)
 
 
-def _check_positive(value, name: str) -> float:
+def _check_positive(value: Any, name: str) -> float:  # Any: it validates whatever the caller was given
     try:
         v = float(value)
     except (TypeError, ValueError):

@@ -2,7 +2,7 @@
 
 The displacement field of a shell link is u(X) = Φ(X) η over its mid-surface, Φ the fixed-interface modes
 (:mod:`flexlink.mechanics.shapes.reduction`).  Everything the kinetic and gravitational energies need is then a sum
-over the mesh's mass points (DESIGN.md §2, seed 001 §5.7), computed once here, per unit density:
+over the mesh's mass points (docs/shells.md, seed 001 §5.7), computed once here, per unit density:
 
     V = Σ m,  ∫X,  ∫X Xᵀ,  S = ∫Φ,  B_ab = ∫X_a Φ_b,  C_ab = ∫Φ_aᵀ Φ_b  (a, b ∈ x, y, z).
 
@@ -13,12 +13,16 @@ the discrete model itself, not an approximation of them.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from flexlink.scene.loader import Link
 
 from .reduction import ModalBasis, _unit_peak, fixed_interface_modes
+
+if TYPE_CHECKING:  # shell.py is imported only when a scene has a shell link
+    from .shell import ShellAssembly
 
 
 @dataclass(frozen=True)
@@ -40,29 +44,40 @@ class BodyIntegrals:
 
     @property
     def n(self) -> int:
-        return self.stiffness.shape[0]
+        """Number of modal coordinates η of the link."""
+        return int(self.stiffness.shape[0])
 
     @property
     def mass_matrix(self) -> np.ndarray:
+        """∫ΦᵀΦ dV per unit density: the elastic block of the mass matrix with the joint held."""
         return self.pairs[0, 0] + self.pairs[1, 1] + self.pairs[2, 2]
 
 
-def shell_assembly(link: Link):
-    """The scene's shell mesh, assembled (seed 001 §5.2–5.6)."""
+def shell_assembly(link: Link) -> ShellAssembly:
+    """The scene's shell mesh, assembled (seed 001 §5.2–5.6).
+
+    The scene loader has checked that ``shapes.mesh`` holds three counts for a box and two for a plate.
+    """
     from .shell import assemble_shell, box_mesh, plate_mesh
 
     s = link.shapes
     if s.section == "box":
-        mesh = box_mesh(link.length, s.width, s.height, *s.mesh, pattern=s.pattern)
+        nx, nw, nh = s.mesh
+        mesh = box_mesh(link.length, s.width, s.height, nx, nw, nh, pattern=s.pattern)
     else:
-        mesh = plate_mesh(link.length, s.width, *s.mesh, pattern=s.pattern)
+        nx, nw = s.mesh
+        mesh = plate_mesh(link.length, s.width, nx, nw, pattern=s.pattern)
     return assemble_shell(mesh, s.thickness, link.E, link.poisson, link.density)
 
 
-def _end_section(assembly, Psi_full: np.ndarray, section: str):
-    """Rows (3, N) of the tip point's translation and of the end section's rotation vector: a rigid fit of the
-    end nodes' displacements (the twist from the edge corners), the bending slope of a plate from its nodes'
-    rotations (a flat section has no extent along its normal to fit it from)."""
+def _end_section(
+    assembly: ShellAssembly, Psi_full: np.ndarray, section: str | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The tip point (3,) and the rows (3, N) of its translation and of the end section's rotation vector.
+
+    A rigid fit of the end nodes' displacements (the twist from the edge corners), the bending slope of a
+    plate from its nodes' rotations (a flat section has no extent along its normal to fit it from).
+    """
     mesh = assembly.mesh
     X = mesh.nodes
     end = np.flatnonzero(np.abs(X[:, 0] - X[:, 0].max()) < 1e-9 * max(1.0, X[:, 0].max()))

@@ -14,7 +14,7 @@ from .base import ShapeBasis
 
 
 class PolynomialBasis(ShapeBasis):
-    """Polynomial shape functions of a clamped link (SCENE.md ``kind = "polynomial"``)."""
+    """Polynomial shape functions of a clamped link (``shapes.kind = "polynomial"``, docs/scene.md)."""
 
     kind = "polynomial"
 

@@ -15,11 +15,12 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 import scipy.linalg
 import scipy.sparse
 
 from .base import ShapeBasis
-from .torsion import TorsionIntegrals
+from .torsion import TorsionBasis, TorsionIntegrals
 
 
 @dataclass(frozen=True)
@@ -31,14 +32,22 @@ class ModalBasis:
 
     @property
     def frequencies_hz(self) -> np.ndarray:
+        """The natural frequencies ω/2π of the modes (Hz); a round-off negative ω² counts as zero."""
         return np.sqrt(np.maximum(self.omega2, 0.0)) / (2 * np.pi)
 
 
-def _dense(a) -> np.ndarray:
-    return a.toarray() if scipy.sparse.issparse(a) else np.asarray(a, dtype=float)
+def _dense(a: npt.ArrayLike | scipy.sparse.sparray | scipy.sparse.spmatrix) -> np.ndarray:
+    """A dense float copy of a (possibly sparse) FE matrix: the condensation and eigh below need dense."""
+    if isinstance(a, (scipy.sparse.sparray, scipy.sparse.spmatrix)):
+        return a.toarray()
+    return np.asarray(a, dtype=float)
 
 
-def fixed_interface_modes(stiffness, mass, count: int | None = None) -> ModalBasis:
+def fixed_interface_modes(
+    stiffness: npt.ArrayLike | scipy.sparse.sparray | scipy.sparse.spmatrix,
+    mass: npt.ArrayLike | scipy.sparse.sparray | scipy.sparse.spmatrix,
+    count: int | None = None,
+) -> ModalBasis:
     """The first ``count`` (all if None) modes of K x = ω² M x on the free degrees of freedom.
 
     ``stiffness`` and ``mass`` are symmetric, K positive definite (the interface already removed);
@@ -74,15 +83,20 @@ def fixed_interface_modes(stiffness, mass, count: int | None = None) -> ModalBas
 
 
 def _unit_peak(values: np.ndarray, shapes: np.ndarray) -> np.ndarray:
-    """Scale each mode to a peak displacement of one, so that η is in metres (or radians) like the FE
-    coordinates it replaces, whatever the density; the sign makes that peak positive."""
+    """Scale each mode to a peak displacement of one, the sign making that peak positive.
+
+    Then η is in metres (or radians) like the FE coordinates it replaces, whatever the density.
+    """
     peak = values[np.argmax(np.abs(values), axis=0), np.arange(values.shape[1])]
     return shapes / np.where(peak != 0, peak, 1.0)
 
 
 class ModalBeamBasis(ShapeBasis):
-    """The first ``modes`` clamped modes of a Hermite FE beam, as a shape family of their own: the
-    integrals are those of the FE basis projected on the modes (exact), so the model is unchanged."""
+    """The first ``modes`` clamped modes of a Hermite FE beam, as a shape family of their own.
+
+    The integrals are those of the FE basis projected on the modes (exact), so the model keeps the FE
+    accuracy of those modes with far fewer coordinates.
+    """
 
     def __init__(self, fe: ShapeBasis, modes: int):
         super().__init__(fe.count, fe.length, fe.linear_density)
@@ -96,6 +110,7 @@ class ModalBeamBasis(ShapeBasis):
 
     @property
     def n(self) -> int:
+        """Number of modal coordinates: the modes kept."""
         return self.modes
 
     def _evaluate(self, x: np.ndarray, derivative: int) -> np.ndarray:
@@ -105,13 +120,14 @@ class ModalBeamBasis(ShapeBasis):
         return self.fe._quadrature()
 
     def panel_edges(self) -> np.ndarray:
+        """The FE nodes: the modes are piecewise cubics on the same elements."""
         return self.fe.panel_edges()
 
 
 class ModalTorsionBasis:
     """The first ``modes`` clamped twist modes of linear torsion elements (see ModalBeamBasis)."""
 
-    def __init__(self, fe, modes: int):
+    def __init__(self, fe: TorsionBasis, modes: int):
         g = fe.integrals
         basis = fixed_interface_modes(g.stiff, g.phi_phi, min(modes, fe.n))
         self.fe, self.kind, self.count, self.length = fe, fe.kind, fe.count, fe.length
@@ -119,12 +135,15 @@ class ModalTorsionBasis:
 
     @property
     def n(self) -> int:
-        return self.psi.shape[1]
+        """Number of modal twist coordinates (at most the elements' own count)."""
+        return int(self.psi.shape[1])
 
-    def evaluate(self, x, derivative: int = 0) -> np.ndarray:
+    def evaluate(self, x: npt.ArrayLike, derivative: int = 0) -> np.ndarray:
+        """d^k φ/dx^k of the modes at ``x``: the element shapes combined by Ψ, shape (len(x), n)."""
         return self.fe.evaluate(x, derivative) @ self.psi
 
     @functools.cached_property
     def integrals(self) -> TorsionIntegrals:
+        """The element integrals projected on the modes (exact), computed once."""
         g, P = self.fe.integrals, self.psi
         return TorsionIntegrals(phi_phi=P.T @ g.phi_phi @ P, phi=g.phi @ P, stiff=P.T @ g.stiff @ P, tip=g.tip @ P)

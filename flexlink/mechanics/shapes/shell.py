@@ -21,6 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 import scipy.sparse
 
 # Mid-side quadrature of the reference triangle (ξ, η), weight 1/6 each (seed §5.7): exact to degree 2.
@@ -141,8 +142,8 @@ def plate_mesh(length, width, nx, nw, pattern="symmetric") -> ShellMesh:
     z = np.linspace(-width / 2, width / 2, nw + 1)
     X, Z = np.meshgrid(x, z, indexing="ij")
     nodes = np.column_stack([X.ravel(), np.zeros(X.size), Z.ravel()])
-    i, j = np.meshgrid(np.arange(nx), np.arange(nw), indexing="ij")
-    i, j = i.ravel(), j.ravel()
+    i_grid, j_grid = np.meshgrid(np.arange(nx), np.arange(nw), indexing="ij")
+    i, j = i_grid.ravel(), j_grid.ravel()
     a = i * (nw + 1) + j
     tri = _split(a, a + nw + 1, a + nw + 2, a + 1, _rising(pattern, nw, nx, "nw"))
     tri = _orient(nodes, tri, np.tile([0.0, 1.0, 0.0], (len(tri), 1)))
@@ -173,8 +174,8 @@ def box_mesh(length, width, height, nx, nw, nh, pattern="symmetric") -> ShellMes
     x = np.linspace(0.0, length, nx + 1)
     nodes = np.column_stack([np.repeat(x, n_p), np.tile(ring[:, 0], nx + 1), np.tile(ring[:, 1], nx + 1)])
     wall = np.concatenate([_rising(pattern, nw, 1, "nw"), _rising(pattern, nh, 1, "nh")] * 2)
-    i, p = np.meshgrid(np.arange(nx), np.arange(n_p), indexing="ij")
-    i, p = i.ravel(), p.ravel()
+    i_grid, p_grid = np.meshgrid(np.arange(nx), np.arange(n_p), indexing="ij")
+    i, p = i_grid.ravel(), p_grid.ravel()
     a = i * n_p + p
     d = i * n_p + (p + 1) % n_p
     tri = _split(a, a + n_p, d + n_p, d, np.tile(wall, nx))
@@ -315,19 +316,28 @@ class ShellAssembly:
 
     @property
     def n_dof(self) -> int:
+        """Number of degrees of freedom of the whole mesh, root included: six per node."""
         return 6 * len(self.mesh.nodes)
 
-    def dof(self, node: int, component: int) -> int:
+    def dof(self, node: int | np.integer, component: int) -> int:
+        """Global index of ``component`` (0–2 translations, 3–5 rotations) of ``node``, checked.
+
+        Raises
+        ------
+        ValueError
+            When the node is not in the mesh or the component is not one of the six.
+        """
         if not 0 <= node < len(self.mesh.nodes) or not 0 <= component < 6:
             raise ValueError(f"no DOF ({node}, {component}) on a mesh of {len(self.mesh.nodes)} nodes")
         return 6 * int(node) + int(component)
 
     @property
     def free_dofs(self) -> np.ndarray:
+        """Indices of the degrees of freedom off the clamped root nodes: those the modes are computed on."""
         free = np.setdiff1d(np.arange(len(self.mesh.nodes)), self.mesh.root_nodes)
         return (6 * free[:, None] + np.arange(6)).ravel()
 
-    def gravity_load(self, g) -> np.ndarray:
+    def gravity_load(self, g: npt.ArrayLike) -> np.ndarray:
         """Consistent nodal forces of the weight ρ h g per unit area (g in the link frame); no moments."""
         g = np.asarray(g, dtype=float)
         if g.shape != (3,):

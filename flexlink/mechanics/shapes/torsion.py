@@ -1,4 +1,4 @@
-"""Assumed shapes of the twist α(x) = φ(x)ᵀ η of a root-clamped link (DESIGN.md §2).
+"""Assumed shapes of the twist α(x) = φ(x)ᵀ η of a root-clamped link (docs/mechanics.md).
 
 Torsion is a second-order field (GJ α'' = ρI_p α̈): the shapes need only φ(0) = 0.
 
@@ -12,10 +12,12 @@ Integrals are for unit μ and unit GJ, exact by Gauss–Legendre quadrature.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
+import numpy.typing as npt
 from numpy.polynomial.legendre import leggauss
 
 KINDS = ("clamped-free", "polynomial", "fe")
@@ -23,6 +25,12 @@ KINDS = ("clamped-free", "polynomial", "fe")
 
 @dataclass(frozen=True)
 class TorsionIntegrals:
+    """Constant integrals of the twist shapes for unit polar mass moment and unit GJ (multiply later).
+
+    They are all the torsion field adds to the Lagrangian: kinetic ½ η̇ᵀ(μ ∫φφᵀ)η̇, strain ½ ηᵀ(GJ ∫φ'φ'ᵀ)η,
+    and the tip twist that carries the next joint's frame.
+    """
+
     phi_phi: np.ndarray       # ∫ φ φᵀ dx
     phi: np.ndarray           # ∫ φ dx
     stiff: np.ndarray         # ∫ φ' φ'ᵀ dx
@@ -30,6 +38,12 @@ class TorsionIntegrals:
 
 
 class TorsionBasis:
+    """Assumed shapes α(x) = φ(x)ᵀ η of the twist of one root-clamped link, of one of the three ``KINDS``.
+
+    Torsion is second order in x, so only φ(0) = 0 is imposed and linear elements are conforming; the
+    eigenfunctions are scaled by ``polar_inertia`` so that their mass matrix is the identity.
+    """
+
     def __init__(self, kind: str, count: int, length: float, polar_inertia: float = 0.0):
         if kind not in KINDS:
             raise ValueError(f"unknown shape kind {kind!r}: expected one of {', '.join(map(repr, KINDS))}")
@@ -40,15 +54,23 @@ class TorsionBasis:
 
     @property
     def n(self) -> int:
+        """Number of twist coordinates η: one per shape (per node for ``"fe"``)."""
         return self.count
 
-    def evaluate(self, x, derivative: int = 0) -> np.ndarray:
+    def evaluate(self, x: npt.ArrayLike, derivative: int = 0) -> np.ndarray:
+        """d^k φ/dx^k (k = ``derivative``) at the points ``x``, shape (len(x), n).
+
+        The linear elements' second and higher derivatives are zero inside the elements (their jumps
+        at the nodes are never integrated), and their slope at a node is that of the element on its left.
+        """
         x = np.atleast_1d(np.asarray(x, dtype=float))
         L, n = self.length, self.count
         if self.kind == "clamped-free":
             k = (2 * np.arange(1, n + 1) - 1) * np.pi / (2 * L)
             arg = np.outer(x, k)
-            phase = [np.sin, np.cos, lambda a: -np.sin(a), lambda a: -np.cos(a)][derivative % 4]
+            phases: list[Callable[[np.ndarray], np.ndarray]] = [
+                np.sin, np.cos, lambda a: -np.sin(a), lambda a: -np.cos(a)]
+            phase = phases[derivative % 4]
             return self.scale * phase(arg) * k**derivative
         if self.kind == "polynomial":
             p = np.arange(1, n + 1)
@@ -73,6 +95,11 @@ class TorsionBasis:
 
     @cached_property
     def integrals(self) -> TorsionIntegrals:
+        """The :class:`TorsionIntegrals`, by Gauss–Legendre quadrature exact for each kind, computed once.
+
+        The elements are integrated element by element at interior points only, so that the slope,
+        discontinuous at the nodes, is always taken on the element that holds the point.
+        """
         L = self.length
         if self.kind == "fe":
             edges = np.linspace(0.0, L, self.count + 1)
@@ -93,4 +120,8 @@ class TorsionBasis:
 
 
 def make_torsion_basis(kind: str, count: int, length: float, polar_inertia: float = 0.0) -> TorsionBasis:
+    """The twist basis of a link's ``shapes`` table: ``kind`` and ``count`` as the scene gives them (docs/scene.md).
+
+    ``polar_inertia`` is the polar mass moment per length ρI_p (kg m), 0 when the scene leaves it out.
+    """
     return TorsionBasis(kind, count, length, polar_inertia)
