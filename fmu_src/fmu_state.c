@@ -130,9 +130,16 @@ static const char *invalid_data(const FmuData *d) {
     if (!(d->energy_scale >= 0.0 && isfinite(d->energy_scale)) || (d->energy_last.available & ~1) ||
         !(d->energy_floor >= 0.0 && isfinite(d->energy_floor)))
         return "energy balance";
+    if ((d->ss22.history & ~1) || (d->ss22.history && !(d->ss22.dt_last > 0.0 && d->ss22.dt_before > 0.0 &&
+        isfinite(d->ss22.dt_last + d->ss22.dt_before) && fmu_all_finite(d->ss22.alpha_last, N_Q) &&
+        fmu_all_finite(d->ss22.alpha_before, N_Q))))
+        return "solver history";
     for (int k = 0; k < SS22_CACHE; k++) {
         const SS22Factor *f = &d->ss22.cache[k];
         if (f->valid & ~1) return "solver cache";
+        if (f->valid && !((f->rate == -1.0 || (f->rate >= 0.0 && isfinite(f->rate))) &&
+                          f->estimated >= 0 && f->estimated <= SS22_RATE_MEASURE_EVERY))
+            return "solver cache";
         for (int i = 0; i < N_Q && f->valid; i++) {
             if (f->piv[i] < i || f->piv[i] >= N_Q) return "solver cache";
         }

@@ -19,6 +19,12 @@
 
 /* SS22_MAX_ITERATIONS and SS22_ROUNDING_FACTOR: solver_settings.h (from flexlink/scene/solver.py) */
 
+/* A step whose first increment, times rate/(1 - rate) for the rate its matrix last showed (aged as Radau5
+ * ages it: rate^0.8), is below the tolerance is accepted after one iteration (Hairer & Wanner, Solving ODEs II,
+ * IV.8, the stopping criterion across steps); every SS22_RATE_MEASURE_EVERY-th such step iterates once more
+ * and measures the rate again, so that an estimate is never older than that many steps. */
+#define SS22_RATE_MEASURE_EVERY 4
+
 #define SS22_CACHE 4     /* factorisations kept: the regular step, a shortened last one, and the Δt/2 of the
                             order-4 option with their rounding variants (2 entries thrashed: 1800 LUs in 15000 steps) */
 
@@ -34,6 +40,9 @@ typedef struct {
     double dt, theta1, theta2;   /* key of the cached factorisation */
     int valid;
     uint64_t stamp;              /* last use, for replacement */
+    double rate;                 /* contraction of the simplified Newton iteration last measured with this
+                                    matrix (||increment k+1|| / ||increment k||), or -1 before a measure */
+    int estimated;               /* steps accepted since on that rate without measuring it again */
     double LU[N_Q * N_Q];
     int piv[N_Q];
 } SS22Factor;
@@ -43,6 +52,10 @@ typedef struct {
     int max_iterations;
     SS22Factor cache[SS22_CACHE];
     uint64_t clock;              /* fixed-width: an FMU state has one layout on every 64-bit platform */
+    /* the last two accelerations this solver returned and their steps: the Newton iteration starts from their
+     * linear extrapolation when the caller passes the last one back unchanged (else from the caller's) */
+    int history;
+    double alpha_last[N_Q], alpha_before[N_Q], dt_last, dt_before;
     /* scratch, kept here so that a step allocates nothing */
     double q_bar[N_Q], v_bar[N_Q], r[N_Q], u_bar[N_U > 0 ? N_U : 1];
     /* counters, for benchmarks and logging */

@@ -169,3 +169,36 @@ def test_order_four_with_a_jerky_law_converges_at_order_four(tmp_path):
     _, errors, orders = _observed_orders(str(path), 1.0, (h, h / 2, h / 4),
                                          {"solver.order": 4, "solver.tolerance": 1e-13}, ref_rtol=1e-14)
     assert all(abs(p - 4.0) < 0.5 for p in orders), (errors, orders)
+
+
+def test_one_increment_steps_keep_the_newton_error_far_below_the_step_error():
+    """A step accepted after one increment on its matrix's last measured rate (fmu_src/ss22.h) must still be
+    converged: its run against the same run iterated to 1e-13 differs by far less than the step's own
+    truncation error (the 1e-13 run against the run at h/2, × 4/3).  Before the rate was carried across
+    steps, every step of rotating_link took two iterations at this tolerance (2.00 a step), so the count
+    below fails without it."""
+    from flexlink.tools.bench import default_case
+
+    path = Path(__file__).resolve().parent.parent / "examples" / "rotating_link.toml"
+    scene = load_scene(path)
+    model = build_model(scene)
+    case = default_case(model, stop=1.0)
+    with SlaveRunner(cached_fmu(scene, model=model)) as runner:
+        names = [n for n in case.outputs if n in runner.vr]
+        h = scene.fmu.solver.step
+
+        def run(tol: float, step: float) -> tuple[dict, dict]:
+            res = runner.run(case.stop, 0.01, inputs=case.inputs_at, outputs=names,
+                             start={"solver.tolerance": tol, "solver.step": step})
+            return res, runner.solver_statistics()
+
+        tight, _ = run(1e-13, h)
+        half, _ = run(1e-13, h / 2)
+        loose, stats = run(1e-8, h)
+
+    def worst(a: dict, b: dict) -> float:
+        return max(float(np.max(np.abs(a[n] - b[n])) / max(np.max(np.abs(b[n])), 1e-300)) for n in names)
+
+    truncation = worst(tight, half) * 4.0 / 3.0
+    assert worst(loose, tight) < 1e-3 * truncation
+    assert stats["newton_iterations"] / stats["steps"] < 1.5
