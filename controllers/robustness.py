@@ -34,6 +34,7 @@ import numpy as np
 
 from controllers.closedloop import margin_entries
 from controllers.design import KalmanDesign, LQRDesign, torque_inputs
+from controllers.diskmargin import multiloop_disk_margin
 
 __all__ = ["DISK_SKEW", "compensator", "delayed_plant", "delayed_robustness", "disk_margins", "loop_at_a_time",
            "lqg_compensator", "lqg_plant", "lu_evaluation", "predictive_compensator", "response", "robustness",
@@ -210,6 +211,9 @@ def loop_at_a_time(P: ct.StateSpace, Kc, names: list[str] | None = None, n_point
         ``phase_crossover_hz``, ``peak_sensitivity`` (``1/min|1 + L_i|``), the balanced disk margin
         ``disk_margin``, ``disk_gain_margin_db``, ``disk_phase_margin_deg``, ``disk_margin_hz``
         (:func:`disk_margins`); ``peak_sensitivity`` (all loops, at the plant input), ``disk_skew`` (0),
+        ``multiloop``: the simultaneous disk margin at all actuators
+        (:meth:`controllers.diskmargin.MultiLoopMargin.figures`) and ``multiloop_margin`` (the
+        :class:`controllers.diskmargin.MultiLoopMargin` itself, with its destabilising perturbation),
         ``closed_loop_poles`` (s, or z with ``dt``), ``stable``, ``dt``.
     """
     if not isinstance(Kc, ct.StateSpace):
@@ -228,12 +232,14 @@ def loop_at_a_time(P: ct.StateSpace, Kc, names: list[str] | None = None, n_point
     cl = ct.feedback(T, np.eye(m), sign=1)
     poles = cl.poles()
     stable = bool(np.all(np.abs(poles) < 1.0)) if T.isdtime() else bool(np.all(poles.real < 0))
+    multi = multiloop_disk_margin(Tw, w, lambda x: response(T, x), D if T.isctime() else None)
     S = np.linalg.inv(np.eye(m)[None] - Tw)
     S_peak = float(np.max(np.linalg.svd(S, compute_uv=False)[:, 0]))
     if T.isctime():
         S_peak = max(S_peak, float(np.linalg.svd(np.linalg.inv(np.eye(m) - D), compute_uv=False)[0]))
     return {"actuators": out, "peak_sensitivity": S_peak, "closed_loop_poles": poles, "stable": stable,
-            "dt": float(T.dt) if T.isdtime() else 0.0, "disk_skew": DISK_SKEW}
+            "dt": float(T.dt) if T.isdtime() else 0.0, "disk_skew": DISK_SKEW, "multiloop": multi.figures(),
+            "multiloop_margin": multi}
 
 
 def broken_loop(Tw: np.ndarray, i: int) -> np.ndarray:
@@ -332,5 +338,6 @@ def robustness_figures(rob: dict) -> dict:
             "sample_time_s": r["dt"] or None,
             "closed_loop_poles": [[float(p.real), float(p.imag)] for p in np.sort_complex(r["closed_loop_poles"])],
             "disk_skew": r["disk_skew"],
+            "multiloop": {k: (v if isinstance(v, bool) else num(v)) for k, v in r["multiloop"].items()},
         }
     return out
