@@ -28,12 +28,19 @@ import os
 import shutil
 import tempfile
 import zipfile
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 from xml.sax.saxutils import escape
 
 import numpy as np
 
 from controllers.design import DesignError, torque_inputs
+
+if TYPE_CHECKING:
+    from controllers.manoeuvre import ControlDesign
+    from controllers.schedule import Schedule
+    from controllers.trajectory import Reference
 
 __all__ = ["FmuLaw", "export_controller_fmu", "reference_tables"]
 
@@ -79,14 +86,34 @@ def _data(d, limits: np.ndarray, guid: str, tables=None, delay: int = 0) -> str:
             + _c_array("Y0", y0) + _c_array("U0", p.u0[torque_inputs(p)]) + _c_array("LIM", limits) + ref)
 
 
-def reference_tables(d, reference, limits) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The built-in reference of a controller FMU: ``x_ref``, ``u_ff`` and the prediction's correction ``w``
-    of :class:`controllers.multijoint.MimoLQGLaw` per sample; its last row, held after the end, is rest at
-    the reference's final state (``w`` 0 there: the prediction is linearised about that rest,
-    :func:`controllers.multijoint.reference_step`)."""
-    from controllers.multijoint import MimoLQGLaw
+def reference_tables(d: ControlDesign, reference: Reference, limits: Sequence[float] | np.ndarray,
+                     schedule: Schedule | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The built-in reference of a controller FMU, one row per sample.
 
-    law = MimoLQGLaw(d, limits, reference)
+    Its last row, held after the end, is rest at the reference's final state (``w`` 0 there: the prediction
+    is linearised about that rest, :func:`controllers.multijoint.reference_step`).
+
+    Parameters
+    ----------
+    d : controllers.manoeuvre.ControlDesign
+        The design.
+    reference : controllers.trajectory.Reference
+        The manoeuvre.
+    limits : sequence of float
+        Torque limits (the law's).
+    schedule : controllers.schedule.Schedule, optional
+        With a schedule ``w`` is the scheduled law's (the target design's step, as the C predicts with it).
+
+    Returns
+    -------
+    tuple of arrays
+        ``x_ref``, ``u_ff`` and the prediction's correction ``w`` of :class:`controllers.multijoint.MimoLQGLaw`
+        (or :class:`controllers.schedule.ScheduledLQGLaw`).
+    """
+    from controllers.multijoint import MimoLQGLaw
+    from controllers.schedule import ScheduledLQGLaw
+
+    law = MimoLQGLaw(d, limits, reference) if schedule is None else ScheduledLQGLaw(schedule, limits, reference)
     return reference.x.copy(), reference.u_ff.copy(), law.W.copy()
 
 
@@ -166,20 +193,17 @@ def export_controller_fmu(d, path: str | os.PathLike, limits=None, identifier: s
         raise DesignError(f"--export-fmu {path}: expected a file name ending in .fmu")
     limits = np.asarray([d.lqr.torque_limits[j] for j in d.actuated_joints] if limits is None else limits, dtype=float)
     ident = identifier or "".join(c if c.isalnum() else "_" for c in f"{d.plant.model.scene.name}_lqg")
+    if schedule is not None and (schedule.designs[0] is not d or duration is None or not duration > 0):
+        raise DesignError("a scheduled controller FMU needs the schedule of this design and the manoeuvre time")
     tables = None
     if reference is not None:
         if abs(reference.dt - d.dt) > 1e-12 * d.dt:
             raise DesignError(f"the reference samples at {reference.dt} s, the controller at {d.dt} s")
-        tables = reference_tables(d, reference, limits)
+        tables = reference_tables(d, reference, limits, schedule)
     if delay not in (0, 1):
         raise DesignError(f"delay: 0 or 1 sample, got {delay}")
     data = _data(d, limits, "{GUID}", tables, delay)
     if schedule is not None:
-        if schedule.designs[0] is not d or duration is None or not duration > 0:
-            raise DesignError("a scheduled controller FMU needs the schedule of this design and the manoeuvre time")
-        if delay or reference is not None:
-            raise DesignError("--schedule: the scheduled controller FMU takes its reference as inputs, undelayed "
-                              "(no --export-ssp with --schedule so far)")
         data += _schedule_data(schedule, duration)
     guid = hashlib.sha256(data.encode()).hexdigest()[:32]
     guid = f"{{{guid[:8]}-{guid[8:12]}-{guid[12:16]}-{guid[16:20]}-{guid[20:32]}}}"
