@@ -117,7 +117,7 @@ def add_control_parsers(subparsers) -> None:
     p.add_argument("--export-ssp", type=output_file, metavar="SYSTEM.ssp",
                    help="also write an SSP 1.0 package: the scene's FMU and the controller FMU playing the "
                         "--target manoeuvre (needs --target and --duration), connected, the sample time as the "
-                        "communication step (docs/control.md)")
+                        "communication step; with --schedule the scheduled LQG (docs/control.md)")
     p.set_defaults(func=cmd_control)
 
 

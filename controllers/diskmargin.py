@@ -1,5 +1,7 @@
-"""The multi-loop (simultaneous) disk margin at the plant input: independent gain and phase variations at
-every actuator at once, from the structured singular value μ, in numpy/scipy.
+"""The multi-loop (simultaneous) disk margin at the plant input, from the structured singular value μ.
+
+Independent gain and phase variations at every actuator at once, computed in numpy/scipy (Slycot's μ is
+not used: see below).
 
 **What it is.**  Each actuator's torque is multiplied by its own factor ``f_i = (1 + δ_i/2)/(1 − δ_i/2)``
 (balanced skew, σ = 0), ``|δ_i| < α``: a disk in the complex plane around 1 that holds the gains within
@@ -46,7 +48,9 @@ EXACT_BLOCKS = 3
 
 
 def balanced_sensitivity(Tw: np.ndarray) -> np.ndarray:
-    """``M = S − I/2`` at each frequency from ``T = K_c P`` (torques in → torques asked, positive feedback
+    """The balanced sensitivity ``M = S − I/2`` at each frequency.
+
+    ``M = S − I/2`` at each frequency from ``T = K_c P`` (torques in → torques asked, positive feedback
     ``u = T u``; the loop in python-control's negative convention is ``L = −T``, ``S = (I − T)⁻¹``).
 
     Parameters
@@ -65,9 +69,11 @@ def balanced_sensitivity(Tw: np.ndarray) -> np.ndarray:
 
 
 def disk_gain_phase(alpha: float) -> tuple[float, float]:
-    """The balanced disk's gain margin (dB) and phase margin (deg) from its size α, as
-    ``control.disk_margins`` states them: gains within ``(2 ± α)/(2 ∓ α)`` (unbounded upwards from α ≥ 2),
-    phases within ``±2 atan(α/2)`` (90° from α ≥ 2)."""
+    """The balanced disk's gain margin (dB) and phase margin (deg) from its size α.
+
+    As ``control.disk_margins`` states them: gains within ``(2 ± α)/(2 ∓ α)`` (unbounded upwards from α ≥ 2),
+    phases within ``±2 atan(α/2)`` (90° from α ≥ 2).
+    """
     if not np.isfinite(alpha) or alpha >= 2.0:
         return math.inf, 90.0
     return 20.0 * math.log10((2.0 + alpha) / (2.0 - alpha)), math.degrees(2.0 * math.atan(alpha / 2.0))
@@ -83,9 +89,12 @@ def _sigma_scaled(lam: np.ndarray, M: np.ndarray) -> tuple[float, np.ndarray]:
 
 
 def _osborne(M: np.ndarray, sweeps: int = 8) -> np.ndarray:
-    """log-scalings λ (λ_0 = 0) of Osborne's balancing of |M| (row and column norms made equal), the
+    """Osborne's balancing of |M|: log-scalings λ (λ_0 = 0).
+
+    log-scalings λ (λ_0 = 0) of Osborne's balancing of |M| (row and column norms made equal), the
     minimiser of the Frobenius norm of D M D⁻¹: the start of the σ̄ minimisation, a cheap upper bound on
-    its own.  Works on a batch (…, m, m)."""
+    its own.  Works on a batch (…, m, m).
+    """
     A = np.abs(M) ** 2
     m = A.shape[-1]
     lam = np.zeros(A.shape[:-1])
@@ -142,9 +151,12 @@ def mu_upper(M: np.ndarray, enough: float = -math.inf) -> tuple[float, np.ndarra
 
 
 def _power_lower(M: np.ndarray, iterations: int = 60) -> np.ndarray:
-    """Diagonal unitary Q (as phases, shape (…, m)) from the power iteration for scalar complex blocks,
+    """The power iteration's lower bound of μ for scalar complex blocks, batched.
+
+    Diagonal unitary Q (as phases, shape (…, m)) from the power iteration for scalar complex blocks,
     batched over frequencies: ``M b = β a``, ``z = ∠a |w|``, ``Mᴴ z = β w``, ``b = ∠w |a|``; at its fixed
-    point ``M Q a = β a`` with ``Q = ∠w ∠ā``."""
+    point ``M Q a = β a`` with ``Q = ∠w ∠ā``.
+    """
     shape = M.shape[:-1]
     rng = np.random.default_rng(0)
     b = np.ones(shape, dtype=complex) + 0.1 * rng.standard_normal(shape)
@@ -227,8 +239,11 @@ class MultiLoopMargin:
     exact: bool
 
     def figures(self) -> dict[str, float | bool]:
-        """The JSON entries: ``disk_margin`` (guaranteed), ``disk_margin_upper``, the disk's gain (dB) and
-        phase (deg) margins from ``disk_margin``, its frequency (Hz), and whether the two bounds agree."""
+        """The JSON entries of the margin.
+
+        The JSON entries: ``disk_margin`` (guaranteed), ``disk_margin_upper``, the disk's gain (dB) and
+        phase (deg) margins from ``disk_margin``, its frequency (Hz), and whether the two bounds agree.
+        """
         gm, pm = disk_gain_phase(self.alpha)
         return {"disk_margin": self.alpha, "disk_margin_upper": self.alpha_upper, "disk_gain_margin_db": gm,
                 "disk_phase_margin_deg": pm, "disk_margin_hz": self.omega / (2 * math.pi), "exact": self.exact}

@@ -151,8 +151,10 @@ def write_ssp(d: ControlDesign, plant_fmu: str | os.PathLike[str], path: str | o
 
 
 class JacobiDelay:
-    """A law as a Jacobi co-simulation master applies it (module docstring): the torque it returns at sample
-    k is the wrapped law's from sample k−1, and ``u_init`` at sample 0."""
+    """A law as a Jacobi co-simulation master applies it: one sample late.
+
+    The torque it returns at sample k is the wrapped law's from sample k−1, and ``u_init`` at sample 0.
+    """
 
     def __init__(self, law: Any, u_init: Sequence[float] | np.ndarray):
         self.law, self.u_init = law, np.asarray(u_init, dtype=float)
@@ -170,10 +172,13 @@ class JacobiDelay:
 
 
 class PredictiveLQGLaw(MimoLQGLaw):
-    """:class:`MimoLQGLaw` for a loop that applies its torque one sample late (``DELAY 1`` in
+    """The sampled LQG for a loop that applies its torque one sample late.
+
+    :class:`MimoLQGLaw` for a loop that applies its torque one sample late (``DELAY 1`` in
     ``ctrl_fmu.c``): at sample k the estimate corrected with y_k is predicted to k+1 with the torque v_k being
     applied (its own previous output), and the torque returned is the next sample's,
-    ``sat(u₀ + u_ff,k+1 − K_d ẑ_k+1)``.  ``initial()``: the torque before the first sample, u₀ + u_ff,0."""
+    ``sat(u₀ + u_ff,k+1 − K_d ẑ_k+1)``.  ``initial()``: the torque before the first sample, u₀ + u_ff,0.
+    """
 
     def __init__(self, d: ControlDesign, limits: Sequence[float], reference: Reference):
         self.u_ff = reference.u_ff
@@ -200,10 +205,13 @@ class PredictiveLQGLaw(MimoLQGLaw):
 
 
 class ScheduledPredictiveLQGLaw(PredictiveLQGLaw):
-    """:class:`PredictiveLQGLaw` with the matrices of a gain schedule (:class:`controllers.schedule.
+    """The predictive LQG with a gain schedule's matrices.
+
+    :class:`PredictiveLQGLaw` with the matrices of a gain schedule (:class:`controllers.schedule.
     ScheduledLQGLaw`'s, at the reference's path parameter): sample k corrects and predicts with sample k's
     matrices and its torque for sample k+1 takes sample k+1's gain, as ``ctrl_fmu.c`` with ``DELAY 1`` and
-    ``NSCHED > 0`` does."""
+    ``NSCHED > 0`` does.
+    """
 
     kind = "scheduled"
 
