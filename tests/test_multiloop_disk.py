@@ -164,3 +164,19 @@ def test_two_link_simultaneous_below_every_loop(arm):
     print(f"\ntwo-link arm, sampled LQG: simultaneous {arm.robustness()['lqg']['multiloop']['disk_margin']:.4f}, "
           f"loop at a time {[round(a['disk_margin'], 4) for a in arm.robustness()['lqg']['actuators']]}")
     assert not math.isnan(arm.robustness()["lqg"]["multiloop"]["disk_margin_hz"])
+
+
+def test_in_the_json_and_the_plot(arm):
+    """``robustness_figures`` (the --json values) carries the simultaneous margin, and the plot's margin text
+    has its line."""
+    import json
+
+    from controllers.plots import margins_text
+    from controllers.robustness import robustness_figures
+
+    fig = json.loads(json.dumps(robustness_figures(arm.robustness())))["lqg"]
+    ml = arm.robustness()["lqg"]["multiloop_margin"]
+    assert fig["multiloop"]["disk_margin"] == ml.alpha and fig["multiloop"]["exact"] is True
+    assert fig["multiloop"]["disk_margin_hz"] == pytest.approx(ml.omega / (2 * np.pi), rel=1e-12)
+    line = margins_text(fig).splitlines()[-1]
+    assert line.startswith("all at once") and f"{ml.alpha:.3g}" in line
