@@ -76,6 +76,8 @@ def disk_gain_phase(alpha: float) -> tuple[float, float]:
     """
     if not np.isfinite(alpha) or alpha >= 2.0:
         return math.inf, 90.0
+    if alpha <= 0.0:
+        return 0.0, 0.0
     return 20.0 * math.log10((2.0 + alpha) / (2.0 - alpha)), math.degrees(2.0 * math.atan(alpha / 2.0))
 
 

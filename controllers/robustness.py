@@ -28,6 +28,7 @@ one ``splev`` call (:func:`splev_at_once`).  The figures are python-control's ow
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -39,7 +40,7 @@ from numpy.typing import ArrayLike
 
 from controllers.closedloop import margin_entries
 from controllers.design import KalmanDesign, LQRDesign, torque_inputs
-from controllers.diskmargin import multiloop_disk_margin
+from controllers.diskmargin import MultiLoopMargin, multiloop_disk_margin
 
 __all__ = ["DISK_SKEW", "compensator", "delayed_plant", "delayed_robustness", "disk_margins", "loop_at_a_time",
            "lqg_compensator", "lqg_plant", "lu_evaluation", "predictive_compensator", "response", "robustness",
@@ -238,7 +239,7 @@ def loop_at_a_time(P: ct.StateSpace, Kc: ct.StateSpace | ArrayLike, names: Seque
         ``phase_crossover_hz``, ``peak_sensitivity`` (``1/min|1 + L_i|``), the balanced disk margin
         ``disk_margin``, ``disk_gain_margin_db``, ``disk_phase_margin_deg``, ``disk_margin_hz``
         (:func:`disk_margins`); ``peak_sensitivity`` (all loops, at the plant input), ``disk_skew`` (0),
-        ``multiloop``: the simultaneous disk margin at all actuators
+        ``multiloop``: the simultaneous disk margin at all actuators (0 for an unstable loop)
         (:meth:`controllers.diskmargin.MultiLoopMargin.figures`) and ``multiloop_margin`` (the
         :class:`controllers.diskmargin.MultiLoopMargin` itself, with its destabilising perturbation),
         ``closed_loop_poles`` (s, or z with ``dt``), ``stable``, ``dt``.
@@ -259,7 +260,9 @@ def loop_at_a_time(P: ct.StateSpace, Kc: ct.StateSpace | ArrayLike, names: Seque
     cl = ct.feedback(T, np.eye(m), sign=1)
     poles = cl.poles()
     stable = bool(np.all(np.abs(poles) < 1.0)) if T.isdtime() else bool(np.all(poles.real < 0))
-    multi = multiloop_disk_margin(Tw, w, lambda x: response(T, x), D if T.isctime() else None)
+    # an unstable loop has no margin: no perturbation is needed to destabilise it
+    multi = (multiloop_disk_margin(Tw, w, lambda x: response(T, x), D if T.isctime() else None) if stable
+             else MultiLoopMargin(0.0, 0.0, math.nan, np.zeros(m, dtype=complex), True))
     S = np.linalg.inv(np.eye(m)[None] - Tw)
     S_peak = float(np.max(np.linalg.svd(S, compute_uv=False)[:, 0]))
     if T.isctime():

@@ -180,3 +180,12 @@ def test_in_the_json_and_the_plot(arm):
     assert fig["multiloop"]["disk_margin_hz"] == pytest.approx(ml.omega / (2 * np.pi), rel=1e-12)
     line = margins_text(fig).splitlines()[-1]
     assert line.startswith("all at once") and f"{ml.alpha:.3g}" in line
+
+
+def test_an_unstable_loop_has_no_margin():
+    """Positive feedback around 1/(s(s + 1)): a closed-loop pole at (−1 + √5)/2 > 0 for k = 1; no perturbation
+    is needed, the margin is 0 (not the distance of the unstable loop's S to ½)."""
+    r = loop_at_a_time(ct.tf2ss([1.0], [1.0, 1.0, 0.0]), [[1.0]], ["u"])
+    assert not r["stable"] and np.max(r["closed_loop_poles"].real) == pytest.approx((math.sqrt(5) - 1) / 2)
+    ml = r["multiloop"]
+    assert (ml["disk_margin"], ml["disk_gain_margin_db"], ml["disk_phase_margin_deg"]) == (0.0, 0.0, 0.0)
