@@ -50,7 +50,7 @@ EXACT_BLOCKS = 3
 def balanced_sensitivity(Tw: np.ndarray) -> np.ndarray:
     """The balanced sensitivity ``M = S − I/2`` at each frequency.
 
-    ``M = S − I/2`` at each frequency from ``T = K_c P`` (torques in → torques asked, positive feedback
+    From ``T = K_c P`` (torques in → torques asked, positive feedback
     ``u = T u``; the loop in python-control's negative convention is ``L = −T``, ``S = (I − T)⁻¹``).
 
     Parameters
@@ -243,7 +243,7 @@ class MultiLoopMargin:
     def figures(self) -> dict[str, float | bool]:
         """The JSON entries of the margin.
 
-        The JSON entries: ``disk_margin`` (guaranteed), ``disk_margin_upper``, the disk's gain (dB) and
+        ``disk_margin`` (guaranteed), ``disk_margin_upper``, the disk's gain (dB) and
         phase (deg) margins from ``disk_margin``, its frequency (Hz), and whether the two bounds agree.
         """
         gm, pm = disk_gain_phase(self.alpha)
