@@ -117,7 +117,7 @@ def add_control_parsers(subparsers) -> None:
     p.add_argument("--export-ssp", type=output_file, metavar="SYSTEM.ssp",
                    help="also write an SSP 1.0 package: the scene's FMU and the controller FMU playing the "
                         "--target manoeuvre (needs --target and --duration), connected, the sample time as the "
-                        "communication step (docs/control.md)")
+                        "communication step; with --schedule the scheduled LQG (docs/control.md)")
     p.set_defaults(func=cmd_control)
 
 
@@ -243,12 +243,9 @@ def cmd_control(args) -> int:
     if args.schedule is not None and (args.design_only or len(d.actuated_joints) < 2):
         raise FlexlinkError("--schedule: gain scheduling over the path is part of the multi-joint run (several "
                             "torque-driven joints, --target and --duration, no --design-only)")
-    if args.schedule is not None and args.export_ssp:
-        raise FlexlinkError("--export-ssp: the SSP package's controller is the fixed LQG so far; leave --schedule "
-                            "out (--export-fmu writes the scheduled one)")
     if args.export_fmu and args.schedule is None:      # with --schedule: once the schedule is designed
         _export(args, d)
-    if args.export_ssp:
+    if args.export_ssp and args.schedule is None:
         _export_ssp(args, d, targets)
     if args.design_only:
         return _report_design(args, d)
@@ -381,9 +378,9 @@ def _export(args, d, schedule=None) -> None:
           f"{', '.join(d.kalman.sensors)}, x_ref, u_ff, w; outputs: {', '.join(d.lqr.inputs)})", file=sys.stderr)
 
 
-def _export_ssp(args, d, targets) -> None:
+def _export_ssp(args, d, targets, schedule=None) -> None:
     """``--export-ssp``: the plant FMU and the controller FMU playing the manoeuvre as an SSP package
-    (:func:`controllers.ssp.write_ssp`); one line on stderr."""
+    (:func:`controllers.ssp.write_ssp`), scheduled along the path with ``schedule``; one line on stderr."""
     import sys
 
     from controllers.manoeuvre import _check_times
@@ -399,8 +396,9 @@ def _export_ssp(args, d, targets) -> None:
     pl = plan(d.plant, targets)
     _check_times(args.duration, args.settle, d.dt)
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, args.duration, args.settle)
-    path = write_ssp(d, cached_fmu(args.scene), args.export_ssp, ref)
-    print(f"wrote {path}: {d.plant.model.scene.name}'s FMU and its sampled LQG ({', '.join(d.actuated_joints)}) "
+    path = write_ssp(d, cached_fmu(args.scene), args.export_ssp, ref, schedule=schedule)
+    what = "" if schedule is None else f" scheduled at {len(schedule.designs)} poses"
+    print(f"wrote {path}: {d.plant.model.scene.name}'s FMU and its sampled LQG{what} ({', '.join(d.actuated_joints)}) "
           f"for {args.duration + args.settle:g} s at a {d.dt:g} s communication step", file=sys.stderr)
 
 
@@ -527,6 +525,8 @@ def _run_scheduled(args, d, targets, run_params, fmu) -> int:
     schedule = design_schedule(d, pl, args.schedule)
     if args.export_fmu:
         _export(args, d, schedule)
+    if args.export_ssp:
+        _export_ssp(args, d, targets, schedule)
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, args.duration, args.settle)
     with _loop(fmu, run_params) as loop:
         runs = compare_schedule(d, schedule, loop, pl, ref, parameters=run_params)
@@ -661,6 +661,11 @@ def _report_design(args, d) -> int:
                   f"{db(a['phase_margin_deg'])} deg at {db(a['gain_crossover_hz'])} Hz, peak sensitivity "
                   f"{db(a['peak_sensitivity'])}; disk margin {db(a['disk_margin'])}: ±{db(a['disk_gain_margin_db'])}"
                   f" dB with ±{db(a['disk_phase_margin_deg'])} deg at {db(a['disk_margin_hz'])} Hz")
+        ml = r["multiloop"]
+        print(f"    {'all at once':<16} disk margin {db(ml['disk_margin'])}: ±{db(ml['disk_gain_margin_db'])} dB with "
+              f"±{db(ml['disk_phase_margin_deg'])} deg at every actuator simultaneously, at "
+              f"{db(ml['disk_margin_hz'])} Hz"
+              + ("" if ml["exact"] else f" (μ bounds: at most {db(ml['disk_margin_upper'])})"))
     if "lqg_delay1_unaware" in rob:
         print(f"  the sampled LQG with that delay (not predicting it): "
               f"{'stable' if rob['lqg_delay1_unaware']['stable'] else 'UNSTABLE'}")

@@ -25,7 +25,8 @@
  * Ad, Bd) interpolated linearly between the two design points around the path parameter
  * s(t_k) = tau^3 (10 - 15 tau + 6 tau^2), tau = t_k / TMOVE clipped to [0, 1] (the quintic's; 1 after the
  * manoeuvre), as controllers.schedule.ScheduledLQGLaw does.  The schedule is a known function of time: no
- * measured signal enters it, and the estimate is not reset when the matrices change.
+ * measured signal enters it, and the estimate is not reset when the matrices change.  With DELAY 1 the
+ * torque output at t_k for t_k+1 takes the gain of t_k+1 (controllers.ssp.ScheduledPredictiveLQGLaw).
  */
 #include <math.h>
 #include <stdarg.h>
@@ -149,6 +150,7 @@ static void sample(Ctrl *c) {
     memcpy(c->z, z, sizeof z);
 #if DELAY == 1
     reference(c, c->k + 1, xref, uff, w);
+    if (NSCHED > 0) load(c, c->k + 1);      /* the next sample's torque with the next sample's gain */
     regulate(c, uff, c->z);
 #endif
 }

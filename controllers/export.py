@@ -28,12 +28,19 @@ import os
 import shutil
 import tempfile
 import zipfile
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 from xml.sax.saxutils import escape
 
 import numpy as np
 
 from controllers.design import DesignError, torque_inputs
+
+if TYPE_CHECKING:
+    from controllers.manoeuvre import ControlDesign
+    from controllers.schedule import Schedule
+    from controllers.trajectory import Reference
 
 __all__ = ["FmuLaw", "export_controller_fmu", "reference_tables"]
 
@@ -48,9 +55,12 @@ def _c_array(name: str, a: np.ndarray) -> str:
     return f"static const double {name}[{a.shape[0]}][{a.shape[1]}] = {{\n    {rows}}};\n"
 
 
-def _schedule_data(schedule, duration: float) -> str:
-    """The design points of a gain schedule (``controllers.schedule.Schedule``): their path parameters and
-    (M, C, K_d, A_d, B_d), each flattened row-major; the manoeuvre time that maps t to the path parameter."""
+def _schedule_data(schedule: Schedule, duration: float) -> str:
+    """The design points of a gain schedule as C arrays.
+
+    Of a ``controllers.schedule.Schedule``: the path parameters and (M, C, K_d, A_d, B_d), each flattened
+    row-major; the manoeuvre time that maps t to the path parameter.
+    """
     from controllers.schedule import _matrices
 
     mats = [_matrices(d) for d in schedule.designs]
@@ -60,9 +70,13 @@ def _schedule_data(schedule, duration: float) -> str:
     return out
 
 
-def _data(d, limits: np.ndarray, guid: str, tables=None, delay: int = 0) -> str:
-    """ctrl_data.h: sizes, the estimator's and regulator's matrices, operating point, limits, sample time;
-    with ``tables`` (x_ref, u_ff, w per sample) the built-in reference; the delay it compensates."""
+def _data(d: ControlDesign, limits: np.ndarray, guid: str,
+          tables: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, delay: int = 0) -> str:
+    """The text of ``ctrl_data.h``: the design's numbers.
+
+    ctrl_data.h: sizes, the estimator's and regulator's matrices, operating point, limits, sample time;
+    with ``tables`` (x_ref, u_ff, w per sample) the built-in reference; the delay it compensates.
+    """
     p, kf = d.plant, d.kalman
     nx, ny, nu = p.sys.nstates, len(kf.sensors), len(d.lqr.inputs)
     y0 = p.y0[[p.output_row(s) for s in kf.sensors]]
@@ -79,18 +93,39 @@ def _data(d, limits: np.ndarray, guid: str, tables=None, delay: int = 0) -> str:
             + _c_array("Y0", y0) + _c_array("U0", p.u0[torque_inputs(p)]) + _c_array("LIM", limits) + ref)
 
 
-def reference_tables(d, reference, limits) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The built-in reference of a controller FMU: ``x_ref``, ``u_ff`` and the prediction's correction ``w``
-    of :class:`controllers.multijoint.MimoLQGLaw` per sample; its last row, held after the end, is rest at
-    the reference's final state (``w`` 0 there: the prediction is linearised about that rest,
-    :func:`controllers.multijoint.reference_step`)."""
-    from controllers.multijoint import MimoLQGLaw
+def reference_tables(d: ControlDesign, reference: Reference, limits: Sequence[float] | np.ndarray,
+                     schedule: Schedule | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The built-in reference of a controller FMU, one row per sample.
 
-    law = MimoLQGLaw(d, limits, reference)
+    Its last row, held after the end, is rest at the reference's final state (``w`` 0 there: the prediction
+    is linearised about that rest, :func:`controllers.multijoint.reference_step`).
+
+    Parameters
+    ----------
+    d : controllers.manoeuvre.ControlDesign
+        The design.
+    reference : controllers.trajectory.Reference
+        The manoeuvre.
+    limits : sequence of float
+        Torque limits (the law's).
+    schedule : controllers.schedule.Schedule, optional
+        With a schedule ``w`` is the scheduled law's (the target design's step, as the C predicts with it).
+
+    Returns
+    -------
+    tuple of arrays
+        ``x_ref``, ``u_ff`` and the prediction's correction ``w`` of :class:`controllers.multijoint.MimoLQGLaw`
+        (or :class:`controllers.schedule.ScheduledLQGLaw`).
+    """
+    from controllers.multijoint import MimoLQGLaw
+    from controllers.schedule import ScheduledLQGLaw
+
+    lim = [float(v) for v in np.asarray(limits, dtype=float)]
+    law = MimoLQGLaw(d, lim, reference) if schedule is None else ScheduledLQGLaw(schedule, lim, reference)
     return reference.x.copy(), reference.u_ff.copy(), law.W.copy()
 
 
-def _variables(d) -> list[tuple[str, str, str, str]]:
+def _variables(d: ControlDesign) -> list[tuple[str, str, str, str]]:
     """(name, causality, description, start) of every variable, in value-reference order."""
     p, kf = d.plant, d.kalman
     y0 = p.y0[[p.output_row(s) for s in kf.sensors]]
@@ -104,7 +139,7 @@ def _variables(d) -> list[tuple[str, str, str, str]]:
     return out
 
 
-def _model_description(d, ident: str, guid: str) -> str:
+def _model_description(d: ControlDesign, ident: str, guid: str) -> str:
     vs = _variables(d)
     nu = len(d.lqr.inputs)
     lines = []
@@ -145,8 +180,9 @@ def _model_description(d, ident: str, guid: str) -> str:
 """
 
 
-def export_controller_fmu(d, path: str | os.PathLike, limits=None, identifier: str | None = None,
-                          reference=None, delay: int = 0, schedule=None, duration: float | None = None) -> Path:
+def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits: Sequence[float] | None = None,
+                          identifier: str | None = None, reference: Reference | None = None, delay: int = 0,
+                          schedule: Schedule | None = None, duration: float | None = None) -> Path:
     """Write the design's sampled LQG (:class:`controllers.multijoint.MimoLQGLaw`) as an FMI 2.0 CS FMU.
 
     ``limits``: the torque saturation per actuated joint (default: the design's torque limits).  The sensors
@@ -155,7 +191,8 @@ def export_controller_fmu(d, path: str | os.PathLike, limits=None, identifier: s
     (:func:`reference_tables`).  ``delay=1``: for an importer that applies the output one sample later
     (Jacobi; :class:`controllers.ssp.PredictiveLQGLaw`).  ``schedule`` (a
     :class:`controllers.schedule.Schedule` whose first design is ``d``) with the manoeuvre's ``duration``:
-    the matrices of :class:`controllers.schedule.ScheduledLQGLaw`, switched along the path in the C."""
+    the matrices of :class:`controllers.schedule.ScheduledLQGLaw`, switched along the path in the C.
+    """
     from flexlink.export.cbuild import compile_shared_library, fmi_headers_dir
 
     if np.any(d.kalman.D != 0) or any(not s.endswith((".theta", ".root.moment")) for s in d.kalman.sensors):
@@ -164,22 +201,19 @@ def export_controller_fmu(d, path: str | os.PathLike, limits=None, identifier: s
     path = Path(path)
     if path.suffix != ".fmu":
         raise DesignError(f"--export-fmu {path}: expected a file name ending in .fmu")
-    limits = np.asarray([d.lqr.torque_limits[j] for j in d.actuated_joints] if limits is None else limits, dtype=float)
+    lim = np.asarray([d.lqr.torque_limits[j] for j in d.actuated_joints] if limits is None else limits, dtype=float)
     ident = identifier or "".join(c if c.isalnum() else "_" for c in f"{d.plant.model.scene.name}_lqg")
+    if schedule is not None and (schedule.designs[0] is not d or not (duration is not None and duration > 0)):
+        raise DesignError("a scheduled controller FMU needs the schedule of this design and the manoeuvre time")
     tables = None
     if reference is not None:
         if abs(reference.dt - d.dt) > 1e-12 * d.dt:
             raise DesignError(f"the reference samples at {reference.dt} s, the controller at {d.dt} s")
-        tables = reference_tables(d, reference, limits)
+        tables = reference_tables(d, reference, lim, schedule)
     if delay not in (0, 1):
         raise DesignError(f"delay: 0 or 1 sample, got {delay}")
-    data = _data(d, limits, "{GUID}", tables, delay)
-    if schedule is not None:
-        if schedule.designs[0] is not d or duration is None or not duration > 0:
-            raise DesignError("a scheduled controller FMU needs the schedule of this design and the manoeuvre time")
-        if delay or reference is not None:
-            raise DesignError("--schedule: the scheduled controller FMU takes its reference as inputs, undelayed "
-                              "(no --export-ssp with --schedule so far)")
+    data = _data(d, lim, "{GUID}", tables, delay)
+    if schedule is not None and duration is not None:
         data += _schedule_data(schedule, duration)
     guid = hashlib.sha256(data.encode()).hexdigest()[:32]
     guid = f"{{{guid[:8]}-{guid[8:12]}-{guid[12:16]}-{guid[16:20]}-{guid[20:32]}}}"
@@ -204,15 +238,18 @@ def export_controller_fmu(d, path: str | os.PathLike, limits=None, identifier: s
 
 
 class FmuLaw:
-    """A controller FMU written by :func:`export_controller_fmu`, stepped as a law of
+    """A controller FMU stepped as a sampled law.
+
+    A controller FMU written by :func:`export_controller_fmu`, stepped as a law of
     :class:`controllers.cosim.FmuLoop`: at sample k set (y_k, x_ref,k, u_ff,k, w_k), ``fmi2DoStep(t_k, dt)``,
     read the torques (the plant steps after it with them).  ``W`` is the law's reference correction
     (:class:`MimoLQGLaw`'s ``W``); ``builtin=True``: the FMU plays its own reference, the reference inputs
-    stay 0."""
+    stay 0.
+    """
 
     kind = "lqr-fmu"
 
-    def __init__(self, fmu: str | os.PathLike, W: np.ndarray | None = None, builtin: bool = False):
+    def __init__(self, fmu: str | os.PathLike[str], W: np.ndarray | None = None, builtin: bool = False):
         from flexlink.run.host import FmuHost
 
         self.host = FmuHost(fmu, interface="CoSimulation", instance_name="controller")
@@ -224,17 +261,20 @@ class FmuLaw:
         n_in, nx = len(names), sum(n.startswith("x_ref[") for n in names)
         self.sensors = names[: n_in - 2 * nx - len(self.inputs)]
         self.builtin = builtin
-        self.W = None if W is None else np.asarray(W, dtype=float)
+        if W is None and not builtin:
+            self.host.close()
+            raise DesignError("FmuLaw: the reference's correction W is needed unless the FMU plays its own reference")
+        self.W = np.zeros((1, nx)) if W is None else np.asarray(W, dtype=float)
         self.vr_in = (ctypes.c_uint * n_in)(*range(n_in))
         self.val_in = (ctypes.c_double * n_in)()
-        self.in_ = np.frombuffer(self.val_in, dtype=np.float64)
+        self.in_ = np.ctypeslib.as_array(self.val_in)
         m = len(self.inputs)
         self.vr_out = (ctypes.c_uint * m)(*range(n_in, n_in + m))
         self.val_out = (ctypes.c_double * m)()
         self.k = 0
 
     @property
-    def slave(self):
+    def slave(self) -> Any:
         """The fmpy ``FMU2Slave`` of the host."""
         return self.host.instance
 
@@ -243,7 +283,7 @@ class FmuLaw:
         self.host.initialize()
         self.k = 0
 
-    def step(self, y, x_ref, u_ff) -> np.ndarray:
+    def step(self, y: np.ndarray, x_ref: np.ndarray, u_ff: np.ndarray) -> np.ndarray:
         """Set sample k's inputs, step the controller FMU over one sample, return its torques."""
         from fmpy.fmi1 import FMICallException
 
@@ -261,7 +301,7 @@ class FmuLaw:
         except FMICallException as e:
             raise self.host.refusal(e.function, e.status, where=f"controller sample {self.k}") from None
         self.k += 1
-        return np.frombuffer(self.val_out, dtype=np.float64).copy()
+        return np.ctypeslib.as_array(self.val_out).copy()
 
     def close(self) -> None:
         """Terminate and free the controller FMU (once) and delete its extracted files."""

@@ -176,7 +176,7 @@ def plot_multijoint(path: str | os.PathLike, results: dict, title: str = "", rob
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     if robustness is not None:
-        fig.subplots_adjust(bottom=0.09 + 0.017 * (len(robustness["actuators"]) + 1))
+        fig.subplots_adjust(bottom=0.09 + 0.017 * (len(robustness["actuators"]) + 2))
         fig.text(0.01, 0.01, margins_text(robustness), fontsize=7, family="monospace", va="bottom")
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -194,4 +194,9 @@ def margins_text(rob: dict) -> str:
         lines.append(f"{a['input']:<16} gain margin {f(a['gain_margin_db'], ' dB'):>9}, phase margin "
                      f"{f(a['phase_margin_deg'], '°'):>6}; disk margin {f(a['disk_margin'], ''):>6}: "
                      f"±{f(a['disk_gain_margin_db'], ' dB')} with ±{f(a['disk_phase_margin_deg'], '°')}")
+    if "multiloop" in rob:                 # controllers.diskmargin: every actuator at once
+        ml = rob["multiloop"]
+        lines.append(f"{'all at once':<16} disk margin {f(ml['disk_margin'], ''):>6}: "
+                     f"±{f(ml['disk_gain_margin_db'], ' dB')} with ±{f(ml['disk_phase_margin_deg'], '°')} "
+                     "at every actuator simultaneously")
     return "\n".join(lines)

@@ -1,5 +1,7 @@
-"""Robustness of a multi-joint design: loop-at-a-time margins at each actuator, peak sensitivity, closed-loop
-poles (python-control).
+"""Robustness of a multi-joint design: margins at each actuator and at all of them at once.
+
+Loop-at-a-time margins at each actuator, peak sensitivity, closed-loop poles (python-control), and the
+simultaneous disk margin at all actuators (:mod:`controllers.diskmargin`).
 
 Two loops are examined, each ``u = K_c(y)`` around the plant with the joint torques as inputs:
 
@@ -26,14 +28,19 @@ one ``splev`` call (:func:`splev_at_once`).  The figures are python-control's ow
 
 from __future__ import annotations
 
+import math
 import warnings
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
+from typing import Any, NoReturn
 
 import control as ct
 import numpy as np
+from numpy.typing import ArrayLike
 
 from controllers.closedloop import margin_entries
 from controllers.design import KalmanDesign, LQRDesign, torque_inputs
+from controllers.diskmargin import MultiLoopMargin, multiloop_disk_margin
 
 __all__ = ["DISK_SKEW", "compensator", "delayed_plant", "delayed_robustness", "disk_margins", "loop_at_a_time",
            "lqg_compensator", "lqg_plant", "lu_evaluation", "predictive_compensator", "response", "robustness",
@@ -41,8 +48,10 @@ __all__ = ["DISK_SKEW", "compensator", "delayed_plant", "delayed_robustness", "d
 
 
 def lqg_plant(lqr: LQRDesign, kalman: KalmanDesign) -> ct.StateSpace:
-    """The ZOH-sampled plant from the joint torques to the Kalman sensors, as the master reads it:
-    ``y_k = C x_k + D u_{k−1}`` (with D ≠ 0 the state is augmented with ``u_{k−1}``)."""
+    """The ZOH-sampled plant from the joint torques to the Kalman sensors.
+
+    As the master reads it: ``y_k = C x_k + D u_{k−1}`` (with D ≠ 0 the state is augmented with ``u_{k−1}``).
+    """
     Ad, Bd = np.asarray(lqr.plant_d.A), np.asarray(lqr.plant_d.B)
     C, D = kalman.C, kalman.D[:, torque_inputs(lqr.plant)]
     n, m = Bd.shape
@@ -54,14 +63,18 @@ def lqg_plant(lqr: LQRDesign, kalman: KalmanDesign) -> ct.StateSpace:
 
 
 def lqg_compensator(lqr: LQRDesign, kalman: KalmanDesign) -> ct.StateSpace:
-    """The discrete LQG from the sensors' deviations to the torques' deviations, ``u = K_c(y)`` (the minus
+    """The discrete LQG from the sensors' deviations to the torques' deviations.
+
+    The discrete LQG from the sensors' deviations to the torques' deviations, ``u = K_c(y)`` (the minus
     sign of the feedback inside): the current estimator of :class:`controllers.laws.LQGLaw` for any number
-    of joints, ``x̂ = (I − M C) z − M D u_{k−1} + M y``, ``u = −K_d x̂``, ``z⁺ = A_d x̂ + B_d u``."""
+    of joints, ``x̂ = (I − M C) z − M D u_{k−1} + M y``, ``u = −K_d x̂``, ``z⁺ = A_d x̂ + B_d u``.
+    """
     return compensator(lqr.plant_d.A, lqr.plant_d.B, lqr.Kd, kalman.Md, kalman.C,
                        kalman.D[:, torque_inputs(lqr.plant)], lqr.dt)
 
 
-def compensator(Ad, Bd, Kd, M, C, D, dt: float) -> ct.StateSpace:
+def compensator(Ad: ArrayLike, Bd: ArrayLike, Kd: ArrayLike, M: ArrayLike, C: ArrayLike, D: ArrayLike,
+                dt: float) -> ct.StateSpace:
     """:func:`lqg_compensator` from its matrices (a scheduled law's, interpolated between designs)."""
     Ad, Bd, Kd, M, C, D = (np.asarray(a, dtype=float) for a in (Ad, Bd, Kd, M, C, D))
     n, m = Bd.shape
@@ -87,10 +100,13 @@ def _grid(T: ct.StateSpace, n_points: int) -> np.ndarray:
 
 
 def response(sys: ct.StateSpace, w: np.ndarray, chunk: int = 256) -> np.ndarray:
-    """Frequency response of ``sys`` at w (rad/s; z = e^{jω dt} when sampled), shape (len(w), p, m):
+    """Frequency response of a state space on a grid, batched in numpy.
+
+    Frequency response of ``sys`` at w (rad/s; z = e^{jω dt} when sampled), shape (len(w), p, m):
     ``C (xI − A)⁻¹ B + D`` with one LU per frequency, python-control's own fallback evaluation
     (``StateSpace.horner`` without Slycot) batched in numpy.  Slycot's Hessenberg method, which python-control
-    takes when Slycot is installed, moves these high-order loops' margins in the fourth digit."""
+    takes when Slycot is installed, moves these high-order loops' margins in the fourth digit.
+    """
     A, B, C, D = (np.asarray(M, dtype=float) for M in (sys.A, sys.B, sys.C, sys.D))
     x = np.exp(1j * w * sys.dt) if sys.isdtime() else 1j * w
     n = A.shape[0]
@@ -108,9 +124,12 @@ def response(sys: ct.StateSpace, w: np.ndarray, chunk: int = 256) -> np.ndarray:
 _FRD_EVAL = ct.FrequencyResponseData.eval
 
 
-def _eval_at_once(self, omega, squeeze=None):
-    """``FrequencyResponseData.eval`` of an interpolating FRD with one ``splev`` call over all the
-    frequencies (python-control calls it once per frequency); the same values, bit for bit."""
+def _eval_at_once(self: ct.FrequencyResponseData, omega: ArrayLike, squeeze: bool | None = None) -> Any:
+    """``FrequencyResponseData.eval`` with one ``splev`` call.
+
+    ``FrequencyResponseData.eval`` of an interpolating FRD with one ``splev`` call over all the
+    frequencies (python-control calls it once per frequency); the same values, bit for bit.
+    """
     if self._ifunc is None or np.size(omega) == 0:          # splev refuses no frequency
         return _FRD_EVAL(self, omega, squeeze=squeeze)
     from control.lti import _process_frequency_response
@@ -126,10 +145,13 @@ def _eval_at_once(self, omega, squeeze=None):
 
 
 @contextmanager
-def splev_at_once():
-    """Inside: interpolating FRDs evaluate all their frequencies in one ``splev`` call.  Most of the time of
+def splev_at_once() -> Iterator[None]:
+    """Inside: interpolating FRDs evaluate all their frequencies in one ``splev`` call.
+
+    Most of the time of
     ``control.stability_margins`` on a 4000-point grid went to python-control's loop over the frequencies
-    (it copies the FRD it is given, so a subclass would not reach it); the margins are unchanged."""
+    (it copies the FRD it is given, so a subclass would not reach it); the margins are unchanged.
+    """
     ct.FrequencyResponseData.eval = _eval_at_once
     try:
         yield
@@ -137,16 +159,19 @@ def splev_at_once():
         ct.FrequencyResponseData.eval = _FRD_EVAL
 
 
-def _no_laub(self, x):
+def _no_laub(self: ct.StateSpace, x: Any) -> NoReturn:
     raise NotImplementedError("python-control's LU evaluation (controllers.robustness.lu_evaluation)")
 
 
 @contextmanager
-def lu_evaluation():
-    """Inside: python-control evaluates a state space's frequency response with its own LU solve per frequency
+def lu_evaluation() -> Iterator[None]:
+    """Inside: python-control's LU evaluation of frequency responses, never Slycot's.
+
+    Inside: python-control evaluates a state space's frequency response with its own LU solve per frequency
     (``StateSpace.horner``'s fallback), not with Slycot's Hessenberg method (``tb05ad``), which it takes when
     Slycot is installed and which is off by 3e-3 relative on the six-axis arm's 88-state loops (the LU
-    evaluation of the same loop in a balanced realisation agrees with it to 4e-13)."""
+    evaluation of the same loop in a balanced realisation agrees with it to 4e-13).
+    """
     original = ct.StateSpace.slycot_laub
     ct.StateSpace.slycot_laub = _no_laub
     try:
@@ -161,8 +186,10 @@ def lu_evaluation():
 DISK_SKEW = 0.0
 
 
-def disk_margins(T: ct.StateSpace, Tw: np.ndarray, w: np.ndarray, i: int) -> dict:
-    """``control.disk_margins(L_i, ·, skew=0)`` of the loop broken at actuator i (the others closed), its
+def disk_margins(T: ct.StateSpace, Tw: np.ndarray, w: np.ndarray, i: int) -> dict[str, float]:
+    """The balanced disk margin of the loop broken at actuator i (python-control).
+
+    ``control.disk_margins(L_i, ·, skew=0)`` of the loop broken at actuator i (the others closed), its
     worst case over the grid w (Tw: T's response on it).
 
     The balanced margin α tolerates every factor f at that input inside the disk α draws: gains within
@@ -170,7 +197,8 @@ def disk_margins(T: ct.StateSpace, Tw: np.ndarray, w: np.ndarray, i: int) -> dic
     evaluates L_i's state space once per frequency (0.8 s a loop on the six-axis arm's 88-state loops, 24 of
     them), so it is called where the margin is smallest: the 5 grid points around the minimum of
     1/|S_i − ½| from the response already computed (the same quantity: python-control's figures, one
-    LU evaluation a frequency, :func:`lu_evaluation`)."""
+    LU evaluation a frequency, :func:`lu_evaluation`).
+    """
     m = T.ninputs
     L = -(ct.feedback(T, np.diag([0.0 if j == i else 1.0 for j in range(m)]), sign=1) if m > 1 else T)[i, i]
     Sw = 1.0 / (1.0 - broken_loop(Tw, i)[:, 0, 0])
@@ -184,7 +212,8 @@ def disk_margins(T: ct.StateSpace, Tw: np.ndarray, w: np.ndarray, i: int) -> dic
             "disk_phase_margin_deg": float(dpm[j]), "disk_margin_hz": float(w[near[j]] / (2 * np.pi))}
 
 
-def loop_at_a_time(P: ct.StateSpace, Kc, names: list[str] | None = None, n_points: int = 4000) -> dict:
+def loop_at_a_time(P: ct.StateSpace, Kc: ct.StateSpace | ArrayLike, names: Sequence[str] | None = None,
+                   n_points: int = 4000) -> dict[str, Any]:
     """Margins at each actuator and the peak sensitivity of the loop ``u = K_c(P u)``.
 
     The broken loops' frequency responses come from that of ``T = K_c P`` (:func:`response`, once) by the
@@ -210,6 +239,9 @@ def loop_at_a_time(P: ct.StateSpace, Kc, names: list[str] | None = None, n_point
         ``phase_crossover_hz``, ``peak_sensitivity`` (``1/min|1 + L_i|``), the balanced disk margin
         ``disk_margin``, ``disk_gain_margin_db``, ``disk_phase_margin_deg``, ``disk_margin_hz``
         (:func:`disk_margins`); ``peak_sensitivity`` (all loops, at the plant input), ``disk_skew`` (0),
+        ``multiloop``: the simultaneous disk margin at all actuators (0 for an unstable loop)
+        (:meth:`controllers.diskmargin.MultiLoopMargin.figures`) and ``multiloop_margin`` (the
+        :class:`controllers.diskmargin.MultiLoopMargin` itself, with its destabilising perturbation),
         ``closed_loop_poles`` (s, or z with ``dt``), ``stable``, ``dt``.
     """
     if not isinstance(Kc, ct.StateSpace):
@@ -228,17 +260,24 @@ def loop_at_a_time(P: ct.StateSpace, Kc, names: list[str] | None = None, n_point
     cl = ct.feedback(T, np.eye(m), sign=1)
     poles = cl.poles()
     stable = bool(np.all(np.abs(poles) < 1.0)) if T.isdtime() else bool(np.all(poles.real < 0))
+    # an unstable loop has no margin: no perturbation is needed to destabilise it
+    multi = (multiloop_disk_margin(Tw, w, lambda x: response(T, x), D if T.isctime() else None) if stable
+             else MultiLoopMargin(0.0, 0.0, math.nan, np.zeros(m, dtype=complex), True))
     S = np.linalg.inv(np.eye(m)[None] - Tw)
     S_peak = float(np.max(np.linalg.svd(S, compute_uv=False)[:, 0]))
     if T.isctime():
         S_peak = max(S_peak, float(np.linalg.svd(np.linalg.inv(np.eye(m) - D), compute_uv=False)[0]))
     return {"actuators": out, "peak_sensitivity": S_peak, "closed_loop_poles": poles, "stable": stable,
-            "dt": float(T.dt) if T.isdtime() else 0.0, "disk_skew": DISK_SKEW}
+            "dt": float(T.dt) if T.isdtime() else 0.0, "disk_skew": DISK_SKEW, "multiloop": multi.figures(),
+            "multiloop_margin": multi}
 
 
 def broken_loop(Tw: np.ndarray, i: int) -> np.ndarray:
-    """``T_cl[i, i]`` (shape (N, 1, 1)) of ``T_cl = T (I − E_o T)⁻¹`` at each frequency, the other channels
-    closed with positive feedback (``control.feedback(T, E_o, sign=1)``, ``E_o`` their selector)."""
+    """The loop broken at actuator i, the other channels closed, at each frequency.
+
+    ``T_cl[i, i]`` (shape (N, 1, 1)) of ``T_cl = T (I − E_o T)⁻¹`` at each frequency, the other channels
+    closed with positive feedback (``control.feedback(T, E_o, sign=1)``, ``E_o`` their selector).
+    """
     m = Tw.shape[-1]
     if m == 1:
         return Tw[:, :1, :1]
@@ -249,10 +288,14 @@ def broken_loop(Tw: np.ndarray, i: int) -> np.ndarray:
     return row[:, i:i + 1, :]
 
 
-def siso_margins(Lw: np.ndarray, w: np.ndarray, dt=0, L_inf: float | None = None) -> dict:
-    """``control.stability_margins`` (all crossovers) of the loop's frequency response Lw on the grid w (an
+def siso_margins(Lw: np.ndarray, w: np.ndarray, dt: float | bool = 0,
+                 L_inf: float | None = None) -> dict[str, float]:
+    """The classical margins of a loop from its frequency response (python-control).
+
+    ``control.stability_margins`` (all crossovers) of the loop's frequency response Lw on the grid w (an
     interpolating ``control.frd``), split into the gain increase and decrease margins; ``L_inf`` is the
-    continuous loop's feedthrough, ``L(j∞)``."""
+    continuous loop's feedthrough, ``L(j∞)``.
+    """
     frd = ct.frd(np.asarray(Lw, dtype=complex).reshape(1, 1, -1), w, dt, smooth=True)
     with warnings.catch_warnings(), splev_at_once():
         warnings.simplefilter("ignore")
@@ -268,9 +311,12 @@ def siso_margins(Lw: np.ndarray, w: np.ndarray, dt=0, L_inf: float | None = None
             "peak_sensitivity": 1.0 / d_min if d_min > 0 else float("inf")}
 
 
-def robustness(lqr: LQRDesign, kalman: KalmanDesign | None = None, n_points: int = 4000) -> dict:
-    """:func:`loop_at_a_time` of the continuous LQR state feedback (``"lqr"``) and, with ``kalman``, of the
-    sampled LQG (``"lqg"``), the actuators named by their FMU inputs."""
+def robustness(lqr: LQRDesign, kalman: KalmanDesign | None = None, n_points: int = 4000) -> dict[str, dict[str, Any]]:
+    """The margins of a design's continuous LQR and sampled LQG.
+
+    :func:`loop_at_a_time` of the continuous LQR state feedback (``"lqr"``) and, with ``kalman``, of the
+    sampled LQG (``"lqg"``), the actuators named by their FMU inputs.
+    """
     B = np.asarray(lqr.plant.sys.B)[:, torque_inputs(lqr.plant)]
     sys = ct.ss(np.asarray(lqr.plant.sys.A), B, np.eye(lqr.plant.sys.nstates), 0)
     out = {"lqr": loop_at_a_time(sys, -np.asarray(lqr.K), lqr.inputs, n_points)}
@@ -280,9 +326,12 @@ def robustness(lqr: LQRDesign, kalman: KalmanDesign | None = None, n_points: int
 
 
 def delayed_plant(lqr: LQRDesign, kalman: KalmanDesign) -> ct.StateSpace:
-    """:func:`lqg_plant` with one sample of computation delay at its inputs, as a Jacobi master (libcosim's
+    """The sampled plant with one sample of computation delay at its inputs.
+
+    :func:`lqg_plant` with one sample of computation delay at its inputs, as a Jacobi master (libcosim's
     fixed-step algorithm) applies a controller FMU's output: ``x⁺ = A_d x + B_d v``, ``v⁺ = u``, ``y = C x``
-    (the state augmented with the torque being applied)."""
+    (the state augmented with the torque being applied).
+    """
     P = lqg_plant(lqr, kalman)
     A, B, C = np.asarray(P.A), np.asarray(P.B), np.asarray(P.C)
     n, m = B.shape
@@ -292,10 +341,13 @@ def delayed_plant(lqr: LQRDesign, kalman: KalmanDesign) -> ct.StateSpace:
 
 
 def predictive_compensator(lqr: LQRDesign, kalman: KalmanDesign) -> ct.StateSpace:
-    """The LQG made for that delay (``DELAY 1`` in ``ctrl_fmu.c``, :class:`controllers.ssp.PredictiveLQGLaw`),
+    """The predictive LQG for one sample of delay, as a state space.
+
+    The LQG made for that delay (``DELAY 1`` in ``ctrl_fmu.c``, :class:`controllers.ssp.PredictiveLQGLaw`),
     linear part: the estimate corrected with y_k, ``x̂ = F z + M y``, predicted to the next sample with the
     torque it output a sample ago, ``z⁺ = A_d x̂ + B_d v``, and the next sample's torque ``u = −K_d z⁺``,
-    which it holds as ``v⁺ = u``.  State (z, v)."""
+    which it holds as ``v⁺ = u``.  State (z, v).
+    """
     if np.any(kalman.D[:, torque_inputs(lqr.plant)] != 0):
         raise ValueError("the predictive law reads sensors without feedthrough (encoders, strain gauges)")
     Ad, Bd, K, M, C = (np.asarray(a, dtype=float) for a in (lqr.plant_d.A, lqr.plant_d.B, lqr.Kd, kalman.Md,
@@ -308,19 +360,22 @@ def predictive_compensator(lqr: LQRDesign, kalman: KalmanDesign) -> ct.StateSpac
     return ct.ss(A, B, -K @ Az, -K @ Ad @ M, lqr.dt)
 
 
-def delayed_robustness(lqr: LQRDesign, kalman: KalmanDesign, n_points: int = 4000) -> dict:
-    """The loops with one sample of computation delay (:func:`delayed_plant`): ``"lqg_delay1"``, the
+def delayed_robustness(lqr: LQRDesign, kalman: KalmanDesign, n_points: int = 4000) -> dict[str, dict[str, Any]]:
+    """The margins of the loops with one sample of computation delay.
+
+    The loops with one sample of computation delay (:func:`delayed_plant`): ``"lqg_delay1"``, the
     predictive LQG that the SSP package's controller FMU runs; ``"lqg_delay1_unaware"``, the LQG designed
-    without the delay in that loop (its verdict: what ignoring the delay costs)."""
+    without the delay in that loop (its verdict: what ignoring the delay costs).
+    """
     P = delayed_plant(lqr, kalman)
     return {"lqg_delay1": loop_at_a_time(P, predictive_compensator(lqr, kalman), lqr.inputs, n_points),
             "lqg_delay1_unaware": loop_at_a_time(P, lqg_compensator(lqr, kalman), lqr.inputs, n_points)}
 
 
-def robustness_figures(rob: dict) -> dict:
+def robustness_figures(rob: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
     """:func:`robustness` as JSON-ready values: infinite margins as ``null``, poles as ``[re, im]``."""
 
-    def num(v):
+    def num(v: float) -> float | None:
         return float(v) if np.isfinite(v) else None
 
     out = {}
@@ -332,5 +387,6 @@ def robustness_figures(rob: dict) -> dict:
             "sample_time_s": r["dt"] or None,
             "closed_loop_poles": [[float(p.real), float(p.imag)] for p in np.sort_complex(r["closed_loop_poles"])],
             "disk_skew": r["disk_skew"],
+            "multiloop": {k: (v if isinstance(v, bool) else num(v)) for k, v in r["multiloop"].items()},
         }
     return out

@@ -30,7 +30,9 @@ import os
 import shutil
 import tempfile
 import zipfile
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
@@ -38,12 +40,18 @@ import numpy as np
 from controllers.design import DesignError
 from controllers.multijoint import MimoLQGLaw
 
-__all__ = ["JacobiDelay", "PredictiveLQGLaw", "write_ssp"]
+if TYPE_CHECKING:
+    from controllers.manoeuvre import ControlDesign
+    from controllers.schedule import Schedule
+    from controllers.trajectory import Reference
+
+__all__ = ["JacobiDelay", "PredictiveLQGLaw", "ScheduledPredictiveLQGLaw", "write_ssp"]
 
 PLANT, CONTROLLER = "plant", "controller"
 
 
 def _connector(name: str, kind: str) -> str:
+    """One ``ssd:Connector`` of a Real."""
     return f'          <ssd:Connector name={quoteattr(name)} kind="{kind}"><ssc:Real/></ssd:Connector>'
 
 
@@ -85,10 +93,34 @@ def system_structure(name: str, sensors: list[str], torques: list[str], dt: floa
 """
 
 
-def write_ssp(d, plant_fmu: str | os.PathLike, path: str | os.PathLike, reference, limits=None) -> Path:
-    """Write the SSP package of the plant FMU and the design's controller FMU playing ``reference``
-    (:class:`controllers.trajectory.Reference`: the run lasts its time grid); validated against the SSP 1.0
-    schema before it is written."""
+def write_ssp(d: ControlDesign, plant_fmu: str | os.PathLike[str], path: str | os.PathLike[str],
+              reference: Reference, limits: Sequence[float] | None = None, schedule: Schedule | None = None) -> Path:
+    """Write the SSP package of the plant FMU and the design's controller FMU playing ``reference``.
+
+    The package is validated against the SSP 1.0 schema before it is written, so that a package on disk is
+    one the standard's importers read.
+
+    Parameters
+    ----------
+    d : controllers.manoeuvre.ControlDesign
+        The design whose sampled LQG the controller FMU runs (predictive, ``DELAY 1``: module docstring).
+    plant_fmu : path
+        The scene's FMU.
+    path : path
+        The package to write (``.ssp``).
+    reference : controllers.trajectory.Reference
+        The manoeuvre the controller plays; the run lasts its time grid.
+    limits : sequence of float, optional
+        Torque saturation per actuated joint (default: the design's).
+    schedule : controllers.schedule.Schedule, optional
+        A gain schedule of ``d`` over the path: the controller interpolates its matrices along it
+        (:class:`ScheduledPredictiveLQGLaw`).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     from fmpy.ssp.ssd import read_ssd
 
     from controllers.export import export_controller_fmu
@@ -101,7 +133,7 @@ def write_ssp(d, plant_fmu: str | os.PathLike, path: str | os.PathLike, referenc
         (root / "resources").mkdir()
         shutil.copy(plant_fmu, root / "resources" / f"{PLANT}.fmu")
         export_controller_fmu(d, root / "resources" / f"{CONTROLLER}.fmu", limits=limits, reference=reference,
-                              delay=1)
+                              delay=1, schedule=schedule, duration=reference.duration)
         ssd = system_structure(d.plant.model.scene.name, list(d.kalman.sensors), list(d.lqr.inputs), d.dt,
                                float(reference.time[-1]))
         (root / "SystemStructure.ssd").write_text(ssd)
@@ -119,43 +151,77 @@ def write_ssp(d, plant_fmu: str | os.PathLike, path: str | os.PathLike, referenc
 
 
 class JacobiDelay:
-    """A law as a Jacobi co-simulation master applies it (module docstring): the torque it returns at sample
-    k is the wrapped law's from sample k−1, and ``u_init`` at sample 0."""
+    """A law as a Jacobi co-simulation master applies it: one sample late.
 
-    def __init__(self, law, u_init):
+    The torque it returns at sample k is the wrapped law's from sample k−1, and ``u_init`` at sample 0.
+    """
+
+    def __init__(self, law: Any, u_init: Sequence[float] | np.ndarray):
         self.law, self.u_init = law, np.asarray(u_init, dtype=float)
         self.dt, self.sensors, self.inputs, self.kind = law.dt, law.sensors, law.inputs, law.kind
 
     def reset(self) -> None:
+        """Reset the wrapped law; the torque held before the first sample is ``u_init``."""
         self.law.reset()
         self.held = self.u_init.copy()
 
-    def step(self, y, x_ref, u_ff) -> np.ndarray:
+    def step(self, y: np.ndarray, x_ref: np.ndarray, u_ff: np.ndarray) -> np.ndarray:
+        """The torque the law returned a sample ago; sample k is given to the law now."""
         u, self.held = self.held, np.array(self.law.step(y, x_ref, u_ff), dtype=float)
         return u
 
 
 class PredictiveLQGLaw(MimoLQGLaw):
-    """:class:`MimoLQGLaw` for a loop that applies its torque one sample late (``DELAY 1`` in
+    """The sampled LQG for a loop that applies its torque one sample late.
+
+    :class:`MimoLQGLaw` for a loop that applies its torque one sample late (``DELAY 1`` in
     ``ctrl_fmu.c``): at sample k the estimate corrected with y_k is predicted to k+1 with the torque v_k being
     applied (its own previous output), and the torque returned is the next sample's,
-    ``sat(u₀ + u_ff,k+1 − K_d ẑ_k+1)``.  ``initial()``: the torque before the first sample, u₀ + u_ff,0."""
+    ``sat(u₀ + u_ff,k+1 − K_d ẑ_k+1)``.  ``initial()``: the torque before the first sample, u₀ + u_ff,0.
+    """
 
-    def __init__(self, d, limits, reference):
+    def __init__(self, d: ControlDesign, limits: Sequence[float], reference: Reference):
         self.u_ff = reference.u_ff
         super().__init__(d, limits, reference)
 
     def initial(self) -> np.ndarray:
+        """The torque before the first sample: u₀ + u_ff,0, saturated (the FMU's output before its first step)."""
         return np.clip(self.u0 + self.u_ff[0], -self.limits, self.limits)
 
     def reset(self) -> None:
+        """Sample 0 next, the initial torque being applied."""
         super().reset()
         self.v = self.initial()
 
-    def step(self, y, x_ref, u_ff) -> np.ndarray:
-        dx = self.dz + self.M @ (y - self.y0 - self.C @ (x_ref + self.dz))
-        self.dz = self.Ad @ dx + self.Bd @ (self.v - self.u0 - u_ff) - self.W[min(self.k, len(self.W) - 1)]
+    def step(self, y: np.ndarray, x_ref: np.ndarray, u_ff: np.ndarray) -> np.ndarray:
+        """Sample k: correct and predict with sample k's matrices, return sample k+1's torque (its gain)."""
+        M, C, _, Ad, Bd = self.matrices(self.k)
+        dx = self.dz + M @ (y - self.y0 - C @ (x_ref + self.dz))
+        self.dz = Ad @ dx + Bd @ (self.v - self.u0 - u_ff) - self.W[min(self.k, len(self.W) - 1)]
         self.k += 1
         nxt = min(self.k, len(self.u_ff) - 1)
-        self.v = np.clip(self.u0 + self.u_ff[nxt] - self.K @ self.dz, -self.limits, self.limits)
+        self.v = np.clip(self.u0 + self.u_ff[nxt] - self.matrices(self.k)[2] @ self.dz, -self.limits, self.limits)
         return self.v.copy()
+
+
+class ScheduledPredictiveLQGLaw(PredictiveLQGLaw):
+    """The predictive LQG with a gain schedule's matrices.
+
+    :class:`PredictiveLQGLaw` with the matrices of a gain schedule (:class:`controllers.schedule.
+    ScheduledLQGLaw`'s, at the reference's path parameter): sample k corrects and predicts with sample k's
+    matrices and its torque for sample k+1 takes sample k+1's gain, as ``ctrl_fmu.c`` with ``DELAY 1`` and
+    ``NSCHED > 0`` does.
+    """
+
+    kind = "scheduled"
+
+    def __init__(self, schedule: Schedule, limits: Sequence[float], reference: Reference):
+        from controllers.schedule import ScheduledLQGLaw
+
+        self.scheduled = ScheduledLQGLaw(schedule, limits, reference)
+        super().__init__(schedule.designs[0], limits, reference)
+        self.W = self.scheduled.W
+
+    def matrices(self, k: int) -> tuple[np.ndarray, ...]:
+        """The schedule's (M, C, K_d, A_d, B_d) at sample ``k`` (the last sample's after the reference)."""
+        return self.scheduled.matrices(min(k, len(self.u_ff) - 1))
