@@ -183,7 +183,7 @@ def test_fmu_cache_key_covers_the_c_sources_and_templates(tmp_path, monkeypatch)
 
 
 def test_generated_code_optimisation_level(monkeypatch, tmp_path):
-    """Without FLEXLINK_OPTIMISE: a generated function is compiled at -O2 up to 5 000 operations, -O1 above
+    """Without FLEXLINK_OPTIMISE: a generated function is compiled at -O2 up to 5 000 operations, -Og above
     (docs/integrator.md, "Code generation"); the variable imposes a level, a bad value is a BuildError naming it;
     the level is part of the FMU cache key."""
     from flexlink.errors import BuildError
@@ -192,7 +192,7 @@ def test_generated_code_optimisation_level(monkeypatch, tmp_path):
 
     monkeypatch.delenv("FLEXLINK_OPTIMISE", raising=False)
     assert generated_code_optimisation(5_000) == "O2"
-    assert generated_code_optimisation(5_001) == "O1"
+    assert generated_code_optimisation(5_001) == "Og"
     monkeypatch.setenv("FLEXLINK_OPTIMISE", "O0")
     assert generated_code_optimisation(10) == "O0"
     monkeypatch.setenv("FLEXLINK_OPTIMISE", "O3")

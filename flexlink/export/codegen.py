@@ -34,10 +34,13 @@ from flexlink.mechanics.model import SymbolicModel
 from flexlink.scene.solver import SETTINGS
 
 # Scalar (SX) code is fast to run.  Each generated function is its own translation unit (compiled side by
-# side), at -O2 up to FULL_OPTIMISATION_MAX_OPERATIONS and -O1 above: -O1 runs large straight-line code as
-# fast (examples/flexible_pendulum.toml: 0.091 s → 0.088 s for 2 s of swing, median of 3) and compiles it
-# several times faster (that pendulum's 270 000 operations: 195 s → 29 s of gcc; the five-link chain's
-# 15 000-operation residual 3.1 s → 1.5 s; -O0 would be faster still to build but 3.3× slower to run).
+# side), at -O2 up to FULL_OPTIMISATION_MAX_OPERATIONS and -Og above.  -O1 first replaced -O2 there (as fast to
+# run for large straight-line code, several times faster to compile: a 270 000-operation pendulum 195 s → 29 s
+# of gcc); -Og then replaced -O1: gcc's register allocator ("LRA hard reg assignment", -ftime-report) spent
+# 84 % of -O1's time on long straight-line units, and -Og skips the passes that lengthen live ranges.  Measured
+# 2026-11-26: the 32-mode first-order link's 25 000-operation residual derivative 16.7 s → 2.1 s of gcc CPU at
+# the same speed (4.79 vs 4.68 µs a call; -O0 0.63 s but 25.6 µs); whole builds (gcc CPU, step):
+# that link 25.8 s → 7.7 s, 7.82 → 7.80 µs; examples/six_axis_arm.toml 12.6 s → 10.8 s, 6.63 → 6.50 µs.
 # Above EXPAND_MAX_COORDINATES the matrix graph is kept (compact code, much slower per step).
 FULL_OPTIMISATION_MAX_OPERATIONS = 5_000
 EXPAND_MAX_COORDINATES = 160
@@ -50,23 +53,23 @@ EXPAND_MAX_COORDINATES = 160
 # costs 26 derivative calls, 300 µs); the mild examples refresh it a few times per run, where only the build
 # counts (docs/performance.md, benchmarks/scaling.py).
 NEWTON_DENSE_MAX_COORDINATES = 12
-# FLEXLINK_OPTIMISE=O0|O1|O2 imposes one level on the CasADi code instead (the generic C stays at -O2): the
+# FLEXLINK_OPTIMISE=O0|Og|O1|O2 imposes one level on the CasADi code instead (the generic C stays at -O2): the
 # test suite builds dozens of FMUs and runs each briefly, so it compiles them at O0 (docs/tests.md).
 OPTIMISE_ENV = "FLEXLINK_OPTIMISE"
-OPTIMISE_LEVELS = ("O0", "O1", "O2")
+OPTIMISE_LEVELS = ("O0", "Og", "O1", "O2")
 
 
 def generated_code_optimisation(operations: int) -> str:
     """The gcc optimisation level of one generated function of ``operations`` operations.
 
-    $FLEXLINK_OPTIMISE if set, else O2 or, above FULL_OPTIMISATION_MAX_OPERATIONS, O1.
+    $FLEXLINK_OPTIMISE if set, else O2 or, above FULL_OPTIMISATION_MAX_OPERATIONS, Og.
     """
     level = os.environ.get(OPTIMISE_ENV, "").strip()
     if level:
         if level not in OPTIMISE_LEVELS:
             raise BuildError(f"{OPTIMISE_ENV}={level!r}: expected one of {', '.join(OPTIMISE_LEVELS)}")
         return level
-    return "O1" if operations > FULL_OPTIMISATION_MAX_OPERATIONS else "O2"
+    return "Og" if operations > FULL_OPTIMISATION_MAX_OPERATIONS else "O2"
 
 
 def _optimise_pragma(level: str) -> str:
