@@ -595,7 +595,7 @@ def test_flexlink_check_runs_on_an_fmi3_fmu(fmi3_fmu, tmp_path, capsys):
         f.close()
 
 
-@pytest.mark.parametrize("cc", ["gcc", MINGW_CC])
+@pytest.mark.parametrize("cc", ["gcc", "clang", MINGW_CC])
 def test_fmi3_sources_compile_clean_as_strict_c99(fmi3_fmu, tmp_path, cc):
     """The FMI 3 FMU's ``sources/``: every file its buildDescription.xml lists (all the C files shipped, with
     fmi3Functions.c instead of fmi2Functions.c), strict C99 with every warning an error."""
@@ -609,7 +609,7 @@ def test_fmi3_sources_compile_clean_as_strict_c99(fmi3_fmu, tmp_path, cc):
     files = read_build_description(fmu, validate=True)[0].sourceFileSets[0].sourceFiles
     assert sorted(files) == sorted(p.name for p in (tmp_path / "sources").glob("*.c"))
     assert "fmi3Functions.c" in files and "fmi2Functions.c" not in files
-    flags = ["-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-O1", "-shared"] + (["-fPIC"] if cc == "gcc"
+    flags = ["-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-O1", "-shared"] + (["-fPIC"] if cc != MINGW_CC
                                                                                           else [])
     res = subprocess.run([cc, *flags, f"-I{tmp_path / 'sources'}", *(str(tmp_path / "sources" / f) for f in files),
                           "-o", str(tmp_path / "lib"), "-lm"], capture_output=True, text=True, check=False)

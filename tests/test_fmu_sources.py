@@ -35,14 +35,14 @@ def unzipped(example_fmu, tmp_path_factory) -> dict[str, tuple[Path, Path]]:
 
 
 @pytest.mark.parametrize("name", SCENES)
-@pytest.mark.parametrize("cc", ["gcc", cbuild.MINGW_CC])
+@pytest.mark.parametrize("cc", ["gcc", "clang", cbuild.MINGW_CC])
 def test_sources_compile_clean_as_strict_c99(unzipped, tmp_path, name, cc):
     """Every source file that buildDescription.xml lists, with nothing but ``-I sources``: no warning."""
     if shutil.which(cc) is None:
         pytest.skip(f"{cc} is not installed")
     fmu, d = unzipped[name]
     files = read_build_description(fmu)[0].sourceFileSets[0].sourceFiles
-    flags = [*STRICT, "-fPIC"] if cc == "gcc" else STRICT
+    flags = [*STRICT, "-fPIC"] if cc in ("gcc", "clang") else STRICT
     res = subprocess.run([cc, *flags, f"-I{d / 'sources'}", *(str(d / "sources" / f) for f in files),
                           "-o", str(tmp_path / "lib"), "-lm"], capture_output=True, text=True, check=False)
     assert res.returncode == 0 and res.stderr == "", res.stderr[-4000:]
