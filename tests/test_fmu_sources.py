@@ -1,9 +1,10 @@
-"""An FMU's ``sources/`` build anywhere: strict ISO C99 with every warning an error (gcc, and MinGW-w64 for
+"""An FMU's ``sources/`` build anywhere: strict ISO C99 with every warning an error (gcc, clang, and MinGW-w64 for
 Windows), a ``buildDescription.xml`` that fmpy's FMI 3.0 schema accepts and that lists every source file, and
 fmpy's own CMake build of the platform binary (``fmpy compile``), whose library simulates like the shipped one."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -67,9 +68,11 @@ def test_build_description_lists_every_source_file(unzipped, name):
         assert [line.split('"')[1] for line in block.splitlines() if "<File name=" in line] == files
 
 
-def test_fmpy_compile_builds_a_binary_that_simulates_like_the_shipped_one(unzipped, tmp_path):
+def test_fmpy_compile_builds_a_binary_that_simulates_like_the_shipped_one(unzipped, tmp_path, monkeypatch):
     """``fmpy compile --all-warnings --warning-as-error`` (its CMake project, Release) replaces the linux64
-    binary of a copy; fmpy then simulates both FMUs: the same trajectory to rounding (other compiler flags)."""
+    binary of a copy; fmpy then simulates both FMUs: the same trajectory to rounding (other compiler flags).
+    CMake comes from the test extras (the ``cmake`` wheel, in the environment's bin folder) or the system."""
+    monkeypatch.setenv("PATH", f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
     if shutil.which("cmake") is None:
         pytest.skip("cmake is not installed (fmpy compile builds with CMake)")
     fmu, _ = unzipped["rotating_link"]
