@@ -110,13 +110,18 @@ static void weighted_state(SS22 *s, double dt, const double *q, const double *v,
 }
 
 /* The Newton iteration's start: the caller's acceleration alpha, moved along the line through the last two
- * steps' (constant) accelerations, each taken at its step's middle.  Only when alpha is the one this solver
- * returned last: a state set by the importer, restored, or re-stepped by the order-4 option starts plain. */
-static void predict(const SS22 *s, double dt, const double *alpha, double *a) {
-    if (!s->history || memcmp(alpha, s->alpha_last, sizeof(double) * N_Q) != 0) return;
+ * steps' (constant) accelerations, each taken at its step's middle; returns whether it did.  Only when alpha
+ * is the one this solver returned last: the order-4 option's re-step from the start of a step and the
+ * sub-steps after a failed step start from the given alpha.  (An FMU state carries the history with it: a
+ * restored state continues exactly as the original did.) */
+#if !MODEL_LINEAR_IN_STATE
+static int predict(const SS22 *s, double dt, const double *alpha, double *a) {
+    if (!s->history || memcmp(alpha, s->alpha_last, sizeof(double) * N_Q) != 0) return 0;
     const double ratio = (dt + s->dt_last) / (s->dt_last + s->dt_before);
     for (int i = 0; i < N_Q; i++) a[i] = alpha[i] + ratio * (alpha[i] - s->alpha_before[i]);
+    return 1;
 }
+#endif
 
 SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
                      const double *u0, const double *u1, const double *p, ModelWork *work) {
@@ -124,9 +129,10 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
     SS22Factor *f = NULL;
     SS22Status st;
 
+    int predicted = 0;
+
     ss22_weighted_inputs(s, dt, u0, u1, s->u_bar);
     memcpy(a, alpha, sizeof(a));
-    predict(s, dt, alpha, a);
 #if MODEL_LINEAR_IN_STATE
     /* r is affine in (q, v, a): r(alpha) = r(0) + J alpha, one solve, no iteration. */
     memset(a, 0, sizeof(a));
@@ -141,6 +147,7 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
     {
         double delta[N_Q];
         const uint64_t used = s->factorisations;
+        predicted = predict(s, dt, alpha, a);
         int converged = 0;
         int fresh = -1;          /* increments made with a matrix evaluated in this step; -1: an older one */
         double previous = INFINITY;
@@ -167,15 +174,17 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
             if (fresh >= 0) fresh++;
             if (!isfinite(err)) return SS22_NOT_FINITE;
             if (err <= s->tolerance) {
-                if (it > 0 && fresh != 1) f->rate = err / previous;   /* measured on this matrix's increments */
-                if (it > 0) f->estimated = 0;
+                if (it > 0 && fresh < 0) {       /* two increments of a matrix from an earlier step */
+                    f->rate = err / previous;
+                    f->estimated = 0;
+                }
                 converged = 1;
                 break;
             }
             if (it == 0 && fresh < 0 && f->rate >= 0.0 && f->estimated < SS22_RATE_MEASURE_EVERY) {
                 /* an earlier step's matrix and its last measured rate: what is left is about
                  * rate/(1-rate) times this increment (ss22.h, SS22_RATE_MEASURE_EVERY) */
-                const double aged = pow(fmax(f->rate, 1e-16), 0.8);
+                const double aged = pow(fmax(f->rate, SS22_RATE_FLOOR), 0.8);
                 if (aged < 0.5 && aged / (1.0 - aged) * err <= s->tolerance) {
                     f->estimated++;
                     converged = 1;
@@ -189,8 +198,10 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
             }
             const double rate = err / previous;
             previous = err;
-            f->rate = rate;
-            f->estimated = 0;
+            if (fresh < 0) {     /* a fresh matrix's rate is Newton's own, not what it will show when older */
+                f->rate = rate;
+                f->estimated = 0;
+            }
             /* linear convergence at rate < 1: what is left is about rate/(1-rate) times this increment */
             if (rate < 0.5 && rate / (1.0 - rate) * err <= s->tolerance) { converged = 1; break; }
             /* at this rate an older matrix cannot reach the tolerance within the iterations left */
@@ -214,8 +225,8 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
         q[i] += dt * v[i] + 0.5 * dt * dt * a[i];
         v[i] += dt * a[i];
     }
-    if (s->history) { memcpy(s->alpha_before, alpha, sizeof(a)); s->dt_before = s->dt_last; }
-    else { memcpy(s->alpha_before, a, sizeof(a)); s->dt_before = dt; }
+    if (predicted) { memcpy(s->alpha_before, alpha, sizeof(a)); s->dt_before = s->dt_last; }
+    else { memcpy(s->alpha_before, a, sizeof(a)); s->dt_before = dt; }     /* the line starts again here */
     memcpy(s->alpha_last, a, sizeof(a));
     s->dt_last = dt;
     s->history = 1;

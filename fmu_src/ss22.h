@@ -1,5 +1,5 @@
 /* ss22.h -- the Zienkiewicz-Wood-Hine single-step algorithm of degree 2 (SS22) over a
- * model in residual form r(q, v, a, u, p) = 0 (model.h); seed 001 part 3, DESIGN.md §3.
+ * model in residual form r(q, v, a, u, p) = 0 (model.h); seed 001 part 3, docs/integrator.md.
  *
  * On [t0, t0 + dt] the acceleration is the unknown constant alpha and
  *     q1 = q0 + dt v0 + dt^2/2 alpha,      v1 = v0 + dt alpha.
@@ -19,11 +19,15 @@
 
 /* SS22_MAX_ITERATIONS and SS22_ROUNDING_FACTOR: solver_settings.h (from flexlink/scene/solver.py) */
 
-/* A step whose first increment, times rate/(1 - rate) for the rate its matrix last showed (aged as Radau5
- * ages it: rate^0.8), is below the tolerance is accepted after one iteration (Hairer & Wanner, Solving ODEs II,
- * IV.8, the stopping criterion across steps); every SS22_RATE_MEASURE_EVERY-th such step iterates once more
- * and measures the rate again, so that an estimate is never older than that many steps. */
+/* A step whose first increment, times rate/(1 - rate) for the rate its matrix last showed over two increments
+ * in an earlier step (at least SS22_RATE_FLOOR, then raised once to the power 0.8: Radau5 raises its
+ * contraction factor so at every step, Hairer & Wanner, Solving ODEs II, IV.8; here the rate is measured again
+ * instead), is below the tolerance is accepted after one iteration.  The floor keeps a rate measured where the increments had already reached rounding, or after an
+ * input jump, from accepting a large first increment (an independent review built a stiff model with an input
+ * jump where a measured rate of 5e-9 accepted a step 1290 tolerances off).  Every SS22_RATE_MEASURE_EVERY-th
+ * such step iterates once more and measures the rate again. */
 #define SS22_RATE_MEASURE_EVERY 4
+#define SS22_RATE_FLOOR 1e-3
 
 #define SS22_CACHE 4     /* factorisations kept: the regular step, a shortened last one, and the Δt/2 of the
                             order-4 option with their rounding variants (2 entries thrashed: 1800 LUs in 15000 steps) */

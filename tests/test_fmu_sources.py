@@ -93,3 +93,22 @@ def test_fmpy_compile_builds_a_binary_that_simulates_like_the_shipped_one(unzipp
     assert np.ptp(shipped["hub.theta"]) > 0.05 and np.max(np.abs(shipped["arm.tip.v"])) > 1e-5
     for name in kwargs["output"]:
         np.testing.assert_allclose(built[name], shipped[name], rtol=1e-9, atol=1e-12 * np.max(np.abs(shipped[name])))
+
+
+@pytest.mark.parametrize("level", ["O0", "Og", "O1"])
+@pytest.mark.parametrize("cc", ["gcc", "clang", cbuild.MINGW_CC])
+def test_a_generated_unit_at_every_optimisation_level_compiles_clean(tmp_path, cc, level):
+    """The preamble of a generated unit (fmu_src/templates/unit.c.in) with the optimisation pragma of each level
+    a build may choose (the suite itself builds at O0, a default build at O2 or Og): strict C99, no warning, on
+    every compiler the sources are shipped for (clang has no ``#pragma GCC optimize`` and would warn)."""
+    from flexlink.export.codegen import _optimise_pragma, _template
+
+    if shutil.which(cc) is None:
+        pytest.skip(f"{cc} is not installed")
+    unit = tmp_path / "unit.c"
+    unit.write_text(_template("unit.c.in").substitute(unit="unit", scene="s", optimise=_optimise_pragma(level))
+                    + "double unit_twice(double x);\ndouble unit_twice(double x) { return 2.0 * x; }\n")
+    assert ("#pragma GCC optimize" in unit.read_text()) == (level != "O2")
+    res = subprocess.run([cc, "-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-c", str(unit), "-o",
+                          str(tmp_path / "unit.o")], capture_output=True, text=True, check=False)
+    assert res.returncode == 0 and res.stderr == "", res.stderr[-4000:]
