@@ -1,6 +1,6 @@
 """Realtime factor of the closed loop through fmpy (issue 22), at 1 ms sample time by default.
 
-    python benchmarks/closed_loop.py [SCENE.toml ...] [--sample-time S] [--repeats N] [--json]
+    python benchmarks/closed_loop.py [SCENE.toml ...] [--sample-time S] [--repeats N] [--json] [--write [PAGE]]
     python benchmarks/closed_loop.py --startup N [SCENE.toml]
 
 For each scene: the FMU is built (cached, not timed), the controllers designed (not timed), then a 90°
@@ -13,13 +13,11 @@ wall-clock second of the loop (reset, initialisation and every sample's getReal 
 each figure is the median over the repeats, the speed-up the median of the per-repeat ratios.  "CPU" is the
 same factor on the process's CPU time: on a loaded machine the wall clock also counts the time the loop
 waited for a core.  The per-sample split gives the FMU alone: the same three calls through ctypes with a
-constant torque and no law.
-
-``--startup N``: the fixed start-up of ``flexlink control SCENE --target 90 --duration 1.5`` (issue 22: ≤ 1 s),
-N fresh processes each with the design cache off and on (alternated), after one that fills the FMU and
-design caches: the wall time from starting the process to its first FMU call (``FmuLoop`` instantiating the
-FMU), median and spread; and where it goes, from ``python -X importtime`` of one more run of each (the
-heaviest imports, cumulative).
+constant torque and no law; and "from C": ``benchmarks/sample_cost.c``, compiled with the FMU's own sources,
+replays the fast loop's recorded torques through the same three calls without Python.  ``--write`` puts the
+table into docs/performance.md between ``<!-- closed-loop:begin -->`` and ``<!-- closed-loop:end -->`` (or
+into PAGE), with the load average at the start and the end: the figures there come from this command, never
+typed.
 """
 
 from __future__ import annotations
@@ -28,7 +26,12 @@ import argparse
 import ctypes
 import json
 import math
+import os
+import platform
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -36,11 +39,33 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT = ["rotating_link.toml", "rotating_link_payload.toml"]
+PAGE = ROOT / "docs" / "performance.md"
+BEGIN, END = "<!-- closed-loop:begin -->", "<!-- closed-loop:end -->"
+SAMPLE_DRIVER = Path(__file__).resolve().parent / "sample_cost.c"
 
 
-def fmu_only(loop, names: list[str], torque: str, n_steps: int, dt: float, repeats: int) -> float:
-    """Median wall time per sample of getReal + setReal + doStep alone (constant torque, no law), called as
-    the fast loop calls them."""
+def fmu_in_c(fmu, names: list[str], torque_name: str, torques: np.ndarray, dt: float, repeats: int) -> dict:
+    """Microseconds per sample of getReal + setReal + doStep called from C on the recorded ``torques`` (and of
+    doStep alone): benchmarks/sample_cost.c compiled with the FMU's sources, medians of ``repeats`` runs."""
+    import fmpy
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from step_floor import compile_driver
+
+    md = fmpy.read_model_description(str(fmu))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    with tempfile.TemporaryDirectory() as tmp:
+        exe = compile_driver(fmu, tmp, SAMPLE_DRIVER)
+        path = Path(tmp) / "torques.bin"
+        np.ascontiguousarray(torques, dtype=np.float64).tofile(path)
+        out = subprocess.run([str(exe), md.guid, str(path), repr(dt), str(repeats), str(vr[torque_name]),
+                              *(str(vr[n]) for n in names)], capture_output=True, text=True, check=True)
+    return json.loads(out.stdout)
+
+
+def fmu_only(loop, names: list[str], torque: str, n_steps: int, dt: float, repeats: int) -> tuple[float, float]:
+    """Median wall and CPU time per sample of getReal + setReal + doStep alone (constant torque, no law),
+    called as the fast loop calls them."""
     s = loop.slave
     get_real, set_real, do_step = (loop.host.raw(f) for f in ("fmi2GetReal", "fmi2SetReal", "fmi2DoStep"))
     vr_out = (ctypes.c_uint * len(names))(*[loop.vr(n) for n in names])
@@ -48,19 +73,20 @@ def fmu_only(loop, names: list[str], torque: str, n_steps: int, dt: float, repea
     vr_in = (ctypes.c_uint * 1)(loop.vr(torque))
     val_in = (ctypes.c_double * 1)(0.1)
     a_out, a_vr_out, a_in, a_vr_in = (ctypes.addressof(x) for x in (val_out, vr_out, val_in, vr_in))
-    walls = []
+    walls, cpus = [], []
     for _ in range(repeats):
         loop.host.initialize()
         comp = s.component
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         for k in range(n_steps):
             get_real(comp, a_vr_out, len(names), a_out)
             set_real(comp, a_vr_in, 1, a_in)
             if do_step(comp, k * dt, dt, 1) > 1:
                 raise RuntimeError(f"fmi2DoStep failed at step {k}")
         walls.append((time.perf_counter() - t0) / n_steps)
+        cpus.append((time.process_time() - c0) / n_steps)
         s.terminate()
-    return statistics.median(walls)
+    return statistics.median(walls), statistics.median(cpus)
 
 
 _FIRST_CALL = """
@@ -122,6 +148,7 @@ def compare_loops(loop, law, ref, repeats: int) -> dict:
     """The fast loop against the reference loop, alternated, ``repeats`` times each: median realtime factors
     (wall and CPU), median speed-up, and the largest torque difference between the two."""
     fast, slow, ratios, diff = [], [], [], 0.0
+    b = None
     for _ in range(repeats):
         a = loop.run(law, ref, fast=False)
         b = loop.run(law, ref, fast=True)
@@ -137,7 +164,8 @@ def compare_loops(loop, law, ref, repeats: int) -> dict:
             "realtime_factor_min": min(r.realtime_factor for r in fast),
             "realtime_factor_cpu": statistics.median(span / r.cpu_time for r in fast),
             "realtime_factor_reference_loop": statistics.median(slow),
-            "speed_up": statistics.median(ratios), "max_torque_difference_nm": diff}
+            "speed_up": statistics.median(ratios), "max_torque_difference_nm": diff,
+            "torques": b[law.input][:-1]}
 
 
 def main() -> None:
@@ -147,6 +175,8 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--startup", type=int, metavar="N", help="measure the start-up of flexlink control instead")
+    ap.add_argument("--write", nargs="?", const=str(PAGE), metavar="PAGE",
+                    help="write the table into PAGE (default docs/performance.md) between its closed-loop markers")
     args = ap.parse_args()
     if args.startup:
         scene = args.scenes[0] if args.scenes else str(ROOT / "examples" / DEFAULT[0])
@@ -174,6 +204,7 @@ def main() -> None:
     scenes = args.scenes or [str(ROOT / "examples" / s) for s in DEFAULT]
     dt, target, duration, settle = args.sample_time, math.pi / 2, 1.5, 1.5
     rows = []
+    load0 = os.getloadavg()[0]
     for path in scenes:
         model = build_model(load_scene(path))
         fmu = cached_fmu(path)
@@ -186,23 +217,52 @@ def main() -> None:
                 law.follow(ref)
                 n_steps = len(ref.time) - 1
                 row = compare_loops(loop, law, ref, args.repeats)
-                per_fmu = fmu_only(loop, list(dict.fromkeys([*law.sensors, *loop.record])), law.input, n_steps, dt,
-                                   args.repeats)
+                names = list(dict.fromkeys([*law.sensors, *loop.record]))
+                per_fmu = fmu_only(loop, names, law.input, n_steps, dt, args.repeats)
+                in_c = fmu_in_c(fmu, names, law.input, row.pop("torques"), dt, args.repeats)
                 rows.append({"scene": Path(path).stem, "controller": controller, "sample_time_s": dt,
                              "simulated_s": duration + settle, **row,
                              "us_per_sample": 1e6 * (duration + settle) / n_steps / row["realtime_factor"],
-                             "us_per_sample_fmu": 1e6 * per_fmu})
+                             "us_per_sample_cpu": 1e6 * (duration + settle) / n_steps / row["realtime_factor_cpu"],
+                             "us_per_sample_fmu": 1e6 * per_fmu[0], "us_per_sample_fmu_cpu": 1e6 * per_fmu[1],
+                             "us_per_sample_fmu_c": in_c["us_per_sample"],
+                             "us_per_sample_fmu_c_cpu": in_c["us_per_sample_cpu"]})
+    info = {"date": time.strftime("%Y-%m-%d"), "machine": platform.machine(), "repeats": args.repeats,
+            "sample_time_s": dt, "simulated_s": duration + settle, "load_start": load0,
+            "load_end": os.getloadavg()[0]}
     if args.json:
-        print(json.dumps(rows))
+        print(json.dumps({"info": info, "rows": rows}))
         return
-    print(f"closed loop through fmpy, sample time {dt * 1e3:g} ms, {duration + settle:g} s simulated, "
-          f"median of {args.repeats} (fast loop and reference loop alternated in the same run)")
-    print(f"{'scene':24s} {'ctrl':>4s} {'realtime x':>10s} {'(min)':>6s} {'x on CPU':>9s} {'ref. loop x':>11s} "
-          f"{'speed-up':>8s} {'us/sample':>9s} {'FMU alone':>9s}")
+    block = markdown(rows, info)
+    print(block)
+    if args.write:
+        from report import rewrite_readme  # the block rewriter of benchmarks/report.py
+
+        rewrite_readme(Path(args.write), block, BEGIN, END)
+
+
+def markdown(rows: list[dict], info: dict) -> str:
+    """The closed-loop table between the page's markers, with how and when it was measured."""
+    lines = [BEGIN, "<!-- generated by `python benchmarks/closed_loop.py --write`: edit it, not this block -->", "",
+             f"Measured {info['date']} on {info['machine']} (`python benchmarks/closed_loop.py --repeats "
+             f"{info['repeats']}`): a 90° rest-to-rest manoeuvre in 1.5 s + 1.5 s settle, sample time "
+             f"{info['sample_time_s'] * 1e3:g} ms, through fmpy on one instance (`fmi2Reset` between runs); medians "
+             f"of {info['repeats']} runs, the fast loop and the reference loop (`law.step` per sample) alternated in "
+             f"the same run; load average {info['load_start']:.1f} at the start, {info['load_end']:.1f} at the end "
+             "(2 cores: on CPU time, the waits for a core are left out).", "",
+             "Times per 1 ms sample in µs, wall (CPU): the whole loop; the FMU's three calls through ctypes with a "
+             "constant torque and no law; the same three calls from C on the loop's recorded torques.", "",
+             "| scene | law | × real time (target ≥ 150) | × on CPU time | reference loop × | speed-up | "
+             "loop µs | FMU via ctypes µs | FMU from C µs |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in rows:
-        print(f"{r['scene']:24s} {r['controller']:>4s} {r['realtime_factor']:10.1f} {r['realtime_factor_min']:6.1f} "
-              f"{r['realtime_factor_cpu']:9.1f} {r['realtime_factor_reference_loop']:11.1f} {r['speed_up']:8.2f} "
-              f"{r['us_per_sample']:9.1f} {r['us_per_sample_fmu']:9.1f}")
+        lines.append(f"| {r['scene']} | {r['controller'].upper()} | {r['realtime_factor']:.0f} | "
+                     f"{r['realtime_factor_cpu']:.0f} | {r['realtime_factor_reference_loop']:.0f} | "
+                     f"{r['speed_up']:.2f} | {r['us_per_sample']:.1f} ({r['us_per_sample_cpu']:.1f}) | "
+                     f"{r['us_per_sample_fmu']:.1f} ({r['us_per_sample_fmu_cpu']:.1f}) | "
+                     f"{r['us_per_sample_fmu_c']:.2f} ({r['us_per_sample_fmu_c_cpu']:.2f}) |")
+    lines.append(END)
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -26,8 +26,9 @@ DRIVER = Path(__file__).resolve().parent / "step_floor.c"
 DEFAULT = ["rotating_link_linear.toml", "rotating_link.toml"]
 
 
-def compile_driver(fmu: str | Path, workdir: str | Path) -> Path:
-    """Extract the FMU's ``sources/`` into ``workdir`` and compile the driver with them (an executable)."""
+def compile_driver(fmu: str | Path, workdir: str | Path, driver: Path = DRIVER) -> Path:
+    """Extract the FMU's ``sources/`` into ``workdir`` and compile ``driver`` (a C file, by default this
+    benchmark's) with them (an executable)."""
     from flexlink.errors import BuildError
     from flexlink.export.cbuild import compiler
 
@@ -43,12 +44,12 @@ def compile_driver(fmu: str | Path, workdir: str | Path) -> Path:
         root = ET.fromstring(z.read("modelDescription.xml"))
     # the files the FMU lists (model.c includes the CasADi file with its own warning settings)
     files = [f.get("name") for f in root.findall("CoSimulation/SourceFiles/File")]
-    exe = workdir / "step_floor"
+    exe = workdir / Path(driver).stem
     command = [*compiler(), "-O2", "-std=c99", "-Wall", "-Wextra", "-Werror", f"-I{src}",
-               *(str(src / f) for f in files), str(DRIVER), "-o", str(exe), "-lm"]
+               *(str(src / f) for f in files), str(driver), "-o", str(exe), "-lm"]
     res = subprocess.run(command, capture_output=True, text=True, check=False)
     if res.returncode != 0:
-        raise BuildError(f"compiling the step-floor driver failed:\n{res.stderr.strip()}")
+        raise BuildError(f"compiling {Path(driver).name} failed:\n{res.stderr.strip()}")
     return exe
 
 

@@ -222,7 +222,7 @@ def cmd_control(args) -> int:
             return _run_cached(args, scene, entry, run_params)
     from controllers.cosim import FmuLoop
     from controllers.manoeuvre import check_scene, design, predict_manoeuvre, rest_to_rest
-    from flexlink.export.fmu import cached_fmu
+    from flexlink.export.cache import cached_fmu
     from flexlink.mechanics.model import build_model
     from flexlink.run.linearize import linear_plant
 
@@ -323,7 +323,7 @@ def _run_cached(args, scene, entry: dict, run_params: dict) -> int:
     """A repeated one-joint command: the cached law and reference through the FMU, the same figures."""
     from controllers.design_cache import CachedLaw
     from controllers.figures import manoeuvre_figures
-    from flexlink.export.fmu import cached_fmu
+    from flexlink.export.cache import cached_fmu
 
     c = entry["context"]
     fmu = cached_fmu(scene)
@@ -386,7 +386,7 @@ def _export_ssp(args, d, targets, schedule=None) -> None:
     from controllers.manoeuvre import _check_times
     from controllers.multijoint import check_multijoint, inverse_dynamics_reference, plan
     from controllers.ssp import write_ssp
-    from flexlink.export.fmu import cached_fmu
+    from flexlink.export.cache import cached_fmu
 
     if targets is None or args.duration is None:
         raise FlexlinkError("--export-ssp: the package runs a manoeuvre; give --target and --duration")
@@ -433,7 +433,7 @@ def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int
     needs stored under ``key`` (:mod:`controllers.design_cache`)."""
     from controllers.manoeuvre import _check_times
     from controllers.multijoint import JointPDLaw, MimoLQGLaw, check_multijoint, compare, joint_pd_gains, plan
-    from flexlink.export.fmu import cached_fmu
+    from flexlink.export.cache import cached_fmu
 
     if args.noise:
         raise FlexlinkError("--noise: the multi-joint run reads the sensors noise-free so far")
@@ -481,7 +481,7 @@ def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int
 def _run_multijoint_cached(args, scene, entry: dict, run_params: dict) -> int:
     """A repeated multi-joint command: the cached plan, reference and laws through the FMU."""
     from controllers.multijoint import compare_laws
-    from flexlink.export.fmu import cached_fmu
+    from flexlink.export.cache import cached_fmu
 
     with _loop(cached_fmu(scene), run_params) as loop:
         runs = compare_laws(loop, entry["plan"], entry["reference"], entry["lqg"], entry["pd"], entry["x0"],

@@ -60,7 +60,7 @@ def cache_key(scene: Scene, options: dict[str, Any]) -> str:
 def _path(key: str) -> Path:
     if os.environ.get(ENV):
         return Path(os.environ[ENV]) / f"{key}.pickle"
-    from flexlink.export.fmu import cache_dir
+    from flexlink.export.cache import cache_dir
 
     return cache_dir() / "designs" / f"{key}.pickle"
 

@@ -33,12 +33,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import casadi as ca
 import numpy as np
 
 from controllers.trajectory import Reference
 
-if TYPE_CHECKING:             # python-control (2-7 s of imports) only where a law is designed or analysed
+if TYPE_CHECKING:             # python-control (2-7 s of imports) only where a law is designed or analysed,
+    import casadi as ca  # CasADi only where the sensors are linearised along a reference
     import control as ct
 
     from controllers.design import KalmanDesign, LQRDesign, PDDesign
@@ -76,6 +76,8 @@ def _sensor_function(plant: LinearPlant, sensors: list[str]) -> ca.Function | No
     key = ("sensor_function", tuple(sensors))
     if key in plant.cache:
         return plant.cache[key]
+    import casadi as ca
+
     model = plant.model
     names = [s.name for s in model.outputs]
     rows = [names.index(s) for s in sensors]

@@ -73,7 +73,7 @@ def _cmd_modes(args: argparse.Namespace) -> int:
 def _cmd_simulate(args: argparse.Namespace) -> int:
     import fmpy
 
-    from flexlink.export.fmu import cached_fmu
+    from flexlink.export.cache import cached_fmu
     from flexlink.run import simulate as run
 
     run.check_run(args.stop_time, args.step)        # before the build
@@ -139,7 +139,7 @@ def _warn_unset_inputs(md: ModelDescription, input_names: list[str], inputs: np.
 def _cmd_animate(args: argparse.Namespace) -> int:
     import fmpy
 
-    from flexlink.export.fmu import cached_fmu
+    from flexlink.export.cache import cached_fmu
     from flexlink.mechanics.centreline import centreline
     from flexlink.run import animate
     from flexlink.run import simulate as run
@@ -184,7 +184,6 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
 def _cmd_explain(args: argparse.Namespace) -> int:
     from flexlink.scene.budget import estimate
     from flexlink.scene.loader import load_scene
-    from flexlink.tools.explain import explain, fidelity, format_explanation, format_fidelity
 
     target = None
     if args.error_target is not None:
@@ -202,6 +201,8 @@ def _cmd_explain(args: argparse.Namespace) -> int:
         return 0
     if not args.json:
         print("\n".join(cost.lines()), flush=True)      # before the build, which may take a while
+    from flexlink.tools.explain import explain, fidelity, format_explanation, format_fidelity  # CasADi, SciPy
+
     info = explain(args.scene)
     info["estimate"] = data
     if target is not None:

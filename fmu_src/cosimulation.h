@@ -120,6 +120,12 @@ typedef struct {
      * (-1: the model has none; found at the first step), and scratch for the inputs with the force inputs removed */
     int energy_known, energy_kinetic, energy_potential, law_torque[FMU_SZ(N_LAWS)], n_force_inputs;
     double energy_u[FMU_SZ(N_U)], energy_y[FMU_SZ(N_Y)], energy_r[N_Q];
+    /* guards.c: the energy point that ended the last communication step, with the parameters and inputs it was
+     * taken at and r(q, v, 0, u without force inputs) there: the next step starts from it when only force inputs
+     * changed in between (fmu_energy_point_start; matched by value, so a reset, an FMU state or a parameter set
+     * in between never reuses a stale one) */
+    EnergyPoint energy_end;
+    double energy_end_p[FMU_SZ(N_P)], energy_end_u[FMU_SZ(N_U)], energy_end_free[N_Q];
     int step_discarded;               /* 1 after fmi2DoStep returned fmi2Discard (fmi2Terminated status) */
     /* directional derivatives: seeds and results */
     double dd_q[N_Q], dd_v[N_Q], dd_a[N_Q], dd_r[N_Q];

@@ -135,7 +135,8 @@ fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h) {
     }
     EnergyPoint e0, e1;
     {
-        const fmi2Status status = fmu_energy_point(inst, &e0, "fmi2DoStep");   /* the host may have read these outputs */
+        /* where the last step ended, unless more than force inputs changed since (guards.c) */
+        const fmi2Status status = fmu_energy_point_start(inst, &e0, "fmi2DoStep");
         if (status > fmi2Warning) return status;
     }
     memcpy(&inst->backup, d, sizeof(*d));
@@ -198,6 +199,7 @@ fmi2Status fmu_do_step(Instance *inst, fmi2Real tc, fmi2Real h) {
             return fmi2Discard;
         }
     }
+    fmu_energy_point_keep(inst, &e1);                  /* the next step starts from it */
     d->last_successful_time = t_end;
     inst->step_discarded = 0;
     return fmi2OK;

@@ -48,6 +48,11 @@ void fmu_guard_init(Instance *inst, const double *u);
  * (EnergyPoint, cosimulation.h; outputs brought up to date at the current time, `function` names the caller
  * in messages), then fmi2OK or fmi2Discard with the reason in inst->guard_reason. */
 fmi2Status fmu_energy_point(Instance *inst, EnergyPoint *e, const char *function);
+/* The energy point at the start of a communication step: fmu_energy_point's, reusing the one kept at the end
+ * of the last step (fmu_energy_point_keep) when the state, time and parameters are still its own and only
+ * force inputs changed (guards.c says why that is exact). */
+fmi2Status fmu_energy_point_start(Instance *inst, EnergyPoint *e, const char *function);
+void fmu_energy_point_keep(Instance *inst, const EnergyPoint *e);
 fmi2Status fmu_guard_energy(Instance *inst, const EnergyPoint *e0, const EnergyPoint *e1, double internal_steps);
 
 /* fmu_state.c: frees the FMU states inst handed out and the host did not free (fmi2FreeInstance). */

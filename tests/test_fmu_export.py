@@ -159,12 +159,12 @@ def test_fmu_cache_key_covers_the_c_sources_and_templates(tmp_path, monkeypatch)
     """A change to any file of fmu_src/ (C sources, headers, codegen templates) is a new cached FMU."""
     import shutil
 
-    from flexlink.export import cbuild
+    from flexlink.export import cache, cbuild
     from flexlink.export import fmu as fmu_module
 
     src = tmp_path / "fmu_src"
     shutil.copytree(cbuild.fmu_src_dir(), src, ignore=shutil.ignore_patterns("__pycache__"))
-    monkeypatch.setattr(fmu_module, "fmu_src_dir", lambda: src)
+    monkeypatch.setattr(cache, "fmu_src_dir", lambda: src)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
 
     def build(scene, path, model=None, **_):                # no compiler: only the cache key is tested

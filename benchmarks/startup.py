@@ -1,0 +1,155 @@
+"""Fixed start-up of every ``flexlink`` command (issue 22: ≤ 1 s): imports and set-up before the work.
+
+    python benchmarks/startup.py [--repeats N] [--json] [--write [PAGE]]
+
+Each command runs in ``--repeats`` fresh processes (default 7), the commands alternated round-robin in the
+same run so that the machine's load falls on all of them alike, after one untimed run of each that fills the
+FMU build cache and the design cache.  What is timed is the wall time from starting the process to
+
+* the first load of an FMU's binary (``ctypes.CDLL`` of a file under an FMU's ``binaries/``: fmpy's
+  instantiation, the first FMU call) for the commands that run an FMU (``simulate``, ``control``), or
+* the process's exit for the others (``--help``, ``modes``, ``explain --estimate``, ``linearize``: their
+  whole run, work included).
+
+``control`` is timed twice: from the design cache (a repeated command) and with it off
+(``FLEXLINK_DESIGN_CACHE=0``: the linearisation and the LQR/Kalman design, which import python-control).
+The table gives the median, the spread and which of the heavy modules the command imported
+(``python -X importtime`` of one more run: numpy, fmpy, CasADi, SciPy, python-control, matplotlib).
+``--write`` puts the table into docs/performance.md between ``<!-- startup:begin -->`` and
+``<!-- startup:end -->`` (or into PAGE): the figures there come from this command, never typed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+PAGE = ROOT / "docs" / "performance.md"
+BEGIN, END = "<!-- startup:begin -->", "<!-- startup:end -->"
+SCENE = "examples/rotating_link.toml"
+MARK = "FLEXLINK_STARTUP_FIRST_FMU_LOAD"
+
+# a process that runs `flexlink ARGS` and says on stderr when it first loads an FMU's binary
+_PRELUDE = f"""
+import ctypes, sys
+_init = ctypes.CDLL.__init__
+def _first(self, name, *a, **k):
+    if name and "binaries" in str(name).replace("\\\\", "/").split("/"):
+        print("{MARK}", file=sys.stderr, flush=True)
+        ctypes.CDLL.__init__ = _init
+    _init(self, name, *a, **k)
+ctypes.CDLL.__init__ = _first
+from flexlink.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+#: (label, arguments after ``flexlink``, until: "fmu" for the first FMU load, "exit" for the whole run,
+#: environment additions)
+COMMANDS: list[tuple[str, list[str], str, dict[str, str]]] = [
+    ("flexlink --help", ["--help"], "exit", {}),
+    ("flexlink check --help", ["check", "--help"], "exit", {}),
+    ("flexlink control --help", ["control", "--help"], "exit", {}),
+    ("flexlink modes", ["modes", SCENE], "exit", {}),
+    ("flexlink explain --estimate", ["explain", SCENE, "--estimate"], "exit", {}),
+    ("flexlink simulate", ["simulate", SCENE, "--stop-time", "1", "--step", "1e-3"], "fmu", {}),
+    ("flexlink control (design cache)", ["control", SCENE, "--target", "90", "--duration", "1.5"], "fmu", {}),
+    ("flexlink control (designing)", ["control", SCENE, "--target", "90", "--duration", "1.5"], "fmu",
+     {"FLEXLINK_DESIGN_CACHE": "0"}),
+    ("flexlink linearize", ["linearize", SCENE, "--output", "hub.theta"], "exit", {}),
+]
+
+HEAVY = ("numpy", "fmpy", "casadi", "scipy", "control", "matplotlib")
+
+
+def timed_run(args: list[str], until: str, env: dict[str, str]) -> float:
+    """Seconds from starting ``flexlink ARGS`` to its first FMU load (``until="fmu"``) or to its exit."""
+    argv = [sys.executable, "-c", _PRELUDE, *args]
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, **env})
+    seen = None
+    for line in proc.stderr:
+        if seen is None and line.startswith(MARK):
+            seen = time.perf_counter() - t0
+    status = proc.wait()
+    total = time.perf_counter() - t0
+    if status != 0:
+        raise SystemExit(f"flexlink {' '.join(args)} exited with status {status}")
+    if until == "fmu":
+        if seen is None:
+            raise SystemExit(f"flexlink {' '.join(args)} never loaded an FMU")
+        return seen
+    return total
+
+
+def heavy_imports(args: list[str], env: dict[str, str]) -> list[str]:
+    """The heavy top-level packages one run imports (``-X importtime``)."""
+    res = subprocess.run([sys.executable, "-X", "importtime", "-c", _PRELUDE, *args], cwd=ROOT,
+                         capture_output=True, text=True, env={**os.environ, **env})
+    names = {line.split("|")[2].strip() for line in res.stderr.splitlines() if line.startswith("import time:")}
+    return [m for m in HEAVY if m in names]
+
+
+def measure(repeats: int) -> dict:
+    """Every command: an untimed run, then ``repeats`` timed runs round-robin; medians, spreads, imports."""
+    load0 = os.getloadavg()[0]
+    for _, args, until, env in COMMANDS:
+        timed_run(args, until, env)          # fills the FMU and design caches
+    times: list[list[float]] = [[] for _ in COMMANDS]
+    for _ in range(repeats):
+        for k, (_, args, until, env) in enumerate(COMMANDS):
+            times[k].append(timed_run(args, until, env))
+    rows = []
+    for (label, args, until, env), ts in zip(COMMANDS, times, strict=True):
+        rows.append({"command": label, "arguments": args, "until": until, "median_s": statistics.median(ts),
+                     "min_s": min(ts), "max_s": max(ts), "imports": heavy_imports(args, env)})
+    return {"date": time.strftime("%Y-%m-%d"), "machine": platform.machine(), "repeats": repeats,
+            "load_start": load0, "load_end": os.getloadavg()[0], "rows": rows}
+
+
+def markdown(data: dict) -> str:
+    """The table of ``data`` (from :func:`measure`) between the page's markers."""
+    lines = [BEGIN, "<!-- generated by `python benchmarks/startup.py --write`: edit it, not this block -->", "",
+             f"Measured {data['date']} on {data['machine']} (`python benchmarks/startup.py --repeats "
+             f"{data['repeats']}`): wall time from starting the process, median of {data['repeats']} fresh "
+             f"processes per command, the commands alternated; load average {data['load_start']:.1f} at the start, "
+             f"{data['load_end']:.1f} at the end (2 cores). Scene `{SCENE}`, FMU and design caches filled.", "",
+             "| command | until | median [s] (target ≤ 1) | range [s] | heavy imports |",
+             "| --- | --- | --- | --- | --- |"]
+    for r in data["rows"]:
+        until = "first FMU call" if r["until"] == "fmu" else "exit (whole run)"
+        lines.append(f"| `{r['command']}` | {until} | {r['median_s']:.2f} | {r['min_s']:.2f}–{r['max_s']:.2f} | "
+                     f"{', '.join(r['imports']) or '–'} |")
+    lines.append(END)
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--write", nargs="?", const=str(PAGE), metavar="PAGE",
+                    help="write the table into PAGE (default docs/performance.md) between its startup markers")
+    args = ap.parse_args(argv)
+    data = measure(args.repeats)
+    if args.json:
+        print(json.dumps(data))
+        return
+    block = markdown(data)
+    print(block)
+    if args.write:
+        from report import rewrite_readme  # the block rewriter of benchmarks/report.py
+
+        rewrite_readme(Path(args.write), block, BEGIN, END)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,68 @@
+"""What a command's start imports (issue 22: every command's fixed start-up ≤ 1 s, measured by
+``python benchmarks/startup.py``).  Not a timing: the modules in ``sys.modules`` when a command is done, so
+that a heavy import that creeps back into a start (CasADi, SciPy, python-control, matplotlib: 0.3–2 s each
+on this machine) fails here, whatever the machine's load.  A command imports what its work needs and no
+more: the help and the estimate nothing of the model builder; a run of a built FMU (``simulate``,
+``control`` from its design cache) numpy and fmpy but no model builder, no python-control, no plotting.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from conftest import EXAMPLES
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = str(EXAMPLES / "rotating_link.toml")
+HEAVY = ("casadi", "scipy", "control", "matplotlib", "dask", "pandas")
+
+_RUN = """
+import json, sys
+from flexlink.cli import main
+try:
+    status = main(sys.argv[2:])
+except SystemExit as e:
+    status = e.code
+with open(sys.argv[1], "w") as f:
+    json.dump({"status": status, "modules": sorted(sys.modules)}, f)
+"""
+
+
+def imported(tmp_path: Path, args: list[str], **env: str) -> set[str]:
+    """The top-level packages in ``sys.modules`` after ``flexlink ARGS`` in a fresh process (exit status 0)."""
+    out = tmp_path / "modules.json"
+    import os
+
+    res = subprocess.run([sys.executable, "-c", _RUN, str(out), *args], cwd=ROOT, capture_output=True, text=True,
+                         env={**os.environ, **env}, check=False)
+    data = json.loads(out.read_text())
+    assert data["status"] in (0, None), res.stderr
+    return {m.split(".")[0] for m in data["modules"]}
+
+
+@pytest.mark.parametrize("args", [["--help"], ["check", "--help"], ["control", "--help"], ["simulate", "--help"],
+                                  ["explain", SCENE, "--estimate"]], ids=" ".join)
+def test_help_and_estimates_import_no_model_builder(tmp_path, args):
+    assert not imported(tmp_path, args) & set(HEAVY)
+
+
+def test_a_run_of_a_built_fmu_imports_no_model_builder(tmp_path, example_fmu):
+    example_fmu("rotating_link")            # built (CasADi) before: the run itself only finds it
+    mods = imported(tmp_path, ["simulate", SCENE, "--stop-time", "0.01", "--step", "1e-3"])
+    assert {"numpy", "fmpy"} <= mods
+    assert not mods & set(HEAVY)
+
+
+def test_a_repeated_control_command_imports_no_model_builder(tmp_path, example_fmu):
+    """The second run finds the design in its cache (tests/test_control_design_cache.py checks its figures):
+    the FMU's cache key costs no CasADi or SciPy (flexlink.export.cache), the law no CasADi."""
+    example_fmu("rotating_link")
+    args = ["control", SCENE, "--target", "90", "--duration", "1.5", "--settle", "0.5"]
+    first = imported(tmp_path, args, FLEXLINK_DESIGN_CACHE=str(tmp_path / "designs"))
+    assert {"control", "casadi"} <= first   # designing: python-control and the model builder
+    again = imported(tmp_path, args, FLEXLINK_DESIGN_CACHE=str(tmp_path / "designs"))
+    assert not again & set(HEAVY)
