@@ -38,6 +38,7 @@ COUNTS = (1, 2, 3, 4, 6)               # shapes per link (modes, polynomials or 
 QUICK_COUNTS = (1, 2, 3)
 KINEMATICS = ("linear", "first-order", "second-order")
 MAX_HALVINGS = 5                       # with a target: steps down to 1/32 of the recommended one
+STEPS_PER_PERIOD = 20                  # the recommended step; Θ = ½: phase error per period ≈ (2π/20)²/12 · 2π ≈ 0.5 %
 REFERENCE_RTOL = 1e-10                 # CVODES: its own error is far below the model errors measured
 SHAPE_WORDS = {"clamped-free": "clamped-free mode", "polynomial": "polynomial", "fe": "element"}
 
@@ -206,7 +207,6 @@ def variant_fmu(scene: Scene, model: SymbolicModel | None = None) -> Path:
 def recommended_step(model: SymbolicModel) -> tuple[float, float]:
     """(step, highest frequency in Hz) as ``flexlink explain`` gives them."""
     from flexlink.mechanics.analysis import natural_frequencies
-    from flexlink.tools.explain import STEPS_PER_PERIOD
 
     freqs = natural_frequencies(model).frequencies_hz
     f_max = max(freqs) if freqs else 0.0
