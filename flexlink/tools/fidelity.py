@@ -271,6 +271,34 @@ def _measure(scene: Scene, level: Level, stop: float, progress: Progress) -> _Me
     return _Measured(level, dropped, ref, fmu, model.n_q, step, f_max)
 
 
+def _fmu_rung(m: _Measured, runs: _Runs, truth: _Measured, target: float | None, best_cost: float,
+              repeats: int) -> tuple[float, dict[str, np.ndarray], float]:
+    """A level's FMU at its step, the step halved while a target needs it: ``(step, outputs, cost)``.
+
+    Only a level whose equations meet the target is refined, since no step can make up for a model error; and
+    not past the cheapest rung already meeting it, which it could no longer undercut.
+    """
+    from flexlink.tools.bench import relative_error
+
+    step = m.step
+    y = runs.outputs(step)
+    cost = runs.cost(step, repeats)
+    if target is not None and m.model_error < target:
+        for _ in range(MAX_HALVINGS):
+            # halving the step at least doubles the steps; the cost per step falls at most by half (fewer
+            # Newton iterations): past the cheapest rung meeting the target, this one cannot be recommended
+            if relative_error(m.case, y, truth.ref) < target or cost * m.step / step > best_cost:
+                break
+            before = relative_error(m.case, y, m.ref)
+            step /= 2
+            y = runs.outputs(step)
+            if relative_error(m.case, y, m.ref) > before / 1.5:     # not converging (order ≥ 1): stop
+                break
+        if step != m.step:
+            cost = runs.cost(step, repeats)
+    return step, y, cost
+
+
 def run_ladder(scene_path: str | os.PathLike[str] | Scene, *, target: float | None = None, quick: bool = False,
                counts: Sequence[int] | None = None, kinematics: Sequence[str] | None = None,
                stop: float | None = None, repeats: int | None = None, progress: Progress | None = None) -> Ladder:
@@ -334,22 +362,7 @@ def run_ladder(scene_path: str | os.PathLike[str] | Scene, *, target: float | No
         progress(f"fidelity: SS22 FMU of {m.level.label(scene)}")
         runs = _Runs(m.case, m.fmu)
         try:
-            step = m.step
-            y = runs.outputs(step)
-            cost = runs.cost(step, repeats)
-            if target is not None and m.model_error < target:
-                for _ in range(MAX_HALVINGS):
-                    # halving the step at least doubles the steps; the cost per step falls at most by half (fewer
-                    # Newton iterations): past the cheapest rung meeting the target, this one cannot be recommended
-                    if relative_error(m.case, y, truth.ref) < target or cost * m.step / step > best_cost:
-                        break
-                    before = relative_error(m.case, y, m.ref)
-                    step /= 2
-                    y = runs.outputs(step)
-                    if relative_error(m.case, y, m.ref) > before / 1.5:     # not converging (order ≥ 1): stop
-                        break
-                if step != m.step:
-                    cost = runs.cost(step, repeats)
+            step, y, cost = _fmu_rung(m, runs, truth, target, best_cost, repeats)
         finally:
             runs.close()
         error = relative_error(m.case, y, truth.ref)
