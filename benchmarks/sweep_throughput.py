@@ -1,7 +1,7 @@
 """Throughput of ``flexlink sweep`` on a local Dask cluster against the same closed-loop runs in a plain loop.
 
     python benchmarks/sweep_throughput.py                      # 300 LQR rest-to-rest runs (90 deg in 1.5 s)
-    python benchmarks/sweep_throughput.py --cases 40 --duration 0.4 --settle 0.2 --target 10   # CI-sized
+    python benchmarks/sweep_throughput.py --cases 40 --duration 0.4 --settle 0.2 --target 5    # CI-sized
 
 The cases are a grid of ``arm.payload.mass`` x ``arm.EI`` on ``examples/rotating_link_payload.toml``.  The
 plain loop is what a user would write: one ``FmuLoop``, ``controllers.manoeuvre.rest_to_rest`` per case.
