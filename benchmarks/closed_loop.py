@@ -196,7 +196,7 @@ def main() -> None:
 
     from controllers.cosim import FmuLoop
     from controllers.manoeuvre import default_torque_limit, design, reference
-    from flexlink.export.fmu import cached_fmu
+    from flexlink.export.cache import cached_fmu
     from flexlink.mechanics.model import build_model
     from flexlink.run.linearize import linear_plant
     from flexlink.scene.loader import load_scene

@@ -40,7 +40,7 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]   # this checkout's flexlink, an
 
 from references.exudyn_arm import simulate, torques  # noqa: E402
 
-from flexlink.export.fmu import cached_fmu  # noqa: E402
+from flexlink.export.cache import cached_fmu  # noqa: E402
 from flexlink.run.simulate import SlaveRunner  # noqa: E402
 
 SCENE = ROOT / "examples" / "fast_two_link.toml"

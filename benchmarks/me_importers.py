@@ -36,7 +36,7 @@ def _scene(scene_path: str, stop: float, timeout: float) -> dict:
     import numpy as np
 
     from flexlink.errors import FlexlinkError
-    from flexlink.export.fmu import cached_fmu
+    from flexlink.export.cache import cached_fmu
     from flexlink.mechanics.model import build_model
     from flexlink.run.simulate import SlaveRunner
     from flexlink.scene.loader import load_scene

@@ -32,7 +32,7 @@ def reduced(name: str, modes: int, directory: Path) -> Path:
 
 
 def cvode(case, scene, model) -> str:
-    from flexlink.export.fmu import cached_fmu
+    from flexlink.export.cache import cached_fmu
     from flexlink.tools.bench import reference_outputs, relative_error, run_model_exchange
 
     try:

@@ -40,7 +40,7 @@ def difference(names: list[str], a: dict, b: dict) -> float:
 
 def study(scene_path: Path, tolerances: list[float], stop: float) -> list[dict]:
     """Rows of (tolerance, Newton error, truncation error, iterations and factorisations per step)."""
-    from flexlink.export.fmu import cached_fmu
+    from flexlink.export.cache import cached_fmu
     from flexlink.mechanics.model import build_model
     from flexlink.run.simulate import SlaveRunner
     from flexlink.scene.loader import load_scene

@@ -1,7 +1,7 @@
 """Throughput of ``flexlink sweep`` on a local Dask cluster against the same closed-loop runs in a plain loop.
 
     python benchmarks/sweep_throughput.py                      # 300 LQR rest-to-rest runs (90 deg in 1.5 s)
-    python benchmarks/sweep_throughput.py --cases 40 --duration 0.4 --settle 0.2 --target 10   # CI-sized
+    python benchmarks/sweep_throughput.py --cases 40 --duration 0.4 --settle 0.2 --target 5    # CI-sized
 
 The cases are a grid of ``arm.payload.mass`` x ``arm.EI`` on ``examples/rotating_link_payload.toml``.  The
 plain loop is what a user would write: one ``FmuLoop``, ``controllers.manoeuvre.rest_to_rest`` per case.
@@ -39,8 +39,8 @@ def main() -> None:
 
     from controllers.cosim import FmuLoop
     from controllers.manoeuvre import rest_to_rest
-    from controllers.sweep import make_cases, run_sweep
-    from flexlink.export.fmu import cached_fmu
+    from controllers.sweep import SweepSpec, make_cases, run_sweep
+    from flexlink.export.cache import cached_fmu
 
     n_ei = max(1, int(round(math.sqrt(args.cases / 1.5))))
     n_m = max(1, int(round(args.cases / n_ei)))
@@ -54,7 +54,7 @@ def main() -> None:
           f"+ {args.settle:g} s settle, 1 ms samples: {simulated:g} simulated s each) of {SCENE.name}")
 
     # the design run_sweep uses (its in-process cache), so that both sides run the very same controller
-    probe = run_sweep(SCENE, {"arm.payload.mass": 0.5}, scheduler="serial", fmu=fmu, **manoeuvre)
+    probe = run_sweep(SweepSpec(SCENE, {"arm.payload.mass": 0.5}, scheduler="serial", fmu=fmu, **manoeuvre))
     from controllers.sweep import _DESIGNS
 
     design = next(iter(_DESIGNS.values()))[0]
@@ -83,11 +83,12 @@ def main() -> None:
     t_start = time.perf_counter() - t0
     try:
         t0 = time.perf_counter()
-        run_sweep(SCENE, {"arm.payload.mass": f"0.3:1.0:{2 * args.workers}"}, client=client, fmu=fmu,
-                  batch_size=1, **manoeuvre)                          # warm-up: imports, FMU instances
+        warm_up = SweepSpec(SCENE, {"arm.payload.mass": f"0.3:1.0:{2 * args.workers}"}, fmu=fmu, batch_size=1,
+                            **manoeuvre)
+        run_sweep(warm_up, client=client)                                  # imports, FMU instances
         t_warm = time.perf_counter() - t0
         t0 = time.perf_counter()
-        df = run_sweep(SCENE, grid, client=client, fmu=fmu, **manoeuvre)
+        df = run_sweep(SweepSpec(SCENE, grid, fmu=fmu, **manoeuvre), client=client)
         t_dask = time.perf_counter() - t0
     finally:
         client.close()

@@ -1,4 +1,4 @@
-"""``flexlink control`` and ``flexlink linearize`` (SCENE.md "Commands").
+"""``flexlink control`` and ``flexlink linearize`` (docs/commands.md, docs/control.md).
 
 ``flexlink.cli`` wires them in with :func:`add_control_parsers`; each ``cmd_*`` returns the exit status and
 raises :class:`flexlink.errors.FlexlinkError` on bad input (the caller prints it and exits 2).
@@ -11,27 +11,12 @@ import math
 
 import numpy as np
 
+from controllers.options import angles as _angles
+from controllers.options import finite as _finite
 from flexlink.errors import FlexlinkError
 from flexlink.paths import SCENE_HELP, output_file, plot_file
 
 __all__ = ["add_control_parsers", "cmd_control", "cmd_linearize"]
-
-
-def _finite(text: str) -> float:
-    import argparse
-
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return v
-
-
-def _angles(text: str) -> list[float]:
-    """``--target``: one angle in degrees, or one per torque-driven joint separated by commas."""
-    return [_finite(v) for v in text.split(",")]
 
 
 def add_commands(subparsers) -> None:
@@ -122,6 +107,11 @@ def add_control_parsers(subparsers) -> None:
 
 
 def cmd_linearize(args) -> int:
+    """Run ``flexlink linearize``: the state-space matrices about the first joint's angle and steady rate.
+
+    The matrices are printed with their row and column names (python-control's labels spell ``.`` as ``_``)
+    or as JSON, and with ``--save`` also written as JSON or NPZ for other tools.
+    """
     from flexlink.mechanics.model import build_model
     from flexlink.run.linearize import linear_plant
     from flexlink.run.simulate import parse_assignments
@@ -165,7 +155,7 @@ def cmd_linearize(args) -> int:
 def _save(path: str, doc: dict) -> None:
     try:
         if path.endswith(".npz"):
-            np.savez(path, **{k: np.asarray(doc[k]) for k in ("A", "B", "C", "D")},
+            np.savez(path, **{k: np.asarray(doc[k]) for k in ("A", "B", "C", "D")},  # type: ignore[arg-type]
                      states=np.array(doc["states"]), inputs=np.array(doc["inputs"]),
                      outputs=np.array(doc["outputs"]), x0=np.asarray(doc["operating_point"]["x"]),
                      u0=np.asarray(doc["operating_point"]["u"]), y0=np.asarray(doc["operating_point"]["y"]))
@@ -189,23 +179,16 @@ def _print_matrix(name: str, M, rows: list[str], cols: list[str]) -> None:
 
 
 def cmd_control(args) -> int:
+    """Run ``flexlink control``: design the controllers, run the manoeuvre through the FMU, report its figures.
+
+    Every check that needs no model runs first, so that bad input costs no build; a repeated command is
+    answered from the design cache (:mod:`controllers.design_cache`) without the linearisation and design.
+    """
     from flexlink.run.simulate import parse_assignments
     from flexlink.scene.loader import load_scene
 
-    if not (args.sample_time > 0):
-        raise FlexlinkError(f"--sample-time must be positive, got {args.sample_time}")
-    if args.root_moment is not None and not args.root_moment > 0:
-        raise FlexlinkError(f"--root-moment must be positive, got {args.root_moment}")
-    if args.torque_limit is not None and not all(v > 0 for v in args.torque_limit):
-        raise FlexlinkError(f"--torque-limit must be positive, got {','.join(f'{v:g}' for v in args.torque_limit)}")
+    _check_control_args(args)
     run_params = parse_assignments(args.set)
-    if args.schedule is not None and args.schedule < 2:
-        raise FlexlinkError(f"--schedule: at least 2 design points along the path (start and target), got "
-                            f"{args.schedule}")
-    if not args.design_only and (args.target is None or args.duration is None):
-        raise FlexlinkError("--target and --duration are required for the closed-loop run (or give --design-only)")
-    if args.design_only and args.torque_limit is None and (args.target is None or args.duration is None):
-        raise FlexlinkError("--design-only needs --torque-limit (or --target and --duration for the default)")
     if not args.design_only:
         from controllers.trajectory import check_times
 
@@ -220,9 +203,7 @@ def cmd_control(args) -> int:
             if entry.get("kind") == "multijoint":
                 return _run_multijoint_cached(args, scene, entry, run_params)
             return _run_cached(args, scene, entry, run_params)
-    from controllers.cosim import FmuLoop
-    from controllers.manoeuvre import check_scene, design, predict_manoeuvre, rest_to_rest
-    from flexlink.export.cache import cached_fmu
+    from controllers.manoeuvre import check_scene, design
     from flexlink.mechanics.model import build_model
     from flexlink.run.linearize import linear_plant
 
@@ -249,10 +230,38 @@ def cmd_control(args) -> int:
         _export_ssp(args, d, targets)
     if args.design_only:
         return _report_design(args, d)
+    assert targets is not None and target is not None        # required without --design-only (checked above)
     if len(d.actuated_joints) > 1:
         return _run_multijoint(args, d, targets, run_params, key)
     if len(targets) > 1:
         raise FlexlinkError(f"--target: {len(targets)} angles for one torque-driven joint")
+    return _run_single(args, d, plant, target, limit, run_params, key)
+
+
+def _check_control_args(args) -> None:
+    """Refuse contradictory or out-of-range options of ``flexlink control`` before the scene is read."""
+    if not (args.sample_time > 0):
+        raise FlexlinkError(f"--sample-time must be positive, got {args.sample_time}")
+    if args.root_moment is not None and not args.root_moment > 0:
+        raise FlexlinkError(f"--root-moment must be positive, got {args.root_moment}")
+    if args.torque_limit is not None and not all(v > 0 for v in args.torque_limit):
+        raise FlexlinkError(f"--torque-limit must be positive, got {','.join(f'{v:g}' for v in args.torque_limit)}")
+    if args.schedule is not None and args.schedule < 2:
+        raise FlexlinkError(f"--schedule: at least 2 design points along the path (start and target), got "
+                            f"{args.schedule}")
+    if not args.design_only and (args.target is None or args.duration is None):
+        raise FlexlinkError("--target and --duration are required for the closed-loop run (or give --design-only)")
+    if args.design_only and args.torque_limit is None and (args.target is None or args.duration is None):
+        raise FlexlinkError("--design-only needs --torque-limit (or --target and --duration for the default)")
+
+
+def _run_single(args, d, plant, target: float, limit, run_params: dict, key: str | None) -> int:
+    """The one-joint manoeuvre through the FMU, its plot on request, its figures reported (and cached)."""
+    from controllers.cosim import FmuLoop
+    from controllers.manoeuvre import predict_manoeuvre, rest_to_rest
+    from flexlink.export.cache import cached_fmu
+
+    model = plant.model
     fmu = cached_fmu(args.scene)          # built (or found in the cache) before the timed run
     with FmuLoop(fmu) as loop:
         for name in run_params:
@@ -274,7 +283,7 @@ def cmd_control(args) -> int:
     info = {"name": model.scene.name, "start_deg": math.degrees(float(plant.x0[0])), "limit": limit, "wn": wn,
             "zeta": zeta, "sensors": d.kalman.sensors if args.controller == "lqr" else d.law("pd").sensors}
     if args.controller == "pd":
-        info.update(kp=d.pd.kp, kd=d.pd.kd, pd_zeta=d.pd.zeta)
+        info.update(kp=d.joint_pd.kp, kd=d.joint_pd.kd, pd_zeta=d.joint_pd.zeta)
     rob = _robustness_json(d, args.controller) if args.json else None
     if key is not None:
         _store(key, args, d, target, info, rob)
@@ -283,8 +292,11 @@ def cmd_control(args) -> int:
 
 
 def _cache_key(args, scene) -> str | None:
-    """The design cache's key of a run (:mod:`controllers.design_cache`); None for what it does not hold
-    (--design-only, --noise, --plot, exports, --schedule) or when it is off."""
+    """The design cache's key of a run (:mod:`controllers.design_cache`).
+
+    None for what the cache does not hold (--design-only, --noise, --plot, exports, --schedule) or when it is
+    off.
+    """
     if (args.design_only or args.noise or args.plot or args.export_fmu or args.export_ssp
             or args.schedule is not None or args.target is None):
         return None
@@ -366,8 +378,10 @@ def _report_single(args, info: dict, m: dict, run_params: dict, rob: dict | None
 
 
 def _export(args, d, schedule=None) -> None:
-    """``--export-fmu``: the controller FMU (:func:`controllers.export.export_controller_fmu`), scheduled
-    along the path with ``schedule``; one line on stderr (stdout may carry --json)."""
+    """``--export-fmu``: write the controller FMU (:func:`controllers.export.export_controller_fmu`).
+
+    With ``schedule`` it is scheduled along the path; one line on stderr (stdout may carry --json).
+    """
     import sys
 
     from controllers.export import export_controller_fmu
@@ -379,8 +393,11 @@ def _export(args, d, schedule=None) -> None:
 
 
 def _export_ssp(args, d, targets, schedule=None) -> None:
-    """``--export-ssp``: the plant FMU and the controller FMU playing the manoeuvre as an SSP package
-    (:func:`controllers.ssp.write_ssp`), scheduled along the path with ``schedule``; one line on stderr."""
+    """``--export-ssp``: write the plant and controller FMUs playing the manoeuvre as one SSP package.
+
+    The package is :func:`controllers.ssp.write_ssp`'s, scheduled along the path with ``schedule``; one line on
+    stderr.
+    """
     import sys
 
     from controllers.manoeuvre import _check_times
@@ -403,8 +420,11 @@ def _export_ssp(args, d, targets, schedule=None) -> None:
 
 
 def _torque_limits(plant, values):
-    """``--torque-limit``: one number for every joint, or a mapping joint → limit (one per torque-driven
-    joint); None when not given."""
+    """``--torque-limit`` as the design takes it: one number, or a mapping joint → limit.
+
+    One value is every joint's limit; several are one per torque-driven joint, in order.  None when not given
+    (the design then derives a limit from the manoeuvre).
+    """
     from controllers.design import actuated_joints
 
     if values is None or len(values) == 1:
@@ -428,9 +448,12 @@ def _default_limits(plant, targets, duration, dt):
 
 
 def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int:
-    """``flexlink control`` with several torque-driven joints: the MIMO LQG and the joint PD through the FMU
-    (:func:`controllers.multijoint.compare`), figures printed or as JSON, the plot; what a repeated command
-    needs stored under ``key`` (:mod:`controllers.design_cache`)."""
+    """``flexlink control`` with several torque-driven joints: the MIMO LQG and the joint PD through the FMU.
+
+    Both run the same manoeuvre (:func:`controllers.multijoint.compare`); the figures are printed or given as
+    JSON, with the plot on request; what a repeated command needs is stored under ``key``
+    (:mod:`controllers.design_cache`).
+    """
     from controllers.manoeuvre import _check_times
     from controllers.multijoint import JointPDLaw, MimoLQGLaw, check_multijoint, compare, joint_pd_gains, plan
     from flexlink.export.cache import cached_fmu
@@ -492,7 +515,8 @@ def _run_multijoint_cached(args, scene, entry: dict, run_params: dict) -> int:
 
 def _report_multijoint(args, info: dict, runs: dict, run_params: dict, doc: dict | None) -> None:
     if args.json:
-        print(json.dumps({"lqg": runs["lqr"].metrics, "pd": runs["pd"].metrics, **doc, "parameters": run_params}))
+        print(json.dumps({"lqg": runs["lqr"].metrics, "pd": runs["pd"].metrics, **(doc or {}),
+                          "parameters": run_params}))
         return
     _print_comparison(args, info, runs)
 
@@ -516,8 +540,11 @@ def _move(d, targets) -> str:
 
 
 def _run_scheduled(args, d, targets, run_params, fmu) -> int:
-    """``--schedule N``: the LQG scheduled over the path against the fixed one (:mod:`controllers.schedule`),
-    the frozen-pose spectral radius of both at the design points and halfway between them."""
+    """``--schedule N``: the LQG scheduled over the path against the fixed one (:mod:`controllers.schedule`).
+
+    Besides the two runs, the frozen-pose spectral radius of both at the design points and halfway between
+    them shows where the fixed design loses margin.
+    """
     from controllers.multijoint import inverse_dynamics_reference, plan
     from controllers.schedule import compare_schedule, design_schedule, radius_along_path
 
@@ -530,7 +557,7 @@ def _run_scheduled(args, d, targets, run_params, fmu) -> int:
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, args.duration, args.settle)
     with _loop(fmu, run_params) as loop:
         runs = compare_schedule(d, schedule, loop, pl, ref, parameters=run_params)
-    radius = radius_along_path(d, schedule, pl, np.linspace(0.0, 1.0, 2 * args.schedule - 1))
+    radius = radius_along_path(d, schedule, pl, np.linspace(0.0, 1.0, 2 * args.schedule - 1).tolist())
     move = _move(d, targets)
     done = {k: r for k, r in runs.items() if not isinstance(r, str)}
     if args.plot:
@@ -612,9 +639,12 @@ def _print_comparison(args, info: dict, runs: dict) -> None:
 
 
 def _robustness_json(d, controller: str) -> dict:
-    """The design's margins as JSON values (``controllers.robustness.robustness_figures``): the continuous
-    LQR, the sampled LQG, and with one sample of computation delay the predictive LQG and the LQG unaware of
-    it (sensors without feedthrough); with the PD, its own sampled loop as ``"pd"`` too."""
+    """The design's margins as JSON values (``controllers.robustness.robustness_figures``).
+
+    They are the continuous LQR's, the sampled LQG's, and with one sample of computation delay the predictive
+    LQG's and those of the LQG unaware of it (sensors without feedthrough); with the PD, its own sampled loop
+    as ``"pd"`` too.
+    """
     from controllers.closedloop import sampled_plant
     from controllers.robustness import loop_at_a_time, robustness_figures
 

@@ -48,8 +48,11 @@ FmuLoopError = FmuCallError
 
 @dataclass
 class LoopResult:
-    """Named time series of one closed-loop run (``series["time"]``, outputs by FMU name, the torque under
-    the input's name), plus the wall-clock time of the run (instantiation and FMU build excluded)."""
+    """Named time series of one closed-loop run, plus the wall-clock time of the run.
+
+    ``series["time"]``, the outputs by FMU name and the torque under the input's name; the wall time excludes
+    instantiation and the FMU's build, so that it measures the loop alone.
+    """
 
     series: dict[str, np.ndarray]
     wall_time: float
@@ -62,6 +65,7 @@ class LoopResult:
 
     @property
     def time(self) -> np.ndarray:
+        """The sample times, s (``series["time"]``)."""
         return self.series["time"]
 
     @property
@@ -197,7 +201,7 @@ class FmuLoop:
         s, dt = self.slave, reference.dt
         n_out, m, p = len(vr_out), len(vr_in), len(sensor_idx)
         val_out, val_in = (ctypes.c_double * n_out)(), (ctypes.c_double * m)()
-        u_in = np.frombuffer(val_in, dtype=np.float64)
+        u_in = np.ctypeslib.as_array(val_in)                    # a view: fmi2SetReal reads it in place
         n_steps = len(reference.time) - 1
         sensors = list(law.sensors)
         sigma = np.array([float((noise or {}).get(n, 0.0)) for n in sensors])
@@ -207,7 +211,7 @@ class FmuLoop:
         comp = s.component
         get_real, set_real, do_step = s.fmi2GetReal, s.fmi2SetReal, s.fmi2DoStep
         k = 0
-        y = np.frombuffer(val_out, dtype=np.float64)          # a view: fmi2GetReal refills it in place
+        y = np.ctypeslib.as_array(val_out)                    # a view: fmi2GetReal refills it in place
         prefix = sensor_idx == list(range(p))                 # the sensors come first: a slice, not a copy
         try:
             for k in range(n_steps + 1):

@@ -81,16 +81,21 @@ def _sensor_kind(name: str) -> str:
 
 
 def joint_encoders(plant_or_model) -> list[str]:
-    """``<joint>.theta`` of every joint whose angle is a free coordinate (torque-driven or free joints;
-    a position-driven joint's angle is its law), in scene order."""
+    """``<joint>.theta`` of every joint whose angle is a free coordinate, in scene order: the encoders.
+
+    Torque-driven and free joints are measured; a position-driven joint's angle is its law, known without a
+    sensor.
+    """
     model = plant_or_model.model if isinstance(plant_or_model, LinearPlant) else plant_or_model
     return [f"{j.name}.theta" for j in model.scene.joints if f"{j.name}.theta" in model.coordinates]
 
 
 def sensor_set(plant_or_model, kind: str) -> list[str]:
-    """FMU names of a sensor set: the encoders of every joint (:func:`joint_encoders`) plus
-    ``"strain"`` (the root strain gauge of every link that has one) or ``"accelerometer"`` (a two-axis
-    tip accelerometer: specific force x and y in the tip frame).
+    """FMU names of a sensor set, what the Kalman filter of a design reads.
+
+    The set is the encoders of every joint (:func:`joint_encoders`) plus ``"strain"`` (the root strain gauge of
+    every link that has one) or ``"accelerometer"`` (a two-axis tip accelerometer: specific force x and y in the tip
+    frame).
 
     At rest ``tip.sx`` (centripetal, second order in the rate) has a zero row in the linearised C, so the
     stationary Kalman filter gives it no gain: the information comes from ``tip.sy``.
@@ -107,8 +112,11 @@ def sensor_set(plant_or_model, kind: str) -> list[str]:
 
 
 def torque_inputs(plant: LinearPlant) -> list[int]:
-    """Indices in ``plant.inputs`` of the joint torques (``<joint>.tau`` of the torque-driven joints), in
-    scene order: the actuators of the designs here."""
+    """Indices in ``plant.inputs`` of the joint torques, in scene order: the actuators of the designs here.
+
+    They are the ``<joint>.tau`` inputs of the torque-driven joints; a tip load input is a disturbance, not an
+    actuator.
+    """
     names = [f"{j.name}.tau" for j in plant.model.scene.joints if j.drive == "torque"]
     return [plant.inputs.index(n) for n in names if n in plant.inputs]
 
@@ -130,8 +138,11 @@ def actuated_system(plant: LinearPlant) -> ct.StateSpace:
 
 
 def per_joint(value, joints: Sequence[str], what: str, known: Sequence[str] | None = None) -> dict[str, float]:
-    """A number for every joint (or link) in ``joints``: one number for all, or a mapping by name (the
-    ones it lacks get none: ``nan``).  Names outside ``known`` (default ``joints``) are refused."""
+    """A number for every joint (or link) in ``joints``, from one number for all or a mapping by name.
+
+    The names a mapping lacks get none (``nan``); names outside ``known`` (default ``joints``) are refused, so
+    that a misspelt joint is an error rather than a silently unweighted one.
+    """
     if isinstance(value, Mapping):
         known = list(joints if known is None else known)
         for k in value:
@@ -151,8 +162,10 @@ class DesignError(FlexlinkError):
 
 
 def _torque_limits(plant: LinearPlant, torque_limit) -> dict[str, float]:
-    """Joint name → torque limit (N m) of every actuated joint, from one number or a mapping by joint
-    (or by its ``<joint>.tau`` input)."""
+    """Joint name → torque limit (N m) of every actuated joint.
+
+    From one number, or a mapping by joint (or by its ``<joint>.tau`` input, the FMU's name).
+    """
     joints = actuated_joints(plant)
     if isinstance(torque_limit, Mapping):
         named = {str(k).removesuffix(".tau"): v for k, v in torque_limit.items()}
@@ -180,8 +193,10 @@ def _no_actuator(plant: LinearPlant, name: str, what: str) -> str:
 
 
 def bryson_weights(plant: LinearPlant, limits: Mapping[str, float], torque_limit):
-    """Bryson's rule: ``Q = C_zᵀ diag(1/z_max²) C_z`` over the outputs named in ``limits``,
-    ``R = diag(1/u_max,i²)`` over the joint torques.
+    """Bryson's rule, the LQR weights that make each named output's and torque's limit cost alike.
+
+    ``Q = C_zᵀ diag(1/z_max²) C_z`` over the outputs named in ``limits``, ``R = diag(1/u_max,i²)`` over the
+    joint torques.
 
     Parameters
     ----------
@@ -266,7 +281,7 @@ def default_limits(plant: LinearPlant, torque_limit, *, hub_error: float | Mappi
     if root_moment is None:
         carrier = {lk.name: model.scene.joints[i].name for i, lk in enumerate(model.scene.links)
                    if i < len(model.scene.joints)}
-        moments = {lk: 0.1 * tl.get(carrier.get(lk), max(tl.values())) for lk in links}
+        moments = {lk: 0.1 * (tl[carrier[lk]] if carrier.get(lk) in tl else max(tl.values())) for lk in links}
     else:
         moments = per_joint(root_moment, links, "root moment", [lk.name for lk in model.scene.links])
     for lk in links:
@@ -294,23 +309,29 @@ def _mode_name(plant: LinearPlant, lam: complex, v: np.ndarray) -> str:
 
 
 def _critical(lam: complex) -> bool:
-    """On or right of the imaginary axis (an undamped flexible mode or a rigid-body mode): what a
-    stabilising design must reach."""
+    """Whether an eigenvalue is on or right of the imaginary axis, which a stabilising design must reach.
+
+    Such a mode is undamped flexible or rigid-body; the tolerance is relative to the eigenvalue's size.
+    """
     return lam.real >= -1e-9 * max(1.0, abs(lam))
 
 
-def _unreachable(A: np.ndarray, B: np.ndarray, vecs: np.ndarray, lam: np.ndarray, tol: float) -> list[tuple]:
-    """Indices k of the critical eigenvalues lam[k] (one of each conjugate pair) at which ``[A − λI, B]``
-    loses rank (PBH), B's columns normalised.  A simple eigenvalue is tested with its eigenvector
-    (``vecs[:, k]``: ``wᴴ B ≈ 0`` relative to ``|w|``); a repeated one — the rigid-body modes, a Jordan
-    block at 0, or a symmetric part's double mode — by the smallest singular value of ``[A − λI, B]``
-    relative to its largest, below ``1e-4 tol`` (the eigenvectors of a cluster are not reliable; on the
-    two-link arm a controllable rigid-body pair has 3e-11 there, an unactuated joint 4e-19).
+def _unreachable(A: np.ndarray, B: np.ndarray, vecs: np.ndarray, lam: np.ndarray,
+                 tol: float) -> list[tuple[int, np.ndarray]]:
+    """The critical eigenvalues at which ``[A − λI, B]`` loses rank (PBH): the modes B cannot move.
 
-    Returns (k, w) pairs, w the vector that B misses (for a cluster: the left singular vector)."""
+    Indices k of lam[k] (one of each conjugate pair), B's columns normalised.  A simple eigenvalue is tested with
+    its eigenvector (``vecs[:, k]``: ``wᴴ B ≈ 0`` relative to ``|w|``); a repeated one — the rigid-body modes, a
+    Jordan block at 0, or a symmetric part's double mode — by the smallest singular value of ``[A − λI, B]``
+    relative to its largest, below ``1e-4 tol`` (the eigenvectors of a cluster are not reliable; on the two-link arm
+    a controllable rigid-body pair has 3e-11 there, an unactuated joint 4e-19).
+
+    Returns (k, w) pairs, w the vector that B misses (for a cluster: the left singular vector).
+    """
     Bn = B / np.maximum(np.linalg.norm(B, axis=0), 1e-300)
     scale = max(1.0, float(np.max(np.abs(lam))))
-    out, seen = [], []
+    out: list[tuple[int, np.ndarray]] = []
+    seen: list[complex] = []
     for k in range(len(lam)):
         lk = lam[k]
         if not _critical(lk) or lk.imag < -1e-9 * max(1.0, abs(lk)):
@@ -336,13 +357,15 @@ def _at_rest(lam: np.ndarray, k: int) -> bool:
 
 
 def _rigid_blind(K: np.ndarray, G: np.ndarray, tol: float = 1e-6) -> list[np.ndarray]:
-    """The rigid-body motions (null space of the stiffness K, n_q × n_q) that the columns of G (n_q × m: the
-    torques' generalised forces, or the sensors' displacement rows transposed) miss.
+    """The rigid-body motions (null space of the stiffness K, n_q × n_q) that the columns of G miss.
+
+    G is n_q × m: the torques' generalised forces, or the sensors' displacement rows transposed.
 
     PBH at λ = 0 for ``M q̈ + C q̇ + K q = S u``: ``wᴴ [A, B] = 0`` reduces to ``Kᵀ z = 0, Sᵀ z = 0`` (and
     ``K v = 0, C_q v = 0`` for the sensors).  Tested on the mechanics rather than on ``[A, B]``: the
     rigid-body cluster's singular values sit below the stiffest mode's by more than any fixed ratio once a
-    chain has stiff torsion or an elastic joint (the six-axis arm: 7e-16 for a controllable arm)."""
+    chain has stiff torsion or an elastic joint (the six-axis arm: 7e-16 for a controllable arm).
+    """
     import scipy.linalg
 
     Z = scipy.linalg.null_space(K, rcond=1e-9)
@@ -355,10 +378,12 @@ def _rigid_blind(K: np.ndarray, G: np.ndarray, tol: float = 1e-6) -> list[np.nda
 
 
 def stabilizability(plant: LinearPlant, B: np.ndarray | None = None, tol: float = 1e-8) -> list[tuple[complex, str]]:
-    """Modes the joint torques cannot move (PBH test, :func:`_unreachable`; the rigid-body modes on the
-    mechanics, :func:`_rigid_blind`) among those on or right of the imaginary axis — the modes no LQR can
-    stabilise.  Returns (eigenvalue, description) pairs, the description naming the frequency and the
-    coordinate that dominates the mode."""
+    """The modes no LQR can stabilise: critical modes that the joint torques cannot move.
+
+    The PBH test (:func:`_unreachable`; the rigid-body modes on the mechanics, :func:`_rigid_blind`) among the modes
+    on or right of the imaginary axis.  Returns (eigenvalue, description) pairs, the description naming the
+    frequency and the coordinate that dominates the mode.
+    """
     A = np.asarray(plant.sys.A)
     B = np.asarray(actuated_system(plant).B if B is None else B)
     lam, wl, _ = _modes(A)
@@ -403,8 +428,10 @@ def _check_stabilizable(plant: LinearPlant, B: np.ndarray) -> None:
 
 def design_lqr(plant: LinearPlant, dt: float, torque_limit, limits: Mapping[str, float] | None = None,
                **limit_kw) -> LQRDesign:
-    """LQR from Bryson's rule on every torque-driven joint, continuous (``control.lqr``) and sampled at
-    ``dt`` (``control.dlqr``).
+    """LQR from Bryson's rule on every torque-driven joint, continuous and sampled.
+
+    The continuous gain (``control.lqr``) gives the margins; the sampled one at ``dt`` (``control.dlqr``) is
+    the one the loop runs.
 
     Parameters
     ----------

@@ -25,7 +25,7 @@ class ManoeuvreResult:
     """
 
     controller: str
-    target: float
+    target: float | np.ndarray         # rad: the joint's final angle, or one per actuated joint (multi-joint)
     duration: float
     settle: float
     series: dict[str, np.ndarray]

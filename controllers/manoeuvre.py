@@ -3,8 +3,8 @@
 :func:`design` linearises the scene about its start pose and designs, on that one plant, the LQR
 (Bryson's rule), the Kalman estimator and the PD baseline (rigid-body pair at the LQR's natural
 frequency, ζ = 0.7).  :func:`rest_to_rest` runs one controller through an :class:`~controllers.cosim.
-FmuLoop` and measures SCENE.md's figures; :func:`predict_manoeuvre` gives the linear closed-loop
-prediction of the same run.
+FmuLoop` and measures its figures (docs/control.md, "One joint"); :func:`predict_manoeuvre` gives the linear
+closed-loop prediction of the same run.
 
 The two controllers share the manoeuvre (start, target, duration), the sample time and the torque
 limit; they differ in what they know of the link:
@@ -71,9 +71,11 @@ class ControlDesign:
         return [u.removesuffix(".tau") for u in self.lqr.inputs]
 
     def robustness(self) -> dict:
-        """Loop-at-a-time margins at each actuator, peak sensitivity and closed-loop poles of the continuous
-        LQR state feedback (``"lqr"``) and of the sampled LQG (``"lqg"``): :func:`controllers.robustness.
-        robustness` (computed once)."""
+        """Loop-at-a-time margins at each actuator, peak sensitivity and closed-loop poles (computed once).
+
+        Of the continuous LQR state feedback (``"lqr"``) and of the sampled LQG (``"lqg"``):
+        :func:`controllers.robustness.robustness`.
+        """
         if self._robustness is None:
             from controllers.robustness import robustness
 
@@ -81,19 +83,32 @@ class ControlDesign:
         return self._robustness
 
     @property
+    def joint_pd(self) -> PDDesign:
+        """The joint PD, which only a single-joint design has (``pd`` is None with several actuated joints)."""
+        if self.pd is None:
+            raise FlexlinkError(f"the joint PD is designed for one torque-driven joint; this design has "
+                                f"{len(self.lqr.inputs)} ({', '.join(self.actuated_joints)}): controllers.multijoint "
+                                "runs it (JointPDLaw)")
+        return self.pd
+
+    @property
     def joint(self) -> str:
+        """The first joint, the one the single-joint manoeuvre drives."""
         return self.plant.model.scene.joints[0].name
 
     @property
     def link(self) -> str:
+        """The last link, whose tip deflection the manoeuvre's residual vibration is measured on."""
         return self.plant.model.scene.links[-1].name
 
     @property
     def start_angle(self) -> float:
+        """The first joint's angle at the operating point (rad): targets are absolute, references relative."""
         return float(self.plant.x0[self.joint_index])
 
     @property
     def joint_index(self) -> int:
+        """The first joint's angle's index among the model's coordinates (and the plant's states)."""
         return self.plant.model.coordinates.index(f"{self.joint}.theta")
 
     def law(self, controller: str) -> SampledLaw:
@@ -105,7 +120,7 @@ class ControlDesign:
         if controller == "lqr":
             return LQGLaw(self.lqr, self.kalman, self.torque_limit)
         if controller == "pd":
-            return PDLaw(self.pd, self.plant, self.dt, self.torque_limit)
+            return PDLaw(self.joint_pd, self.plant, self.dt, self.torque_limit)
         raise FlexlinkError(f"--controller: expected one of {CONTROLLERS}, got {controller!r}")
 
 
@@ -174,9 +189,11 @@ def design(scene_or_model, *, torque_limit: float | Mapping[str, float], dt: flo
 
 
 def _target(d: ControlDesign, target: float) -> float:
-    """Check that the manoeuvre does not change the loads (the plant at the target is the plant at the
-    start) and return ``<link>.tip.v`` at rest at the target (the static deflection the residual vibration
-    is measured from).  Cached per target."""
+    """The tip's static deflection ``<link>.tip.v`` at rest at the target, the zero of the residual vibration.
+
+    It also checks that the manoeuvre does not change the loads (the plant at the target is the plant at the
+    start), which the linear design assumes.  Cached per target.
+    """
     if target in d._targets:
         return d._targets[target]
     model = d.plant.model
@@ -201,7 +218,7 @@ def reference(d: ControlDesign, controller: str, target: float, duration: float,
     if controller == "lqr":
         return min_jerk_reference(d.lqr.plant_d, d.joint_index, delta, duration, total)
     if controller == "pd":
-        return quintic_reference(d.plant, delta, duration, total, d.dt, d.pd.inertia)
+        return quintic_reference(d.plant, delta, duration, total, d.dt, d.joint_pd.inertia)
     raise FlexlinkError(f"--controller: expected one of {CONTROLLERS}, got {controller!r}")
 
 
@@ -253,7 +270,7 @@ def rest_to_rest(d: ControlDesign, loop: FmuLoop | str | os.PathLike, target: fl
 
         noise = {s: d.kalman.noise.get(s, SENSOR_NOISE[sensor_kind(s)]) for s in law.sensors}
     own = not isinstance(loop, FmuLoop)
-    fl = FmuLoop(loop, record=[f"{d.joint}.theta", f"{d.link}.tip.v"]) if own else loop
+    fl = loop if isinstance(loop, FmuLoop) else FmuLoop(loop, record=[f"{d.joint}.theta", f"{d.link}.tip.v"])
     for name in (f"{d.joint}.theta", f"{d.link}.tip.v"):
         if name not in fl.record:
             fl.record.append(name)
@@ -272,8 +289,11 @@ def rest_to_rest(d: ControlDesign, loop: FmuLoop | str | os.PathLike, target: fl
 def predict_manoeuvre(d: ControlDesign, target: float, duration: float, settle: float = 1.5,
                       controller: str = "lqr", plant: LinearPlant | None = None,
                       outputs: list[str] | None = None) -> dict:
-    """The linear closed-loop prediction (python-control ``forced_response``, no saturation) of
-    :func:`rest_to_rest`; ``plant`` may differ from the design plant (e.g. another payload)."""
+    """The linear closed-loop prediction of :func:`rest_to_rest`, to compare the FMU's run with.
+
+    It is python-control's ``forced_response`` without saturation; ``plant`` may differ from the design plant
+    (e.g. another payload).
+    """
     _check_times(duration, settle, d.dt)
     law = d.law(controller)
     ref = reference(d, controller, target, duration, settle)
@@ -282,7 +302,10 @@ def predict_manoeuvre(d: ControlDesign, target: float, duration: float, settle: 
 
 
 def stability_report(d: ControlDesign, controller: str, parameters: Mapping[str, float] | None = None) -> dict:
-    """Margins of the loop broken at the torque input and closed-loop stability, with the plant
-    linearised at ``parameters`` (the controller stays the nominal one)."""
+    """Margins of the loop broken at the torque input and closed-loop stability.
+
+    The plant is linearised at ``parameters`` while the controller stays the nominal one: how far a design
+    holds when the arm differs from the one it was designed on.
+    """
     plant = d.plant if not parameters else linear_plant(d.plant.model, parameters={**_params(d), **parameters})
     return margins(plant, d.law(controller))

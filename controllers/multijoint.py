@@ -39,9 +39,12 @@ __all__ = ["JointPDLaw", "MimoLQGLaw", "compare", "compare_laws", "default_torqu
 
 
 def check_multijoint(d) -> None:
-    """What the multi-joint run drives: every joint torque-driven (no built-in law to carry along the path),
-    starting at rest; sensors whose outputs are linear in the state.  An elastic joint's torque turns its
-    motor (:func:`drive_coordinate`)."""
+    """Refuse a design the multi-joint run cannot drive, before anything runs.
+
+    It drives every joint by torque (no built-in law to carry along the path), starting at rest, with sensors
+    whose outputs are linear in the state.  An elastic joint's torque turns its motor
+    (:func:`drive_coordinate`).
+    """
     from controllers.design import DesignError
 
     model = d.plant.model
@@ -65,9 +68,12 @@ def drive_coordinate(model, joint: str) -> str:
 
 @dataclass
 class Plan:
-    """Where the manoeuvre goes: the driven coordinates' indices (:func:`drive_coordinate`), their start and
-    final angles (rad), the joints' target angles (link side), the final rest state (absolute) and its
-    holding torques, the static ``<link>.tip.v`` there, and the joint angles' coordinate indices."""
+    """Where the manoeuvre goes, computed once and shared by every law that runs it.
+
+    The driven coordinates' indices (:func:`drive_coordinate`), their start and final angles (rad), the joints'
+    target angles (link side), the final rest state (absolute) and its holding torques, the static ``<link>.tip.v``
+    there, and the joint angles' coordinate indices.
+    """
 
     joints: list[str]
     index: list[int]
@@ -82,10 +88,12 @@ class Plan:
 
 
 def plan(plant, targets: Sequence[float]) -> Plan:
-    """The final rest state at ``targets`` (rad, one per actuated joint, link side): the elastic coordinates
-    at their static deflection there (zero without gravity), the torques that hold it, the tips' static
-    deflection.  An elastic joint's motor ends where its spring holds the link at the target: its motor
-    angle is moved by the link's static lag, a few fixed-point passes (the lag changes little with it)."""
+    """The final rest state at ``targets`` (rad, one per actuated joint, link side), as a :class:`Plan`.
+
+    The elastic coordinates are at their static deflection there (zero without gravity), the torques that hold it,
+    the tips' static deflection.  An elastic joint's motor ends where its spring holds the link at the target: its
+    motor angle is moved by the link's static lag, a few fixed-point passes (the lag changes little with it).
+    """
     from controllers.design import actuated_joints
     from flexlink.run.linearize import explicit_functions
 
@@ -95,15 +103,15 @@ def plan(plant, targets: Sequence[float]) -> Plan:
         raise FlexlinkError(f"--target: one angle per torque-driven joint ({', '.join(joints)}), got {len(targets)}")
     idx = [model.coordinates.index(drive_coordinate(model, j)) for j in joints]
     angle = [model.coordinates.index(f"{j}.theta") for j in joints]
-    targets = np.asarray(targets, dtype=float)
+    aim = np.asarray(targets, dtype=float)
     names = [s.name for s in model.inputs]
     cols = [names.index(f"{j}.tau") for j in joints]
     u = p.op.u.copy()
     u[cols] = 0.0
-    drive = targets.copy()
+    drive = aim.copy()
     for _ in range(6):
         q = _rest_at(model, p, idx, drive, u)
-        lag = q[angle] - targets
+        lag = q[angle] - aim
         if np.max(np.abs(lag)) < 1e-10:        # at once without elastic joints (their lag is 0)
             break
         drive -= lag
@@ -119,7 +127,7 @@ def plan(plant, targets: Sequence[float]) -> Plan:
     names = [s.name for s in model.outputs]
     tips = {lk.name: float(y[names.index(f"{lk.name}.tip.v")]) for lk in model.scene.links
             if f"{lk.name}.tip.v" in names}
-    return Plan(joints, idx, p.x0[idx].copy(), q[idx].copy(), x_end, u_end, tips, targets, angle,
+    return Plan(joints, idx, p.x0[idx].copy(), q[idx].copy(), x_end, u_end, tips, aim, angle,
                 p.x0[angle].copy())
 
 
@@ -135,9 +143,11 @@ def _rest_at(model, p, idx, drive, u) -> np.ndarray:
 
 
 def inverse_dynamics_reference(plant, pl: Plan, dt: float, duration: float, settle: float) -> Reference:
-    """Quintic path of every joint from its start to its target in ``duration``, the elastic coordinates and
-    the joint torques along it from the model's inverse dynamics (module docstring); then rest at
-    the targets for ``settle``.  Deviations from the design's operating point; ``u_ff`` is (N + 1, m)."""
+    """Quintic path of every joint from its start to its target in ``duration``, with its feedforward.
+
+    The elastic coordinates and the joint torques along it from the model's inverse dynamics (module docstring);
+    then rest at the targets for ``settle``.  Deviations from the design's operating point; ``u_ff`` is (N + 1, m).
+    """
     from controllers.design import torque_inputs
 
     p, model = plant, plant.model
@@ -190,10 +200,13 @@ def inverse_dynamics_reference(plant, pl: Plan, dt: float, duration: float, sett
 
 def default_torque_limit(plant, targets: Sequence[float], duration: float, dt: float = 1e-3,
                          factor: float = 1.5) -> float:
-    """``factor`` × the largest peak of the joints' inverse-dynamics feedforward (coupling included), rounded
-    up to 0.5 N m: the torque limit of every joint (and Bryson's R) of a multi-joint run when none is given.
+    """The torque limit of a multi-joint run when none is given, from the manoeuvre's own feedforward.
+
+    ``factor`` × the largest peak of the joints' inverse-dynamics feedforward (coupling included), rounded up
+    to 0.5 N m: the torque limit of every joint (and Bryson's R) of a multi-joint run when none is given.
     One number for all joints: a smaller limit on the elbow than on the shoulder weighs its torque more and
-    gave an LQG that the elbow's motion destabilised (two_link_payload, 60°/40° in 1 s)."""
+    gave an LQG that the elbow's motion destabilised (two_link_payload, 60°/40° in 1 s).
+    """
     from controllers.design import torque_inputs
 
     pl = plan(plant, targets)
@@ -205,7 +218,8 @@ def default_torque_limit(plant, targets: Sequence[float], duration: float, dt: f
 class MimoLQGLaw:
     """The discrete LQR on the Kalman estimate of the deviation from the reference (module docstring).
 
-    ``step(y, x_ref, u_ff)`` → the saturated torques (absolute, one per actuated joint)."""
+    ``step(y, x_ref, u_ff)`` → the saturated torques (absolute, one per actuated joint).
+    """
 
     kind = "lqr"
 
@@ -223,6 +237,7 @@ class MimoLQGLaw:
         self.reset()
 
     def reset(self) -> None:
+        """Start a run: the estimate at the reference (zero deviation) and the sample count at 0."""
         self.dz = np.zeros(self.Ad.shape[0])      # prior estimate of x − x_ref
         self.k = 0
 
@@ -231,6 +246,7 @@ class MimoLQGLaw:
         return self.M, self.C, self.K, self.Ad, self.Bd
 
     def step(self, y, x_ref, u_ff) -> np.ndarray:
+        """One sample: correct the estimate with ``y``, the saturated torques, then predict the next sample."""
         M, C, K, Ad, Bd = self.matrices(self.k)
         dx = self.dz + M @ (y - self.y0 - C @ (x_ref + self.dz))
         u = np.clip(self.u0 + u_ff - K @ dx, -self.limits, self.limits)
@@ -240,14 +256,17 @@ class MimoLQGLaw:
 
 
 def reference_step(reference: Reference, Ad: np.ndarray, Bd: np.ndarray) -> np.ndarray:
-    """Where the reference stops being a trajectory of the plant (from the manoeuvre's end: its jump to rest
-    at the targets), the deviation's prediction carries the reference's own step: ``e⁺ = A_d e + B_d (u −
+    """The reference's own step ``w_k`` in the estimator's prediction, non-zero where it leaves the plant's flow.
+
+    Where the reference stops being a trajectory of the plant (from the manoeuvre's end: its jump to rest at
+    the targets), the deviation's prediction carries the reference's own step: ``e⁺ = A_d e + B_d (u −
     u_ff) − w_k`` with ``w_k = x_ref,k+1 − F(x_ref,k, u_ff,k)`` (0 along the inverse dynamics).  The plant's
     step F is linearised about the final rest (an equilibrium of the plant: ``F(x_end, u_end) = x_end``),
     so that ``w_k = 0`` once at rest: ``w_k = (x_ref,k+1 − x_end) − A_d (x_ref,k − x_end) − B_d (u_ff,k −
     u_end)``.  Linearised about the start pose instead, gravity's pose-dependent torques make the rest at
     the target a moving state of the model, and the estimator a steady bias (the six-axis arm: 0.11° at
-    the shoulder)."""
+    the shoulder).
+    """
     x, uf = reference.x, reference.u_ff
     dx, du = x - x[-1], uf - uf[-1]
     W = np.zeros_like(x)
@@ -257,8 +276,11 @@ def reference_step(reference: Reference, Ad: np.ndarray, Bd: np.ndarray) -> np.n
 
 
 def joint_pd_gains(d, zeta: float = 0.7) -> tuple[np.ndarray, np.ndarray]:
-    """(kp, kd) per actuated joint: its rigid-body pair at the LQR's slowest pair ω_n with damping ζ on the
-    locked-arm inertia M_jj: ``kp = M_jj ω_n²``, ``kd = 2 ζ ω_n M_jj``."""
+    """(kp, kd) per actuated joint, so that the PD is as fast as the LQR and comparable with it.
+
+    Each joint's rigid-body pair sits at the LQR's slowest pair ω_n with damping ζ on the locked-arm inertia
+    M_jj: ``kp = M_jj ω_n²``, ``kd = 2 ζ ω_n M_jj``.
+    """
     wn, _ = d.lqr.rigid_pair
     model = d.plant.model
     J = np.array([d.plant.mechanics.M[i, i] for i in (model.coordinates.index(drive_coordinate(model, j))
@@ -295,9 +317,10 @@ class JointPDLaw:
         return G
 
     def reset(self) -> None:
-        pass
+        """Nothing to reset: the PD keeps no state between samples."""
 
     def step(self, y, x_ref, u_ff) -> np.ndarray:
+        """One sample: feedforward plus the PD on the joints' angle and rate errors, saturated."""
         u = self.u0 + u_ff - self.G @ (y - self.y0 - x_ref[self.rows])
         return np.clip(u, -self.limits, self.limits)
 
@@ -312,10 +335,13 @@ def _settling_time(t: np.ndarray, outside: np.ndarray) -> float | None:
 
 def metrics(pl: Plan, series: Mapping[str, np.ndarray], duration: float, limits: Sequence[float],
             band_deg: float, band_m: float, wall_time: float | None) -> dict:
-    """The run's figures: per joint the final error, peak torque and saturated fraction; per link the
-    residual vibration (RMS of ``tip.v`` minus its static value at the targets, over the window after the
-    manoeuvre) and the largest tip deflection; the settling time (from the start, after which every joint
-    stays within ``band_deg`` of its target and every tip within ``band_m`` of its static deflection)."""
+    """The run's figures, the same for every law so that runs compare.
+
+    Per joint the final error, peak torque and saturated fraction; per link the residual vibration (RMS of ``tip.v``
+    minus its static value at the targets, over the window after the manoeuvre) and the largest tip deflection; the
+    settling time (from the start, after which every joint stays within ``band_deg`` of its target and every tip
+    within ``band_m`` of its static deflection).
+    """
     t = series["time"]
     window = t >= duration - 1e-12
     outside = np.zeros(len(t), dtype=bool)
@@ -339,9 +365,11 @@ def metrics(pl: Plan, series: Mapping[str, np.ndarray], duration: float, limits:
 
 def run(d, loop: FmuLoop, pl: Plan, ref: Reference, law, *, parameters: Mapping[str, float] | None = None,
         band_deg: float = 0.1, band_m: float = 1e-3, x0: np.ndarray | None = None):
-    """One closed-loop run of ``law`` along ``ref`` through the FMU; a
-    :class:`controllers.manoeuvre.ManoeuvreResult` with :func:`metrics` (``series`` also holds each joint's
-    ``theta_ref``)."""
+    """One closed-loop run of ``law`` along ``ref`` through the FMU.
+
+    Returns a :class:`controllers.manoeuvre.ManoeuvreResult` with :func:`metrics` (``series`` also holds each
+    joint's ``theta_ref``).
+    """
     from controllers.figures import ManoeuvreResult
 
     for name in [f"{j}.theta" for j in pl.joints] + [f"{lk}.tip.v" for lk in pl.tip_static]:
@@ -361,9 +389,11 @@ def run(d, loop: FmuLoop, pl: Plan, ref: Reference, law, *, parameters: Mapping[
 def compare(d, loop: FmuLoop, targets: Sequence[float], duration: float, settle: float, *,
             parameters: Mapping[str, float] | None = None, band_deg: float = 0.1, band_m: float = 1e-3,
             pl: Plan | None = None) -> dict:
-    """The MIMO LQG and the joint PD, each through the FMU along the same reference and feedforward, the
-    PD's torque limit the LQG run's peak torque of each joint.  Returns ``{"lqr": result, "pd": result}``.
-    ``pl``: the :func:`plan` to ``targets`` if the caller has it already."""
+    """The MIMO LQG and the joint PD, each through the FMU along the same reference and feedforward.
+
+    The PD's torque limit is the LQG run's peak torque of each joint, so neither law gets more torque.  Returns
+    ``{"lqr": result, "pd": result}``. ``pl``: the :func:`plan` to ``targets`` if the caller has it already.
+    """
     from controllers.manoeuvre import _check_times
 
     _check_times(duration, settle, d.dt)
@@ -375,8 +405,10 @@ def compare(d, loop: FmuLoop, targets: Sequence[float], duration: float, settle:
 
 
 def compare_laws(loop: FmuLoop, pl: Plan, ref: Reference, lqg_law, pd_law, x0: np.ndarray, **kw) -> dict:
-    """:func:`compare` from its laws (the design cache's too): the LQG run, then the PD's with its torque
-    limits set to the LQG run's peaks."""
+    """:func:`compare` from its laws, which the design cache can hold without the design.
+
+    The LQG runs first, then the PD with its torque limits set to the LQG run's peaks.
+    """
     lqg = run(None, loop, pl, ref, lqg_law, x0=x0, **kw)
     pd_law.limits = np.asarray([lqg.metrics["joints"][j]["peak_torque_nm"] for j in pl.joints])
     pd = run(None, loop, pl, ref, pd_law, x0=x0, **kw)

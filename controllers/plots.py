@@ -24,8 +24,11 @@ def _pyplot():
 
 
 def plot_time_responses(axes, results: Sequence, design, predictions: Sequence[dict | None] = ()) -> None:
-    """Hub angle (and reference), tip deflection and torque of one or more :class:`ManoeuvreResult`;
-    dashed: the linear closed-loop predictions, when given."""
+    """Hub angle (and reference), tip deflection and torque of one or more :class:`ManoeuvreResult`.
+
+    Dashed: the linear closed-loop predictions, when given, so that the FMU's run shows where it leaves the
+    linear design.
+    """
     joint, link, tau = design.joint, design.link, design.plant.inputs[0]
     preds = list(predictions) + [None] * (len(results) - len(predictions))
     for k, (res, pred) in enumerate(zip(results, preds, strict=True)):
@@ -75,8 +78,11 @@ def plot_poles(ax, design, controllers: Sequence[str] = ("lqr", "pd")) -> None:
 
 
 def plot_loop_bode(ax_mag, ax_phase, design, controllers: Sequence[str] = ("lqr", "pd")) -> dict:
-    """Loop transfer at the torque input, L = −C_y P, with its classical margins and its balanced disk margin
-    (``control.disk_margins``, skew 0); returns the margins by controller."""
+    """Bode plot of the loop transfer at the torque input, L = −C_y P, with its margins.
+
+    The classical margins and the balanced disk margin (``control.disk_margins``, skew 0); returns the
+    margins by controller.
+    """
     out = {}
     w = np.logspace(-1, np.log10(np.pi / design.dt), 3000)[:-1]
     for k, name in enumerate(controllers):
@@ -136,11 +142,13 @@ LABELS = {"lqr": "LQG", "pd": "PD", "fixed": "fixed LQG", "scheduled": "schedule
 
 
 def plot_multijoint(path: str | os.PathLike, results: dict, title: str = "", robustness: dict | None = None) -> None:
-    """The multi-joint comparison (:func:`controllers.multijoint.compare`): joint angles against their
-    references, tracking errors, every link's tip deflection and the torques, LQG and PD, the figures of
-    each run (settling time, residual vibration, peak torque) in the legends; with ``robustness`` (a loop of
-    :func:`controllers.robustness.robustness_figures`, the sampled LQG's), its margins at each actuator
-    under the plot."""
+    """Plot the multi-joint comparison (:func:`controllers.multijoint.compare`) to ``path``.
+
+    Joint angles against their references, tracking errors, every link's tip deflection and the torques, LQG and PD,
+    the figures of each run (settling time, residual vibration, peak torque) in the legends; with ``robustness`` (a
+    loop of :func:`controllers.robustness.robustness_figures`, the sampled LQG's), its margins at each actuator
+    under the plot.
+    """
     plt = _pyplot()
     fig, axes = plt.subplots(2, 2, figsize=(13, 8), sharex=True)
     (a_th, a_err), (a_tip, a_tau) = axes
@@ -183,8 +191,10 @@ def plot_multijoint(path: str | os.PathLike, results: dict, title: str = "", rob
 
 
 def margins_text(rob: dict) -> str:
-    """One line per actuator of a loop's JSON figures: classical gain and phase margins, balanced disk
-    margin with its simultaneous gain and phase variations."""
+    """One line per actuator of a loop's JSON figures, for a plot's caption or the terminal.
+
+    Classical gain and phase margins, balanced disk margin with its simultaneous gain and phase variations.
+    """
     def f(v, unit):
         return "inf" if v is None else f"{v:.3g}{unit}"
 

@@ -1,9 +1,9 @@
 """Parameter studies at scale: full grids and Monte Carlo runs of one FMU on Dask (``flexlink sweep``).
 
-The FMU is built once (:func:`flexlink.export.fmu.cached_fmu`) and shipped to the workers, as bytes (default) or
+The FMU is built once (:func:`flexlink.export.cache.cached_fmu`) and shipped to the workers, as bytes (default) or
 as a path on a shared file system; each worker process writes it out once and keeps one FMU instance per
 worker thread, reset (``fmi2Reset``) between cases.  A case only sets the FMU's tunable parameters
-(SCENE.md names, e.g. ``arm.payload.mass``) before initialisation: no re-export.
+(the scene's names, docs/embedding.md "Variables", e.g. ``arm.payload.mass``) before initialisation: no re-export.
 
 A case is either
 
@@ -33,16 +33,18 @@ installed); ``scheduler="serial"`` runs the same code in a plain loop in this pr
 
 Examples
 --------
->>> from controllers.sweep import run_sweep                                                  # doctest: +SKIP
->>> df = run_sweep("examples/rotating_link_payload.toml", {"arm.payload.mass": "0.5:2.0:21"},
-...                controller="lqr", target_deg=90, duration=1.5, settle=1.5, out="payload.parquet")
+>>> from controllers.sweep import SweepSpec, run_sweep                                       # doctest: +SKIP
+>>> df = run_sweep(SweepSpec("examples/rotating_link_payload.toml", {"arm.payload.mass": "0.5:2.0:21"},
+...                          controller="lqr", target_deg=90, duration=1.5, settle=1.5, out="payload.parquet"))
 >>> df[["arm.payload.mass", "residual_vibration_rms_m", "overshoot_deg"]]              # doctest: +SKIP
->>> run_sweep("examples/rotating_link_payload.toml", samples=200, seed=1, controller="pd", target_deg=90,
-...           duration=1.5, distributions={"arm.EI": "normal:93.72:5:80:110"})          # doctest: +SKIP
+>>> run_sweep(SweepSpec("examples/rotating_link_payload.toml", samples=200, seed=1, controller="pd",
+...                     target_deg=90, duration=1.5, distributions={"arm.EI": "normal:93.72:5:80:110"}))
+>>> run_sweep(SweepSpec.from_toml("payload.toml", seed=2))        # a spec file, one field overridden
 """
 
 from __future__ import annotations
 
+import argparse
 import atexit
 import functools
 import hashlib
@@ -56,14 +58,15 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
 
 from controllers.deadline import CaseTimeout, Deadline
+from controllers.options import angles
 from flexlink.errors import FlexlinkError
-from flexlink.paths import SCENE_HELP, output_file, plot_file
+from flexlink.paths import SCENE_HELP, OutputPath, check_output_path, output_file, plot_file
 
 __all__ = [
     "CLOSED_LOOP_METRICS",
@@ -143,8 +146,11 @@ def _parse_grid_axis(name: str, spec) -> list[float]:
 
 @dataclass(frozen=True)
 class Distribution:
-    """A Monte Carlo parameter: ``uniform(lo, hi)``, ``normal(mean, std)`` truncated to ``[lo, hi]``,
-    ``loguniform(lo, hi)``, or a constant (``kind="fixed"``, ``a`` the value)."""
+    """One parameter's law in a Monte Carlo sweep, drawn for every case from the sweep's seeded generator.
+
+    ``uniform(lo, hi)``, ``normal(mean, std)`` truncated to ``[lo, hi]``, ``loguniform(lo, hi)``, or a constant
+    (``kind="fixed"``, ``a`` the value).
+    """
 
     kind: str
     a: float
@@ -208,9 +214,13 @@ def _parse_distribution(name: str, spec, option: str = "--distribution") -> Dist
 
 def make_cases(params: Mapping[str, object] | None = None, *, samples: int | None = None, seed: int = 0,
                distributions: Mapping[str, object] | None = None) -> tuple[str, list[dict[str, float]]]:
-    """The cases of a sweep: ``("grid", [...])`` — the full product of the ``params`` axes, last name
-    varying fastest — or, with ``samples``, ``("monte-carlo", [...])``: ``samples`` draws (seeded) of
-    ``params`` (``LO:HI`` uniform, or a value) and ``distributions`` (:func:`_parse_distribution`)."""
+    """The cases of a sweep, each the FMU parameters it sets, and whether they form a grid or a Monte Carlo set.
+
+    ``("grid", [...])`` is the full product of the ``params`` axes, last name varying fastest; with
+    ``samples``, ``("monte-carlo", [...])`` holds ``samples`` draws (seeded) of ``params`` (``LO:HI`` uniform,
+    or a value) and ``distributions`` (:func:`_parse_distribution`).  The same arguments always give the same
+    cases, which is what lets a journal be resumed.
+    """
     params = dict(params or {})
     distributions = dict(distributions or {})
     both = set(params) & set(distributions)
@@ -240,9 +250,231 @@ def case_key(params: Mapping[str, float]) -> str:
     return ";".join(f"{name}={float(v)!r}" for name, v in params.items())
 
 
-# ============================================================================ the job shipped to the workers
+# ============================================================================ the description of a sweep
+_NUMBER = (int, float)
+# the TOML value each field takes (bool is refused where a number is meant: TOML's true is not 1)
+_SPEC_TYPES: dict[str, tuple[type, ...]] = {
+    "scene": (str,), "params": (dict,), "samples": (int,), "seed": (int,), "distributions": (dict,),
+    "controller": (str,), "target_deg": (*_NUMBER, list), "duration": _NUMBER, "settle": _NUMBER,
+    "settle_band": _NUMBER, "torque_limit": _NUMBER, "sensors": (str,), "stop_time": _NUMBER,
+    "sample_time": _NUMBER, "series": (list,), "series_every": (int,), "out": (str,), "resume": (bool,),
+    "overwrite": (bool,), "scheduler": (str,), "n_workers": (int,), "batch_size": (int,), "shared_fs": (bool,),
+    "progress": (bool,), "fmu": (str,), "case_timeout": _NUMBER,
+}
+_SPEC_PATHS = ("scene", "out", "fmu")          # relative to the spec file's folder
+SENSORS = ("strain", "accelerometer")
+
+
 @dataclass
 class SweepSpec:
+    """One parameter sweep: what varies, what each case runs, where the rows go and how cases are scheduled.
+
+    It is the one description of a sweep, whether it is written in Python, in a TOML file
+    (:meth:`from_toml`, whose keys are the field names) or as ``flexlink sweep``'s options (which override
+    the file's); :func:`run_sweep` takes it together with the objects only a running program has (a Dask
+    client, a callback).  Construction checks every value that needs neither the scene nor the FMU, so that
+    a bad spec is refused before an FMU is built or a worker started.
+
+    Parameters
+    ----------
+    scene : str or path-like
+        The scene TOML whose FMU is swept.
+    params : mapping, optional
+        FMU parameter name → grid axis (``"LO:HI:N"``, ``"V1,V2"``, a value or a sequence); with
+        ``samples``: ``"LO:HI"`` (uniform) or a fixed value.
+    samples, seed, distributions :
+        Monte Carlo instead of a grid: ``samples`` seeded draws; ``distributions`` maps names to
+        ``"uniform:LO:HI"``, ``"normal:MEAN:STD[:LO:HI]"`` (truncated) or ``"loguniform:LO:HI"``.
+    controller, target_deg, duration, settle, settle_band, torque_limit, sensors :
+        Closed loop (``controller`` "lqr" or "pd", "lqr" when only a target or a duration is given): the
+        rest-to-rest manoeuvre of the first joint to ``target_deg`` in ``duration`` s plus ``settle`` s (as
+        ``flexlink control``; with several torque-driven joints one angle per joint; kept as a tuple of
+        floats); the settling time is measured to a band of ``settle_band`` × the commanded angle.  The
+        controller is designed once on the scene's values.
+    stop_time : float, optional
+        Open loop instead: the scene's default inputs for ``stop_time`` s (``settle``: the final window of the
+        residual vibration).
+    sample_time : float
+        Controller sample time / communication step, s.
+    series, series_every :
+        FMU outputs to keep as time series (list columns ``series.<name>`` and ``series.time``), every
+        ``series_every``-th sample.
+    out : path, optional
+        Results file (``.parquet`` or ``.csv``); its journal ``out + ".journal.jsonl"`` is written as cases
+        complete.  Without ``out`` nothing is written (and nothing can be resumed).
+    resume, overwrite :
+        An existing journal (or file) of the same sweep is resumed (only missing cases are run) unless
+        ``overwrite``; one of another sweep is refused unless ``overwrite``.  ``resume=False`` without
+        ``overwrite`` refuses to touch existing results.
+    scheduler, n_workers, batch_size, shared_fs :
+        ``scheduler``: a Dask scheduler address, or ``"serial"`` for a plain loop in this process; else an
+        embedded LocalCluster of ``n_workers`` processes (default: one per core).  ``batch_size`` cases per
+        Dask task (default: about 4 tasks per worker, at most 16 cases each).  ``shared_fs``: send the workers
+        the FMU's path instead of its bytes.
+    progress : bool or None
+        tqdm progress bar on stderr (None: only on a terminal).
+    fmu : path, optional
+        Use this FMU (built from ``scene``) instead of building or caching one.
+    case_timeout : float, optional
+        Wall-clock seconds one case may run (:mod:`controllers.deadline`); a case still running then is a
+        row with ``status = "timeout"``.  Timed-out rows are run again on resume (a limit depends on the
+        machine's load, not on the case).
+
+    Raises
+    ------
+    FlexlinkError
+        For a value out of range or settings that contradict each other, named as the field and its option.
+    """
+
+    scene: str | os.PathLike
+    params: Mapping[str, object] = field(default_factory=dict)
+    samples: int | None = None
+    seed: int = 0
+    distributions: Mapping[str, object] = field(default_factory=dict)
+    controller: str | None = None
+    target_deg: float | Sequence[float] | None = None
+    duration: float | None = None
+    settle: float = 1.5
+    settle_band: float = 0.02
+    torque_limit: float | None = None
+    sensors: str = "strain"
+    stop_time: float | None = None
+    sample_time: float = 1e-3
+    series: Sequence[str] = ()
+    series_every: int = 10
+    out: str | os.PathLike | None = None
+    resume: bool = True
+    overwrite: bool = False
+    scheduler: str | None = None
+    n_workers: int | None = None
+    batch_size: int | None = None
+    shared_fs: bool = False
+    progress: bool | None = False
+    fmu: str | os.PathLike | None = None
+    case_timeout: float | None = None
+
+    def __post_init__(self) -> None:
+        self.params = dict(self.params or {})
+        self.distributions = dict(self.distributions or {})
+        self.series = tuple(self.series)
+        if self.target_deg is not None:            # one form whatever the source: 90, [90] and "90" alike
+            self.target_deg = tuple(float(v) for v in np.atleast_1d(self.target_deg))
+        if self.controller is None and (self.target_deg is not None or self.duration is not None):
+            self.controller = "lqr"                # a manoeuvre without a named controller: the LQR
+        self.series_every = _check_options(controller=self.controller, stop_time=self.stop_time,
+                                           sample_time=self.sample_time, settle=self.settle,
+                                           settle_band=self.settle_band, series_every=self.series_every)
+        if self.controller is not None and self.controller not in ("lqr", "pd"):
+            raise FlexlinkError(f"controller (--controller): expected 'lqr' or 'pd', got {self.controller!r}")
+        if self.sensors not in SENSORS:
+            raise FlexlinkError(f"sensors (--sensors): expected one of {SENSORS}, got {self.sensors!r}")
+        for name, option in (("n_workers", "--workers"), ("batch_size", "--batch-size")):
+            value = getattr(self, name)
+            if value is not None and value < 1:
+                raise FlexlinkError(f"{name} ({option}) must be at least 1, got {value}")
+        t = self.case_timeout
+        if t is not None and not (math.isfinite(t) and t > 0):
+            raise FlexlinkError(f"case_timeout (--case-timeout) must be a positive number of seconds, got {t}")
+
+    def cases(self) -> tuple[str, list[dict[str, float]]]:
+        """The sweep's cases, ``("grid" | "monte-carlo", [params of each case])`` (:func:`make_cases`)."""
+        return make_cases(self.params, samples=self.samples, seed=self.seed, distributions=self.distributions)
+
+    @classmethod
+    def from_toml(cls, path: str | os.PathLike, **overrides: object) -> SweepSpec:
+        """The spec a TOML file describes, with ``overrides`` (a command line's options) taking precedence.
+
+        The file's keys are the field names; ``params`` and ``distributions`` are tables (a name in
+        ``overrides``' tables replaces the file's entry of that name, the others are kept).  Relative
+        ``scene``, ``out`` and ``fmu`` paths are read from the file's folder, as a scene's own paths are, so
+        that a spec beside its scene works from any working directory.
+
+        Raises
+        ------
+        FlexlinkError
+            Naming the file and the key: a file that cannot be read or is not TOML, an unknown key, a value of
+            the wrong type, or a value the checks of the class refuse.
+        """
+        path = Path(path)
+        values = _merge(_read_spec(path), overrides)
+        if "scene" not in values:
+            raise FlexlinkError(f"{path}: no scene: give scene = \"FILE.toml\" in the file or as an override")
+        try:
+            return cls(**values)                   # type: ignore[arg-type]  # each value's type checked
+        except FlexlinkError as e:
+            raise FlexlinkError(f"{path}: {e}") from None
+
+
+def _read_spec(path: Path) -> dict[str, object]:
+    """The fields a spec file gives, checked against the TOML types they take (:func:`_spec_values`)."""
+    import tomllib
+
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as e:
+        raise FlexlinkError(f"--spec {path}: cannot be read ({e.strerror})") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise FlexlinkError(f"{path}: not a valid TOML file ({e})") from None
+    return _spec_values(path, doc)
+
+
+def _merge(values: Mapping[str, object], overrides: Mapping[str, object]) -> dict[str, object]:
+    """``values`` with ``overrides`` over them; the tables ``params`` and ``distributions`` merge by name."""
+    merged = {**values, **overrides}
+    for name in ("params", "distributions"):
+        below, above = values.get(name), overrides.get(name)
+        if isinstance(below, Mapping) and isinstance(above, Mapping):
+            merged[name] = {**below, **above}
+    return merged
+
+
+def _spec_values(path: Path, doc: dict) -> dict[str, object]:
+    """The fields a spec file gives, each checked against the TOML type it must have, paths made absolute."""
+    values: dict[str, object] = {}
+    for key, value in doc.items():
+        kinds = _SPEC_TYPES.get(key)
+        if kinds is None:
+            raise FlexlinkError(f"{path}: unknown key {key!r}; the keys of a sweep spec are "
+                                + ", ".join(_SPEC_TYPES))
+        if isinstance(value, bool) and bool not in kinds or not isinstance(value, kinds):
+            shown = str(value).lower() if isinstance(value, bool) else repr(value)
+            raise FlexlinkError(f"{path}: {key} = {shown}: expected {_describe(key, kinds)}")
+        _check_items(path, key, value)
+        if key in _SPEC_PATHS:
+            value = str(path.parent / str(value))
+        values[key] = value
+    return values
+
+
+def _describe(key: str, kinds: tuple[type, ...]) -> str:
+    """What a spec key takes, in TOML's words, for the message that refuses another value."""
+    array = "an array of strings (output names)" if key == "series" else "an array of numbers"
+    words = {dict: "a table", list: array, bool: "true or false", str: "a string"}
+    if kinds == (int,):
+        return "a whole number"
+    number = ["a number"] if float in kinds else []
+    return " or ".join(number + [words[k] for k in kinds if k in words])
+
+
+def _check_items(path: Path, key: str, value: object) -> None:
+    """The elements of a spec file's tables and arrays: numbers and strings as the field takes them."""
+    if isinstance(value, dict):
+        for name, item in value.items():
+            ok = (isinstance(item, str | int | float) or key == "params" and isinstance(item, list)
+                  and all(isinstance(x, int | float) and not isinstance(x, bool) for x in item))
+            if isinstance(item, bool) or not ok:
+                raise FlexlinkError(f"{path}: {key}.{name} = {item!r}: expected a string such as "
+                                    "\"LO:HI:N\", a number" + (" or an array of numbers" if key == "params" else ""))
+    elif isinstance(value, list):
+        kind = str if key == "series" else (int, float)
+        if not all(isinstance(x, kind) and not isinstance(x, bool) for x in value):
+            what = "strings (output names)" if key == "series" else "numbers"
+            raise FlexlinkError(f"{path}: {key} = {value!r}: expected an array of {what}")
+
+
+# ============================================================================ the job shipped to the workers
+@dataclass
+class _SweepJob:
     """What every case of one sweep shares (pickled once and scattered to the workers)."""
 
     key: str                              # sweep id: hash of the scene and every setting below
@@ -261,7 +493,7 @@ class SweepSpec:
 class _WorkerJob:
     """One worker thread's FMU instance (and design) for one sweep."""
 
-    def __init__(self, spec: SweepSpec):
+    def __init__(self, spec: _SweepJob):
         self.spec = spec
         self.dir = tempfile.mkdtemp(prefix="flexlink-sweep-")
         if spec.fmu_bytes is not None:
@@ -269,6 +501,7 @@ class _WorkerJob:
             with open(self.fmu, "wb") as f:
                 f.write(spec.fmu_bytes)
         else:
+            assert spec.fmu_path is not None          # _sweep_job gives the bytes or the path
             self.fmu = spec.fmu_path
         self.design = None
         if spec.design_blob is not None:
@@ -325,7 +558,7 @@ def _close_all_jobs() -> None:
 atexit.register(_close_all_jobs)
 
 
-def _worker_job(spec: SweepSpec) -> _WorkerJob:
+def _worker_job(spec: _SweepJob) -> _WorkerJob:
     jobs = getattr(_LOCAL, "jobs", None)
     if jobs is None:
         jobs = _LOCAL.jobs = {}
@@ -363,6 +596,7 @@ def _closed_loop_case(job: _WorkerJob, params: dict[str, float]) -> tuple[dict, 
     from controllers.manoeuvre import rest_to_rest
 
     s, d = job.spec.settings, job.design
+    assert d is not None                          # a closed-loop sweep ships its design
     if s.get("multijoint"):
         from controllers.montecarlo import case
 
@@ -423,7 +657,7 @@ def _open_loop_case(job: _WorkerJob, params: dict[str, float]) -> tuple[dict, di
     return m, res
 
 
-def _run_case(spec: SweepSpec, case: int, params: dict[str, float]) -> dict:
+def _run_case(spec: _SweepJob, case: int, params: dict[str, float]) -> dict:
     """One case on this worker: a row (never raises for a failing case)."""
     t0 = time.perf_counter()
     row: dict = {"case": case, "key": case_key(params), **params}
@@ -450,7 +684,7 @@ def _run_case(spec: SweepSpec, case: int, params: dict[str, float]) -> dict:
     return row
 
 
-def _run_batch(spec: SweepSpec, batch: list[tuple[int, dict[str, float]]]) -> list[dict]:
+def _run_batch(spec: _SweepJob, batch: list[tuple[int, dict[str, float]]]) -> list[dict]:
     return [_run_case(spec, case, params) for case, params in batch]
 
 
@@ -461,8 +695,11 @@ def journal_path(out: str | os.PathLike) -> Path:
 
 
 def _read_journal(path: Path) -> tuple[dict | None, list[dict]]:
-    """Header and rows.  Records are whole lines, written and flushed one by one, so a line that is not a
-    JSON object was torn by a crash while it was written: it is skipped (its case is run again)."""
+    """Header and rows of a journal.
+
+    Records are whole lines, written and flushed one by one, so a line that is not a JSON object was torn by a
+    crash while it was written: it is skipped (its case is run again).
+    """
     header, rows = None, []
     with path.open(errors="replace") as f:
         lines = f.read().splitlines()
@@ -559,62 +796,35 @@ def _sweep_id(doc: dict) -> str:
     return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def run_sweep(scene: str | os.PathLike, params: Mapping[str, object] | None = None, *,
-              samples: int | None = None, seed: int = 0, distributions: Mapping[str, object] | None = None,
-              controller: str | None = None, target_deg: float | None = None, duration: float | None = None,
-              settle: float = 1.5, settle_band: float = 0.02, torque_limit: float | None = None,
-              sensors: str = "strain", stop_time: float | None = None, sample_time: float = 1e-3,
-              series: Sequence[str] = (), series_every: int = 10, out: str | os.PathLike | None = None,
-              resume: bool = True, overwrite: bool = False, scheduler: str | None = None, client=None,
-              n_workers: int | None = None, batch_size: int | None = None, shared_fs: bool = False,
-              progress: bool | None = False, on_result: Callable[[dict, int, int], None] | None = None,
-              fmu: str | os.PathLike | None = None, case_timeout: float | None = None):
-    """Run a parameter sweep of ``scene``'s FMU and return one row per case as a pandas DataFrame.
+@dataclass
+class _Prepared:
+    """What a sweep is once its scene is read and its FMU known: the cases, the identity, the shared settings."""
+
+    name: str                             # the scene's name, for the progress bar
+    kind: str                             # "grid" | "monte-carlo"
+    cases: list[dict[str, float]]
+    names: list[str]                      # the swept parameters
+    fmu_path: Path
+    mode: str                             # "closed" | "open"
+    metric_names: Sequence[str]
+    settings: dict
+    make_design: Callable[[], tuple[dict, bytes]] | None
+    sweep: str                            # the sweep's identity in a journal
+
+
+def run_sweep(spec: SweepSpec, *, client: object = None,
+              on_result: Callable[[dict, int, int], None] | None = None):
+    """Run the parameter sweep ``spec`` describes and return one row per case as a pandas DataFrame.
 
     Parameters
     ----------
-    scene : path of the scene TOML
-    params : dict, optional
-        FMU parameter name → grid axis (``"LO:HI:N"``, ``"V1,V2"``, a value or a sequence); with
-        ``samples``: ``"LO:HI"`` (uniform) or a fixed value.
-    samples, seed, distributions :
-        Monte Carlo instead of a grid: ``samples`` seeded draws; ``distributions`` maps names to
-        ``"uniform:LO:HI"``, ``"normal:MEAN:STD[:LO:HI]"`` (truncated) or ``"loguniform:LO:HI"``.
-    controller, target_deg, duration, settle, settle_band, torque_limit, sensors :
-        Closed loop (``controller`` "lqr" or "pd"): the rest-to-rest manoeuvre of the first joint to
-        ``target_deg`` in ``duration`` s plus ``settle`` s (as ``flexlink control``); the settling time is
-        measured to a band of ``settle_band`` × the commanded angle.  The controller is designed once on
-        the scene's values.
-    stop_time :
-        Open loop instead: the scene's default inputs for ``stop_time`` s (``settle``: the final window of the
-        residual vibration).
-    sample_time : float
-        Controller sample time / communication step, s.
-    series, series_every :
-        FMU outputs to keep as time series (list columns ``series.<name>`` and ``series.time``), every
-        ``series_every``-th sample.
-    out : path, optional
-        Results file (``.parquet`` or ``.csv``); its journal ``out + ".journal.jsonl"`` is written as cases
-        complete.  Without ``out`` nothing is written (and nothing can be resumed).
-    resume, overwrite :
-        An existing journal (or FILE) of the same sweep is resumed (only missing cases are run) unless
-        ``overwrite``; one of another sweep is refused unless ``overwrite``.  ``resume=False`` without
-        ``overwrite`` refuses to touch existing results.
-    scheduler, client, n_workers, batch_size, shared_fs :
-        ``client``: an existing ``dask.distributed.Client``; else ``scheduler``: a scheduler address, or
-        ``"serial"`` for a plain loop in this process; else an embedded LocalCluster of ``n_workers``
-        processes (default: one per core).  ``batch_size`` cases per Dask task (default: about 4 tasks per
-        worker, at most 16 cases each).  ``shared_fs``: send the workers the FMU's path instead of its bytes.
-    progress : bool or None
-        tqdm progress bar on stderr (None: only on a terminal).
+    spec : SweepSpec
+        The sweep: scene, cases, what each case runs, output file and scheduling.
+    client : dask.distributed.Client, optional
+        An existing Dask client to run the cases on (``spec.scheduler`` and ``spec.n_workers`` are then
+        unused); it is not closed.
     on_result : callable, optional
         ``on_result(row, done, total)`` after each completed case (in this process).
-    fmu : path, optional
-        Use this FMU (built from ``scene``) instead of building/caching one.
-    case_timeout : float, optional
-        Wall-clock seconds one case may run (:mod:`controllers.deadline`); a case still running then is a
-        row with ``status = "timeout"``, ``failed = True`` and the limit in ``error``. Timed-out rows are
-        run again on resume (a limit depends on the machine's load, not on the case).
 
     Returns
     -------
@@ -623,88 +833,94 @@ def run_sweep(scene: str | os.PathLike, params: Mapping[str, object] | None = No
         ``worker``, ``key``, ``sweep``; ``df.attrs``: ``kind`` (grid / monte-carlo), ``parameters``,
         ``computed`` (cases run now), ``resumed`` (taken from the journal), ``wall_s``, ``mode``.
     """
-    from flexlink.export.fmu import cached_fmu
-    from flexlink.scene.loader import load_scene
-
     t_start = time.perf_counter()
-    if case_timeout is not None and not (math.isfinite(case_timeout) and case_timeout > 0):
-        raise FlexlinkError(f"--case-timeout must be a positive number of seconds, got {case_timeout}")
-    scene_path = Path(scene)
-    sc = load_scene(scene_path)
-    kind, cases = make_cases(params, samples=samples, seed=seed, distributions=distributions)
-    names = list(cases[0])
-    series_every = _check_options(controller=controller, stop_time=stop_time, sample_time=sample_time,
-                                  settle=settle, settle_band=settle_band, series_every=series_every)
-    fmu_path = Path(fmu) if fmu is not None else cached_fmu(scene_path)
-    variables = _fmu_variables(fmu_path, names, series)
-    mode, metric_names, settings, make_design = _sweep_settings(
-        sc, scene_path, variables, controller=controller, target_deg=target_deg, duration=duration, settle=settle,
-        settle_band=settle_band, torque_limit=torque_limit, sensors=sensors, stop_time=stop_time,
-        sample_time=sample_time)
-    import flexlink
-
-    sweep = _sweep_id({"scene": hashlib.sha256(scene_path.read_bytes()).hexdigest(), "mode": mode,
-                       "settings": settings, "series": list(series), "series_every": series_every,
-                       "flexlink": flexlink.__version__})
-
+    prep = _prepare(spec)
+    out = Path(spec.out) if spec.out is not None else None
     done: dict[str, dict] = {}
     journal = None
     if out is not None:
-        out = Path(out)
-        done, journal = _open_journal(out, sweep=sweep, scene_path=scene_path, mode=mode, settings=settings,
-                                      resume=resume, overwrite=overwrite)
+        done, journal = _open_journal(out, sweep=prep.sweep, scene_path=Path(spec.scene), mode=prep.mode,
+                                      settings=prep.settings, resume=spec.resume, overwrite=spec.overwrite)
         done = {k: r for k, r in done.items() if r.get("status") != "timeout"}
-
-    todo = [(i, c) for i, c in enumerate(cases) if case_key(c) not in done]
-    resumed = len(cases) - len(todo)
+    todo = [(i, c) for i, c in enumerate(prep.cases) if case_key(c) not in done]
+    resumed = len(prep.cases) - len(todo)
     new_rows: dict[str, dict] = {}
-    run_settings = settings
+    run_settings = prep.settings
     try:
         if todo:
-            spec = _sweep_spec(sweep, fmu_path, settings, make_design, shared_fs=shared_fs, mode=mode,
-                               metric_names=metric_names, series=series, series_every=series_every)
-            spec.case_timeout = case_timeout
-            run_settings = spec.settings
-            new_rows = _run_cases(spec, todo, sweep=sweep, total=len(cases), resumed=resumed, desc=f"sweep {sc.name}",
-                                  progress=progress, journal=journal, on_result=on_result, scheduler=scheduler,
-                                  client=client, n_workers=n_workers, batch_size=batch_size)
+            job = _sweep_job(prep.sweep, prep.fmu_path, prep.settings, prep.make_design, shared_fs=spec.shared_fs,
+                             mode=prep.mode, metric_names=prep.metric_names, series=spec.series,
+                             series_every=spec.series_every)
+            job.case_timeout = spec.case_timeout
+            run_settings = job.settings
+            new_rows = _run_cases(job, todo, sweep=prep.sweep, total=len(prep.cases), resumed=resumed,
+                                  desc=f"sweep {prep.name}", progress=spec.progress, journal=journal,
+                                  on_result=on_result, scheduler=spec.scheduler, client=client,
+                                  n_workers=spec.n_workers, batch_size=spec.batch_size)
     finally:
         if journal is not None:
             journal.close()
-
-    df = _frame(_case_rows(cases, names, done, new_rows), names, metric_names, series)
-    df.attrs.update(kind=kind, parameters=names, computed=len(todo), resumed=resumed, mode=mode,
-                    wall_s=time.perf_counter() - t_start, sweep=sweep, settings=run_settings,
+    df = _frame(_case_rows(prep.cases, prep.names, done, new_rows), prep.names, prep.metric_names, spec.series)
+    df.attrs.update(kind=prep.kind, parameters=prep.names, computed=len(todo), resumed=resumed, mode=prep.mode,
+                    wall_s=time.perf_counter() - t_start, sweep=prep.sweep, settings=run_settings,
                     journal=str(journal_path(out)) if out is not None else None)
     if out is not None:
         _write_output(df, out)
     return df
 
 
+def _prepare(spec: SweepSpec) -> _Prepared:
+    """Read the scene, draw the cases, find (or build) the FMU and check the names against it, settle the mode.
+
+    The sweep's identity hashes the scene file and every setting that changes a row, so that a journal is
+    resumed only by the very same sweep.
+    """
+    import flexlink
+    from flexlink.export.cache import cached_fmu
+    from flexlink.scene.loader import load_scene
+
+    scene_path = Path(spec.scene)
+    sc = load_scene(scene_path)
+    kind, cases = spec.cases()
+    names = list(cases[0])
+    fmu_path = Path(spec.fmu) if spec.fmu is not None else cached_fmu(scene_path)
+    variables = _fmu_variables(fmu_path, names, spec.series)
+    mode, metric_names, settings, make_design = _sweep_settings(
+        sc, scene_path, variables, controller=spec.controller, target_deg=spec.target_deg, duration=spec.duration,
+        settle=spec.settle, settle_band=spec.settle_band, torque_limit=spec.torque_limit, sensors=spec.sensors,
+        stop_time=spec.stop_time, sample_time=spec.sample_time)
+    sweep = _sweep_id({"scene": hashlib.sha256(scene_path.read_bytes()).hexdigest(), "mode": mode,
+                       "settings": settings, "series": list(spec.series), "series_every": spec.series_every,
+                       "flexlink": flexlink.__version__})
+    return _Prepared(sc.name, kind, cases, names, fmu_path, mode, metric_names, settings, make_design, sweep)
+
+
 def _check_options(*, controller, stop_time, sample_time, settle, settle_band, series_every) -> int:
     """Refuse inconsistent or out-of-range settings before the FMU is built; returns ``series_every`` as an int."""
     if (controller is None) == (stop_time is None):
-        raise FlexlinkError("give either a closed-loop manoeuvre (--controller, --target, --duration) or an "
-                            "open-loop --stop-time")
+        raise FlexlinkError("give either a closed-loop manoeuvre (controller, target_deg, duration: --controller, "
+                            "--target, --duration) or an open-loop stop_time (--stop-time)")
     if not (math.isfinite(sample_time) and sample_time > 0):
-        raise FlexlinkError(f"--sample-time must be positive, got {sample_time}")
+        raise FlexlinkError(f"sample_time (--sample-time) must be positive, got {sample_time}")
     if not (math.isfinite(settle) and settle > 0):
-        raise FlexlinkError(f"--settle must be a positive number of seconds, got {settle}")
+        raise FlexlinkError(f"settle (--settle) must be a positive number of seconds, got {settle}")
     if not 0 < settle_band < 1:
-        raise FlexlinkError(f"--settle-band must be between 0 and 1, got {settle_band}")
+        raise FlexlinkError(f"settle_band (--settle-band) must be between 0 and 1, got {settle_band}")
     if stop_time is not None:
         from flexlink.run.simulate import check_run
 
         check_run(stop_time, sample_time, "--stop-time", "--sample-time")      # a run that would not end
     series_every = int(series_every)
     if series_every < 1:
-        raise FlexlinkError(f"--series-every must be at least 1, got {series_every}")
+        raise FlexlinkError(f"series_every (--series-every) must be at least 1, got {series_every}")
     return series_every
 
 
 def _fmu_variables(fmu_path: Path, names: list[str], series: Sequence[str]) -> dict:
-    """The FMU's variables by name, once the swept names are checked to be its parameters and the series its
-    variables."""
+    """The FMU's variables by name, once the swept names are checked to be its parameters.
+
+    The series must be its variables too: both are refused here, before a worker starts, in one message.
+    """
     import fmpy
 
     md = fmpy.read_model_description(str(fmu_path))
@@ -722,8 +938,11 @@ def _fmu_variables(fmu_path: Path, names: list[str], series: Sequence[str]) -> d
 
 def _sweep_settings(sc, scene_path: Path, variables: dict, *, controller, target_deg, duration, settle, settle_band,
                     torque_limit, sensors, stop_time, sample_time):
-    """The mode, metric names and settings shared by every case (they identify the sweep), and for closed
-    loop the deferred controller design: ``(mode, metric_names, settings, make_design or None)``."""
+    """The mode, metric names and settings shared by every case, which identify the sweep.
+
+    Returns ``(mode, metric_names, settings, make_design or None)``: for closed loop the controller design is
+    deferred (it takes seconds) until there are cases to run.
+    """
     joint, link = sc.joints[0].name, sc.links[-1].name
     settings: dict = {"sample_time": float(sample_time), "settle": float(settle)}
     if controller is not None and target_deg is not None and duration is not None:
@@ -802,8 +1021,11 @@ def _closed_loop_design(sc, scene_path: Path, settings: dict, *, controller, tar
 
 def _open_journal(out: Path, *, sweep: str, scene_path: Path, mode: str, settings: dict, resume: bool,
                   overwrite: bool) -> tuple[dict[str, dict], _Journal]:
-    """The rows already done (by case key) from ``out``'s journal or ``out`` itself, refusing another sweep's
-    results unless ``overwrite``, and the journal opened for appending."""
+    """The rows already done (by case key) and the journal opened for appending.
+
+    The rows come from ``out``'s journal or ``out`` itself; another sweep's results are refused unless
+    ``overwrite``, so that rows of different settings never mix in one file.
+    """
     if out.suffix not in (".parquet", ".csv"):
         raise FlexlinkError(f"--out {out}: expected a .parquet or .csv file name")
     jpath = journal_path(out)
@@ -834,18 +1056,18 @@ def _open_journal(out: Path, *, sweep: str, scene_path: Path, mode: str, setting
     return done, journal
 
 
-def _sweep_spec(sweep: str, fmu_path: Path, settings: dict, make_design, *, shared_fs: bool, mode: str,
-                metric_names: Sequence[str], series: Sequence[str], series_every: int) -> SweepSpec:
+def _sweep_job(sweep: str, fmu_path: Path, settings: dict, make_design, *, shared_fs: bool, mode: str,
+                metric_names: Sequence[str], series: Sequence[str], series_every: int) -> _SweepJob:
     """The job shipped to the workers, with the controller designed now that there are cases to run."""
     run_settings, design_blob = make_design() if make_design is not None else (settings, None)
-    return SweepSpec(key=f"{sweep}-{os.getpid()}-{time.time_ns()}", fmu_name=fmu_path.name,
+    return _SweepJob(key=f"{sweep}-{os.getpid()}-{time.time_ns()}", fmu_name=fmu_path.name,
                      fmu_bytes=None if shared_fs else fmu_path.read_bytes(),
                      fmu_path=str(fmu_path.resolve()) if shared_fs else None, mode=mode,
                      settings=run_settings, design_blob=design_blob, series=tuple(series),
-                     series_every=series_every, metrics=metric_names)
+                     series_every=series_every, metrics=tuple(metric_names))
 
 
-def _run_cases(spec: SweepSpec, todo, *, sweep: str, total: int, resumed: int, desc: str, progress, journal,
+def _run_cases(spec: _SweepJob, todo, *, sweep: str, total: int, resumed: int, desc: str, progress, journal,
                on_result, scheduler, client, n_workers, batch_size) -> dict[str, dict]:
     """Run the cases not done yet (serially or on Dask), journaling each row as it arrives; rows by case key."""
     from tqdm.auto import tqdm
@@ -879,7 +1101,7 @@ def _run_cases(spec: SweepSpec, todo, *, sweep: str, total: int, resumed: int, d
     return new_rows
 
 
-def _run_serial(spec: SweepSpec, todo, collect) -> None:
+def _run_serial(spec: _SweepJob, todo, collect) -> None:
     """``scheduler="serial"``: the cases in a plain loop in this process, then this sweep's FMU instances freed."""
     for case, c in todo:
         collect([_run_case(spec, case, c)])
@@ -892,8 +1114,11 @@ def _run_serial(spec: SweepSpec, todo, collect) -> None:
 
 def _case_rows(cases: list[dict[str, float]], names: list[str], done: dict[str, dict],
                new_rows: dict[str, dict]) -> list[dict]:
-    """One row per case of the sweep, in case order, from this run or the journal, numbered and with the exact
-    parameter values of the case."""
+    """One row per case of the sweep, in case order, from this run or the journal.
+
+    Each row is numbered by this sweep's case order (a resumed row may come from a sweep of another order) and
+    carries the exact parameter values of its case.
+    """
     rows = []
     for i, c in enumerate(cases):
         k = case_key(c)
@@ -929,7 +1154,7 @@ def _frame(rows: list[dict], names: list[str], metric_names: Sequence[str], seri
     return df.sort_values("case", kind="stable").reset_index(drop=True)
 
 
-def _run_on_dask(spec: SweepSpec, todo, collect, *, client, scheduler, n_workers, batch_size) -> None:
+def _run_on_dask(spec: _SweepJob, todo, collect, *, client, scheduler, n_workers, batch_size) -> None:
     import logging
 
     from dask.distributed import Client, LocalCluster, as_completed
@@ -1013,8 +1238,11 @@ def summary_table(df) -> str:
 
 
 def plot_sweep(df, path: str | os.PathLike, title: str = "") -> None:
-    """Metric against the first varying parameter (a line per value of the others) for grids; histograms of
-    each metric for Monte Carlo sweeps."""
+    """Plot a sweep's metrics: against the swept parameter for a grid, as histograms for Monte Carlo.
+
+    A grid draws each metric against the first varying parameter, a line per value of the others (failed cases
+    as red lines); a Monte Carlo sweep has no axis to draw against, so its metrics are shown as distributions.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -1068,63 +1296,73 @@ def plot_sweep(df, path: str | os.PathLike, title: str = "") -> None:
 
 
 # ============================================================================ command line
-def add_sweep_parser(subparsers) -> None:
-    """Add ``flexlink sweep`` to ``flexlink``'s sub-parsers."""
-    p = subparsers.add_parser("sweep", help="parameter grid or Monte Carlo study of the FMU on Dask")
-    p.add_argument("scene", help=SCENE_HELP)
-    p.add_argument("--param", action="append", default=[], metavar="NAME=LO:HI:N",
+def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``flexlink sweep`` to ``flexlink``'s sub-parsers.
+
+    Every option that describes the sweep stores under its :class:`SweepSpec` field's name and has no default
+    of its own (``argparse.SUPPRESS``): the spec's defaults live in the class, and an option the user did not
+    give never overrides the ``--spec`` file.
+    """
+    p = subparsers.add_parser("sweep", help="parameter grid or Monte Carlo study of the FMU on Dask",
+                              argument_default=argparse.SUPPRESS)
+    p.add_argument("scene", nargs="?", help=SCENE_HELP + "; optional with --spec (its scene key)")
+    p.add_argument("--spec", metavar="FILE.toml", default=None,
+                   help="the sweep described in a TOML file (docs/sweeps.md; its keys are run_sweep's "
+                        "SweepSpec fields); the command line's options override the file's")
+    p.add_argument("--param", dest="params", action="append", metavar="NAME=LO:HI:N",
                    help="FMU parameter: grid axis LO:HI:N, V1,V2,..., or V (repeat for a full grid); with "
                         "--samples: LO:HI (uniform) or V")
     p.add_argument("--samples", type=int, metavar="N", help="Monte Carlo: N seeded draws instead of a grid")
-    p.add_argument("--seed", type=int, default=0, help="Monte Carlo seed (default 0)")
-    p.add_argument("--distribution", action="append", default=[], metavar="NAME=DIST",
+    p.add_argument("--seed", type=int, help="Monte Carlo seed (default 0)")
+    p.add_argument("--distribution", dest="distributions", action="append", metavar="NAME=DIST",
                    help="Monte Carlo parameter: uniform:LO:HI, normal:MEAN:STD[:LO:HI], loguniform:LO:HI")
     p.add_argument("--controller", choices=("lqr", "pd"),
-                   help="closed loop: the rest-to-rest manoeuvre of `flexlink control` with this controller")
-    p.add_argument("--target", type=_angles, metavar="DEG[,DEG...]",
+                   help="closed loop: the rest-to-rest manoeuvre of `flexlink control` with this controller "
+                        "(default lqr when --target or --duration is given)")
+    p.add_argument("--target", dest="target_deg", type=angles, metavar="DEG[,DEG...]",
                    help="closed loop: final angle of the first joint; with several torque-driven joints one per "
                         "joint, comma-separated (the MIMO LQG's or, with --controller pd, the joint PD's "
                         "manoeuvre, its stability verdict)")
     p.add_argument("--duration", type=float, metavar="S", help="closed loop: manoeuvre time")
-    p.add_argument("--settle", type=float, default=1.5, metavar="S",
+    p.add_argument("--settle", type=float, metavar="S",
                    help="window after the manoeuvre (closed loop) / at the end (open loop) for the residual "
                         "vibration (default 1.5)")
-    p.add_argument("--settle-band", type=float, default=0.02, metavar="FRACTION",
+    p.add_argument("--settle-band", type=float, metavar="FRACTION",
                    help="settling-time band, fraction of the commanded angle (default 0.02)")
     p.add_argument("--torque-limit", type=float, metavar="NM", help="closed loop: saturation (default as control)")
-    p.add_argument("--sensors", choices=("strain", "accelerometer"), default="strain",
-                   help="closed loop: the Kalman sensors, as in flexlink control")
+    p.add_argument("--sensors", choices=SENSORS,
+                   help="closed loop: the Kalman sensors, as in flexlink control (default strain)")
     p.add_argument("--stop-time", type=float, metavar="S", help="open loop: run the scene's default inputs")
-    p.add_argument("--sample-time", type=float, default=1e-3, metavar="S",
-                   help="controller sample time / communication step (1 ms)")
-    p.add_argument("--series", action="append", default=[], metavar="NAME",
+    p.add_argument("--sample-time", type=float, metavar="S", help="controller sample time / communication step (1 ms)")
+    p.add_argument("--series", action="append", metavar="NAME",
                    help="also keep this output's time series (list column series.NAME; repeat)")
-    p.add_argument("--series-every", type=int, default=10, metavar="K", help="keep every K-th sample (10)")
-    p.add_argument("--scheduler", metavar="ADDR",
-                   help="Dask scheduler address (tcp://host:8786), or 'serial' for a plain loop; "
-                        "default: a local cluster, one process per core")
-    p.add_argument("--workers", type=int, metavar="N", help="local cluster size (default: one per core)")
-    p.add_argument("--batch-size", type=int, metavar="N", help="cases per Dask task (default: automatic)")
-    p.add_argument("--shared-fs", action="store_true",
-                   help="send the workers the FMU's path (a shared file system) instead of its bytes")
-    p.add_argument("--out", required=True, type=output_file, metavar="FILE",
-                   help="results: FILE.parquet or FILE.csv")
-    p.add_argument("--resume", action="store_true",
-                   help="resume FILE's sweep (the default whenever FILE or its journal exists)")
-    p.add_argument("--overwrite", action="store_true", help="discard FILE and its journal and start again")
-    p.add_argument("--plot", type=plot_file, metavar="OUT.png",
-                   help="metric vs parameter (grid) or histograms (Monte Carlo)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument("--case-timeout", type=float, metavar="S",
-                   help="wall-clock seconds a case may run; one still running then is a failed row (status "
-                        "timeout) and the sweep goes on; timed-out cases are run again on resume")
+    p.add_argument("--series-every", type=int, metavar="K", help="keep every K-th sample (10)")
+    _add_scheduling_options(p)
     p.set_defaults(func=cmd_sweep)
 
 
-def _angles(text: str) -> list[float]:
-    from controllers.cli import _angles as angles
-
-    return angles(text)
+def _add_scheduling_options(p: argparse.ArgumentParser) -> None:
+    """The options of ``flexlink sweep`` that say where cases run and where their rows go."""
+    p.add_argument("--scheduler", metavar="ADDR",
+                   help="Dask scheduler address (tcp://host:8786), or 'serial' for a plain loop; "
+                        "default: a local cluster, one process per core")
+    p.add_argument("--workers", dest="n_workers", type=int, metavar="N",
+                   help="local cluster size (default: one per core)")
+    p.add_argument("--batch-size", type=int, metavar="N", help="cases per Dask task (default: automatic)")
+    p.add_argument("--shared-fs", action="store_const", const=True,
+                   help="send the workers the FMU's path (a shared file system) instead of its bytes")
+    p.add_argument("--out", type=output_file, metavar="FILE",
+                   help="results: FILE.parquet or FILE.csv (required, here or as out in --spec)")
+    p.add_argument("--resume", action="store_const", const=True,
+                   help="resume FILE's sweep (the default whenever FILE or its journal exists)")
+    p.add_argument("--overwrite", action="store_const", const=True,
+                   help="discard FILE and its journal and start again")
+    p.add_argument("--plot", type=plot_file, default=None, metavar="OUT.png",
+                   help="metric vs parameter (grid) or histograms (Monte Carlo)")
+    p.add_argument("--no-progress", dest="progress", action="store_const", const=False, help="no progress bar")
+    p.add_argument("--case-timeout", type=float, metavar="S",
+                   help="wall-clock seconds a case may run; one still running then is a failed row (status "
+                        "timeout) and the sweep goes on; timed-out cases are run again on resume")
 
 
 def _parse_named(items: list[str], option: str) -> dict[str, str]:
@@ -1139,27 +1377,39 @@ def _parse_named(items: list[str], option: str) -> dict[str, str]:
     return out
 
 
-def cmd_sweep(args) -> int:
-    if args.resume and args.overwrite:
+def spec_from_args(args: argparse.Namespace) -> SweepSpec:
+    """The :class:`SweepSpec` of a ``flexlink sweep`` command line: its ``--spec`` file, its options over it.
+
+    A terminal gets a progress bar unless ``--no-progress`` or the file says otherwise; the results file is
+    required (on the command line or as the file's ``out``) and its folder is checked before anything runs.
+    """
+    given = {f.name: getattr(args, f.name) for f in fields(SweepSpec) if getattr(args, f.name, None) is not None}
+    for name, option in (("params", "--param"), ("distributions", "--distribution")):
+        if name in given:
+            given[name] = _parse_named(given[name], option)
+    if given.get("resume") and given.get("overwrite"):
         raise FlexlinkError("--resume and --overwrite contradict each other")
-    if args.controller is None and (args.target is not None or args.duration is not None):
-        args.controller = "lqr"
-    if args.workers is not None and args.workers < 1:
-        raise FlexlinkError(f"--workers must be at least 1, got {args.workers}")
-    if args.batch_size is not None and args.batch_size < 1:
-        raise FlexlinkError(f"--batch-size must be at least 1, got {args.batch_size}")
+    values: dict[str, object] = {"progress": None}
+    if args.spec is not None:
+        values.update(_read_spec(Path(args.spec)))
+    if "scene" not in given and "scene" not in values:
+        raise FlexlinkError("give the scene: flexlink sweep SCENE ..., or scene = \"FILE.toml\" in a --spec file "
+                            "(see flexlink sweep --help)")
+    values = _merge(values, given)
+    if values.get("out") is None:
+        raise FlexlinkError("--out FILE (or out = \"FILE\" in the --spec file) is required: the sweep's results "
+                            "and its journal (see flexlink sweep --help)")
+    check_output_path(OutputPath(str(values["out"])), "--out")
+    return SweepSpec(**values)                                          # type: ignore[arg-type]  # types checked
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    """Run ``flexlink sweep``: the sweep, its summary table, and the plot when ``--plot`` asks for one."""
+    spec = spec_from_args(args)
     try:
-        df = run_sweep(args.scene, _parse_named(args.param, "--param"), samples=args.samples, seed=args.seed,
-                       distributions=_parse_named(args.distribution, "--distribution"), controller=args.controller,
-                       target_deg=args.target, duration=args.duration, settle=args.settle,
-                       settle_band=args.settle_band, torque_limit=args.torque_limit, sensors=args.sensors,
-                       stop_time=args.stop_time, sample_time=args.sample_time, series=args.series,
-                       series_every=args.series_every, out=args.out, overwrite=args.overwrite,
-                       scheduler=args.scheduler, n_workers=args.workers, batch_size=args.batch_size,
-                       shared_fs=args.shared_fs, progress=None if not args.no_progress else False,
-                       case_timeout=args.case_timeout)
+        df = run_sweep(spec)
     except KeyboardInterrupt:
-        print(f"flexlink sweep: interrupted; finished cases are in {journal_path(args.out)}: run the same "
+        print(f"flexlink sweep: interrupted; finished cases are in {journal_path(spec.out or '')}: run the same "
               "command again to resume", file=sys.stderr)
         return 130
     wall = df.attrs["wall_s"]
@@ -1169,9 +1419,9 @@ def cmd_sweep(args) -> int:
         from controllers.montecarlo import stability_summary
 
         print(stability_summary(df))
-    print(f"wrote {args.out} ({len(df)} rows; journal {df.attrs['journal']}); {df.attrs['computed']} cases in "
+    print(f"wrote {spec.out} ({len(df)} rows; journal {df.attrs['journal']}); {df.attrs['computed']} cases in "
           f"{wall:.1f} s ({rate:.1f} cases/s including start-up)")
     if args.plot:
-        plot_sweep(df, args.plot, title=Path(args.scene).stem)
+        plot_sweep(df, args.plot, title=Path(spec.scene).stem)
         print(f"wrote {args.plot}")
     return 0

@@ -25,7 +25,7 @@ if os.environ.get("FLEXLINK_FULL") != "1":
 def example_fmu():
     """``example_fmu(name)``: the FMU of examples/<name>.toml, from flexlink's build cache (several test files,
     the command-line runs and the test processes check the same examples; the FMUs are only read)."""
-    from flexlink.export.fmu import cached_fmu
+    from flexlink.export.cache import cached_fmu
 
     return lambda name: cached_fmu(EXAMPLES / f"{name}.toml")
 

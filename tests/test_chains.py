@@ -235,7 +235,7 @@ def test_steel_beam_raise_numerical_damping_keeps_the_mean(tmp_path):
     R.D.M. deflection persists (peak-to-peak ≈ 2 × 7.6e-5 m); with Θ₁ = Θ₂ = 0.8 it is filtered out within
     0.1 s and the mean remains (seed fig. 4.11–4.13)."""
     try:
-        from flexlink.export.fmu import cached_fmu
+        from flexlink.export.cache import cached_fmu
         from flexlink.run.simulate import SlaveRunner
         fmu = cached_fmu(EXAMPLES / "steel_beam_raise.toml")
     except Exception as exc:          # the exporter is being changed elsewhere; the CVODES tests stand alone

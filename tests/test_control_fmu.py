@@ -24,7 +24,7 @@ from controllers.closedloop import closed_loop
 from controllers.cosim import FmuLoop, FmuLoopError
 from controllers.manoeuvre import design, predict_manoeuvre, reference, rest_to_rest, stability_report
 from flexlink.errors import FlexlinkError
-from flexlink.export.fmu import cached_fmu
+from flexlink.export.cache import cached_fmu
 from flexlink.mechanics.model import build_model
 from flexlink.scene.loader import load_scene
 

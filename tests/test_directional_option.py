@@ -17,7 +17,7 @@ import pytest
 from fmpy.fmi1 import FMICallException
 
 from flexlink.errors import FlexlinkError
-from flexlink.export.fmu import cached_fmu
+from flexlink.export.cache import cached_fmu
 from flexlink.run.host import FmuHost
 from flexlink.run.linearize import fmu_state_space
 from flexlink.scene.loader import parse_scene

@@ -14,7 +14,7 @@ from fmpy.validation import validate_fmu
 
 import flexlink
 from flexlink.errors import BuildError
-from flexlink.export.fmu import generation_date_and_time
+from flexlink.export.description import generation_date_and_time
 
 SCENES = ["rotating_link", "flexible_pendulum"]
 FACTORS = {"deg": math.degrees(1.0), "deg/s": math.degrees(1.0), "rpm": 60.0 / (2.0 * math.pi), "mm": 1000.0}

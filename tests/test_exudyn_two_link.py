@@ -30,7 +30,7 @@ pytest.importorskip("exudyn")
 
 from references.exudyn_arm import simulate, torques  # noqa: E402
 
-from flexlink.export.fmu import cached_fmu  # noqa: E402
+from flexlink.export.cache import cached_fmu  # noqa: E402
 from flexlink.run.simulate import SlaveRunner  # noqa: E402
 from flexlink.scene.loader import parse_scene  # noqa: E402
 

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flexlink.export.fmu import cached_fmu
+from flexlink.export.cache import cached_fmu
 from flexlink.run.simulate import simulate
 from flexlink.scene.loader import load_scene
 

@@ -28,8 +28,9 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi3 import FMU3Model, FMU3Slave
 from fmpy.validation import validate_fmu
 
+from flexlink.export.cache import cached_fmu
 from flexlink.export.cbuild import MINGW_CC, fmi_headers_dir
-from flexlink.export.fmu import build_fmu, cached_fmu
+from flexlink.export.fmu import build_fmu
 
 # steel_beam_raise: finite elements and built-in kinematic laws.  Its stiff elements defeat fmpy's explicit Euler
 # and CVode's default step limit, so Model Exchange is compared on rotating_link only.

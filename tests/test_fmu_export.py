@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flexlink.export.fmu import cached_fmu
+from flexlink.export.cache import cached_fmu
 from flexlink.mechanics.analysis import static_deflection
 from flexlink.mechanics.model import build_model
 from flexlink.mechanics.reference import simulate_reference
@@ -173,13 +173,13 @@ def test_fmu_cache_key_covers_the_c_sources_and_templates(tmp_path, monkeypatch)
 
     monkeypatch.setattr(fmu_module, "build_fmu", build)
     scene = EXAMPLES[0]
-    paths = [fmu_module.cached_fmu(scene)]
+    paths = [cache.cached_fmu(scene)]
     for name in ("templates/model.c.in", "cs_step.c", "cosimulation.h"):
         with (src / name).open("a") as f:
             f.write("\n")
-        paths.append(fmu_module.cached_fmu(scene))
+        paths.append(cache.cached_fmu(scene))
     assert len(set(paths)) == len(paths)
-    assert fmu_module.cached_fmu(scene) == paths[-1]      # unchanged sources: the same cached FMU
+    assert cache.cached_fmu(scene) == paths[-1]      # unchanged sources: the same cached FMU
 
 
 def test_generated_code_optimisation_level(monkeypatch, tmp_path):
@@ -187,6 +187,7 @@ def test_generated_code_optimisation_level(monkeypatch, tmp_path):
     (docs/integrator.md, "Code generation"); the variable imposes a level, a bad value is a BuildError naming it;
     the level is part of the FMU cache key."""
     from flexlink.errors import BuildError
+    from flexlink.export import cache
     from flexlink.export import fmu as fmu_module
     from flexlink.export.codegen import generated_code_optimisation
 
@@ -203,5 +204,5 @@ def test_generated_code_optimisation_level(monkeypatch, tmp_path):
     monkeypatch.setattr(fmu_module, "build_fmu", lambda scene, path, model=None, **_: None)
     for level in ("O0", "O2"):
         monkeypatch.setenv("FLEXLINK_OPTIMISE", level)
-        keys.append(fmu_module.cached_fmu(EXAMPLES[0]))
+        keys.append(cache.cached_fmu(EXAMPLES[0]))
     assert keys[0] != keys[1]

@@ -164,9 +164,9 @@ def test_log_categories_match_the_c_glue() -> None:
     source = (cbuild.fmu_src_dir() / "logging.c").read_text()
     table = source.split("LOG_CATEGORY_NAMES[N_LOG_CATEGORIES] = {", 1)[1].split("};", 1)[0]
     assert tuple(re.findall(r'"([^"]+)"', table)) == cbuild.LOG_CATEGORIES
-    from flexlink.export import fmu  # the modelDescription.xml writer lists the same categories
+    from flexlink.export import description  # the modelDescription.xml writer lists the same categories
 
-    assert tuple(fmu.LOG_CATEGORIES) == cbuild.LOG_CATEGORIES
+    assert tuple(description.LOG_CATEGORIES) == cbuild.LOG_CATEGORIES
 
 
 def test_sources_and_headers_are_found() -> None:

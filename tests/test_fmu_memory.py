@@ -14,7 +14,7 @@ import fmpy
 import pytest
 
 from flexlink.export import cbuild
-from flexlink.export.fmu import cached_fmu
+from flexlink.export.cache import cached_fmu
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENES = ["rotating_link", "steel_beam_raise", "flexible_pendulum"]

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from flexlink.errors import FlexlinkError
-from flexlink.export.fmu import cached_fmu
+from flexlink.export.cache import cached_fmu
 from flexlink.run.simulate import SlaveRunner
 from flexlink.scene.loader import load_scene
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flexlink.export.fmu import cached_fmu
+from flexlink.export.cache import cached_fmu
 from flexlink.mechanics.analysis import natural_frequencies
 from flexlink.mechanics.model import build_model
 from flexlink.run.simulate import SlaveRunner

@@ -10,7 +10,7 @@ import pytest
 from conftest import EXAMPLES
 from fmpy.fmi1 import FMICallException
 
-from flexlink.export.fmu import cached_fmu
+from flexlink.export.cache import cached_fmu
 from flexlink.mechanics.model import build_model
 from flexlink.scene.loader import load_scene
 from flexlink.tools.bench import default_case, reference_outputs, relative_error, run_model_exchange

@@ -16,7 +16,7 @@ import pytest
 from fmpy.fmi1 import FMICallException
 
 from flexlink.errors import FlexlinkError
-from flexlink.export.fmu import cached_fmu
+from flexlink.export.cache import cached_fmu
 from flexlink.mechanics.analysis import natural_frequencies
 from flexlink.mechanics.model import build_model
 from flexlink.run.simulate import SlaveRunner, simulate

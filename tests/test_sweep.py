@@ -29,7 +29,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from controllers.sweep import journal_path, make_cases, run_sweep, summary_table
+from controllers.sweep import SweepSpec, journal_path, make_cases, run_sweep, summary_table
 from flexlink.errors import FlexlinkError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -83,10 +83,89 @@ def test_bad_case_specs_are_one_clear_message(params, kwargs, message):
     assert message in str(e.value)
 
 
+# ------------------------------------------------------------------------------------------------ the spec
+def _cli_spec(argv):
+    from controllers.sweep import spec_from_args
+    from flexlink.cli import build_parser
+
+    return spec_from_args(build_parser().parse_args(["sweep", *argv]))
+
+
+def test_a_spec_file_and_the_equivalent_command_line_are_the_same_sweep(tmp_path):
+    out = tmp_path / "mc.parquet"
+    (tmp_path / "mc.toml").write_text(f"""
+scene = "{SCENE.as_posix()}"
+samples = 7
+seed = 3
+controller = "pd"
+target_deg = 10
+duration = 0.4
+settle = 0.2
+out = "mc.parquet"
+scheduler = "serial"
+[params]
+"arm.payload.mass" = "0.3:0.8"
+[distributions]
+"arm.EI" = "normal:93.72:5:85:100"
+""")
+    argv = [str(SCENE), "--samples", "7", "--seed", "3", "--controller", "pd", "--target", "10", "--duration",
+            "0.4", "--settle", "0.2", "--out", str(out), "--scheduler", "serial", "--param",
+            "arm.payload.mass=0.3:0.8", "--distribution", "arm.EI=normal:93.72:5:85:100"]
+    from_file, from_line = _cli_spec(["--spec", str(tmp_path / "mc.toml")]), _cli_spec(argv)
+    assert from_file == from_line                            # every field, the target as [10.0] in both
+    assert from_file.cases() == from_line.cases() == make_cases({"arm.payload.mass": "0.3:0.8"}, samples=7,
+                                                                seed=3,
+                                                                distributions={"arm.EI": "normal:93.72:5:85:100"})
+    assert SweepSpec.from_toml(tmp_path / "mc.toml").cases() == from_file.cases()
+    # the command line's options override the file's: another seed, another draw; a --param adds an axis
+    other = _cli_spec(["--spec", str(tmp_path / "mc.toml"), "--seed", "4", "--param", "arm.damping=0.1:0.2"])
+    assert other.seed == 4 and other.samples == 7 and other.cases() != from_file.cases()
+    assert other.params == {"arm.payload.mass": "0.3:0.8", "arm.damping": "0.1:0.2"}
+    # a grid as a TOML array is the grid of the command line's V1,V2
+    (tmp_path / "grid.toml").write_text(f'scene = "{SCENE.as_posix()}"\nstop_time = 0.1\n'
+                                        '[params]\n"arm.EI" = [80, 93.72]\n"arm.payload.mass" = "0.3:1.0:3"\n')
+    grid = SweepSpec.from_toml(tmp_path / "grid.toml")
+    assert grid.cases() == _cli_spec([str(SCENE), "--stop-time", "0.1", "--out", str(out), "--param",
+                                      "arm.EI=80,93.72", "--param", "arm.payload.mass=0.3:1.0:3"]).cases()
+
+
+@pytest.mark.parametrize("text, message", [
+    ('settel = 1.0', "unknown key 'settel'"),
+    ('samples = "ten"', "samples = 'ten': expected a whole number"),
+    ("settle = true", "settle = true: expected a number"),
+    ('series = ["hub.theta", 3]', "series = ['hub.theta', 3]: expected an array of strings"),
+    ('[params]\n"arm.EI" = {lo = 1}', "params.arm.EI = {'lo': 1}: expected a string"),
+    ('settle = -1.0', "settle (--settle) must be a positive number of seconds, got -1.0"),
+    ('scene = [', "not a valid TOML file"),
+])
+def test_a_bad_spec_file_is_one_message_naming_the_key(tmp_path, capsys, text, message):
+    path = tmp_path / "bad.toml"
+    path.write_text(f'scene = "{SCENE.as_posix()}"\nstop_time = 0.1\n' + text + "\n")
+    with pytest.raises(FlexlinkError) as e:
+        SweepSpec.from_toml(path)
+    assert str(e.value).startswith(f"{path}: ") and message in str(e.value), str(e.value)
+    from flexlink.cli import main
+
+    assert main(["sweep", "--spec", str(path), "--out", str(tmp_path / "x.csv")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err and "Traceback" not in err, err
+
+
+def test_the_command_line_needs_a_scene_and_an_output(tmp_path, capsys):
+    from flexlink.cli import main
+
+    (tmp_path / "s.toml").write_text("stop_time = 0.1\n[params]\n\"arm.EI\" = \"80,90\"\n")
+    for argv, message in [(["--spec", str(tmp_path / "s.toml")], "give the scene"),
+                          ([str(SCENE), "--stop-time", "0.1", "--param", "arm.EI=80"], "--out FILE"),
+                          (["--spec", str(tmp_path / "nope.toml")], "cannot be read")]:
+        assert main(["sweep", *argv]) == 2
+        assert message in capsys.readouterr().err
+
+
 # ------------------------------------------------------------------------------------------------ fixtures
 @pytest.fixture(scope="module")
 def fmu():
-    from flexlink.export.fmu import cached_fmu
+    from flexlink.export.cache import cached_fmu
 
     return cached_fmu(SCENE)
 
@@ -152,7 +231,7 @@ def _journal(out):
 def test_dask_sweep_equals_the_plain_loop_and_records_refused_cases(client, fmu, plain_loop, tmp_path):
     out = tmp_path / "grid.parquet"
     t0 = time.perf_counter()
-    df = run_sweep(SCENE, GRID, client=client, fmu=fmu, out=out, **MANOEUVRE)
+    df = run_sweep(SweepSpec(SCENE, GRID, fmu=fmu, out=out, **MANOEUVRE), client=client)
     print(f"\n30 closed-loop cases on 2 Dask workers: {time.perf_counter() - t0:.2f} s")
     print(summary_table(df))
     _check_against_plain_loop(df, plain_loop)
@@ -169,8 +248,8 @@ def test_dask_sweep_equals_the_plain_loop_and_records_refused_cases(client, fmu,
     assert len(back) == 30 and back["failed"].sum() == 10
     np.testing.assert_array_equal(back["peak_torque_nm"].to_numpy(), df["peak_torque_nm"].to_numpy())
     # overshoot and final error agree with the time series kept on request
-    one = run_sweep(SCENE, {"arm.payload.mass": 0.3, "arm.EI": 93.72}, client=client, fmu=fmu,
-                    series=["hub.theta"], series_every=1, **MANOEUVRE)
+    one = run_sweep(SweepSpec(SCENE, {"arm.payload.mass": 0.3, "arm.EI": 93.72}, fmu=fmu,
+                              series=["hub.theta"], series_every=1, **MANOEUVRE), client=client)
     theta, t = np.array(one["series.hub.theta"][0]), np.array(one["series.time"][0])
     assert len(t) == 601 and t[-1] == pytest.approx(0.6)
     target = MANOEUVRE["target_deg"]
@@ -190,7 +269,8 @@ def test_killing_a_worker_mid_sweep_loses_nothing(client, fmu, plain_loop, tmp_p
             killed.append(done)
 
     out = tmp_path / "killed.parquet"
-    df = run_sweep(SCENE, GRID, client=client, fmu=fmu, out=out, batch_size=2, on_result=on_result, **MANOEUVRE)
+    df = run_sweep(SweepSpec(SCENE, GRID, fmu=fmu, out=out, batch_size=2, **MANOEUVRE), client=client,
+                             on_result=on_result)
     assert killed
     _check_against_plain_loop(df, plain_loop)
     assert df.attrs["computed"] == 30 and len(seen) == 30
@@ -210,7 +290,8 @@ def test_interrupted_sweep_resumes_only_the_missing_cases(client, fmu, tmp_path)
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        run_sweep(SCENE, grid, client=client, fmu=fmu, out=out, batch_size=1, on_result=stop, **MANOEUVRE)
+        run_sweep(SweepSpec(SCENE, grid, fmu=fmu, out=out, batch_size=1, **MANOEUVRE), client=client,
+                  on_result=stop)
     assert not out.exists()
     header, rows = _journal(out)
     n_first = len(rows)
@@ -218,7 +299,7 @@ def test_interrupted_sweep_resumes_only_the_missing_cases(client, fmu, tmp_path)
     first = {r["key"]: r for r in rows}
     with journal_path(out).open("a") as f:        # a crash while writing: a torn last line
         f.write('{"case": 99, "key": "arm.payload.mass=0.3;arm')
-    df = run_sweep(SCENE, grid, client=client, fmu=fmu, out=out, **MANOEUVRE)
+    df = run_sweep(SweepSpec(SCENE, grid, fmu=fmu, out=out, **MANOEUVRE), client=client)
     assert df.attrs["resumed"] == n_first and df.attrs["computed"] == 16 - n_first
     assert len(df) == 16 and not df["failed"].any()
     for r in df.itertuples():                     # the first run's rows are kept, not recomputed
@@ -227,21 +308,22 @@ def test_interrupted_sweep_resumes_only_the_missing_cases(client, fmu, tmp_path)
     back = pd.read_csv(out)
     assert len(back) == 16 and back["case"].tolist() == list(range(16))
     # nothing missing: nothing recomputed; a larger grid computes only its new cases
-    again = run_sweep(SCENE, grid, scheduler="serial", fmu=fmu, out=out, **MANOEUVRE)
+    again = run_sweep(SweepSpec(SCENE, grid, scheduler="serial", fmu=fmu, out=out, **MANOEUVRE))
     assert again.attrs["computed"] == 0 and again.attrs["resumed"] == 16
     np.testing.assert_array_equal(again["peak_torque_nm"].to_numpy(), df["peak_torque_nm"].to_numpy())
-    more = run_sweep(SCENE, {"arm.payload.mass": "0.3:1.0:8", "arm.EI": "80,93.72,100"}, scheduler="serial",
-                     fmu=fmu, out=out, **MANOEUVRE)
+    more = run_sweep(SweepSpec(SCENE, {"arm.payload.mass": "0.3:1.0:8", "arm.EI": "80,93.72,100"},
+                               scheduler="serial", fmu=fmu, out=out, **MANOEUVRE))
     assert more.attrs["computed"] == 8 and len(more) == 24
     # the consolidated file alone (journal deleted) is resumed from too
     journal_path(out).unlink()
-    alone = run_sweep(SCENE, grid, scheduler="serial", fmu=fmu, out=out, **MANOEUVRE)
+    alone = run_sweep(SweepSpec(SCENE, grid, scheduler="serial", fmu=fmu, out=out, **MANOEUVRE))
     assert alone.attrs["computed"] == 0
     # other settings are refused, unless overwritten
     with pytest.raises(FlexlinkError, match="other settings"):
-        run_sweep(SCENE, grid, scheduler="serial", fmu=fmu, out=out, **{**MANOEUVRE, "target_deg": 4.0})
-    fresh = run_sweep(SCENE, {"arm.payload.mass": "0.3:1.0:2"}, scheduler="serial", fmu=fmu, out=out,
-                      overwrite=True, **{**MANOEUVRE, "target_deg": 4.0})
+        run_sweep(SweepSpec(SCENE, grid, scheduler="serial", fmu=fmu, out=out,
+                            **{**MANOEUVRE, "target_deg": 4.0}))
+    fresh = run_sweep(SweepSpec(SCENE, {"arm.payload.mass": "0.3:1.0:2"}, scheduler="serial", fmu=fmu, out=out,
+                                overwrite=True, **{**MANOEUVRE, "target_deg": 4.0}))
     assert fresh.attrs["computed"] == 2 and len(pd.read_csv(out)) == 2
 
 
@@ -328,15 +410,15 @@ def test_deadline_stops_a_python_loop_and_never_fires_late():
 
 def test_case_timeout_is_a_failed_row_and_is_rerun_on_resume(tmp_path, fmu):
     out = tmp_path / "slow.csv"
-    df = run_sweep(SCENE, SLOW_GRID, stop_time=0.5, sample_time=0.01, scheduler="serial", fmu=fmu, out=out,
-                   case_timeout=1.0)
+    spec = SweepSpec(SCENE, SLOW_GRID, stop_time=0.5, sample_time=0.01, scheduler="serial", fmu=fmu, out=out,
+                     case_timeout=1.0)
+    df = run_sweep(spec)
     fast, slow = df.iloc[0], df.iloc[1]
     assert slow["solver.step"] == 1e-7 and fast["solver.step"] == 1e-3
     assert not fast["failed"] and fast["status"] == "ok" and fast["wall_s"] < 1.0
     assert slow["failed"] and slow["status"] == "timeout" and "case timeout of 1 s" in slow["error"]
     assert 1.0 <= slow["wall_s"] < 3.0                   # stopped at the limit, not at the end of the run
-    again = run_sweep(SCENE, SLOW_GRID, stop_time=0.5, sample_time=0.01, scheduler="serial", fmu=fmu, out=out,
-                      case_timeout=1.0)
+    again = run_sweep(spec)
     assert again.attrs["computed"] == 1 and again.attrs["resumed"] == 1       # only the timed-out case
 
 

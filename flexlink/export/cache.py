@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import flexlink
-from flexlink.export.cbuild import fmu_src_dir
+from flexlink.export.cbuild import OPTIMISE_ENV, fmu_src_dir
 from flexlink.scene.loader import Scene, load_scene
 
 if TYPE_CHECKING:
@@ -24,9 +24,7 @@ if TYPE_CHECKING:
 
 __all__ = ["OPTIMISE_ENV", "cache_dir", "cached_fmu"]
 
-#: The environment variable that imposes the generated code's optimisation level (flexlink.export.codegen);
-#: part of the cache key.
-OPTIMISE_ENV = "FLEXLINK_OPTIMISE"
+# OPTIMISE_ENV (flexlink.export.cbuild) imposes the generated code's optimisation level: part of the cache key.
 
 
 def cache_dir() -> Path:

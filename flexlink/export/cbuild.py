@@ -22,6 +22,10 @@ from pathlib import Path
 
 from flexlink.errors import BuildError
 
+#: The environment variable that imposes one gcc optimisation level on the generated code
+#: (flexlink.export.codegen.generated_code_optimisation); part of the FMU cache key (flexlink.export.cache).
+OPTIMISE_ENV = "FLEXLINK_OPTIMISE"
+
 #: The log categories of the C glue (``LOG_CATEGORY_NAMES`` in fmu_src/logging.c), in its order:
 #: modelDescription.xml must list exactly these in ``<LogCategories>``.
 LOG_CATEGORIES: tuple[str, ...] = (

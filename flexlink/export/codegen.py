@@ -27,8 +27,7 @@ from string import Template
 import casadi as ca
 import numpy as np
 
-from flexlink.export.cache import OPTIMISE_ENV
-from flexlink.export.cbuild import BuildError, fmu_src_dir
+from flexlink.export.cbuild import OPTIMISE_ENV, BuildError, fmu_src_dir
 from flexlink.export.derivatives import forward_functions
 from flexlink.export.variables import FmuVariable, fmu_variables
 from flexlink.mechanics.model import SymbolicModel
@@ -56,7 +55,7 @@ EXPAND_MAX_COORDINATES = 160
 NEWTON_DENSE_MAX_COORDINATES = 12
 # FLEXLINK_OPTIMISE=O0|Og|O1|O2 imposes one level on the CasADi code instead (the generic C stays at -O2): the
 # test suite builds dozens of FMUs and runs each briefly, so it compiles them at O0 (docs/tests.md).
-# OPTIMISE_ENV is that variable's name (flexlink.export.cache: part of the FMU cache key).
+# OPTIMISE_ENV is that variable's name (flexlink.export.cbuild; part of the FMU cache key).
 OPTIMISE_LEVELS = ("O0", "Og", "O1", "O2")
 
 

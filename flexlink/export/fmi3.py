@@ -30,7 +30,7 @@ from xml.sax.saxutils import quoteattr
 
 import flexlink
 from flexlink.export.codegen import GeneratedModel
-from flexlink.export.fmu import (
+from flexlink.export.description import (
     Unknown,
     dependencies,
     generation_date_and_time,

@@ -15,6 +15,7 @@ reads to form the outputs; :func:`flexlink.mechanics.model.build_model` runs the
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -65,7 +66,7 @@ class _Params:
         self.items: list[Parameter] = []
         self.p: ca.MX | None = None
 
-    def add(self, *args, **kwargs) -> int:
+    def add(self, *args: Any, **kwargs: Any) -> int:
         self.items.append(Parameter(*args, **kwargs))
         return len(self.items) - 1
 
@@ -73,8 +74,11 @@ class _Params:
         self.p = ca.MX.sym("p", len(self.items))
         return self.p
 
-    def __call__(self, i):
-        return 0 if i is None else self.p[i]
+    def __call__(self, i: int | None) -> ca.MX | int:
+        if i is None:
+            return 0
+        assert self.p is not None, "parameters are read once frozen"
+        return self.p[i]
 
 
 @dataclass
@@ -123,7 +127,7 @@ class Frame:
     not be).
     """
 
-    origin: ca.MX
+    origin: ca.MX | ca.DM                 # constant (DM) for the first link, whose origin is the base's
     rotation: ca.MX
     omega: ca.MX
     velocity: ca.MX
@@ -165,16 +169,20 @@ class ChainAssembly:
     bodies: list[dict] = field(default_factory=list)   # per body: mass, ∫ρr, ∫ρṙ, ∫ρ r×ṙ (world)
     joint_frames: list[tuple] = field(default_factory=list)   # per joint: origin, rotation (world)
     frames: list[Frame] = field(default_factory=list)
+    # the walk's cursor (add_energies): the current joint's or tip's origin, and the last link's tip rotation
+    origin: ca.MX | ca.DM = field(init=False, repr=False, compare=False)
+    Rdef: ca.MX | ca.DM = field(init=False, repr=False, compare=False)
 
     def driven(self, i: int) -> int:
         """The coordinate joint i's actuator acts on: the motor angle of an elastic joint, else the joint angle."""
-        return self.motor_coord[i] if self.motor_coord[i] is not None else self.joint_coord[i]
+        motor = self.motor_coord[i]
+        return motor if motor is not None else self.joint_coord[i]
 
     def deformation(self, part: LinkParts, q: ca.MX, v: ca.MX) -> LinkDeformation:
         """The link's elastic coordinates and rates picked out of full vectors ``q``, ``v``, field by field."""
         f = part.fields
 
-        def pick(x, name):
+        def pick(x: ca.MX, name: str) -> ca.MX | None:
             return ca.vertcat(*[x[i] for i in f[name]]) if name in f else None
 
         return LinkDeformation(pick(q, "v"), pick(q, "w"), pick(q, "alpha"),
@@ -227,7 +235,8 @@ class ChainAssembly:
         The nominal value of a coordinate is the inverse of its shape's peak deflection (or slope times
         length), so that the integrator's error control weighs every η alike whatever the basis.
         """
-        bending = torsion = None
+        bending: ShapeBasis | None = None
+        torsion: TorsionBasis | ModalTorsionBasis | None = None
         xs = np.linspace(0.0, link.length, 401)
         if "v" in link.deformation or "w" in link.deformation:
             bending = make_basis(link.shapes.kind, link.shapes.count, link.length, link.linear_density)
@@ -245,7 +254,8 @@ class ChainAssembly:
             if name not in link.deformation:
                 continue
             basis = torsion if name == "alpha" else bending
-            nominal = (1.0 / np.max(np.abs(torsion.evaluate(xs)), axis=0)) if name == "alpha" else 1.0 / scale
+            assert basis is not None                # made above for every field the link deforms in
+            nominal = (1.0 / np.max(np.abs(basis.evaluate(xs)), axis=0)) if name == "alpha" else 1.0 / scale
             fields[name] = [self._new(f"{link.name}.eta[{len(eta) + k + 1}]", "elastic", float(nominal[k]))
                             for k in range(basis.n)]
             eta += fields[name]
@@ -395,12 +405,14 @@ class ChainAssembly:
         self.u = ca.MX.sym("u", len(inputs))
 
     # ---- kinetic and gravitational energy along the chain (seed 000 ch. 2–3, generalised)
-    def link_energy(self, i: int, link: Link, part: LinkParts, VL, RL, wL) -> tuple:
+    def link_energy(self, i: int, link: Link, part: LinkParts, VL: ca.MX, RL: ca.MX, wL: ca.MX) -> tuple:
         """Kinetic energy of link i's material, its body record and its gravitational energy."""
         qa, va, p = self.qa, self.va, self.p
         T, record = self.rigid_body(part, VL, RL, wL) if part.rigid else self.invariant_body(link, part, VL, RL, wL)
         if part.torsion is not None:
+            assert part.i_mu is not None            # a twisting link has its polar inertia (add_elastic_parameters)
             d = self.deformation(part, qa, va)
+            assert d.alpha_dot is not None          # its twist rates come with its twist coordinates
             T += 0.5 * p[part.i_mu] * torsion_kinetic(part.torsion.integrals, link.length, d, wL[0])
             record["spin"] += ca.mtimes(RL, ca.vertcat(p[part.i_mu] * (link.length * wL[0] + ca.dot(
                 ca.DM(part.torsion.integrals.phi), d.alpha_dot)), 0, 0))
@@ -450,7 +462,7 @@ class ChainAssembly:
         p, zero = self.p, ca.DM.zeros(3)
         mass = p[part.i_m] if part.i_m is not None else 0
         centre = ca.vertcat(*[p[k] for k in part.i_c]) if part.i_c is not None else zero
-        J = ca.DM.zeros(3, 3)
+        J: ca.MX | ca.DM = ca.DM.zeros(3, 3)
         if part.i_I is not None:
             xx, yy, zz, xy, xz, yz = (p[k] for k in part.i_I)
             J = ca.vertcat(ca.horzcat(xx, xy, xz), ca.horzcat(xy, yy, yz), ca.horzcat(xz, yz, zz))
@@ -468,9 +480,9 @@ class ChainAssembly:
         if part.rigid:
             part.tip = TipKinematics(ca.DM([link.length, 0.0, 0.0]), ca.DM.zeros(3))
             self.Rdef = ca.DM.eye(3)
-            tip = part.tip.position
-            return Frame(self.origin, RL, wL, VL, RL_dot, self.origin + ca.mtimes(RL, tip), RL, wL,
-                         VL + ca.mtimes(RL_dot, tip), RL_dot)
+            s_tip = part.tip.position
+            return Frame(self.origin, RL, wL, VL, RL_dot, self.origin + ca.mtimes(RL, s_tip), RL, wL,
+                         VL + ca.mtimes(RL_dot, s_tip), RL_dot)
         if part.body is not None:
             tip = body_tip_kinematics(part.body, self.eta_of(part, qa))
         else:
@@ -478,6 +490,7 @@ class ChainAssembly:
             tip = tip_kinematics(part.bending.integrals if part.bending else None,
                                  part.torsion.integrals if part.torsion else None, link.length, d, part.second_order)
         part.tip = tip
+        assert isinstance(tip.rotation_vector, ca.MX)   # an elastic link's tip rotates with its coordinates
         Rdef = small_rotation(tip.rotation_vector, part.second_order)
         Rdef_dot = ca.reshape(ca.jtimes(ca.vec(Rdef), qa, va), 3, 3)
         wt = ca.mtimes(Rdef.T, wL) + _vee_skew(ca.mtimes(Rdef.T, Rdef_dot))
@@ -492,7 +505,8 @@ class ChainAssembly:
         p, RL, wL, Pp = self.p, frame.rotation, frame.omega, self.origin
         # the payload's velocity in the link basis: base velocity + ω × s_p + ṡ_p (no world rotation in it,
         # so that a linear model stays structurally linear)
-        offset = ca.DM(np.asarray(link.payload.offset, float))
+        assert part.tip is not None and part.i_pm is not None and part.i_pj is not None   # link_tip ran; a payload
+        offset = ca.DM(np.asarray(link.payload.offset, float))                             # has mass and inertia
         sp = part.tip.position + ca.mtimes(self.Rdef, offset)
         Vp = ca.mtimes(RL.T, VL) + ca.cross(wL, sp) + ca.jtimes(sp, self.qa, self.va)
         rp = Pp + ca.mtimes(RL, sp)
@@ -525,9 +539,11 @@ class ChainAssembly:
     def add_energies(self) -> None:
         """T and V_gravity of the whole chain, walking the frames from the base."""
         qa, va = self.qa, self.va
-        T = Vg = 0
+        T: ca.MX | float = 0
+        Vg: ca.MX | float = 0
         self.origin = ca.DM.zeros(3)
-        parent = (ca.DM.eye(3), ca.DM.zeros(3, 3), ca.DM.zeros(3), ca.DM.zeros(3))   # R, Ṙ, ω, V of the base
+        parent: tuple[ca.MX | ca.DM, ...] = (ca.DM.eye(3), ca.DM.zeros(3, 3), ca.DM.zeros(3), ca.DM.zeros(3))
+        # (R, Ṙ, ω, V of the base, then of each tip frame in turn)
         for i, (joint, link, part) in enumerate(zip(self.scene.joints, self.scene.links, self.parts, strict=True)):
             a = np.asarray(joint.axis, float) / np.linalg.norm(joint.axis)
             R0, R0_dot, w0, VL = self.joint_frame(joint, parent)
@@ -539,7 +555,7 @@ class ChainAssembly:
             RL = ca.mtimes(ca.mtimes(R0, Rj), B)
             RL_dot = ca.mtimes(ca.mtimes(R0_dot, Rj) + ca.mtimes(R0, Rj_dot), B)
             wL = ca.mtimes(B.T, ca.mtimes(Rj.T, w0) + ca.DM(a) * thd)
-            motor_rate = va[self.motor_coord[i]] if self.motor_coord[i] is not None else va[self.joint_coord[i]]
+            motor_rate = va[self.driven(i)]
             # the rotor spins about the joint axis with the shaft: angular momentum only (it sits at the joint)
             rotor_rate = ca.dot(ca.DM(a), w0) + motor_rate
             T += 0.5 * self.P(self.i_Ih[i]) * rotor_rate ** 2
@@ -585,9 +601,11 @@ class ChainAssembly:
         proportion to its frequency squared.
         """
         qa, va, p = self.qa, self.va, self.p
-        Ve = R = 0
+        Ve: ca.MX | float = 0
+        R: ca.MX | float = 0
         for i, (joint, part) in enumerate(zip(self.scene.joints, self.parts, strict=True)):
             if part.body is not None:
+                assert part.i_EI is not None        # a shell's Young's modulus (add_link_parameters)
                 x, xd, K = self.eta_of(part, qa), self.eta_of(part, va), ca.DM(part.body.stiffness)
                 Ve += 0.5 * p[part.i_EI] * ca.dot(x, ca.mtimes(K, x))
                 if part.i_kv is not None:
@@ -596,15 +614,23 @@ class ChainAssembly:
             for name, stiff_i in (("v", part.i_EI), ("w", part.i_EIo), ("alpha", part.i_GJ)):
                 if name not in part.fields:
                     continue
-                K = ca.DM(part.torsion.integrals.stiff if name == "alpha" else part.bending.integrals.curv)
+                if name == "alpha":
+                    assert part.torsion is not None
+                    K = ca.DM(part.torsion.integrals.stiff)
+                else:
+                    assert part.bending is not None
+                    K = ca.DM(part.bending.integrals.curv)
+                assert stiff_i is not None              # each field's stiffness (add_elastic_parameters)
                 x, xd = getattr(q_d, name), getattr(q_d, f"{name}_dot")
                 Ve += 0.5 * p[stiff_i] * ca.dot(x, ca.mtimes(K, x))
                 if part.i_kv is not None:
                     R += 0.5 * p[part.i_kv] * p[stiff_i] * ca.dot(xd, ca.mtimes(K, xd))
-            if self.i_damp[i] is not None:
-                R += 0.5 * p[self.i_damp[i]] * va[self.driven(i)] ** 2
-            if self.i_k[i] is not None:
-                Ve += 0.5 * p[self.i_k[i]] * (qa[self.motor_coord[i]] - qa[self.joint_coord[i]]) ** 2
+            damping, stiffness, motor = self.i_damp[i], self.i_k[i], self.motor_coord[i]
+            if damping is not None:
+                R += 0.5 * p[damping] * va[self.driven(i)] ** 2
+            if stiffness is not None:
+                assert motor is not None                # an elastic joint has a motor angle
+                Ve += 0.5 * p[stiffness] * (qa[motor] - qa[self.joint_coord[i]]) ** 2
                 self.terms.append(f'joint "{joint.name}": elastic (stiffness > 0), motor and link angles')
         self.Ve, self.R = Ve, R
 

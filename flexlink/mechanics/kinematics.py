@@ -321,11 +321,12 @@ class TipKinematics:
     rotation_vector: ca.MX | ca.DM
 
 
-def tip_kinematics(g: ShapeIntegrals, t: TorsionIntegrals | None, length: float, d: LinkDeformation,
+def tip_kinematics(g: ShapeIntegrals | None, t: TorsionIntegrals | None, length: float, d: LinkDeformation,
                    second_order: bool) -> TipKinematics:
     """The tip point and rotation vector of a beam link from its fields (the bending basis also for w).
 
-    In second-order kinematics the tip is drawn back along x by the foreshortening u(L).
+    In second-order kinematics the tip is drawn back along x by the foreshortening u(L).  ``g`` is None for a
+    link that only twists (its axis stays straight), ``t`` for one that only bends.
     """
     x_tip: Scalar = float(length)
     v_tip: Scalar = 0.0
@@ -333,16 +334,18 @@ def tip_kinematics(g: ShapeIntegrals, t: TorsionIntegrals | None, length: float,
     slope_v: Scalar = 0.0
     slope_w: Scalar = 0.0
     twist: Scalar = 0.0
-    if d.v is not None:
+    if d.v is not None or d.w is not None:
+        assert g is not None, "a link with bending coordinates has a bending basis"
+    if d.v is not None and g is not None:
         v_tip = ca.dot(_dm(g.tip), d.v)
         slope_v = ca.dot(_dm(g.tip_slope), d.v)
-    if d.w is not None:
+    if d.w is not None and g is not None:
         w_tip = ca.dot(_dm(g.tip), d.w)
         slope_w = ca.dot(_dm(g.tip_slope), d.w)
     if d.alpha is not None:
         assert t is not None, "a link with twist coordinates has a torsion basis"
         twist = ca.dot(_dm(t.tip), d.alpha)
-    if second_order:
+    if second_order and g is not None:
         for eta in (d.v, d.w):
             if eta is not None:
                 x_tip = x_tip - 0.5 * _quad(eta, g.fs_tip)

@@ -11,9 +11,14 @@ from flexlink.export.codegen import generated_functions
 from flexlink.mechanics.analysis import natural_frequencies
 from flexlink.mechanics.model import build_model
 from flexlink.scene.loader import load_scene
-from flexlink.tools.fidelity import MAX_HALVINGS, check_level, checked_recommendation, run_ladder
+from flexlink.tools.fidelity import (
+    MAX_HALVINGS,
+    STEPS_PER_PERIOD,
+    check_level,
+    checked_recommendation,
+    run_ladder,
+)
 
-STEPS_PER_PERIOD = 20     # Θ = ½: phase error per period ≈ (2π/20)²/12 · 2π ≈ 0.5 %
 # the generated functions a Co-Simulation step evaluates (fmu_src/ss22.c, cs_step.c, guards.c), and with a
 # Newton matrix by columns (mass_matrix generated) the residual's derivative it is made of; the rest serve the
 # directional derivatives, or a parameter change (parameter_check)

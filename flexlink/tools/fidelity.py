@@ -38,6 +38,7 @@ COUNTS = (1, 2, 3, 4, 6)               # shapes per link (modes, polynomials or 
 QUICK_COUNTS = (1, 2, 3)
 KINEMATICS = ("linear", "first-order", "second-order")
 MAX_HALVINGS = 5                       # with a target: steps down to 1/32 of the recommended one
+STEPS_PER_PERIOD = 20                  # the recommended step; Θ = ½: phase error per period ≈ (2π/20)²/12 · 2π ≈ 0.5 %
 REFERENCE_RTOL = 1e-10                 # CVODES: its own error is far below the model errors measured
 SHAPE_WORDS = {"clamped-free": "clamped-free mode", "polynomial": "polynomial", "fe": "element"}
 
@@ -198,7 +199,7 @@ def variant(scene: Scene, level: Level) -> Scene:
 
 def variant_fmu(scene: Scene, model: SymbolicModel | None = None) -> Path:
     """The variant's FMU from the flexlink cache, keyed on the scene's content (it has no file of its own)."""
-    from flexlink.export.fmu import cached_fmu
+    from flexlink.export.cache import cached_fmu
 
     return cached_fmu(scene, model=model)
 
@@ -206,7 +207,6 @@ def variant_fmu(scene: Scene, model: SymbolicModel | None = None) -> Path:
 def recommended_step(model: SymbolicModel) -> tuple[float, float]:
     """(step, highest frequency in Hz) as ``flexlink explain`` gives them."""
     from flexlink.mechanics.analysis import natural_frequencies
-    from flexlink.tools.explain import STEPS_PER_PERIOD
 
     freqs = natural_frequencies(model).frequencies_hz
     f_max = max(freqs) if freqs else 0.0
@@ -269,6 +269,34 @@ def _measure(scene: Scene, level: Level, stop: float, progress: Progress) -> _Me
     # which reads only the manoeuvre (times, inputs, outputs); BenchCase types the model it needs to be built
     dropped = dataclasses.replace(case, model=None)  # type: ignore[arg-type]
     return _Measured(level, dropped, ref, fmu, model.n_q, step, f_max)
+
+
+def _fmu_rung(m: _Measured, runs: _Runs, truth: _Measured, target: float | None, best_cost: float,
+              repeats: int) -> tuple[float, dict[str, np.ndarray], float]:
+    """A level's FMU at its step, the step halved while a target needs it: ``(step, outputs, cost)``.
+
+    Only a level whose equations meet the target is refined, since no step can make up for a model error; and
+    not past the cheapest rung already meeting it, which it could no longer undercut.
+    """
+    from flexlink.tools.bench import relative_error
+
+    step = m.step
+    y = runs.outputs(step)
+    cost = runs.cost(step, repeats)
+    if target is not None and m.model_error < target:
+        for _ in range(MAX_HALVINGS):
+            # halving the step at least doubles the steps; the cost per step falls at most by half (fewer
+            # Newton iterations): past the cheapest rung meeting the target, this one cannot be recommended
+            if relative_error(m.case, y, truth.ref) < target or cost * m.step / step > best_cost:
+                break
+            before = relative_error(m.case, y, m.ref)
+            step /= 2
+            y = runs.outputs(step)
+            if relative_error(m.case, y, m.ref) > before / 1.5:     # not converging (order ≥ 1): stop
+                break
+        if step != m.step:
+            cost = runs.cost(step, repeats)
+    return step, y, cost
 
 
 def run_ladder(scene_path: str | os.PathLike[str] | Scene, *, target: float | None = None, quick: bool = False,
@@ -334,22 +362,7 @@ def run_ladder(scene_path: str | os.PathLike[str] | Scene, *, target: float | No
         progress(f"fidelity: SS22 FMU of {m.level.label(scene)}")
         runs = _Runs(m.case, m.fmu)
         try:
-            step = m.step
-            y = runs.outputs(step)
-            cost = runs.cost(step, repeats)
-            if target is not None and m.model_error < target:
-                for _ in range(MAX_HALVINGS):
-                    # halving the step at least doubles the steps; the cost per step falls at most by half (fewer
-                    # Newton iterations): past the cheapest rung meeting the target, this one cannot be recommended
-                    if relative_error(m.case, y, truth.ref) < target or cost * m.step / step > best_cost:
-                        break
-                    before = relative_error(m.case, y, m.ref)
-                    step /= 2
-                    y = runs.outputs(step)
-                    if relative_error(m.case, y, m.ref) > before / 1.5:     # not converging (order ≥ 1): stop
-                        break
-                if step != m.step:
-                    cost = runs.cost(step, repeats)
+            step, y, cost = _fmu_rung(m, runs, truth, target, best_cost, repeats)
         finally:
             runs.close()
         error = relative_error(m.case, y, truth.ref)

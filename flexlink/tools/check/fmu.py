@@ -31,11 +31,13 @@ INTEGER_TYPES = ("Integer", "Int32", "Int64", "Int16", "Int8", "UInt32", "UInt64
 
 
 class Fmi3AsFmi2:
-    """An fmpy FMI 3.0 instance (FMU3Slave, FMU3Model) under the FMI 2 names the checks call, so that the checks
-    written for FMI 2.0 drive an FMI 3.0 FMU unchanged: ``setupExperiment`` keeps its arguments for
+    """An fmpy FMI 3.0 instance (FMU3Slave, FMU3Model) under the FMI 2 names the checks call.
+
+    So the checks written for FMI 2.0 drive an FMI 3.0 FMU unchanged: ``setupExperiment`` keeps its arguments for
     ``enterInitializationMode``; Real and Integer are Float64 and Int32; ``newDiscreteStates`` is
     ``updateDiscreteStates`` (its first result: whether another update is needed); the FMU state functions
-    take FMI 3's spelling.  Everything else is the FMI 3 instance's own."""
+    take FMI 3's spelling.  Everything else is the FMI 3 instance's own.
+    """
 
     RENAMED = {"getReal": "getFloat64", "setReal": "setFloat64", "getInteger": "getInt32", "setInteger": "setInt32",
                "getFMUstate": "getFMUState", "setFMUstate": "setFMUState", "freeFMUstate": "freeFMUState",
@@ -49,16 +51,19 @@ class Fmi3AsFmi2:
         self.__dict__["elements"] = elements      # arrays.Elements: Float64 arrays seen as their elements
 
     def getReal(self, vr):
+        """``getFloat64``, whole arrays read and their elements picked out when the FMU has arrays."""
         if not self.elements:
             return self.inst.getFloat64(vr)
         return self.elements.get(self.inst.getFloat64, vr)
 
     def setReal(self, vr, values):
+        """``setFloat64``; an array element is set by writing its whole array back (FMI 3 sets arrays whole)."""
         if not self.elements:
             return self.inst.setFloat64(vr, values)
         return self.elements.set(self.inst.getFloat64, self.inst.setFloat64, vr, values)
 
     def getDirectionalDerivative(self, unknowns, knowns, seed):
+        """FMI 3's directional derivative, its arrays' elements seen one by one as FMI 2 would list them."""
         if not self.elements:
             return self.inst.getDirectionalDerivative(unknowns, knowns, seed)
         return self.elements.directional(self.inst.getDirectionalDerivative, unknowns, knowns, seed)
@@ -75,12 +80,15 @@ class Fmi3AsFmi2:
         self.inst.instantiate(loggingOn=loggingOn, logMessage=lambda *message: None)
 
     def setupExperiment(self, tolerance=None, startTime=0.0, stopTime=None):
+        """Keep the experiment for ``enterInitializationMode``, which takes it in FMI 3 (there is no set-up call)."""
         self.__dict__["experiment"] = {"tolerance": tolerance, "startTime": startTime, "stopTime": stopTime}
 
     def enterInitializationMode(self):
+        """FMI 3's ``enterInitializationMode`` with the experiment that ``setupExperiment`` kept."""
         self.inst.enterInitializationMode(**self.experiment)
 
     def doStep(self, currentCommunicationPoint, communicationStepSize, noSetFMUStatePriorToCurrentPoint=True):
+        """FMI 3's ``doStep``, its event and early-return results dropped: FMI 2's answers only with a status."""
         self.inst.doStep(currentCommunicationPoint, communicationStepSize, noSetFMUStatePriorToCurrentPoint)
 
 
@@ -128,8 +136,10 @@ class Fmu:
             self._fmi3_flags()
 
     def _fmi3_flags(self):
-        """fmpy 0.3.32 does not read FMI 3's ``providesDirectionalDerivatives``: taken from the XML, under FMI 2's
-        name that the checks ask for."""
+        """Read FMI 3's ``providesDirectionalDerivatives`` from the XML, which fmpy 0.3.32 does not.
+
+        It is stored under FMI 2's name (``providesDirectionalDerivative``), the one the checks ask for.
+        """
         import xml.etree.ElementTree as ET
 
         root = ET.parse(os.path.join(self.dir, "modelDescription.xml")).getroot()
@@ -138,7 +148,8 @@ class Fmu:
             if element is not None and desc is not None:
                 desc.providesDirectionalDerivative = element.get("providesDirectionalDerivatives") in ("true", "1")
 
-    def close(self):
+    def close(self) -> None:
+        """Delete the unzipped copy; instances must be freed before (their library lives in it)."""
         shutil.rmtree(self.dir, ignore_errors=True)
 
     def can(self, kind: str, flag: str) -> bool:
@@ -147,6 +158,7 @@ class Fmu:
         return bool(desc is not None and getattr(desc, flag, False))
 
     def instance(self, kind: str, name: str = "check"):
+        """A new fmpy instance of interface ``kind`` ("CS" or "ME"), FMI 3 ones wrapped in :class:`Fmi3AsFmi2`."""
         if self.fmi3:
             from fmpy.fmi3 import FMU3Model as Model
             from fmpy.fmi3 import FMU3Slave as Slave
@@ -162,9 +174,11 @@ class Fmu:
 
     # ------------------------------------------------------------------ values
     def excitation(self) -> dict[str, object]:
-        """A constant, legal excitation of the inputs: flexlink FMUs 0.1 on every Real input but the
-        prescribed-law ones (``*_ref``); other FMUs a value of each input's type within its declaration
-        (``excite_value``)."""
+        """A constant, legal excitation of the inputs, to make a run differ from one at the start values.
+
+        flexlink FMUs get 0.1 on every Real input but the prescribed-law ones (``*_ref``); other FMUs a value of
+        each input's type within its declaration (``excite_value``).
+        """
         if self.is_flexlink:
             return {n: 0.1 for n in self.inputs if not n.endswith("_ref")}
         out = {}
@@ -175,7 +189,9 @@ class Fmu:
         return out
 
     def real_excitation(self) -> dict[str, float]:
-        return {k: v for k, v in self.excitation().items() if self.vars[k].type in REAL_TYPES}
+        """The floating-point part of :meth:`excitation` (the checks that compare trajectories use only it)."""
+        return {k: v for k, v in self.excitation().items()
+                if self.vars[k].type in REAL_TYPES and isinstance(v, float)}
 
 
 def _number(x) -> float | None:
@@ -186,9 +202,11 @@ def _number(x) -> float | None:
 
 
 def excite_value(v):
-    """A value of the variable's type that moves it away from its start and stays legal: Real start + 0.1
-    clipped to [min, max]; Integer start + 1 within [min, max]; Enumeration another item of its type
-    (or the start when there is only one); Boolean the negated start; String: None (left alone)."""
+    """A value of the variable's type that moves it away from its start and stays legal.
+
+    Real: start + 0.1 clipped to [min, max]; Integer start + 1 within [min, max]; Enumeration another item of its type
+    (or the start when there is only one); Boolean the negated start; String: None (left alone).
+    """
     start = v.start
     if v.type in REAL_TYPES:
         x = (_number(start) or 0.0) + 0.1
@@ -251,9 +269,11 @@ def get_values(inst, variables) -> list:
 
 
 def quiet_callbacks():
-    """fmi2 callbacks that drop the FMU's messages (the checks read statuses, not log lines), through
-    flexlink's one logger router: fmpy's native logger proxy is process-wide, and a logger of our own
-    registered there would be called after it is freed by whichever FMU logs next (a segfault)."""
+    """fmi2 callbacks that drop the FMU's messages: the checks read statuses, not log lines.
+
+    They go through flexlink's one logger router: fmpy's native logger proxy is process-wide, and a logger of our own
+    registered there would be called after it is freed by whichever FMU logs next (a segfault).
+    """
     from flexlink.run.simulate import logging_callbacks
 
     return logging_callbacks(lambda *message: None)
@@ -292,4 +312,5 @@ def free(inst) -> None:
 
 
 def c_doubles(x: np.ndarray):
+    """A C ``double*`` to a float64 array's data, for fmpy's raw ctypes calls (the array must outlive it)."""
     return x.ctypes.data_as(ctypes.POINTER(ctypes.c_double))
