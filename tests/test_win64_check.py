@@ -68,14 +68,20 @@ CASES = [("rotating_link", 2), ("rotating_link", 3),
 @pytest.mark.parametrize(("name", "fmi"), CASES)
 def test_win64_check_passes_the_rows_linux64_passes(both, name, fmi):
     """Same rows, same statuses, no finding; the deterministic rows (the seeded fuzz's call count, the
-    illegal-call catalogue, the model description, the importers' final values) give the same text."""
+    illegal-call catalogue, the model description, the importers' final values) give the same text, and on
+    the rotating link the ME-vs-CS deviation too."""
     fmu = both(name, fmi)
     linux = check_fmu(fmu, **SIZE)
     windows = check_fmu(fmu, platform="win64", **SIZE)
     assert [r.name for r in windows] == [r.name for r in linux]
     assert _rows(windows) == _rows(linux)
     assert all(r.status in ("pass", "skip") for r in windows), [(r.name, r.status, r.details) for r in windows]
-    same_text = {"model-description", "fuzz", "fmu-state", "illegal-calls", "libcosim", "fmutool", "me-vs-cs"}
+    same_text = {"model-description", "fuzz", "fmu-state", "illegal-calls", "libcosim", "fmutool"}
+    if name == "rotating_link":
+        # the two-link arm's ME run under CVode does not keep the 1-ulp sincos differences of the two C
+        # libraries at 1e-16: its worst ME-vs-CS deviation measured 7.50e-2 of the peak on linux64 and
+        # 1.01e-1 on win64 (both within the FMU's tolerance, so both pass); equal text only on the link
+        same_text.add("me-vs-cs")
     for w, k in zip(windows, linux, strict=True):
         if w.name in same_text:
             assert w.result == k.result, w.name

@@ -65,13 +65,21 @@ static void write_all(HANDLE h, const void *p, size_t n) {
     }
 }
 
+/* a frame: its length, then its bytes, in one write (b->data begins with 8 bytes kept for the length) */
 static void send_frame(Buffer *b) {
-    uint64_t n = b->size;
+    uint64_t n = b->size - 8;
+    memcpy(b->data, &n, 8);
     EnterCriticalSection(&writing);
-    write_all(wire_out, &n, 8);
     write_all(wire_out, b->data, b->size);
     LeaveCriticalSection(&writing);
+    b->size = 8;
+}
+
+static void begin_frame(Buffer *b, const char *tag) {
+    uint64_t zero = 0;
     b->size = 0;
+    put(b, &zero, 8);
+    put(b, tag, 1);
 }
 
 /* ------------------------------------------------------------------------------------------- the callbacks */
@@ -79,7 +87,7 @@ static void send_frame(Buffer *b) {
 static void log_frame(uint64_t env, int status, const char *name, const char *category, const char *text,
                       int fmi3) {
     Buffer b = {0};
-    put(&b, "L", 1);
+    begin_frame(&b, "L");
     put_u64(&b, env);
     put(&b, &status, 4);
     put_string(&b, name);
@@ -119,7 +127,7 @@ typedef struct {
 static LONG WINAPI unhandled(EXCEPTION_POINTERS *e) {
     Buffer b = {0};
     uint32_t code = e->ExceptionRecord->ExceptionCode;
-    put(&b, "X", 1);
+    begin_frame(&b, "X");
     put(&b, &code, 4);
     send_frame(&b);
     TerminateProcess(GetCurrentProcess(), code);
@@ -209,7 +217,7 @@ static uint64_t decode(Reader *r, Arg *arg) {
 static void reply(Buffer *b, uint32_t ret, uint64_t value, Arg *args, uint32_t n) {
     uint32_t k;
     uint64_t i;
-    put(b, "R", 1);
+    begin_frame(b, "R");
     put_u64(b, value);
     if (ret == RET_STRING) put_string(b, (const char *)(uintptr_t)value);
     for (k = 0; k < n; k++) {
@@ -245,7 +253,7 @@ static void serve(HMODULE dll, const unsigned char *request, size_t size) {
     for (k = 0; k < n; k++) a[k] = decode(&r, &args[k]);
     f = GetProcAddress(dll, name);
     if (f == NULL) {
-        put(&b, "E", 1);
+        begin_frame(&b, "E");
         put_string(&b, "the DLL does not export this function");
     } else {
         value = invoke(f, a);
@@ -259,9 +267,13 @@ static void serve(HMODULE dll, const unsigned char *request, size_t size) {
 
 /* ------------------------------------------------------------------------------------------- requests in */
 
-static HANDLE have_request, idle;
-static unsigned char *request;
+/* the hand-over between the reader and the main thread: a lock and a condition variable, which Wine builds
+ * on futexes (events would cost a round trip to the wineserver each, most of a call's time) */
+static SRWLOCK lock = SRWLOCK_INIT;
+static CONDITION_VARIABLE changed = CONDITION_VARIABLE_INIT;
+static unsigned char *request;                  /* a request the main thread has not taken yet, or NULL */
 static size_t request_size;
+static int busy;                                /* the main thread is serving a request */
 
 static int read_all(void *p, size_t n) {
     char *c = p;
@@ -284,10 +296,12 @@ static DWORD WINAPI reader(void *unused) {
         if (!read_all(&n, 8)) break;
         frame = malloc(n ? n : 1);
         if (frame == NULL || !read_all(frame, n)) break;
-        WaitForSingleObject(idle, INFINITE);          /* the previous call has replied */
+        AcquireSRWLockExclusive(&lock);
+        while (request != NULL || busy) SleepConditionVariableSRW(&changed, &lock, INFINITE, 0);
         request = frame;
         request_size = n;
-        SetEvent(have_request);
+        WakeAllConditionVariable(&changed);
+        ReleaseSRWLockExclusive(&lock);
     }
     TerminateProcess(GetCurrentProcess(), 0);
     return 0;
@@ -330,14 +344,23 @@ int main(int argc, char **argv) {
     SetStdHandle(STD_OUTPUT_HANDLE, GetStdHandle(STD_ERROR_HANDLE));
     InitializeCriticalSection(&writing);
     SetUnhandledExceptionFilter(unhandled);
-    have_request = CreateEventA(NULL, FALSE, FALSE, NULL);
-    idle = CreateEventA(NULL, FALSE, TRUE, NULL);
     thread = CreateThread(NULL, 0, reader, NULL, 0, NULL);
     if (thread == NULL) return 4;
     for (;;) {
-        WaitForSingleObject(have_request, INFINITE);
-        serve(dll, request, request_size);
-        free(request);
-        SetEvent(idle);
+        unsigned char *frame;
+        size_t size;
+        AcquireSRWLockExclusive(&lock);
+        while (request == NULL) SleepConditionVariableSRW(&changed, &lock, INFINITE, 0);
+        frame = request;
+        size = request_size;
+        request = NULL;
+        busy = 1;
+        ReleaseSRWLockExclusive(&lock);
+        serve(dll, frame, size);
+        free(frame);
+        AcquireSRWLockExclusive(&lock);
+        busy = 0;
+        WakeAllConditionVariable(&changed);
+        ReleaseSRWLockExclusive(&lock);
     }
 }
