@@ -192,3 +192,19 @@ def test_without_wine_or_mingw_the_command_is_one_line_and_exit_2(example_fmu, t
     assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr
     expected = "gcc-mingw-w64-x86-64" if missing == "mingw" else "apt-get install wine64 wine"
     assert expected in lines[0]
+
+
+@need_wine
+def test_a_dll_windows_cannot_load_is_a_failing_row(both, tmp_path, capsys):
+    """A truncated DLL: LoadLibrary refuses it under Wine (ERROR_BAD_EXE_FORMAT, 193), which is a finding
+    about the FMU (rule ``loads``, exit status 1), not bad input."""
+    from flexlink.cli import main
+
+    bad = tmp_path / "truncated.fmu"
+    with zipfile.ZipFile(both("rotating_link")) as z, zipfile.ZipFile(bad, "w") as w:
+        for item in z.infolist():
+            data = z.read(item)
+            w.writestr(item, data[:5000] if item.filename.endswith(".dll") else data)
+    assert main(["check", str(bad), "--platform", "win64"]) == 1
+    out = capsys.readouterr().out
+    assert "binaries/win64/rotating_link.dll does not load under Wine (Windows error 193) [loads]" in out

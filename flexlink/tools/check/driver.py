@@ -95,13 +95,18 @@ def check_fmu(path: str | os.PathLike, *, fuzz: int = CI_FUZZ, seed: int = 0, im
     package docstring.
     """
     if platform == "win64":
-        from flexlink.tools.check.win64 import hosted
+        from flexlink.tools.check.findings import Finding
+        from flexlink.tools.check.win64 import DllNotLoaded, hosted
 
         original = os.path.abspath(os.fspath(path))
-        with hosted(original) as repacked:
-            results = check_fmu(repacked, fuzz=fuzz, seed=seed, importers=importers, stop_time=stop_time,
-                                tolerance=tolerance, interfaces=interfaces, only=only, skip=skip,
-                                call_limit=call_limit)
+        try:
+            with hosted(original) as repacked:
+                results = check_fmu(repacked, fuzz=fuzz, seed=seed, importers=importers, stop_time=stop_time,
+                                    tolerance=tolerance, interfaces=interfaces, only=only, skip=skip,
+                                    call_limit=call_limit)
+        except DllNotLoaded as e:                # nothing can run: one failing row that says why
+            return [CheckResult("model-description", "the win64 DLL", "loads under Wine", "does not load",
+                                details=[str(e)], findings=[Finding("loads", str(e))])]
         for r in results:
             _name_the_dll(r, repacked, original)
         return results

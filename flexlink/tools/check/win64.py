@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import shutil
 import subprocess
 import tempfile
@@ -99,10 +100,21 @@ def build_server(folder: Path) -> Path:
     return exe
 
 
+class DllNotLoaded(FlexlinkError):
+    """The FMU's DLL does not load under Wine: a finding about the FMU (rule ``loads``), not bad input."""
+
+
 def exports(server: Path, dll: Path, env: dict[str, str]) -> list[str]:
     """The FMI functions the DLL exports, read by the call server under Wine (which proves that it loads)."""
-    out = _run([wine() or "wine", str(server), "--exports", "Z:" + str(dll).replace("/", "\\")],
-               f"loading {dll.name} under Wine", env=env, timeout=300).stdout
+    try:
+        out = _run([wine() or "wine", str(server), "--exports", "Z:" + str(dll).replace("/", "\\")],
+                   f"loading {dll.name} under Wine", env=env, timeout=300).stdout
+    except FlexlinkError as e:
+        if "exit status 3" in str(e):          # call_server's status for a DLL that LoadLibrary refuses
+            code = re.search(r"Windows error \d+", str(e))
+            raise DllNotLoaded(f"binaries/{dll.parent.name}/{dll.name} does not load under Wine"
+                               + (f" ({code.group(0)})" if code else "")) from None
+        raise
     return sorted(n.strip() for n in out.splitlines() if n.strip().startswith(("fmi2", "fmi3")))
 
 
