@@ -32,6 +32,15 @@ static int to_server = -1, from_server = -1;
 
 /* ------------------------------------------------------------------------------------------- the end */
 
+/* the proxy cannot reach the server: one line, and the process ends as an abort */
+static void give_up(const char *call, const char *why) {
+    fprintf(stderr, "flexlink call proxy: %s (in %s)\n", why, call);
+    fflush(NULL);
+    signal(SIGABRT, SIG_DFL);
+    raise(SIGABRT);
+    _exit(134);
+}
+
 static void die_like(const char *call, int status_or_code, int exception) {
     int sig = SIGABRT;
     if (exception) {
@@ -129,12 +138,10 @@ static void start_server(const char *call) {
     const char *wine = getenv("FLEXLINK_WINE");
     char *argv[4];
     posix_spawn_file_actions_t actions;
-    if (!locate(dll, exe, sizeof dll)) {
-        fprintf(stderr, "flexlink call proxy: cannot find the win64 DLL beside this library\n");
-        die_like(call, 0, 0);
-    }
+    if (!locate(dll, exe, sizeof dll)) give_up(call, "cannot find the win64 DLL beside this library");
     windows_dll = windows_path(dll);
-    if (pipe2(in, O_CLOEXEC) != 0 || pipe2(out, O_CLOEXEC) != 0) die_like(call, 0, 0);
+    if (windows_dll == NULL || pipe2(in, O_CLOEXEC) != 0 || pipe2(out, O_CLOEXEC) != 0)
+        give_up(call, "cannot make the pipes to the call server");
     posix_spawn_file_actions_init(&actions);
     posix_spawn_file_actions_adddup2(&actions, in[0], 0);
     posix_spawn_file_actions_adddup2(&actions, out[1], 1);
@@ -143,9 +150,8 @@ static void start_server(const char *call) {
     argv[2] = windows_dll;
     argv[3] = NULL;
     if (posix_spawnp(&server, argv[0], &actions, NULL, argv, environ) != 0) {
-        fprintf(stderr, "flexlink call proxy: cannot run %s\n", argv[0]);
         server = -1;
-        die_like(call, 0, 0);
+        give_up(call, "cannot run Wine ($FLEXLINK_WINE or wine)");
     }
     posix_spawn_file_actions_destroy(&actions);
     free(windows_dll);
@@ -168,7 +174,7 @@ static void put(Call *c, const void *p, size_t n) {
     if (c->size + n > c->capacity) {
         c->capacity = (c->size + n) * 2 + 256;
         c->data = realloc(c->data, c->capacity);
-        if (c->data == NULL) die_like(c->name, 0, 0);
+        if (c->data == NULL) give_up(c->name, "out of memory");
     }
     if (n) memcpy(c->data + c->size, p, n);
     c->size += n;
@@ -185,7 +191,7 @@ static void put_string(Call *c, const char *s) {
 /* the next argument: its kind, remembered for the result */
 static void arg(Call *c, int kind, void *target, size_t size) {
     unsigned char k = (unsigned char)kind;
-    if (c->nargs >= CALL_MAX_ARGS) die_like(c->name, 0, 0);
+    if (c->nargs >= CALL_MAX_ARGS) give_up(c->name, "too many arguments");
     c->args[c->nargs].kind = kind;
     c->args[c->nargs].target = target;
     c->args[c->nargs].size = size;
@@ -360,7 +366,7 @@ static uint64_t result(Call *c, Reader *r) {
     uint32_t k;
     size_t i;
     take(r, &value, 8);
-    if (c->ret == RET_STRING) value = pointer_bits(keep(take_string(r)));
+    if (c->ret == RET_STRING) value = pointer_bits(take_string(r));     /* a static string: kept for good */
     for (k = 0; k < c->nargs; k++) {
         int kind = c->args[k].kind;
         if (kind == ARG_OUT || kind == ARG_INOUT) take(r, c->args[k].target, c->args[k].size);
@@ -388,7 +394,6 @@ uint64_t call_finish(Call *c) {
     unsigned char *frame = NULL;
     uint32_t nargs = c->nargs;
     memcpy(c->data + 8 + strlen(c->name), &nargs, 4);
-    if (c->ret == RET_STRING) release_pool();
     for (uint32_t k = 0; k < c->nargs; k++)
         if (c->args[k].kind == ARG_STRINGS_OUT || c->args[k].kind == ARG_BINARIES_OUT) { release_pool(); break; }
     if (server < 0) start_server(c->name);

@@ -234,6 +234,19 @@ static void reply(Buffer *b, uint32_t ret, uint64_t value, Arg *args, uint32_t n
     }
 }
 
+/* the memory lent for one call, freed after it: FMI makes the receiver copy what it keeps (an instantiation's
+ * strings are kept all the same, and the callbacks, which FMI 2 lets the FMU hold until it is freed) */
+static void release(Arg *args, uint32_t n) {
+    uint32_t k;
+    uint64_t i;
+    for (k = 0; k < n; k++) {
+        Arg *a = &args[k];
+        for (i = 0; i < a->count && (a->kind == ARG_STRINGS_IN || a->kind == ARG_BINARIES_IN); i++)
+            free(((void **)a->memory)[i]);
+        if (a->kind != ARG_CALLBACKS2) free(a->memory);
+    }
+}
+
 static void serve(HMODULE dll, const unsigned char *request, size_t size) {
     Reader r = {request, request + size};
     uint32_t ret, length, n, k;
@@ -262,7 +275,7 @@ static void serve(HMODULE dll, const unsigned char *request, size_t size) {
     }
     send_frame(&b);
     free(b.data);
-    /* lent memory is not freed: a DLL may keep a pointer it was given (the instance name, the callbacks) */
+    if (strstr(name, "Instantiate") == NULL) release(args, n);
 }
 
 /* ------------------------------------------------------------------------------------------- requests in */
