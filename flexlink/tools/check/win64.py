@@ -9,9 +9,9 @@ checks themselves are unchanged: each runs in its own process with its time limi
 DLL does to its process (an exception, an ``exit``) the proxy does to the checker's, so a crash or a hang of
 the DLL is the same finding as on linux64.
 
-fmpy's own remoting (``fmpy.util.add_remoting``, win64 on linux64 over TCP) was measured first: it covers FMI
-2.0 only, and under the checker it did not return from instantiations within the limit per call and ended
-its server on the illegal calls (docs/check.md).
+fmpy's own remoting (``fmpy.util.add_remoting``, win64 on linux64 over TCP) was tried first: its client covers
+FMI 2.0 only, and under the checker it did not return from instantiations within the limit per call and
+ended its server on the illegal calls (docs/check.md).
 
 Wine runs in a private prefix made for the run (about 5 s the first time) with its ``wineserver`` kept
 alive until the run ends, so that each check's first call starts the server in well under a second.
