@@ -25,6 +25,7 @@ import re
 import shutil
 import subprocess
 import tempfile
+import time
 import zipfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -201,21 +202,34 @@ def hosted(fmu: str) -> Iterator[str]:
     if reason is not None:
         raise FlexlinkError(reason)
     saved = {k: os.environ.get(k) for k in ("WINEPREFIX", "WINEDEBUG", "FLEXLINK_WINE")}
-    with tempfile.TemporaryDirectory(prefix="flexlink-check-win64-", ignore_cleanup_errors=True) as tmp:
-        folder = Path(tmp)
-        (folder / "prefix").mkdir()
-        env = wine_environment(folder / "prefix")
-        try:
-            _wineserver(env, "-p")
-            out = folder / Path(fmu).name
-            repack(fmu, out, folder, env)
-            os.environ.update({k: env[k] for k in saved})
-            yield str(out)
-        finally:
-            for k, v in saved.items():
-                if v is None:
-                    os.environ.pop(k, None)
-                else:
-                    os.environ[k] = v
-            _wineserver(env, "-k")          # ends the prefix's processes (a crashed DLL's server among them)
-            _wineserver(env, "-w")          # and waits for them, before the prefix is removed
+    folder = Path(tempfile.mkdtemp(prefix="flexlink-check-win64-"))
+    (folder / "prefix").mkdir()
+    env = wine_environment(folder / "prefix")
+    try:
+        _wineserver(env, "-p")
+        out = folder / Path(fmu).name
+        repack(fmu, out, folder, env)
+        os.environ.update({k: env[k] for k in saved})
+        yield str(out)
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+        _wineserver(env, "-k")          # ends the prefix's processes (a crashed DLL's server among them)
+        _wineserver(env, "-w")          # and waits for them, before the prefix is removed
+        _remove(folder)
+
+
+def _remove(folder: Path) -> None:
+    """Remove the run's folder for good.
+
+    The ending wineserver may still write the prefix's registry after ``wineserver -w`` returns (seen in 3
+    of about 15 runs), which recreates part of the folder.
+    """
+    for _ in range(10):
+        shutil.rmtree(folder, ignore_errors=True)
+        time.sleep(0.2)
+        if not folder.exists():
+            return
