@@ -19,6 +19,8 @@ An FMI 3.0 FMU that declares Clocks, structural parameters or Scheduled Executio
 gets a ``skip`` row saying so for each (:mod:`.coverage`).
 
 The fuzz size is small by default (CI); the full-size run is ``flexlink check OUT.fmu --fuzz 5000``.
+``--platform win64`` runs every check on the FMU's win64 DLL under Wine, through a call proxy and server
+(:mod:`.win64`).
 """
 
 from flexlink.tools.check.command import add_parser, run_check

@@ -4,7 +4,8 @@ Exit status: 0 no error finding (warnings allowed, unless ``--strict``); 1 an er
 ``--strict``, a warning); 2 bad input (no such file, not an FMI 2.0 or 3.0 FMU, an interface it lacks, a bad
 option), reported in one line.  An FMI 3.0 FMU gets every check through fmpy's FMI 3 support
 (``fmu.Fmi3AsFmi2``), with FMI 3.0's own rules where they differ, but libcosim (FMI 1.0 and 2.0 only),
-reported as skipped.
+reported as skipped.  ``--platform win64`` checks the FMU's Windows DLL under Wine instead of its Linux binary
+(:mod:`.win64`); without Wine or the MinGW-w64 cross-compiler it is bad input (one line, exit status 2).
 """
 
 from __future__ import annotations
@@ -63,11 +64,24 @@ def _validate(args) -> tuple[str, ...]:
     present = tuple(k for k in wanted if declared[k] is not None)
     if not present:
         raise FlexlinkError(f"{args.fmu}: has no {' or '.join(wanted)} interface to check")
+    if getattr(args, "platform", "linux64") == "win64":
+        from flexlink.tools.check import win64
+
+        reason = win64.missing()
+        if reason is not None:
+            raise FlexlinkError(f"{args.fmu}: {reason}")
+        try:
+            win64.dll_members(members, md.fmiVersion, {declared[k].modelIdentifier for k in present})
+        except FlexlinkError as e:
+            raise FlexlinkError(f"{args.fmu}: {e}") from None
+        return present
     for k in present:
         folder = fmpy.platform_tuple if md.fmiVersion == "3.0" else fmpy.platform
         binary = f"binaries/{folder}/{declared[k].modelIdentifier}{fmpy.sharedLibraryExtension}"
         if binary not in members:
-            raise FlexlinkError(f"{args.fmu}: no {binary}: flexlink check runs the FMU's binary for this platform")
+            raise FlexlinkError(f"{args.fmu}: no {binary}: flexlink check runs the FMU's binary for this platform"
+                                + (" (its win64 binary: --platform win64)" if any("/win64/" in m or
+                                   "/x86_64-windows/" in m for m in members) else ""))
     return present
 
 
@@ -78,7 +92,8 @@ def run_check(args) -> int:
     try:
         results = check_fmu(args.fmu, fuzz=args.fuzz, seed=args.seed, importers=not args.no_importers,
                             stop_time=args.me_vs_cs_stop, tolerance=args.tolerance, interfaces=interfaces,
-                            only=only, skip=skip, call_limit=args.call_timeout or CALL_LIMIT)
+                            only=only, skip=skip, call_limit=args.call_timeout or CALL_LIMIT,
+                            platform=getattr(args, "platform", "linux64"))
     except (OSError, zipfile.BadZipFile) as e:          # an FMU that cannot be extracted, ...
         raise FlexlinkError(f"{args.fmu}: {type(e).__name__}: {e}") from None
     ok = passed(results, args.strict)
@@ -132,4 +147,7 @@ def add_parser(sub) -> None:
                    help="length of the ME vs CS comparison (default: the FMU's stop time, at most 0.5 s for "
                         "flexlink FMUs, 10 s for others)")
     p.add_argument("--no-importers", action="store_true", help="skip libcosim and fmutool")
+    p.add_argument("--platform", choices=["linux64", "win64"], default="linux64",
+                   help="the FMU's binary to check (default linux64); win64: its DLL under Wine, through "
+                        "flexlink's call server (needs wine64 and x86_64-w64-mingw32-gcc; docs/check.md)")
     p.set_defaults(func=run_check)

@@ -69,14 +69,47 @@ def run_child(name: str, fmu: str, options: dict) -> CheckResult:
         f.close()
 
 
+def _name_the_dll(result: CheckResult, repacked: str, original: str) -> None:
+    """Findings of a win64 check name the DLL and the command that reproduces them, not the call proxy."""
+    import re
+
+    def named(text: str) -> str:
+        text = re.sub(r"binaries/linux64/(\w+)\.so", r"binaries/win64/\1.dll", text)
+        return re.sub(r"binaries/x86_64-linux/(\w+)\.so", r"binaries/x86_64-windows/\1.dll", text)
+
+    result.details = [named(d) for d in result.details]
+    result.result = named(result.result)
+    for x in result.findings:
+        x.message = named(x.message)
+        x.reproduce = x.reproduce.replace(repacked, f"{original} --platform win64")
+
+
 def check_fmu(path: str | os.PathLike, *, fuzz: int = CI_FUZZ, seed: int = 0, importers: bool = True,
               stop_time: float | None = None, tolerance: float | None = None,
               interfaces: tuple[str, ...] = ("CS", "ME"), only: list[str] | None = None,
-              skip: list[str] | None = None, call_limit: float = CALL_LIMIT) -> list[CheckResult]:
+              skip: list[str] | None = None, call_limit: float = CALL_LIMIT,
+              platform: str = "linux64") -> list[CheckResult]:
     """Run the checks on the FMU at ``path`` (all, or ``only`` those, less ``skip``).
 
-    See the package docstring.
+    ``platform`` "win64": on the FMU's win64 DLL under Wine (:mod:`flexlink.tools.check.win64`).  See the
+    package docstring.
     """
+    if platform == "win64":
+        from flexlink.tools.check.findings import Finding
+        from flexlink.tools.check.win64 import DllNotLoaded, hosted
+
+        original = os.path.abspath(os.fspath(path))
+        try:
+            with hosted(original) as repacked:
+                results = check_fmu(repacked, fuzz=fuzz, seed=seed, importers=importers, stop_time=stop_time,
+                                    tolerance=tolerance, interfaces=interfaces, only=only, skip=skip,
+                                    call_limit=call_limit)
+        except DllNotLoaded as e:                # nothing can run: one failing row that says why
+            return [CheckResult("model-description", "the win64 DLL", "loads under Wine", "does not load",
+                                details=[str(e)], findings=[Finding("loads", str(e))])]
+        for r in results:
+            _name_the_dll(r, repacked, original)
+        return results
     from flexlink.tools.check.fmu import Fmu
     from flexlink.tools.check.isolation import run_isolated
 
