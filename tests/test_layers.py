@@ -93,3 +93,15 @@ def test_flexlink_never_imports_controllers():
     graph = _graph()
     assert [(m, d) for m, deps in graph.items() if m.startswith("flexlink") for d in deps
             if d.startswith("controllers")] == []
+
+
+def test_every_package_is_installed():
+    """pyproject.toml lists its packages by hand ([tool.setuptools] packages): a package left out is missing from
+    a non-editable install (``flexlink.tools.check`` was, with its win64 call server's C files)."""
+    import tomllib
+
+    root = Path(__file__).resolve().parent.parent
+    listed = set(tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {".".join(p.parent.relative_to(root).parts) for top in ("flexlink", "controllers")
+             for p in (root / top).rglob("__init__.py")}
+    assert found - listed == set()
