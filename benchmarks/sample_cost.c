@@ -15,30 +15,9 @@
 #include <stdlib.h>
 #include <time.h>
 #include "fmi2Functions.h"
+#include "driver_util.h"
 
 #define MAX_OUT 64
-
-static void logger(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status, fmi2String category,
-                   fmi2String message, ...) {
-    (void)env; (void)name; (void)category;
-    if (status != fmi2OK) fprintf(stderr, "[status %d] %s\n", (int)status, message);
-}
-
-static double now(clockid_t clock) {
-    struct timespec ts;
-    clock_gettime(clock, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
-
-static int cmp(const void *a, const void *b) {
-    const double x = *(const double *)a, y = *(const double *)b;
-    return (x > y) - (x < y);
-}
-
-static double median(double *x, int n) {
-    qsort(x, (size_t)n, sizeof(double), cmp);
-    return n % 2 ? x[n / 2] : 0.5 * (x[n / 2 - 1] + x[n / 2]);
-}
 
 static double *read_torques(const char *path, long *n) {
     FILE *f = fopen(path, "rb");

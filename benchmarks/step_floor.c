@@ -21,30 +21,9 @@
 #include <time.h>
 #include "cosimulation.h"
 #include "linalg.h"
+#include "driver_util.h"
 
 #define MAX_TOKENS 64
-
-static void logger(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status, fmi2String category,
-                   fmi2String message, ...) {
-    (void)env; (void)name; (void)category;
-    if (status != fmi2OK) fprintf(stderr, "[status %d] %s\n", (int)status, message);
-}
-
-static double cpu_now(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
-
-static int cmp(const void *a, const void *b) {
-    const double x = *(const double *)a, y = *(const double *)b;
-    return (x > y) - (x < y);
-}
-
-static double median(double *x, int n) {
-    qsort(x, (size_t)n, sizeof(double), cmp);
-    return n % 2 ? x[n / 2] : 0.5 * (x[n / 2 - 1] + x[n / 2]);
-}
 
 #define NO_INPUT 0xffffffffu   /* a segment that sets no input */
 typedef struct { int n_set, n_seg; unsigned set_vr[MAX_TOKENS]; double set_val[MAX_TOKENS];
@@ -68,9 +47,9 @@ static double run(fmi2Component c, const Plan *plan, Counters *cnt) {
     double t = 0.0, cpu = 0.0;
     for (int k = 0; k < plan->n_seg; k++) {
         if (plan->seg_vr[k] != NO_INPUT) fmi2SetReal(c, &plan->seg_vr[k], 1, &plan->seg_val[k]);
-        const double t0 = cpu_now();
+        const double t0 = now(CLOCK_PROCESS_CPUTIME_ID);
         if (fmi2DoStep(c, t, plan->until[k] - t, fmi2True) != fmi2OK) { fprintf(stderr, "doStep failed\n"); exit(1); }
-        cpu += cpu_now() - t0;
+        cpu += now(CLOCK_PROCESS_CPUTIME_ID) - t0;
         t = plan->until[k];
     }
     const SS22 *s = &inst->d.ss22;
@@ -102,7 +81,7 @@ static double time_part(Instance *inst, int part, double dt, long iterations) {
     lu_factor(LU, N_Q, piv);
     SS22 s = d->ss22;                     /* a private copy: the instance is not advanced */
     double q[N_Q], v[N_Q], al[N_Q];
-    double t0 = cpu_now();
+    double t0 = now(CLOCK_PROCESS_CPUTIME_ID);
     for (long it = 0; it < iterations; it++) {
         switch (part) {
         case PART_FLOOR:
@@ -138,7 +117,7 @@ static double time_part(Instance *inst, int part, double dt, long iterations) {
             break;
         }
     }
-    return (cpu_now() - t0) / (double)iterations;
+    return (now(CLOCK_PROCESS_CPUTIME_ID) - t0) / (double)iterations;
 }
 
 int main(int argc, char **argv) {

@@ -45,7 +45,7 @@ def compile_driver(fmu: str | Path, workdir: str | Path, driver: Path = DRIVER) 
     # the files the FMU lists (model.c includes the CasADi file with its own warning settings)
     files = [f.get("name") for f in root.findall("CoSimulation/SourceFiles/File")]
     exe = workdir / Path(driver).stem
-    command = [*compiler(), "-O2", "-std=c99", "-Wall", "-Wextra", "-Werror", f"-I{src}",
+    command = [*compiler(), "-O2", "-std=c99", "-Wall", "-Wextra", "-Werror", f"-I{src}", f"-I{Path(driver).parent}",
                *(str(src / f) for f in files), str(driver), "-o", str(exe), "-lm"]
     res = subprocess.run(command, capture_output=True, text=True, check=False)
     if res.returncode != 0:
