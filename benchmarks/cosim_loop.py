@@ -5,8 +5,8 @@
 Issue 6's manoeuvre (+τ for 1 s, −τ for 1 s, then free, 5 s) driven from a Python loop that, at every
 communication point, sets the torque, advances one communication step and reads the outputs:
 
-* ``flexlink FMU``: the scene's FMU through fmpy's ``FMU2Slave`` (setReal, doStep, getReal), SS22 at several
-  internal steps and the order-4 option;
+* ``flexlink FMU``: the scene's FMU through fmpy's ``FMU2Slave`` on flexlink's FmuHost (setReal, doStep,
+  getReal), SS22 at several internal steps and the order-4 option;
 * ``python FMU``: a PythonFMU 0.7 FMU (``benchmarks/python_fmu_slave.py``) integrating the same equations by
   RK4 in one CasADi call per step, through the very same fmpy loop;
 * ``cvodes per step``: CasADi's CVODES restarted at every communication step (``ca.integrator`` over one step,
@@ -80,31 +80,21 @@ def build_python_fmu(model, outputs: list[str], path: str | Path, substeps=SUBST
 
 def fmpy_loop(fmu: str | Path, case, comm_step: float, start: dict, repeats: int) -> tuple[float, dict]:
     """The host loop (setReal, doStep, getReal at every communication point) over ``case``; returns the median
-    CPU seconds per simulated second and the outputs at ``case.times``."""
-    import fmpy
-    from fmpy.fmi2 import FMU2Slave
+    CPU seconds per simulated second and the outputs at ``case.times``.  The instance is the project's one FMU
+    host (flexlink.run.host.FmuHost); the loop calls fmpy's FMU2Slave methods on it, as an fmpy user would."""
+    from flexlink.run.host import FmuHost
 
-    md = fmpy.read_model_description(str(fmu))
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    types = {v.name: v.type for v in md.modelVariables}
-    unzipdir = fmpy.extract(str(fmu))
     n = int(round(case.stop / comm_step))
     times = np.arange(n + 1) * comm_step
-    vr_out = [vr[name] for name in case.outputs]
     input_names = sorted({k for _, values in case.pieces for k in values})
-    vr_in = [vr[name] for name in input_names]
     u_at = [[case.inputs_at(t).get(name, 0.0) for name in input_names] for t in times]
     cpu, Y = [], None
-    try:
+    with FmuHost(fmu, instance_name="loop") as host:
+        s = host.instance
+        vr_out = [host.value_reference(name) for name in case.outputs]
+        vr_in = [host.value_reference(name) for name in input_names]
         for _ in range(repeats):
-            s = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier,
-                          instanceName="loop")
-            s.instantiate()
-            for name, value in start.items():
-                (s.setInteger if types[name] == "Integer" else s.setReal)([vr[name]], [value])
-            s.setupExperiment(startTime=0.0)
-            s.enterInitializationMode()
-            s.exitInitializationMode()
+            host.initialize(start)                    # each start value through its type's setter
             rows = [s.getReal(vr_out)]
             t0 = time.process_time()
             for k in range(n):
@@ -113,12 +103,6 @@ def fmpy_loop(fmu: str | Path, case, comm_step: float, start: dict, repeats: int
                 rows.append(s.getReal(vr_out))
             cpu.append(time.process_time() - t0)
             Y = np.array(rows)
-            s.terminate()
-            s.freeInstance()
-    finally:
-        import shutil
-
-        shutil.rmtree(unzipdir, ignore_errors=True)
     idx = np.searchsorted(times, case.times - 1e-9)
     return statistics.median(cpu) / case.stop, {name: Y[idx, j] for j, name in enumerate(case.outputs)}
 
