@@ -64,16 +64,18 @@ class MeasurementSchedule:
 
     y_ref: np.ndarray   # (N, p)
     C: np.ndarray       # (N, p, n)
-    D: np.ndarray       # (N, p)
-    u_ff_prev: np.ndarray  # (N,) deviation torque held while y_k is sampled, along the reference
+    D: np.ndarray       # (N, p), or (N, p, m) for the m inputs of a multi-joint law
+    u_ff_prev: np.ndarray  # (N,) or (N, m): deviation torque held while y_k is sampled, along the reference
 
 
-def _sensor_function(plant: LinearPlant, sensors: list[str]) -> ca.Function | None:
+def _sensor_function(plant: LinearPlant, sensors: list[str], inputs: tuple[int, ...] = (0,)) -> ca.Function | None:
     """The sensors as a scalar (SX) function (x, u, p) → (y, ∂y/∂x, ∂y/∂u), cached on the plant.
 
-    None when the sensors are affine in (x, u): the rest-pose model is then exact.
+    ``∂y/∂u`` is taken on the plant's ``inputs`` (indices in ``plant.inputs``: the first for one joint, every
+    joint torque for the multi-joint law).  None when the sensors are affine in (x, u): the rest-pose model is
+    then exact.
     """
-    key = ("sensor_function", tuple(sensors))
+    key = ("sensor_function", tuple(sensors), tuple(inputs))
     if key in plant.cache:
         return plant.cache[key]
     import casadi as ca
@@ -93,36 +95,45 @@ def _sensor_function(plant: LinearPlant, sensors: list[str]) -> ca.Function | No
     y = out(q, v, acc, u, p)[rows]
     x = ca.vertcat(q, v)
     cols = [k for k, s in enumerate(model.inputs) if s.fmu_variable]
-    Cx, Du = ca.jacobian(y, x), ca.jacobian(y, u)[:, cols[0]]
+    Cx, Du = ca.jacobian(y, x), ca.jacobian(y, u)[:, [cols[i] for i in inputs]]
     xu = ca.vertcat(x, u)
     f = None
-    if ca.depends_on(ca.vertcat(ca.vec(Cx), Du), xu):
+    if ca.depends_on(ca.vertcat(ca.vec(Cx), ca.vec(Du)), xu):
         f = ca.Function("sensors", [x, u, p], [y, Cx, Du])
     plant.cache[key] = f
     return f
 
 
-def measurement_schedule(plant: LinearPlant, sensors: list[str], reference: Reference) -> MeasurementSchedule | None:
+def measurement_schedule(plant: LinearPlant, sensors: list[str], reference: Reference,
+                         inputs: list[int] | None = None) -> MeasurementSchedule | None:
     """Linearise the sensors' outputs about every sample of ``reference``.
 
-    None when they are affine in the state and input (encoder, strain gauge): the rest-pose model is then
-    the same.
+    ``inputs``: the indices in ``plant.inputs`` that ``reference.u_ff`` drives, one column each (the
+    multi-joint law's joint torques); None: the first input, ``u_ff`` one number per sample, and ``D``,
+    ``u_ff_prev`` without the input axis (the single-joint law).  None when the sensors are affine in the
+    state and input (encoder, strain gauge): the rest-pose model is then the same.
     """
-    f = _sensor_function(plant, sensors)
+    cols_p = [0] if inputs is None else list(inputs)
+    f = _sensor_function(plant, sensors, tuple(cols_p))
     if f is None:
         return None
     model = plant.model
     cols = [k for k, s in enumerate(model.inputs) if s.fmu_variable]
     N = len(reference.time)
-    u_prev = np.concatenate([[0.0], reference.u_ff[:-1]])
+    u_ff = np.asarray(reference.u_ff, dtype=float).reshape(N, len(cols_p))
+    u_prev = np.vstack([np.zeros((1, len(cols_p))), u_ff[:-1]])
     X = plant.x0[None, :] + reference.x
     U = np.tile(plant.op.u, (N, 1))
-    U[:, cols[0]] = plant.u0[0] + u_prev
+    for j, i in enumerate(cols_p):
+        U[:, cols[i]] = plant.u0[i] + u_prev[:, j]
     Y, Cs, Ds = f.map(N)(X.T, U.T, plant.op.p)
     p_ = len(sensors)
     n = plant.sys.nstates
     Cs = np.asarray(Cs, dtype=float).reshape(p_, N, n).transpose(1, 0, 2)   # columns k·n + j → [k, :, j]
-    return MeasurementSchedule(np.asarray(Y, dtype=float).T, Cs, np.asarray(Ds, dtype=float).T, u_prev)
+    Ds = np.asarray(Ds, dtype=float).reshape(p_, N, len(cols_p)).transpose(1, 0, 2)
+    if inputs is None:
+        return MeasurementSchedule(np.asarray(Y, dtype=float).T, Cs, Ds[:, :, 0], u_prev[:, 0])
+    return MeasurementSchedule(np.asarray(Y, dtype=float).T, Cs, Ds, u_prev)
 
 
 @dataclass

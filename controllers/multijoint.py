@@ -12,10 +12,16 @@ start pose cannot plan the path itself: the elbow's motion changes the arm's ine
 Both laws see deviations from that reference:
 
 * :class:`MimoLQGLaw` — the discrete LQR on the Kalman filter's estimate of the deviation ``x − x_ref``
-  (current estimator, encoders and root strain gauges, outputs linear in the state so that the
-  measurement expected on the reference is ``y₀ + C x_ref`` exactly), the saturated torque fed back to the
-  estimator (no wind-up).  Without saturation it is :func:`controllers.robustness.lqg_compensator`, whose
-  loop-at-a-time margins ``flexlink control --design-only`` reports.
+  (current estimator), the saturated torque fed back to the estimator (no wind-up).  Encoders and root
+  strain gauges are linear in the state: the measurement expected on the reference is ``y₀ + C x_ref``
+  exactly.  The tip accelerometer has feedthrough and is far from linear along a large manoeuvre: it is read
+  as the single-joint LQG reads it (:func:`controllers.laws.measurement_schedule`), its expected value the
+  model's output at the reference state, acceleration and held feedforward torque, ``h(x_ref,k, u_ff,k−1)
+  + C_k δx + D_k (u_{k−1} − u_ff,k−1)``, sampled at t_k while the previous torque is held; the estimator
+  then predicts with the plant sampled along the reference and the time-varying Kalman gain
+  (:func:`estimator_along`).  Without saturation, with encoders and strain gauges, it is
+  :func:`controllers.robustness.lqg_compensator`, whose loop-at-a-time margins ``flexlink control
+  --design-only`` reports.
 * :class:`JointPDLaw` — one PD per joint on its encoder and rate, the same feedforward, each joint's
   rigid-body pair at the LQR's slowest pair (locked-arm inertia ``M_jj``); its torque limit is the LQG run's
   peak torque of that joint (:func:`compare`), so it never uses more torque than the LQG did.
@@ -34,16 +40,21 @@ from controllers.cosim import FmuLoop
 from controllers.trajectory import Reference, quintic
 from flexlink.errors import FlexlinkError
 
-__all__ = ["JointPDLaw", "MimoLQGLaw", "compare", "compare_laws", "default_torque_limit", "inverse_dynamics_reference",
-           "joint_pd_gains", "plan", "run"]
+__all__ = ["ACCELEROMETER", "EstimatorAlong", "JointPDLaw", "MimoLQGLaw", "compare", "compare_laws",
+           "default_torque_limit", "estimator_along", "inverse_dynamics_reference", "joint_pd_gains",
+           "kalman_gains_along", "plan", "run"]
+
+
+#: The tip accelerometer's outputs (:func:`controllers.design.sensor_set`), read along the reference.
+ACCELEROMETER = ("tip.sx", "tip.sy")
 
 
 def check_multijoint(d) -> None:
     """Refuse a design the multi-joint run cannot drive, before anything runs.
 
-    It drives every joint by torque (no built-in law to carry along the path), starting at rest, with sensors
-    whose outputs are linear in the state.  An elastic joint's torque turns its motor
-    (:func:`drive_coordinate`).
+    It drives every joint by torque (no built-in law to carry along the path), starting at rest, with the
+    encoders, root strain gauges and tip accelerometer (:data:`ACCELEROMETER`).  An elastic joint's torque
+    turns its motor (:func:`drive_coordinate`).
     """
     from controllers.design import DesignError
 
@@ -55,9 +66,10 @@ def check_multijoint(d) -> None:
         if j.initial_rate != 0.0:
             raise DesignError(f'joint "{j.name}": a rest-to-rest manoeuvre starts at rest; initial_rate = '
                               f"{j.initial_rate} rad/s")
-    if np.any(d.kalman.D != 0) or any(not s.endswith((".theta", ".root.moment")) for s in d.kalman.sensors):
-        raise DesignError(f"sensors {d.kalman.sensors}: the multi-joint run reads the encoders and root strain gauges "
-                          "(--sensors strain)")
+    unknown = [s for s in d.kalman.sensors if not s.endswith((".theta", ".root.moment")) and s not in ACCELEROMETER]
+    if unknown:
+        raise DesignError(f"sensors {unknown}: the multi-joint run reads the encoders, root strain gauges (--sensors "
+                          "strain) and the tip accelerometer (--sensors accelerometer)")
 
 
 def drive_coordinate(model, joint: str) -> str:
@@ -225,34 +237,158 @@ class MimoLQGLaw:
 
     def __init__(self, d, limits: Sequence[float], reference: Reference):
         from controllers.design import torque_inputs
+        from controllers.laws import measurement_schedule
 
         p = d.plant
+        cols = torque_inputs(p)
         self.dt, self.sensors, self.inputs = d.dt, list(d.kalman.sensors), list(d.lqr.inputs)
-        self.u0 = p.u0[torque_inputs(p)]
+        self.u0 = p.u0[cols]
         self.y0 = p.y0[[p.output_row(s) for s in self.sensors]]
         self.C, self.M, self.K = d.kalman.C, d.kalman.Md, d.lqr.Kd
+        self.D = np.asarray(d.kalman.D)[:, cols]
         self.Ad, self.Bd = np.asarray(d.lqr.plant_d.A), np.asarray(d.lqr.plant_d.B)
         self.limits = np.asarray(limits, dtype=float)
         self.W = reference_step(reference, self.Ad, self.Bd)
+        # sensors not affine in the state (the tip accelerometer): read along the reference, as LQGLaw.follow
+        self.schedule = measurement_schedule(p, self.sensors, reference, cols)
+        self.along = None if self.schedule is None else estimator_along(d, reference, self.schedule.C)
         self.reset()
 
     def reset(self) -> None:
-        """Start a run: the estimate at the reference (zero deviation) and the sample count at 0."""
+        """Start a run: the estimate at the reference (zero deviation), no torque deviation held, sample 0."""
         self.dz = np.zeros(self.Ad.shape[0])      # prior estimate of x − x_ref
+        self.u_prev = np.zeros(len(self.u0))      # deviation torque held while y_k is sampled
         self.k = 0
 
     def matrices(self, k: int) -> tuple[np.ndarray, ...]:
         """(M, C, K, A_d, B_d) that sample ``k`` uses: the one design's (a scheduled law overrides this)."""
         return self.M, self.C, self.K, self.Ad, self.Bd
 
+    def predicted(self, x_ref: np.ndarray, C: np.ndarray) -> np.ndarray:
+        """The measurement ``ŷ_k`` the estimator expects at sample ``k`` from its prior deviation estimate.
+
+        Sensors linear in the state: ``y₀ + C (x_ref + δẑ)``.  With a measurement schedule (a sensor with
+        feedthrough, sampled at t_k while the previous torque u_{k−1} is held: :mod:`controllers.laws`):
+        ``h(x_ref,k, u_ff,k−1) + C_k δẑ + D_k (u_{k−1} − u_ff,k−1)``, the sensors linearised along the reference.
+        """
+        sc, k = self.schedule, self.k
+        if sc is not None and k < len(sc.y_ref):
+            return sc.y_ref[k] + sc.C[k] @ self.dz + sc.D[k] @ (self.u_prev - sc.u_ff_prev[k])
+        return self.y0 + C @ (x_ref + self.dz) + self.D @ self.u_prev
+
     def step(self, y, x_ref, u_ff) -> np.ndarray:
         """One sample: correct the estimate with ``y``, the saturated torques, then predict the next sample."""
         M, C, K, Ad, Bd = self.matrices(self.k)
-        dx = self.dz + M @ (y - self.y0 - C @ (x_ref + self.dz))
+        W = self.W
+        if self.along is not None and self.k < len(self.along.M):
+            al = self.along
+            M, Ad, Bd, W = al.M[self.k], al.A[self.k], al.B[self.k], al.W
+        dx = self.dz + M @ (y - self.predicted(x_ref, C))
         u = np.clip(self.u0 + u_ff - K @ dx, -self.limits, self.limits)
-        self.dz = Ad @ dx + Bd @ (u - self.u0 - u_ff) - self.W[self.k]
+        self.dz = Ad @ dx + Bd @ (u - self.u0 - u_ff) - W[self.k]
+        self.u_prev = u - self.u0
         self.k += 1
         return u
+
+
+@dataclass
+class EstimatorAlong:
+    """The Kalman filter's model along a reference, per sample k (:class:`MimoLQGLaw` with an accelerometer).
+
+    ``A[k]``, ``B[k]``: the plant's flow over [t_k, t_k+1] sampled (zero-order hold) about ``(x_ref,k,
+    u_ff,k)``; ``M[k]``: the time-varying Kalman gain with the sensors' rows ``C_k``
+    (:func:`kalman_gains_along`); ``W[k]``: the reference's own step (:func:`reference_step`) in that model.
+    """
+
+    A: np.ndarray       # (N, n, n)
+    B: np.ndarray       # (N, n, m)
+    M: np.ndarray       # (N, n, p)
+    W: np.ndarray       # (N, n)
+
+
+def _flow_function(plant, cols: Sequence[int]) -> ca.Function:
+    """(x, u, p) → (∂f/∂x, ∂f/∂u on the torques ``cols``) of the first-order flow ``f = (v, a(q, v, u))``."""
+    key = ("flow_jacobians", tuple(cols))
+    if key in plant.cache:
+        return plant.cache[key]
+    model = plant.model
+    n = model.n_q
+    res = model.residual.expand()
+    q, v, a = ca.SX.sym("q", n), ca.SX.sym("v", n), ca.SX.sym("a", n)
+    u, p = ca.SX.sym("u", res.size1_in(3)), ca.SX.sym("p", res.size1_in(4))
+    r = res(q, v, a, u, p)
+    zero = ca.SX.zeros(n)
+    acc = -ca.solve(ca.substitute(ca.jacobian(r, a), a, zero), ca.substitute(r, a, zero))
+    x, f = ca.vertcat(q, v), ca.vertcat(v, acc)
+    fmu = [k for k, s_ in enumerate(model.inputs) if s_.fmu_variable]
+    fn = ca.Function("flow", [x, u, p], [ca.jacobian(f, x), ca.jacobian(f, u)[:, [fmu[i] for i in cols]]])
+    plant.cache[key] = fn
+    return fn
+
+
+def estimator_along(d, reference: Reference, Cs: np.ndarray) -> EstimatorAlong:
+    """The plant sampled about every sample of ``reference`` and the Kalman gains along it.
+
+    Why: the accelerometer reads the state's effect within one sample (its rows ``C_k`` meet ``B``: a torque
+    step changes the rates, and the centripetal ``tip.sx`` reads the rates at the reference's speed), so the
+    rest pose's ``A_d, B_d`` mispredict it along a large manoeuvre by more than its noise — measured on
+    two_link_payload (60°/40° in 1.5 s) at 0.64 s: FMU ∂tip.sx/∂τ_elbow over one sample 0.72, rest-pose
+    model 0.91 — and the LQG went unstable there.
+    """
+    from scipy.linalg import expm
+
+    from controllers.design import torque_inputs
+
+    p = d.plant
+    cols = torque_inputs(p)
+    model = p.model
+    fmu = [k for k, s_ in enumerate(model.inputs) if s_.fmu_variable]
+    N, n, m = len(reference.time), p.sys.nstates, len(cols)
+    U = np.tile(p.op.u, (N, 1))
+    u_ff = np.asarray(reference.u_ff, dtype=float).reshape(N, m)
+    for j, i in enumerate(cols):
+        U[:, fmu[i]] = p.u0[i] + u_ff[:, j]
+    Ac, Bc = _flow_function(p, cols).map(N)((p.x0[None, :] + reference.x).T, U.T, p.op.p)
+    Ac = np.asarray(Ac, dtype=float).reshape(n, N, n).transpose(1, 0, 2)
+    Bc = np.asarray(Bc, dtype=float).reshape(n, N, m).transpose(1, 0, 2)
+    A, B = np.empty_like(Ac), np.empty_like(Bc)
+    blk = np.zeros((n + m, n + m))
+    for k in range(N):
+        blk[:n, :n], blk[:n, n:] = Ac[k], Bc[k]
+        E = expm(blk * reference.dt)
+        A[k], B[k] = E[:n, :n], E[:n, n:]
+    x, uf = reference.x, u_ff
+    W = np.zeros_like(x)
+    n_move = int(round(reference.duration / reference.dt))
+    dx, du = x - x[-1], uf - uf[-1]
+    for k in range(n_move, N - 1):          # 0 along the inverse dynamics: the reference is the plant's flow
+        W[k] = dx[k + 1] - A[k] @ dx[k] - B[k] @ du[k]
+    return EstimatorAlong(A, B, kalman_gains_along(d.kalman, A, Cs), W)
+
+
+def kalman_gains_along(kalman, As: np.ndarray, Cs: np.ndarray) -> np.ndarray:
+    """The Kalman filter's gains ``M_k`` for the model ``A_k`` and sensor rows ``C_k`` along a reference, (N, n, p).
+
+    The time-varying filter's Riccati recursion from the stationary design's prior covariance, with its
+    per-sample noise covariances: ``Q_d = P_d − A_d (I − M_d C) P_d A_dᵀ`` (the stationary equation solved
+    for it, ``A_d`` the rest pose's: ``As[0]``) and ``R``.  The stationary gain is designed on the rest pose's
+    rows; the accelerometer's change several-fold along a large manoeuvre (the centripetal ``tip.sx`` has a
+    zero row at rest), and with the rest gain ``A_k (I − M_d C_k)`` is unstable (two_link_payload,
+    60°/40° in 1.5 s: the estimate diverged from 0.6 s on).
+    """
+    P, M, C, R = kalman.Pd, kalman.Md, kalman.C, kalman.RN
+    n = P.shape[0]
+    Q = P - As[0] @ (np.eye(n) - M @ C) @ P @ As[0].T
+    Q = 0.5 * (Q + Q.T)
+    gains = np.empty((len(Cs), n, C.shape[0]))
+    for k, Ck in enumerate(Cs):
+        S = Ck @ P @ Ck.T + R
+        Mk = np.linalg.solve(S, Ck @ P).T               # P Cₖᵀ S⁻¹ (S, P symmetric)
+        gains[k] = Mk
+        IMC = np.eye(n) - Mk @ Ck
+        P = As[k] @ (IMC @ P @ IMC.T + Mk @ R @ Mk.T) @ As[k].T + Q      # Joseph form: P stays positive
+        P = 0.5 * (P + P.T)
+    return gains
 
 
 def reference_step(reference: Reference, Ad: np.ndarray, Bd: np.ndarray) -> np.ndarray:

@@ -193,7 +193,6 @@ def test_cli_multijoint(tmp_path, capsys):
     for bad, msg in ((["--target", "60"], "one angle per torque-driven joint"),
                      (["--target", "60,20", "--noise"], "--noise"),
                      (["--target", "60,20", "--controller", "pd"], "--controller"),
-                     (["--target", "60,20", "--sensors", "accelerometer"], "strain"),
                      (["--target", "60,20", "--torque-limit", "60,20,5"], "one per torque-driven joint"),
                      (["--target", "60,20", "--torque-limit", "60,-1"], "must be positive")):
         args = parser.parse_args(["control", str(SCENE), "--duration", "1.5", "--torque-limit", "60", *bad])
