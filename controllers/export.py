@@ -196,8 +196,9 @@ def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits
     from flexlink.export.cbuild import compile_shared_library, fmi_headers_dir
 
     if np.any(d.kalman.D != 0) or any(not s.endswith((".theta", ".root.moment")) for s in d.kalman.sensors):
-        raise DesignError(f"--export-fmu: the controller FMU reads encoders and root strain gauges (--sensors strain),"
-                          f" got {d.kalman.sensors}")
+        raise DesignError(f"--export-fmu, --export-ssp: the controller FMU reads encoders and root strain gauges "
+                          f"(--sensors strain; the accelerometer is read along the reference only in Python), got "
+                          f"{d.kalman.sensors}")
     path = Path(path)
     if path.suffix != ".fmu":
         raise DesignError(f"--export-fmu {path}: expected a file name ending in .fmu")

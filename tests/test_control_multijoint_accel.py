@@ -147,9 +147,10 @@ def test_accelerometer_lqg_reaches_the_targets_and_settles(rig):
         print(f"{j}: max |τ_accelerometer − τ_strain| {np.max(np.abs(tau_a - tau_s)):.3g} N m")
 
 
-def test_cli_runs_the_accelerometer_lqg_and_refuses_other_sensors(rig, capsys):
+def test_cli_runs_the_accelerometer_lqg_and_refuses_other_sensors(rig, capsys, tmp_path):
     """``flexlink control … --sensors accelerometer`` through the FMU; a sensor the run cannot read yet (a tip
-    deflection) is refused with one message before anything runs."""
+    deflection) is refused with one message before anything runs, and so is the controller FMU with the
+    accelerometer (its C has no measurement model along the reference)."""
     from controllers.cli import add_control_parsers
 
     parser = argparse.ArgumentParser()
@@ -160,8 +161,35 @@ def test_cli_runs_the_accelerometer_lqg_and_refuses_other_sensors(rig, capsys):
     doc = json.loads(capsys.readouterr().out)
     assert doc["sensors"] == ["shoulder.theta", "elbow.theta", "tip.sx", "tip.sy"]
     assert doc["lqg"]["settling_time_s"] is not None and doc["robustness"]["lqg"]["stable"]
+    ssp = tmp_path / "system.ssp"
+    args = parser.parse_args(["control", str(SCENE), "--target", "60,20", "--duration", str(DURATION), "--torque-limit",
+                              str(LIMIT), "--sensors", "accelerometer", "--export-ssp", str(ssp)])
+    with pytest.raises(DesignError, match="--export-ssp: the controller FMU reads encoders and root strain gauges"):
+        args.func(args)
+    assert not ssp.exists()
     designs, _ = rig
     d = design(designs["strain"].plant.model, torque_limit=LIMIT, dt=1e-3,
                sensors=["shoulder.theta", "elbow.theta", "fore.tip.v"])
     with pytest.raises(DesignError, match=r"sensors \['fore.tip.v'\]: the multi-joint run reads"):
         check_multijoint(d)
+
+
+def test_scheduled_lqg_with_the_accelerometer(rig):
+    """``--schedule``: the LQR gain scheduled over the path, the accelerometer read along the reference, on the
+    larger travel that the fixed LQG cannot hold (elbow −20° → 90°, docs/control.md): both joints reach their
+    targets and the arm settles."""
+    from controllers.schedule import ScheduledLQGLaw, design_schedule
+
+    designs, loop = rig
+    d = designs["accelerometer"]
+    targets = [math.radians(60.0), math.radians(90.0)]
+    pl = plan(d.plant, targets)
+    ref = inverse_dynamics_reference(d.plant, pl, d.dt, DURATION, SETTLE)
+    law = ScheduledLQGLaw(design_schedule(d, pl, 3), [LIMIT, LIMIT], ref)
+    assert law.along is not None
+    m = run(d, loop, pl, ref, law).metrics
+    errors = [m["joints"][j]["final_error_deg"] for j in ("shoulder", "elbow")]
+    print(f"\nscheduled, accelerometer: final errors {errors} deg, settling {m['settling_time_s']} s")
+    for j in ("shoulder", "elbow"):
+        assert abs(m["joints"][j]["final_error_deg"]) < 1e-3
+    assert m["settling_time_s"] is not None and m["settling_time_s"] < DURATION + SETTLE - 0.5
