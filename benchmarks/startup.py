@@ -1,6 +1,6 @@
 """Fixed start-up of every ``flexlink`` command (issue 22: ≤ 1 s): imports and set-up before the work.
 
-    python benchmarks/startup.py [--repeats N] [--json] [--write [PAGE]]
+    python benchmarks/startup.py [--repeats N] [--baseline DIR] [--json] [--write [PAGE]]
 
 Each command runs in ``--repeats`` fresh processes (default 7), the commands alternated round-robin in the
 same run so that the machine's load falls on all of them alike, after one untimed run of each that fills the
@@ -13,8 +13,15 @@ FMU build cache and the design cache.  What is timed is the wall time from start
 
 ``control`` is timed twice: from the design cache (a repeated command) and with it off
 (``FLEXLINK_DESIGN_CACHE=0``: the linearisation and the LQR/Kalman design, which import python-control).
-The table gives the median, the spread and which of the heavy modules the command imported
+The table gives the median, the spread, the whole run's median (process start to exit: what the user waits
+for, the closed-loop run included) and which of the heavy modules the command imported
 (``python -X importtime`` of one more run: numpy, fmpy, CasADi, SciPy, python-control, matplotlib).
+
+``--baseline DIR`` times the same commands from another checkout too (``mkdir DIR && git archive COMMIT |
+tar -x -C DIR && echo COMMIT > DIR/COMMIT``: its ``flexlink`` and ``controllers`` are imported from DIR, the
+interpreter and packages are this one's), each of its runs right after this tree's, and adds its medians
+and the ratios of the same run: a change's before and after under the same load.
+
 ``--write`` puts the table into docs/performance.md between ``<!-- startup:begin -->`` and
 ``<!-- startup:end -->`` (or into PAGE): the figures there come from this command, never typed.
 """
@@ -69,11 +76,16 @@ COMMANDS: list[tuple[str, list[str], str, dict[str, str]]] = [
 HEAVY = ("numpy", "fmpy", "casadi", "scipy", "control", "matplotlib")
 
 
-def timed_run(args: list[str], until: str, env: dict[str, str]) -> float:
-    """Seconds from starting ``flexlink ARGS`` to its first FMU load (``until="fmu"``) or to its exit."""
+def timed_run(args: list[str], until: str, env: dict[str, str], root: Path = ROOT) -> tuple[float, float]:
+    """Seconds from starting ``flexlink ARGS`` to its first FMU load (``until="fmu"``) or to its exit, and to
+    its exit.
+
+    The process runs in ``root``, whose ``flexlink`` and ``controllers`` it imports (``python -c`` puts the
+    working directory first on ``sys.path``).
+    """
     argv = [sys.executable, "-c", _PRELUDE, *args]
     t0 = time.perf_counter()
-    proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    proc = subprocess.Popen(argv, cwd=root, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, **env})
     seen = None
     for line in proc.stderr:
@@ -86,48 +98,79 @@ def timed_run(args: list[str], until: str, env: dict[str, str]) -> float:
     if until == "fmu":
         if seen is None:
             raise SystemExit(f"flexlink {' '.join(args)} never loaded an FMU")
-        return seen
-    return total
+        return seen, total
+    return total, total
 
 
-def heavy_imports(args: list[str], env: dict[str, str]) -> list[str]:
+def heavy_imports(args: list[str], env: dict[str, str], root: Path = ROOT) -> list[str]:
     """The heavy top-level packages one run imports (``-X importtime``)."""
-    res = subprocess.run([sys.executable, "-X", "importtime", "-c", _PRELUDE, *args], cwd=ROOT,
+    res = subprocess.run([sys.executable, "-X", "importtime", "-c", _PRELUDE, *args], cwd=root,
                          capture_output=True, text=True, env={**os.environ, **env})
     names = {line.split("|")[2].strip() for line in res.stderr.splitlines() if line.startswith("import time:")}
     return [m for m in HEAVY if m in names]
 
 
-def measure(repeats: int) -> dict:
-    """Every command: an untimed run, then ``repeats`` timed runs round-robin; medians, spreads, imports."""
+def measure(repeats: int, baseline: Path | None = None) -> dict:
+    """Every command: an untimed run, then ``repeats`` timed runs round-robin; medians, spreads, imports.
+
+    With ``baseline``, each timed run of a command is followed by one from that checkout.
+    """
     load0 = os.getloadavg()[0]
+    roots = [ROOT] if baseline is None else [ROOT, baseline]
     for _, args, until, env in COMMANDS:
-        timed_run(args, until, env)          # fills the FMU and design caches
-    times: list[list[float]] = [[] for _ in COMMANDS]
+        for root in roots:
+            timed_run(args, until, env, root)          # fills the FMU and design caches
+    times: dict[Path, list[list[tuple[float, float]]]] = {r: [[] for _ in COMMANDS] for r in roots}
     for _ in range(repeats):
         for k, (_, args, until, env) in enumerate(COMMANDS):
-            times[k].append(timed_run(args, until, env))
+            for root in roots:
+                times[root][k].append(timed_run(args, until, env, root))
     rows = []
-    for (label, args, until, env), ts in zip(COMMANDS, times, strict=True):
-        rows.append({"command": label, "arguments": args, "until": until, "median_s": statistics.median(ts),
-                     "min_s": min(ts), "max_s": max(ts), "imports": heavy_imports(args, env)})
+    for k, (label, args, until, env) in enumerate(COMMANDS):
+        ts = [t for t, _ in times[ROOT][k]]
+        row = {"command": label, "arguments": args, "until": until, "median_s": statistics.median(ts),
+               "min_s": min(ts), "max_s": max(ts), "whole_s": statistics.median(w for _, w in times[ROOT][k]),
+               "imports": heavy_imports(args, env)}
+        if baseline is not None:
+            row["baseline_median_s"] = statistics.median(t for t, _ in times[baseline][k])
+            row["baseline_whole_s"] = statistics.median(w for _, w in times[baseline][k])
+            row["baseline_imports"] = heavy_imports(args, env, baseline)
+        rows.append(row)
     return {"date": time.strftime("%Y-%m-%d"), "machine": platform.machine(), "repeats": repeats,
-            "load_start": load0, "load_end": os.getloadavg()[0], "rows": rows}
+            "load_start": load0, "load_end": os.getloadavg()[0], "rows": rows,
+            "baseline": None if baseline is None else _describe(baseline)}
+
+
+def _describe(checkout: Path) -> str:
+    """What ``checkout`` is: the commit in its ``COMMIT`` file (write it when exporting), else its folder's name."""
+    stamp = checkout / "COMMIT"
+    return stamp.read_text().strip() if stamp.is_file() else checkout.name
 
 
 def markdown(data: dict) -> str:
     """The table of ``data`` (from :func:`measure`) between the page's markers."""
+    base = data.get("baseline")
     lines = [BEGIN, "<!-- generated by `python benchmarks/startup.py --write`: edit it, not this block -->", "",
              f"Measured {data['date']} on {data['machine']} (`python benchmarks/startup.py --repeats "
-             f"{data['repeats']}`): wall time from starting the process, median of {data['repeats']} fresh "
-             f"processes per command, the commands alternated; load average {data['load_start']:.1f} at the start, "
-             f"{data['load_end']:.1f} at the end (2 cores). Scene `{SCENE}`, FMU and design caches filled.", "",
-             "| command | until | median [s] (target ≤ 1) | range [s] | heavy imports |",
-             "| --- | --- | --- | --- | --- |"]
+             f"{data['repeats']}" + (" --baseline DIR" if base else "") + "`): wall time from starting the process, "
+             f"median of {data['repeats']} fresh processes per command, the commands alternated; load average "
+             f"{data['load_start']:.1f} at the start, {data['load_end']:.1f} at the end (2 cores). Scene `{SCENE}`, "
+             "FMU and design caches filled. *Whole run*: to the process's exit (the closed-loop run included)."
+             + (f" *Before*: commit `{base}`, each of its runs alternated with this tree's." if base else ""), ""]
+    head = "| command | until | median [s] (target ≤ 1) | range [s] | whole run [s] |"
+    rule = "| --- | --- | --- | --- | --- |"
+    if base:
+        head += " before: median, whole run [s] | after / before |"
+        rule += " --- | --- |"
+    lines += [head + " heavy imports |", rule + " --- |"]
     for r in data["rows"]:
         until = "first FMU call" if r["until"] == "fmu" else "exit (whole run)"
-        lines.append(f"| `{r['command']}` | {until} | {r['median_s']:.2f} | {r['min_s']:.2f}–{r['max_s']:.2f} | "
-                     f"{', '.join(r['imports']) or '–'} |")
+        line = (f"| `{r['command']}` | {until} | {r['median_s']:.2f} | {r['min_s']:.2f}–{r['max_s']:.2f} | "
+                f"{r['whole_s']:.2f} |")
+        if base:
+            line += (f" {r['baseline_median_s']:.2f}, {r['baseline_whole_s']:.2f} | "
+                     f"{r['median_s'] / r['baseline_median_s']:.2f} |")
+        lines.append(line + f" {', '.join(r['imports']) or '–'} |")
     lines.append(END)
     return "\n".join(lines)
 
@@ -135,11 +178,14 @@ def markdown(data: dict) -> str:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--baseline", type=Path, metavar="DIR",
+                    help="also time a checkout of an earlier commit (git archive COMMIT | tar -x -C DIR; DIR/COMMIT "
+                         "names it), alternated with this tree's runs")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--write", nargs="?", const=str(PAGE), metavar="PAGE",
                     help="write the table into PAGE (default docs/performance.md) between its startup markers")
     args = ap.parse_args(argv)
-    data = measure(args.repeats)
+    data = measure(args.repeats, args.baseline)
     if args.json:
         print(json.dumps(data))
         return

@@ -1,5 +1,8 @@
 """``flexlink control`` and ``flexlink linearize`` (docs/commands.md, docs/control.md).
 
+The parsers are built for every ``flexlink`` command (``--help`` included): this module imports numpy,
+python-control and the model builder only inside the commands that use them (tests/test_startup_imports.py).
+
 ``flexlink.cli`` wires them in with :func:`add_control_parsers`; each ``cmd_*`` returns the exit status and
 raises :class:`flexlink.errors.FlexlinkError` on bad input (the caller prints it and exits 2).
 """
@@ -9,8 +12,7 @@ from __future__ import annotations
 import json
 import math
 
-import numpy as np
-
+from controllers.options import SENSORS
 from controllers.options import angles as _angles
 from controllers.options import finite as _finite
 from flexlink.errors import FlexlinkError
@@ -21,7 +23,7 @@ __all__ = ["add_control_parsers", "cmd_control", "cmd_linearize"]
 
 def add_commands(subparsers) -> None:
     """The ``flexlink.commands`` entry point (pyproject.toml): this package's sub-commands of ``flexlink``."""
-    from controllers.sweep import add_sweep_parser
+    from controllers.sweep_cli import add_sweep_parser
 
     p = subparsers.add_parser("demo", help="the quick start's main job: build an example FMU, run it in closed loop, "
                                            "plot")
@@ -82,7 +84,7 @@ def add_control_parsers(subparsers) -> None:
                         "torque limit of the joint carrying the link; the torque limit itself gives the two-link "
                         "example >= 6 dB and >= 30 deg at each actuator, docs/control.md)")
     p.add_argument("--sample-time", type=_finite, default=1e-3, metavar="S", help="controller sample time (1 ms)")
-    p.add_argument("--sensors", choices=("strain", "accelerometer"), default="strain",
+    p.add_argument("--sensors", choices=SENSORS, default="strain",
                    help="Kalman sensors besides the joint encoders: the links' root strain gauges or the tip "
                         "accelerometer")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
@@ -110,10 +112,16 @@ def cmd_linearize(args) -> int:
     """Run ``flexlink linearize``: the state-space matrices about the first joint's angle and steady rate.
 
     The matrices are printed with their row and column names (python-control's labels spell ``.`` as ``_``)
-    or as JSON, and with ``--save`` also written as JSON or NPZ for other tools.
+    or as JSON, and with ``--save`` also written as JSON or NPZ for other tools.  Everything printed comes
+    from the plant's matrices (:class:`flexlink.run.linearize.LinearPlant`), not from its python-control
+    system, whose import (1-1.5 s) would be most of the command's time; the poles are
+    ``numpy.linalg.eigvals(A)``, which is what ``StateSpace.poles`` computes (tests/test_control_linearize.py
+    checks every printed number against python-control's system).
     """
+    import numpy as np
+
     from flexlink.mechanics.model import build_model
-    from flexlink.run.linearize import linear_plant
+    from flexlink.run.linearize import linear_plant, signal_name
     from flexlink.run.simulate import parse_assignments
     from flexlink.scene.loader import load_scene
 
@@ -121,16 +129,15 @@ def cmd_linearize(args) -> int:
     angle = None if args.angle is None else math.radians(args.angle)
     plant = linear_plant(model, rate=args.rate, angle=angle, parameters=parse_assignments(args.set),
                          outputs=args.outputs)
-    sys = plant.sys
+    labels = {"inputs": [signal_name(s) for s in plant.inputs], "outputs": [signal_name(s) for s in plant.outputs]}
     doc = {
         "rate": args.rate,
         "states": plant.states,
         "inputs": plant.inputs,
         "outputs": plant.outputs,
-        "python_control_names": {"inputs": list(sys.input_labels), "outputs": list(sys.output_labels)},
+        "python_control_names": labels,
         "operating_point": {"x": plant.x0.tolist(), "u": plant.u0.tolist(), "y": plant.y0.tolist()},
-        "A": np.asarray(sys.A).tolist(), "B": np.asarray(sys.B).tolist(),
-        "C": np.asarray(sys.C).tolist(), "D": np.asarray(sys.D).tolist(),
+        "A": plant.A.tolist(), "B": plant.B.tolist(), "C": plant.C.tolist(), "D": plant.D.tolist(),
     }
     if args.save:
         _save(args.save, doc)
@@ -142,17 +149,19 @@ def cmd_linearize(args) -> int:
              if first in model.coordinates else "the first joint's law")
     print(f"{model.scene.name}: linearised about {where}, rate {args.rate} rad/s; x = (q, dq/dt), deviations "
           "from the operating point")
-    _print_matrix("A", sys.A, plant.states, plant.states)
-    _print_matrix("B", sys.B, plant.states, plant.inputs)
-    _print_matrix("C", sys.C, plant.outputs, plant.states)
-    _print_matrix("D", sys.D, plant.outputs, plant.inputs)
-    poles = np.sort_complex(sys.poles())
+    _print_matrix("A", plant.A, plant.states, plant.states)
+    _print_matrix("B", plant.B, plant.states, plant.inputs)
+    _print_matrix("C", plant.C, plant.outputs, plant.states)
+    _print_matrix("D", plant.D, plant.outputs, plant.inputs)
+    poles = np.sort_complex(np.linalg.eigvals(plant.A).astype(complex))
     print("poles (rad/s): " + ", ".join(f"{p.real:.6g}{p.imag:+.6g}j" for p in poles))
-    print("(python-control spells the inputs/outputs with '_' for '.': " + ", ".join(sys.input_labels) + ")")
+    print("(python-control spells the inputs/outputs with '_' for '.': " + ", ".join(labels["inputs"]) + ")")
     return 0
 
 
 def _save(path: str, doc: dict) -> None:
+    import numpy as np
+
     try:
         if path.endswith(".npz"):
             np.savez(path, **{k: np.asarray(doc[k]) for k in ("A", "B", "C", "D")},  # type: ignore[arg-type]
@@ -169,6 +178,8 @@ def _save(path: str, doc: dict) -> None:
 
 
 def _print_matrix(name: str, M, rows: list[str], cols: list[str]) -> None:
+    import numpy as np
+
     M = np.asarray(M)
     w_row = max(len(r) for r in rows) if rows else 1
     w = max(13, *(len(c) + 1 for c in cols)) if cols else 13
@@ -203,6 +214,8 @@ def cmd_control(args) -> int:
             if entry.get("kind") == "multijoint":
                 return _run_multijoint_cached(args, scene, entry, run_params)
             return _run_cached(args, scene, entry, run_params)
+    import numpy as np
+
     from controllers.manoeuvre import check_scene, design
     from flexlink.mechanics.model import build_model
     from flexlink.run.linearize import linear_plant
@@ -545,6 +558,8 @@ def _run_scheduled(args, d, targets, run_params, fmu) -> int:
     Besides the two runs, the frozen-pose spectral radius of both at the design points and halfway between
     them shows where the fixed design loses margin.
     """
+    import numpy as np
+
     from controllers.multijoint import inverse_dynamics_reference, plan
     from controllers.schedule import compare_schedule, design_schedule, radius_along_path
 
@@ -645,6 +660,8 @@ def _robustness_json(d, controller: str) -> dict:
     LQG's and those of the LQG unaware of it (sensors without feedthrough); with the PD, its own sampled loop
     as ``"pd"`` too.
     """
+    import numpy as np
+
     from controllers.closedloop import sampled_plant
     from controllers.robustness import loop_at_a_time, robustness_figures
 

@@ -1,4 +1,4 @@
-"""argparse types that the controllers' sub-commands share (``flexlink control``, ``linearize``, ``sweep``).
+"""argparse types and choices that the controllers' sub-commands share (``flexlink control``, ``linearize``, ``sweep``).
 
 They live apart from the commands so that each command module imports them without importing another
 command: ``controllers.cli`` registers ``flexlink sweep``, and the sweep's ``--target`` reads angles as
@@ -10,7 +10,10 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["angles", "finite"]
+__all__ = ["SENSORS", "angles", "finite"]
+
+#: The Kalman sensors besides the joint encoders (``--sensors`` of ``flexlink control`` and ``sweep``).
+SENSORS = ("strain", "accelerometer")
 
 
 def finite(text: str) -> float:

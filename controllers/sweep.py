@@ -44,7 +44,6 @@ Examples
 
 from __future__ import annotations
 
-import argparse
 import atexit
 import functools
 import hashlib
@@ -58,22 +57,19 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from controllers.deadline import CaseTimeout, Deadline
-from controllers.options import angles
+from controllers.options import SENSORS
 from flexlink.errors import FlexlinkError
-from flexlink.paths import SCENE_HELP, OutputPath, check_output_path, output_file, plot_file
 
 __all__ = [
     "CLOSED_LOOP_METRICS",
     "OPEN_LOOP_METRICS",
     "SweepSpec",
-    "add_sweep_parser",
-    "cmd_sweep",
     "journal_path",
     "make_cases",
     "plot_sweep",
@@ -262,7 +258,6 @@ _SPEC_TYPES: dict[str, tuple[type, ...]] = {
     "progress": (bool,), "fmu": (str,), "case_timeout": _NUMBER,
 }
 _SPEC_PATHS = ("scene", "out", "fmu")          # relative to the spec file's folder
-SENSORS = ("strain", "accelerometer")
 
 
 @dataclass
@@ -1293,135 +1288,3 @@ def plot_sweep(df, path: str | os.PathLike, title: str = "") -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-
-
-# ============================================================================ command line
-def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
-    """Add ``flexlink sweep`` to ``flexlink``'s sub-parsers.
-
-    Every option that describes the sweep stores under its :class:`SweepSpec` field's name and has no default
-    of its own (``argparse.SUPPRESS``): the spec's defaults live in the class, and an option the user did not
-    give never overrides the ``--spec`` file.
-    """
-    p = subparsers.add_parser("sweep", help="parameter grid or Monte Carlo study of the FMU on Dask",
-                              argument_default=argparse.SUPPRESS)
-    p.add_argument("scene", nargs="?", help=SCENE_HELP + "; optional with --spec (its scene key)")
-    p.add_argument("--spec", metavar="FILE.toml", default=None,
-                   help="the sweep described in a TOML file (docs/sweeps.md; its keys are run_sweep's "
-                        "SweepSpec fields); the command line's options override the file's")
-    p.add_argument("--param", dest="params", action="append", metavar="NAME=LO:HI:N",
-                   help="FMU parameter: grid axis LO:HI:N, V1,V2,..., or V (repeat for a full grid); with "
-                        "--samples: LO:HI (uniform) or V")
-    p.add_argument("--samples", type=int, metavar="N", help="Monte Carlo: N seeded draws instead of a grid")
-    p.add_argument("--seed", type=int, help="Monte Carlo seed (default 0)")
-    p.add_argument("--distribution", dest="distributions", action="append", metavar="NAME=DIST",
-                   help="Monte Carlo parameter: uniform:LO:HI, normal:MEAN:STD[:LO:HI], loguniform:LO:HI")
-    p.add_argument("--controller", choices=("lqr", "pd"),
-                   help="closed loop: the rest-to-rest manoeuvre of `flexlink control` with this controller "
-                        "(default lqr when --target or --duration is given)")
-    p.add_argument("--target", dest="target_deg", type=angles, metavar="DEG[,DEG...]",
-                   help="closed loop: final angle of the first joint; with several torque-driven joints one per "
-                        "joint, comma-separated (the MIMO LQG's or, with --controller pd, the joint PD's "
-                        "manoeuvre, its stability verdict)")
-    p.add_argument("--duration", type=float, metavar="S", help="closed loop: manoeuvre time")
-    p.add_argument("--settle", type=float, metavar="S",
-                   help="window after the manoeuvre (closed loop) / at the end (open loop) for the residual "
-                        "vibration (default 1.5)")
-    p.add_argument("--settle-band", type=float, metavar="FRACTION",
-                   help="settling-time band, fraction of the commanded angle (default 0.02)")
-    p.add_argument("--torque-limit", type=float, metavar="NM", help="closed loop: saturation (default as control)")
-    p.add_argument("--sensors", choices=SENSORS,
-                   help="closed loop: the Kalman sensors, as in flexlink control (default strain)")
-    p.add_argument("--stop-time", type=float, metavar="S", help="open loop: run the scene's default inputs")
-    p.add_argument("--sample-time", type=float, metavar="S", help="controller sample time / communication step (1 ms)")
-    p.add_argument("--series", action="append", metavar="NAME",
-                   help="also keep this output's time series (list column series.NAME; repeat)")
-    p.add_argument("--series-every", type=int, metavar="K", help="keep every K-th sample (10)")
-    _add_scheduling_options(p)
-    p.set_defaults(func=cmd_sweep)
-
-
-def _add_scheduling_options(p: argparse.ArgumentParser) -> None:
-    """The options of ``flexlink sweep`` that say where cases run and where their rows go."""
-    p.add_argument("--scheduler", metavar="ADDR",
-                   help="Dask scheduler address (tcp://host:8786), or 'serial' for a plain loop; "
-                        "default: a local cluster, one process per core")
-    p.add_argument("--workers", dest="n_workers", type=int, metavar="N",
-                   help="local cluster size (default: one per core)")
-    p.add_argument("--batch-size", type=int, metavar="N", help="cases per Dask task (default: automatic)")
-    p.add_argument("--shared-fs", action="store_const", const=True,
-                   help="send the workers the FMU's path (a shared file system) instead of its bytes")
-    p.add_argument("--out", type=output_file, metavar="FILE",
-                   help="results: FILE.parquet or FILE.csv (required, here or as out in --spec)")
-    p.add_argument("--resume", action="store_const", const=True,
-                   help="resume FILE's sweep (the default whenever FILE or its journal exists)")
-    p.add_argument("--overwrite", action="store_const", const=True,
-                   help="discard FILE and its journal and start again")
-    p.add_argument("--plot", type=plot_file, default=None, metavar="OUT.png",
-                   help="metric vs parameter (grid) or histograms (Monte Carlo)")
-    p.add_argument("--no-progress", dest="progress", action="store_const", const=False, help="no progress bar")
-    p.add_argument("--case-timeout", type=float, metavar="S",
-                   help="wall-clock seconds a case may run; one still running then is a failed row (status "
-                        "timeout) and the sweep goes on; timed-out cases are run again on resume")
-
-
-def _parse_named(items: list[str], option: str) -> dict[str, str]:
-    out: dict[str, str] = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        if not sep or not name.strip() or not value.strip():
-            raise FlexlinkError(f"{option} {item!r}: expected NAME=SPEC")
-        if name.strip() in out:
-            raise FlexlinkError(f"{option} {name.strip()}: given twice")
-        out[name.strip()] = value.strip()
-    return out
-
-
-def spec_from_args(args: argparse.Namespace) -> SweepSpec:
-    """The :class:`SweepSpec` of a ``flexlink sweep`` command line: its ``--spec`` file, its options over it.
-
-    A terminal gets a progress bar unless ``--no-progress`` or the file says otherwise; the results file is
-    required (on the command line or as the file's ``out``) and its folder is checked before anything runs.
-    """
-    given = {f.name: getattr(args, f.name) for f in fields(SweepSpec) if getattr(args, f.name, None) is not None}
-    for name, option in (("params", "--param"), ("distributions", "--distribution")):
-        if name in given:
-            given[name] = _parse_named(given[name], option)
-    if given.get("resume") and given.get("overwrite"):
-        raise FlexlinkError("--resume and --overwrite contradict each other")
-    values: dict[str, object] = {"progress": None}
-    if args.spec is not None:
-        values.update(_read_spec(Path(args.spec)))
-    if "scene" not in given and "scene" not in values:
-        raise FlexlinkError("give the scene: flexlink sweep SCENE ..., or scene = \"FILE.toml\" in a --spec file "
-                            "(see flexlink sweep --help)")
-    values = _merge(values, given)
-    if values.get("out") is None:
-        raise FlexlinkError("--out FILE (or out = \"FILE\" in the --spec file) is required: the sweep's results "
-                            "and its journal (see flexlink sweep --help)")
-    check_output_path(OutputPath(str(values["out"])), "--out")
-    return SweepSpec(**values)                                          # type: ignore[arg-type]  # types checked
-
-
-def cmd_sweep(args: argparse.Namespace) -> int:
-    """Run ``flexlink sweep``: the sweep, its summary table, and the plot when ``--plot`` asks for one."""
-    spec = spec_from_args(args)
-    try:
-        df = run_sweep(spec)
-    except KeyboardInterrupt:
-        print(f"flexlink sweep: interrupted; finished cases are in {journal_path(spec.out or '')}: run the same "
-              "command again to resume", file=sys.stderr)
-        return 130
-    wall = df.attrs["wall_s"]
-    rate = df.attrs["computed"] / wall if wall > 0 else math.nan
-    print(summary_table(df))
-    if df.attrs["settings"].get("multijoint"):
-        from controllers.montecarlo import stability_summary
-
-        print(stability_summary(df))
-    print(f"wrote {spec.out} ({len(df)} rows; journal {df.attrs['journal']}); {df.attrs['computed']} cases in "
-          f"{wall:.1f} s ({rate:.1f} cases/s including start-up)")
-    if args.plot:
-        plot_sweep(df, args.plot, title=Path(spec.scene).stem)
-        print(f"wrote {args.plot}")
-    return 0

@@ -169,7 +169,7 @@ def _cmd_animate(args: argparse.Namespace) -> int:
 
 def _add_input_options(p: argparse.ArgumentParser) -> None:
     """--input, --interpolation and --set: how a run of the FMU is driven (simulate, animate)."""
-    from flexlink.run.simulate import INTERPOLATIONS
+    from flexlink.run import INTERPOLATIONS  # not flexlink.run.simulate: the parser imports no numpy, no fmpy
 
     p.add_argument("--input", metavar="IN.csv", help="CSV: time, then one column per input name (two rows at "
                    "the same time make a jump); an input without a column keeps its start value, with a warning")

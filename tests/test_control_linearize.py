@@ -132,3 +132,49 @@ def test_cli_linearize_json(capsys, tmp_path):
     args = parser.parse_args(["linearize", str(EXAMPLES / "rotating_link.toml"), "--save", str(tmp_path / "x.txt")])
     with pytest.raises(FlexlinkError, match="json or .npz"):
         args.func(args)
+
+
+def test_the_python_control_system_is_built_on_first_use_from_the_matrices(model):
+    """``LinearPlant.sys`` is python-control's system of the plant's own matrices and names, built when first
+    asked for (``flexlink linearize`` never asks, and so never imports python-control)."""
+    plant = linear_plant(model, outputs=OUTPUTS)
+    assert "sys" not in vars(plant)
+    sys = plant.sys
+    assert plant.sys is sys and isinstance(sys, ct.StateSpace) and sys.isctime()
+    for mine, theirs in ((plant.A, sys.A), (plant.B, sys.B), (plant.C, sys.C), (plant.D, sys.D)):
+        np.testing.assert_array_equal(theirs, mine)
+    assert list(sys.state_labels) == plant.states
+    assert list(sys.input_labels) == [signal_name(s) for s in plant.inputs]
+    assert list(sys.output_labels) == [signal_name(s) for s in plant.outputs]
+    assert sys.name == model.scene.model_identifier
+
+
+def _cli(argv):
+    import argparse
+
+    from controllers.cli import add_control_parsers
+
+    parser = argparse.ArgumentParser()
+    add_control_parsers(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+@pytest.mark.parametrize("scene", ["rotating_link.toml", "rotating_link_payload.toml"])
+def test_cli_linearize_prints_python_controls_system(capsys, scene):
+    """Every number and name ``flexlink linearize`` prints is python-control's: the matrices and labels of
+    ``linear_plant(...).sys`` bit for bit, and its poles (``StateSpace.poles``) as the text prints them."""
+    args = ["linearize", str(EXAMPLES / scene), "--angle", "20", "--output", "hub.theta", "--output", "arm.tip.v",
+            "--output", "tip.ay"]
+    sys = linear_plant(EXAMPLES / scene, angle=math.radians(20), outputs=["hub.theta", "arm.tip.v", "tip.ay"]).sys
+    assert _cli([*args, "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    for k in "ABCD":
+        assert np.array_equal(np.asarray(doc[k]), getattr(sys, k)), k
+    assert doc["states"] == list(sys.state_labels)
+    assert doc["python_control_names"] == {"inputs": list(sys.input_labels), "outputs": list(sys.output_labels)}
+    assert _cli(args) == 0
+    text = capsys.readouterr().out
+    poles = np.sort_complex(sys.poles())
+    assert "poles (rad/s): " + ", ".join(f"{p.real:.6g}{p.imag:+.6g}j" for p in poles) + "\n" in text
+    assert f"for '.': {', '.join(sys.input_labels)})" in text

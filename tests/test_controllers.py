@@ -238,3 +238,17 @@ def test_refuses_what_it_cannot_control(tmp_path):
         rest_to_rest(d, tmp_path / "never_opened.fmu", TARGET, 1.2345, SETTLE)
     with pytest.raises(FlexlinkError, match="controller"):
         d.law("pid")
+
+
+def test_lqr_gains_are_python_controls_on_the_plants_matrices(link, payload):
+    """The LQR gains, continuous and sampled, are python-control's ``lqr``/``dlqr`` (SciPy's Riccati solvers)
+    on a system built here from the plant's matrices: bit for bit, whether or not the plant's own
+    python-control system (built on first use) went through anything else first."""
+    for d in (link, payload):
+        p = d.plant
+        sys = ct.ss(p.A, p.B, p.C, p.D)
+        K, S, E = ct.lqr(sys, d.lqr.Q, d.lqr.R, method="scipy")
+        Kd, Sd, Ed = ct.dlqr(ct.sample_system(sys, DT, method="zoh"), d.lqr.Q, d.lqr.R, method="scipy")
+        for ours, theirs in ((d.lqr.K, K), (d.lqr.S, S), (d.lqr.poles, E), (d.lqr.Kd, Kd), (d.lqr.Sd, Sd),
+                             (d.lqr.poles_d, Ed)):
+            assert np.array_equal(ours, theirs)

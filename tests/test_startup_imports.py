@@ -2,8 +2,11 @@
 ``python benchmarks/startup.py``).  Not a timing: the modules in ``sys.modules`` when a command is done, so
 that a heavy import that creeps back into a start (CasADi, SciPy, python-control, matplotlib: 0.3–2 s each
 on this machine) fails here, whatever the machine's load.  A command imports what its work needs and no
-more: the help and the estimate nothing of the model builder; a run of a built FMU (``simulate``,
-``control`` from its design cache) numpy and fmpy but no model builder, no python-control, no plotting.
+more: the help nothing but the parser (not even numpy or fmpy) and the estimate nothing of the model builder; a
+run of a built FMU (``simulate``, ``control`` from its design cache) numpy and fmpy but no model builder, no
+python-control, no plotting; ``linearize`` the model builder but not python-control (1-1.5 s on its own: SciPy's
+signal and stats, matplotlib's pyplot), which only a design imports.  A top-level ``import control`` (or numpy)
+put back into a module that every command imports (``controllers.cli``, ``flexlink.run.linearize``) fails here.
 """
 
 from __future__ import annotations
@@ -45,9 +48,21 @@ def imported(tmp_path: Path, args: list[str], **env: str) -> set[str]:
 
 
 @pytest.mark.parametrize("args", [["--help"], ["check", "--help"], ["control", "--help"], ["simulate", "--help"],
-                                  ["explain", SCENE, "--estimate"]], ids=" ".join)
+                                  ["linearize", "--help"], ["sweep", "--help"], ["explain", SCENE, "--estimate"]],
+                         ids=" ".join)
 def test_help_and_estimates_import_no_model_builder(tmp_path, args):
-    assert not imported(tmp_path, args) & set(HEAVY)
+    mods = imported(tmp_path, args)
+    assert not mods & set(HEAVY)
+    if "--help" in args:                    # the parser alone: no numpy, no FMU host either
+        assert not mods & {"numpy", "fmpy"}
+
+
+def test_linearize_imports_no_python_control(tmp_path):
+    """The matrices come from the model (CasADi, and SciPy for the clamped-free shapes' roots); python-control's
+    system is never built (tests/test_control_linearize.py: what it prints is python-control's all the same)."""
+    mods = imported(tmp_path, ["linearize", SCENE, "--output", "hub.theta", "--json"])
+    assert {"casadi", "numpy"} <= mods
+    assert not mods & {"control", "matplotlib", "dask", "pandas"}
 
 
 def test_a_run_of_a_built_fmu_imports_no_model_builder(tmp_path, example_fmu):
@@ -63,6 +78,6 @@ def test_a_repeated_control_command_imports_no_model_builder(tmp_path, example_f
     example_fmu("rotating_link")
     args = ["control", SCENE, "--target", "90", "--duration", "1.5", "--settle", "0.5"]
     first = imported(tmp_path, args, FLEXLINK_DESIGN_CACHE=str(tmp_path / "designs"))
-    assert {"control", "casadi"} <= first   # designing: python-control and the model builder
+    assert {"control", "casadi"} <= first   # designing: python-control (the LQR/Kalman design) and the model builder
     again = imported(tmp_path, args, FLEXLINK_DESIGN_CACHE=str(tmp_path / "designs"))
     assert not again & set(HEAVY)

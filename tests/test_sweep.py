@@ -85,7 +85,7 @@ def test_bad_case_specs_are_one_clear_message(params, kwargs, message):
 
 # ------------------------------------------------------------------------------------------------ the spec
 def _cli_spec(argv):
-    from controllers.sweep import spec_from_args
+    from controllers.sweep_cli import spec_from_args
     from flexlink.cli import build_parser
 
     return spec_from_args(build_parser().parse_args(["sweep", *argv]))

@@ -20,18 +20,22 @@ vector signal ``arm_eta``).  :class:`LinearPlant` keeps the FMU names beside the
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import casadi as ca
-import control as ct
 import numpy as np
 
 from flexlink.errors import FlexlinkError
 from flexlink.mechanics.analysis import Linearisation, OperatingPoint, linearise, operating_point, static_deflection
 from flexlink.mechanics.model import SymbolicModel, build_model
 from flexlink.scene.loader import Scene, load_scene
+
+if TYPE_CHECKING:      # python-control (1-1.5 s of imports: SciPy's signal and stats, matplotlib) when .sys is built
+    import control as ct
 
 __all__ = ["LinearPlant", "explicit_functions", "fmu_state_space", "linear_plant", "linearize", "operating_point_at",
            "signal_name", "state_names"]
@@ -49,12 +53,18 @@ def state_names(model: SymbolicModel) -> list[str]:
 
 @dataclass
 class LinearPlant:
-    """A linearised plant: python-control system plus the operating point and the FMU's names.
+    """A linearised plant: its state-space matrices, the python-control system, the operating point, the names.
+
+    The matrices come from the model alone (CasADi, numpy); ``sys``, the python-control system, is built from
+    them on first use, so that a caller which only needs the numbers (``flexlink linearize``) does not import
+    python-control (docs/performance.md, "Start-up").
 
     Attributes
     ----------
-    sys : control.StateSpace
-        Continuous-time ``δẋ = A δx + B δu``, ``δy = C δx + D δu`` with named signals.
+    A, B, C, D : ndarray
+        ``δẋ = A δx + B δu``, ``δy = C δx + D δu``: continuous time, ``sys``'s matrices.
+    name : str
+        ``sys``'s name.
     model : SymbolicModel
     op : OperatingPoint
         (q, v, u, p) of the model about which ``sys`` holds.
@@ -68,7 +78,11 @@ class LinearPlant:
         Room for functions derived from the model by users of the plant (built once per plant).
     """
 
-    sys: ct.StateSpace
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+    name: str
     model: SymbolicModel
     op: OperatingPoint
     x0: np.ndarray
@@ -79,10 +93,18 @@ class LinearPlant:
     mechanics: Linearisation
     cache: dict = field(default_factory=dict, repr=False, compare=False)
 
+    @functools.cached_property
+    def sys(self) -> ct.StateSpace:
+        """The continuous-time ``control.StateSpace`` with named signals (python-control imported here)."""
+        import control as ct
+
+        return ct.ss(self.A, self.B, self.C, self.D, name=self.name, states=self.states,
+                     inputs=[signal_name(s) for s in self.inputs], outputs=[signal_name(s) for s in self.outputs])
+
     @property
     def states(self) -> list[str]:
-        """The state names, in the plant's order."""
-        return list(self.sys.state_labels)
+        """The state names, in the plant's order: ``q`` then ``der(q)`` (:func:`state_names`)."""
+        return state_names(self.model)
 
     def output_row(self, name: str) -> int:
         """Index in ``sys``'s outputs of an output given by its FMU name (or python-control name)."""
@@ -251,9 +273,8 @@ def linear_plant(scene_or_model, *, rate: float = 0.0, angle: float | None = Non
     ident = name or model.scene.model_identifier
     Bu = B[:, cols].reshape(2 * n, len(cols))
     Du = Dy[np.ix_(rows, cols)].reshape(len(rows), len(cols))
-    sys = ct.ss(A, Bu, Cy[rows], Du, name=ident, states=state_names(model),
-                inputs=[signal_name(s) for s in inputs], outputs=[signal_name(s) for s in outputs])
-    return LinearPlant(sys, model, op, x0, op.u[cols], y0.ravel()[rows], inputs, list(outputs), lin)
+    return LinearPlant(A, Bu, Cy[rows], Du, ident, model, op, x0, op.u[cols], y0.ravel()[rows], inputs, list(outputs),
+                       lin)
 
 
 def linearize(scene_or_model, *, rate: float = 0.0, angle: float | None = None,
@@ -302,6 +323,7 @@ def fmu_state_space(fmu: str | os.PathLike, *, outputs: Sequence[str] | None = N
     --------
     linear_plant : the same from the CasADi model.
     """
+    import control as ct
     import fmpy
 
     from flexlink.run.host import FmuHost

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from flexlink.errors import FlexlinkError
+from flexlink.run import INTERPOLATIONS
 from flexlink.run.host import (  # noqa: F401  (logging_callbacks, set_start_values, ...: importable here)
     FmuHost,
     install_router,
@@ -52,9 +53,6 @@ def read_input_csv(path: str | os.PathLike, input_names: list[str]) -> np.ndarra
     if np.any(np.diff(arr["time"]) < 0):
         raise FlexlinkError(f"{path}: the time column must not decrease")
     return arr
-
-
-INTERPOLATIONS = ("linear", "hold")
 
 
 def hold_inputs(table: np.ndarray) -> np.ndarray:

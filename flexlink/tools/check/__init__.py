@@ -24,9 +24,8 @@ The fuzz size is small by default (CI); the full-size run is ``flexlink check OU
 """
 
 from flexlink.tools.check.command import add_parser, run_check
-from flexlink.tools.check.driver import CHECKS, check_fmu
+from flexlink.tools.check.driver import CHECKS, CI_FUZZ, check_fmu
 from flexlink.tools.check.findings import CheckResult, Finding
-from flexlink.tools.check.fuzz import CI_FUZZ
 from flexlink.tools.check.report import write_junit, write_report
 
 __all__ = ["CHECKS", "CI_FUZZ", "CheckResult", "Finding", "add_parser", "check_fmu", "run_check", "write_junit",

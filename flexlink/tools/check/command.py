@@ -16,8 +16,7 @@ import os
 import zipfile
 
 from flexlink.errors import FlexlinkError
-from flexlink.tools.check.driver import CALL_LIMIT, NAMES, check_fmu
-from flexlink.tools.check.fuzz import CI_FUZZ
+from flexlink.tools.check.driver import CALL_LIMIT, CI_FUZZ, NAMES, check_fmu
 from flexlink.tools.check.report import as_json, passed, totals, write_junit, write_report
 
 

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 from flexlink.tools.check.coverage import not_covered
 from flexlink.tools.check.findings import CheckResult, skipped
-from flexlink.tools.check.fuzz import CI_FUZZ
 
+CI_FUZZ = 60             # random legal call sequences of the fuzz check by default (full size: 5000)
 CALL_LIMIT = 10.0        # seconds one FMI call may take before it is reported as not returning
 CHECK_LIMIT = 1800.0     # seconds one check may take in all
 
