@@ -58,8 +58,10 @@ from flexlink.cli import main
 sys.exit(main(sys.argv[1:]))
 """
 
-#: (label, arguments after ``flexlink``, until: "fmu" for the first FMU load, "exit" for the whole run,
-#: environment additions)
+IMPORT = "--python-code"      # a row whose process runs this code instead of ``flexlink``
+
+#: (label, arguments after ``flexlink`` (or IMPORT and the code to run), until: "fmu" for the first FMU load,
+#: "exit" for the whole run, environment additions)
 COMMANDS: list[tuple[str, list[str], str, dict[str, str]]] = [
     ("flexlink --help", ["--help"], "exit", {}),
     ("flexlink check --help", ["check", "--help"], "exit", {}),
@@ -71,6 +73,8 @@ COMMANDS: list[tuple[str, list[str], str, dict[str, str]]] = [
     ("flexlink control (designing)", ["control", SCENE, "--target", "90", "--duration", "1.5"], "fmu",
      {"FLEXLINK_DESIGN_CACHE": "0"}),
     ("flexlink linearize", ["linearize", SCENE, "--output", "hub.theta"], "exit", {}),
+    # not a command: what the designing command cannot go below, python-control's own import (with numpy's)
+    ("python -c 'import control'", [IMPORT, "import numpy, control"], "exit", {}),
 ]
 
 HEAVY = ("numpy", "fmpy", "casadi", "scipy", "control", "matplotlib")
@@ -83,7 +87,7 @@ def timed_run(args: list[str], until: str, env: dict[str, str], root: Path = ROO
     The process runs in ``root``, whose ``flexlink`` and ``controllers`` it imports (``python -c`` puts the
     working directory first on ``sys.path``).
     """
-    argv = [sys.executable, "-c", _PRELUDE, *args]
+    argv = [sys.executable, "-c", args[1]] if args[0] == IMPORT else [sys.executable, "-c", _PRELUDE, *args]
     t0 = time.perf_counter()
     proc = subprocess.Popen(argv, cwd=root, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, **env})
@@ -104,7 +108,8 @@ def timed_run(args: list[str], until: str, env: dict[str, str], root: Path = ROO
 
 def heavy_imports(args: list[str], env: dict[str, str], root: Path = ROOT) -> list[str]:
     """The heavy top-level packages one run imports (``-X importtime``)."""
-    res = subprocess.run([sys.executable, "-X", "importtime", "-c", _PRELUDE, *args], cwd=root,
+    code = [args[1]] if args[0] == IMPORT else [_PRELUDE, *args]
+    res = subprocess.run([sys.executable, "-X", "importtime", "-c", *code], cwd=root,
                          capture_output=True, text=True, env={**os.environ, **env})
     names = {line.split("|")[2].strip() for line in res.stderr.splitlines() if line.startswith("import time:")}
     return [m for m in HEAVY if m in names]
