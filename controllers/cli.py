@@ -114,7 +114,7 @@ def cmd_linearize(args) -> int:
     The matrices are printed with their row and column names (python-control's labels spell ``.`` as ``_``)
     or as JSON, and with ``--save`` also written as JSON or NPZ for other tools.  Everything printed comes
     from the plant's matrices (:class:`flexlink.run.linearize.LinearPlant`), not from its python-control
-    system, whose import (1-1.5 s) would be most of the command's time; the poles are
+    system, whose import would be most of the command's time (docs/performance.md); the poles are
     ``numpy.linalg.eigvals(A)``, which is what ``StateSpace.poles`` computes (tests/test_control_linearize.py
     checks every printed number against python-control's system).
     """

@@ -1,5 +1,7 @@
 """Parameter studies at scale: full grids and Monte Carlo runs of one FMU on Dask (``flexlink sweep``).
 
+Its command line (parser, :class:`SweepSpec` from the options, the run) is :mod:`controllers.sweep_cli`.
+
 The FMU is built once (:func:`flexlink.export.cache.cached_fmu`) and shipped to the workers, as bytes (default) or
 as a path on a shared file system; each worker process writes it out once and keeps one FMU instance per
 worker thread, reset (``fmi2Reset``) between cases.  A case only sets the FMU's tunable parameters

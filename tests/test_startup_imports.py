@@ -2,11 +2,12 @@
 ``python benchmarks/startup.py``).  Not a timing: the modules in ``sys.modules`` when a command is done, so
 that a heavy import that creeps back into a start (CasADi, SciPy, python-control, matplotlib: 0.3–2 s each
 on this machine) fails here, whatever the machine's load.  A command imports what its work needs and no
-more: the help nothing but the parser (not even numpy or fmpy) and the estimate nothing of the model builder; a
-run of a built FMU (``simulate``, ``control`` from its design cache) numpy and fmpy but no model builder, no
-python-control, no plotting; ``linearize`` the model builder but not python-control (1-1.5 s on its own: SciPy's
-signal and stats, matplotlib's pyplot), which only a design imports.  A top-level ``import control`` (or numpy)
-put back into a module that every command imports (``controllers.cli``, ``flexlink.run.linearize``) fails here.
+more: the help nothing but the parser (not even numpy or fmpy) and the estimate nothing of the model
+builder; a run of a built FMU (``simulate``, ``control`` from its design cache) numpy and fmpy but no model
+builder, no python-control, no plotting; ``linearize`` the model builder but not python-control (the slowest
+import of all: SciPy's signal and stats, matplotlib's pyplot), which only a design imports.  A top-level
+``import control`` (or numpy) put back into the parser's modules (``controllers.cli``) or into
+``flexlink.run.linearize`` fails here.
 """
 
 from __future__ import annotations

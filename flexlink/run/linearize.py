@@ -34,7 +34,7 @@ from flexlink.mechanics.analysis import Linearisation, OperatingPoint, linearise
 from flexlink.mechanics.model import SymbolicModel, build_model
 from flexlink.scene.loader import Scene, load_scene
 
-if TYPE_CHECKING:      # python-control (1-1.5 s of imports: SciPy's signal and stats, matplotlib) when .sys is built
+if TYPE_CHECKING:      # python-control (SciPy's signal and stats, matplotlib's pyplot) only when .sys is built
     import control as ct
 
 __all__ = ["LinearPlant", "explicit_functions", "fmu_state_space", "linear_plant", "linearize", "operating_point_at",
