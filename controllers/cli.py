@@ -87,7 +87,9 @@ def add_control_parsers(subparsers) -> None:
                         "accelerometer")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="FMU parameter for the run (the design keeps the scene's values)")
-    p.add_argument("--noise", action="store_true", help="add the sensors' noise to what the controller reads")
+    p.add_argument("--noise", action="store_true",
+                   help="add each sensor's noise (the Kalman design's levels) to what the controllers read")
+    p.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the --noise draws (default 0)")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
     p.add_argument("--plot", type=plot_file, metavar="OUT.png",
                    help="time responses, closed-loop poles, loop Bode with margins")
@@ -268,7 +270,7 @@ def _run_single(args, d, plant, target: float, limit, run_params: dict, key: str
             if name not in loop.variables or loop.variables[name].causality != "parameter":
                 raise FlexlinkError(f"--set {name}: not a parameter of the FMU")
         res = rest_to_rest(d, loop, target, args.duration, args.settle, args.controller, parameters=run_params,
-                           noise=args.noise)
+                           noise=args.noise, seed=args.seed)
     m = res.metrics
     wn, zeta = d.lqr.rigid_pair
     if args.plot:
@@ -458,8 +460,8 @@ def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int
     from controllers.multijoint import JointPDLaw, MimoLQGLaw, check_multijoint, compare, joint_pd_gains, plan
     from flexlink.export.cache import cached_fmu
 
-    if args.noise:
-        raise FlexlinkError("--noise: the multi-joint run reads the sensors noise-free so far")
+    if args.noise and args.schedule is not None:
+        raise FlexlinkError("--noise: the scheduled run (--schedule) reads the sensors noise-free so far")
     if args.controller != "lqr":
         raise FlexlinkError("--controller: with several torque-driven joints the run compares the LQG and the joint "
                             "PD; leave --controller out")
@@ -470,7 +472,8 @@ def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int
     if args.schedule is not None:
         return _run_scheduled(args, d, targets, run_params, fmu)
     with _loop(fmu, run_params) as loop:
-        runs = compare(d, loop, targets, args.duration, args.settle, parameters=run_params, pl=pl)
+        runs = compare(d, loop, targets, args.duration, args.settle, parameters=run_params, pl=pl,
+                       noise=args.noise, seed=args.seed)
     move = _move(d, targets)
     if args.plot:
         from controllers.plots import plot_multijoint
@@ -488,7 +491,8 @@ def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int
         rob["pd"] = _pd_robustness(d, runs["pd"])
         doc = {"joints": d.actuated_joints, "targets_deg": [math.degrees(t) for t in targets],
                "duration_s": args.duration, "settle_s": args.settle, "sample_time_s": d.dt,
-               "sensors": d.kalman.sensors, "pd_gains": {"kp": kp.tolist(), "kd": kd.tolist()}, "robustness": rob}
+               "sensors": d.kalman.sensors, "pd_gains": {"kp": kp.tolist(), "kd": kd.tolist()}, "robustness": rob,
+               "noise": {"sigma": d.kalman.noise, "seed": args.seed} if args.noise else None}
     if key is not None:
         from controllers.design_cache import load, store
 
