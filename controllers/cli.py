@@ -84,7 +84,7 @@ def add_control_parsers(subparsers) -> None:
     p.add_argument("--sample-time", type=_finite, default=1e-3, metavar="S", help="controller sample time (1 ms)")
     p.add_argument("--sensors", choices=("strain", "accelerometer"), default="strain",
                    help="Kalman sensors besides the joint encoders: the links' root strain gauges or the tip "
-                        "accelerometer")
+                        "accelerometers (the last tip's and every link's the scene declares)")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="FMU parameter for the run (the design keeps the scene's values)")
     p.add_argument("--noise", action="store_true",
