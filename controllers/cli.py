@@ -460,8 +460,6 @@ def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int
     from controllers.multijoint import JointPDLaw, MimoLQGLaw, check_multijoint, compare, joint_pd_gains, plan
     from flexlink.export.cache import cached_fmu
 
-    if args.noise and args.schedule is not None:
-        raise FlexlinkError("--noise: the scheduled run (--schedule) reads the sensors noise-free so far")
     if args.controller != "lqr":
         raise FlexlinkError("--controller: with several torque-driven joints the run compares the LQG and the joint "
                             "PD; leave --controller out")
@@ -559,8 +557,9 @@ def _run_scheduled(args, d, targets, run_params, fmu) -> int:
     if args.export_ssp:
         _export_ssp(args, d, targets, schedule)
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, args.duration, args.settle)
+    noise = {"noise": d.kalman.noise, "seed": args.seed} if args.noise else {}    # both laws read the design's sensors
     with _loop(fmu, run_params) as loop:
-        runs = compare_schedule(d, schedule, loop, pl, ref, parameters=run_params)
+        runs = compare_schedule(d, schedule, loop, pl, ref, parameters=run_params, **noise)
     radius = radius_along_path(d, schedule, pl, np.linspace(0.0, 1.0, 2 * args.schedule - 1).tolist())
     move = _move(d, targets)
     done = {k: r for k, r in runs.items() if not isinstance(r, str)}
@@ -576,7 +575,8 @@ def _run_scheduled(args, d, targets, run_params, fmu) -> int:
                           "schedule": {"points": args.schedule, "sigma": schedule.sigma.tolist(),
                                        "poses_deg": [{j: math.degrees(v) for j, v in p.items()}
                                                      for p in schedule.poses]},
-                          "frozen_spectral_radius": radius, "parameters": run_params}))
+                          "frozen_spectral_radius": radius, "parameters": run_params,
+                          "noise": {"sigma": noise["noise"], "seed": args.seed} if noise else None}))
         return 0
     print(f"{d.plant.model.scene.name}: rest-to-rest {move} in {args.duration:g} s (+ {args.settle:g} s settle), "
           f"sample time {d.dt:g} s; feedforward: the model's inverse dynamics along the joints' quintics")
