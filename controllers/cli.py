@@ -636,7 +636,8 @@ def _print_comparison(args, info: dict, runs: dict) -> None:
           + ", ".join(f"{v:g}" for v in lqg["torque_limits_nm"].values()) + " N m")
     print("  PD:  kp " + ", ".join(f"{v:.4g}" for v in info["kp"]) + " N m/rad, kd "
           + ", ".join(f"{v:.4g}" for v in info["kd"]) + " N m s/rad, torque limits = the LQG run's peaks")
-
+    if args.noise:
+        print(f"  sensor noise (seed {args.seed}): the Kalman design's sigma per sensor, 1e-3 rad/s on the PD's rates")
     _print_table({"LQG": lqg, "PD": pd})
     if args.plot:
         print(f"  wrote {args.plot}")
