@@ -15,7 +15,9 @@ each along the reference as the tip's alone was read (:func:`controllers.laws.me
   start pose's LQR with the plant along the reference is unstable (frozen spectral radius of A_k − B_k K above 1);
   the strain-gauge LQG's rest-pose estimator hides it, the accelerometers' estimator, which follows the state,
   does not, and with noise the run diverges. The LQR scheduled over the path (``--schedule 3``) settles there
-  with noise.
+  with noise. With the model's own equations integrated by cvodes in the loop instead of the FMU (no numerical
+  damping), the fixed accelerometer LQG runs away there even noise-free; the strain-gauge LQG and the scheduled
+  one do not.
 """
 
 from __future__ import annotations
@@ -224,3 +226,63 @@ def test_cli_noise_with_every_links_accelerometer(elbow_scene, capsys):
           f"{doc['fixed'] if isinstance(doc['fixed'], str) else doc['fixed']['settling_time_s']}")
     assert doc["noise"]["seed"] == 2 and doc["scheduled"]["settling_time_s"] is not None
     assert isinstance(doc["fixed"], str) or doc["fixed"]["settling_time_s"] is None
+
+
+def _exact_loop(d, law, ref) -> tuple[np.ndarray, float]:
+    """The law against the model's own equations integrated by cvodes over each sample (torque held), not the FMU.
+
+    No numerical damping of the fast modes (SS22's Θ > ½ has some). Returns the joint angles at the last sample
+    reached and its time; a run whose state runs away ends where cvodes gives up.
+    """
+    import casadi as ca
+
+    model = d.plant.model
+    n = model.n_q
+    res, out = model.residual.expand(), model.outputs_function.expand()
+    q, v, a, u = ca.SX.sym("q", n), ca.SX.sym("v", n), ca.SX.sym("a", n), ca.SX.sym("u", 2)
+    p = ca.DM(d.plant.op.p)
+    r = res(q, v, a, u, p)
+    zero = ca.SX.zeros(n)
+    acc = -ca.solve(ca.substitute(ca.jacobian(r, a), a, zero), ca.substitute(r, a, zero))
+    x = ca.vertcat(q, v)
+    flow = ca.integrator("sample", "cvodes", {"x": x, "p": u, "ode": ca.vertcat(v, acc)}, 0.0, d.dt,
+                         {"abstol": 1e-12, "reltol": 1e-10})
+    names = [s.name for s in model.outputs]
+    read = ca.Function("read", [x, u], [out(q, v, acc, u, p)[[names.index(s) for s in law.sensors]]])
+    X, U = d.plant.x0.copy(), d.plant.u0[[0, 1]].copy()
+    law.reset()
+    for k in range(len(ref.time)):
+        U = law.step(np.asarray(read(X, U), dtype=float).ravel(), ref.x[k], ref.u_ff[k])
+        try:
+            X = np.asarray(flow(x0=X, p=U)["xf"], dtype=float).ravel()
+        except RuntimeError:                  # CV_TOO_MUCH_WORK: the state ran away
+            return X[[0, n // 2]], float(ref.time[k])
+    return X[[0, n // 2]], float(ref.time[-1])
+
+
+def test_the_exact_model_in_the_loop_shows_the_fixed_accelerometer_lqg_unstable():
+    """Noise-free, unsaturated, the example's 60°/20° manoeuvre with the tip accelerometer (examples/
+    two_link_payload.toml, no declared sensor): with the model's equations in the loop instead of the FMU, the fixed
+    LQG runs away where the elbow passes the straight arm, the strain-gauge LQG and the scheduled accelerometer LQG
+    reach the targets."""
+    from controllers.schedule import ScheduledLQGLaw, design_schedule
+
+    model = build_model(load_scene(EXAMPLE))
+    d = design(model, torque_limit=LIMIT, dt=DT, sensors="accelerometer")
+    strain = design(model, torque_limit=LIMIT, dt=DT, sensors="strain")
+    pl = plan(d.plant, MOVE)
+    ref = inverse_dynamics_reference(d.plant, pl, d.dt, DURATION, 0.5)
+    free = [1e4, 1e4]                         # no saturation: the linear loop's own stability
+    cases = {"fixed, accelerometer": (d, MimoLQGLaw(d, free, ref)),
+             "fixed, strain gauges": (strain, MimoLQGLaw(strain, free, ref)),
+             "scheduled, accelerometer": (d, ScheduledLQGLaw(design_schedule(d, pl, 3), free, ref))}
+    reached = {}
+    for name, (dd, law) in cases.items():
+        theta, t = _exact_loop(dd, law, ref)
+        reached[name] = (t, np.degrees(theta - pl.target))
+        print(f"\n{name}: up to t = {t:.3f} s, joint errors there {np.round(reached[name][1], 6)} deg")
+    t, err = reached["fixed, accelerometer"]
+    assert t < DURATION or np.max(np.abs(err)) > 1.0
+    for name in ("fixed, strain gauges", "scheduled, accelerometer"):
+        t, err = reached[name]
+        assert t == pytest.approx(ref.time[-1]) and np.max(np.abs(err)) < 0.01       # 0.5 s after the move
