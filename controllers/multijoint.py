@@ -57,7 +57,7 @@ def check_multijoint(d) -> None:
     encoders, root strain gauges and tip accelerometers (:data:`ACCELEROMETER`, ``<link>.tip.s*``).  An elastic
     joint's torque turns its motor (:func:`drive_coordinate`).
     """
-    from controllers.design import DesignError
+    from controllers.design import DesignError, is_link_accelerometer
 
     model = d.plant.model
     for j in model.scene.joints:
@@ -67,8 +67,6 @@ def check_multijoint(d) -> None:
         if j.initial_rate != 0.0:
             raise DesignError(f'joint "{j.name}": a rest-to-rest manoeuvre starts at rest; initial_rate = '
                               f"{j.initial_rate} rad/s")
-    from controllers.design import is_link_accelerometer
-
     unknown = [s for s in d.kalman.sensors if not s.endswith((".theta", ".root.moment")) and s not in ACCELEROMETER
                and not is_link_accelerometer(s)]
     if unknown:
@@ -559,9 +557,8 @@ def compare(d, loop: FmuLoop, targets: Sequence[float], duration: float, settle:
     pl = plan(d.plant, targets) if pl is None else pl
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, duration, settle)
     laws = (MimoLQGLaw(d, [d.lqr.torque_limits[j] for j in pl.joints], ref), JointPDLaw(d, [1.0] * len(pl.joints)))
-    levels = d.kalman.noise if noise else None
     return compare_laws(loop, pl, ref, *laws, d.plant.x0, parameters=parameters, band_deg=band_deg, band_m=band_m,
-                        noise=levels if noise else None, seed=seed)
+                        noise=d.kalman.noise if noise else None, seed=seed)
 
 
 def compare_laws(loop: FmuLoop, pl: Plan, ref: Reference, lqg_law, pd_law, x0: np.ndarray, *,

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import casadi as ca
 
-from flexlink.mechanics.assembly import ChainAssembly, LinkParts
+from flexlink.mechanics.assembly import ChainAssembly, Frame, LinkParts
 from flexlink.mechanics.kinematics import TipKinematics
 from flexlink.mechanics.symbolic import Signal
 
@@ -123,7 +123,7 @@ def _joint_reactions(chain: ChainAssembly) -> list[tuple[Signal, ca.MX | ca.DM]]
     return out
 
 
-def _tip_acceleration(chain: ChainAssembly, frame) -> ca.MX:
+def _tip_acceleration(chain: ChainAssembly, frame: Frame) -> ca.MX:
     """The absolute acceleration of a frame's tip origin: d/dt of its velocity along (q̇, q̈).
 
     Exact, so it reads the torques through q̈ (feedthrough).
@@ -132,7 +132,7 @@ def _tip_acceleration(chain: ChainAssembly, frame) -> ca.MX:
     return ca.jtimes(v_tip, chain.qa, chain.va) + ca.jtimes(v_tip, chain.va, chain.aa)
 
 
-def _specific_force(chain: ChainAssembly, frame, a_tip: ca.MX) -> ca.MX:
+def _specific_force(chain: ChainAssembly, frame: Frame, a_tip: ca.MX) -> ca.MX:
     """What an accelerometer fixed in a frame's tip reads: ``Rᵀ (a − g)``.
 
     The acceleration less gravity (at rest it reads +g upwards), resolved in that tip frame.
