@@ -86,10 +86,12 @@ def add_control_parsers(subparsers) -> None:
     p.add_argument("--sample-time", type=_finite, default=1e-3, metavar="S", help="controller sample time (1 ms)")
     p.add_argument("--sensors", choices=SENSORS, default="strain",
                    help="Kalman sensors besides the joint encoders: the links' root strain gauges or the tip "
-                        "accelerometer")
+                        "accelerometers (the last tip's and every link's the scene declares)")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="FMU parameter for the run (the design keeps the scene's values)")
-    p.add_argument("--noise", action="store_true", help="add the sensors' noise to what the controller reads")
+    p.add_argument("--noise", action="store_true",
+                   help="add each sensor's noise (the Kalman design's levels) to what the controllers read")
+    p.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the --noise draws (default 0)")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
     p.add_argument("--plot", type=plot_file, metavar="OUT.png",
                    help="time responses, closed-loop poles, loop Bode with margins")
@@ -281,7 +283,7 @@ def _run_single(args, d, plant, target: float, limit, run_params: dict, key: str
             if name not in loop.variables or loop.variables[name].causality != "parameter":
                 raise FlexlinkError(f"--set {name}: not a parameter of the FMU")
         res = rest_to_rest(d, loop, target, args.duration, args.settle, args.controller, parameters=run_params,
-                           noise=args.noise)
+                           noise=args.noise, seed=args.seed)
     m = res.metrics
     wn, zeta = d.lqr.rigid_pair
     if args.plot:
@@ -471,8 +473,6 @@ def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int
     from controllers.multijoint import JointPDLaw, MimoLQGLaw, check_multijoint, compare, joint_pd_gains, plan
     from flexlink.export.cache import cached_fmu
 
-    if args.noise:
-        raise FlexlinkError("--noise: the multi-joint run reads the sensors noise-free so far")
     if args.controller != "lqr":
         raise FlexlinkError("--controller: with several torque-driven joints the run compares the LQG and the joint "
                             "PD; leave --controller out")
@@ -483,7 +483,8 @@ def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int
     if args.schedule is not None:
         return _run_scheduled(args, d, targets, run_params, fmu)
     with _loop(fmu, run_params) as loop:
-        runs = compare(d, loop, targets, args.duration, args.settle, parameters=run_params, pl=pl)
+        runs = compare(d, loop, targets, args.duration, args.settle, parameters=run_params, pl=pl,
+                       noise=args.noise, seed=args.seed)
     move = _move(d, targets)
     if args.plot:
         from controllers.plots import plot_multijoint
@@ -501,7 +502,8 @@ def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int
         rob["pd"] = _pd_robustness(d, runs["pd"])
         doc = {"joints": d.actuated_joints, "targets_deg": [math.degrees(t) for t in targets],
                "duration_s": args.duration, "settle_s": args.settle, "sample_time_s": d.dt,
-               "sensors": d.kalman.sensors, "pd_gains": {"kp": kp.tolist(), "kd": kd.tolist()}, "robustness": rob}
+               "sensors": d.kalman.sensors, "pd_gains": {"kp": kp.tolist(), "kd": kd.tolist()}, "robustness": rob,
+               "noise": {"sigma": d.kalman.noise, "seed": args.seed} if args.noise else None}
     if key is not None:
         from controllers.design_cache import load, store
 
@@ -570,8 +572,9 @@ def _run_scheduled(args, d, targets, run_params, fmu) -> int:
     if args.export_ssp:
         _export_ssp(args, d, targets, schedule)
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, args.duration, args.settle)
+    noise = {"noise": d.kalman.noise, "seed": args.seed} if args.noise else {}    # both laws read the design's sensors
     with _loop(fmu, run_params) as loop:
-        runs = compare_schedule(d, schedule, loop, pl, ref, parameters=run_params)
+        runs = compare_schedule(d, schedule, loop, pl, ref, parameters=run_params, **noise)
     radius = radius_along_path(d, schedule, pl, np.linspace(0.0, 1.0, 2 * args.schedule - 1).tolist())
     move = _move(d, targets)
     done = {k: r for k, r in runs.items() if not isinstance(r, str)}
@@ -587,7 +590,8 @@ def _run_scheduled(args, d, targets, run_params, fmu) -> int:
                           "schedule": {"points": args.schedule, "sigma": schedule.sigma.tolist(),
                                        "poses_deg": [{j: math.degrees(v) for j, v in p.items()}
                                                      for p in schedule.poses]},
-                          "frozen_spectral_radius": radius, "parameters": run_params}))
+                          "frozen_spectral_radius": radius, "parameters": run_params,
+                          "noise": {"sigma": noise["noise"], "seed": args.seed} if noise else None}))
         return 0
     print(f"{d.plant.model.scene.name}: rest-to-rest {move} in {args.duration:g} s (+ {args.settle:g} s settle), "
           f"sample time {d.dt:g} s; feedforward: the model's inverse dynamics along the joints' quintics")
@@ -647,7 +651,8 @@ def _print_comparison(args, info: dict, runs: dict) -> None:
           + ", ".join(f"{v:g}" for v in lqg["torque_limits_nm"].values()) + " N m")
     print("  PD:  kp " + ", ".join(f"{v:.4g}" for v in info["kp"]) + " N m/rad, kd "
           + ", ".join(f"{v:.4g}" for v in info["kd"]) + " N m s/rad, torque limits = the LQG run's peaks")
-
+    if args.noise:
+        print(f"  sensor noise (seed {args.seed}): the Kalman design's sigma per sensor, 1e-3 rad/s on the PD's rates")
     _print_table({"LQG": lqg, "PD": pd})
     if args.plot:
         print(f"  wrote {args.plot}")

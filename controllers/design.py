@@ -34,10 +34,12 @@ __all__ = [
     "KalmanDesign",
     "LQRDesign",
     "PDDesign",
+    "accelerometers",
     "bryson_weights",
     "design_kalman",
     "design_lqr",
     "design_pd",
+    "is_link_accelerometer",
     "joint_encoders",
     "stabilizability",
     "rigid_pair",
@@ -73,11 +75,34 @@ def _sensor_kind(name: str) -> str:
         return "omega"
     if name.endswith(".root.moment"):
         return "moment"
-    if name.startswith("tip.s") or name.startswith("tip.a"):
+    if name.startswith(("tip.s", "tip.a")) or is_link_accelerometer(name):
         return "specific_force"
     if name.endswith(".tip.v") or name.endswith(".tip.w"):
         return "deflection"
     raise FlexlinkError(f"{name}: no default noise level for this output; give it in `noise`")
+
+
+def is_link_accelerometer(name: str) -> bool:
+    """Whether an output is an axis of a link's declared tip accelerometer, ``<link>.tip.s{x,y,z}``."""
+    head, _, axis = name.rpartition(".tip.s")
+    return bool(head) and axis in ("x", "y", "z")
+
+
+def accelerometers(plant_or_model) -> list[str]:
+    """The accelerometer axes ``--sensors accelerometer`` reads: x and y of every link's tip accelerometer.
+
+    Every link that declares one in the scene (``sensors = ["accelerometer"]``: ``<link>.tip.sx``, ``.sy``), in scene
+    order, and the last link's tip (``tip.sx``, ``tip.sy``, the end effector's) unless the last link declares its
+    own there.  The z axes are outputs too, but on a planar arm they read nothing (``tip.sz`` stays 0): a spatial
+    arm's design names them in an explicit sensor list.
+    """
+    model = plant_or_model.model if isinstance(plant_or_model, LinearPlant) else plant_or_model
+    outputs = {s.name for s in model.outputs}
+    links = [lk.name for lk in model.scene.links if f"{lk.name}.tip.sx" in outputs]
+    names = [f"{lk}.tip.s{c}" for lk in links for c in "xy"]
+    if model.scene.links[-1].name not in links:
+        names += [s for s in ("tip.sx", "tip.sy") if s in outputs]
+    return names
 
 
 def joint_encoders(plant_or_model) -> list[str]:
@@ -94,8 +119,8 @@ def sensor_set(plant_or_model, kind: str) -> list[str]:
     """FMU names of a sensor set, what the Kalman filter of a design reads.
 
     The set is the encoders of every joint (:func:`joint_encoders`) plus ``"strain"`` (the root strain gauge of
-    every link that has one) or ``"accelerometer"`` (a two-axis tip accelerometer: specific force x and y in the tip
-    frame).
+    every link that has one) or ``"accelerometer"`` (two-axis tip accelerometers, specific force x and y in the tip
+    frame: every link's that the scene declares and the last tip's, :func:`accelerometers`).
 
     At rest ``tip.sx`` (centripetal, second order in the rate) has a zero row in the linearised C, so the
     stationary Kalman filter gives it no gain: the information comes from ``tip.sy``.
@@ -105,7 +130,7 @@ def sensor_set(plant_or_model, kind: str) -> list[str]:
     if kind == "strain":
         extra = [f"{lk.name}.root.moment" for lk in model.scene.links if f"{lk.name}.root.moment" in outputs]
     elif kind == "accelerometer":
-        extra = [s for s in ("tip.sx", "tip.sy") if s in outputs]
+        extra = accelerometers(model)
     else:
         raise FlexlinkError(f'sensors: expected "strain" or "accelerometer", got {kind!r}')
     return joint_encoders(model) + extra
@@ -533,8 +558,8 @@ def design_kalman(plant: LinearPlant, dt: float, sensors: Sequence[str] | str = 
         Sample time, s.
     sensors : list of str or {"strain", "accelerometer"}
         FMU output names, or a named set: every joint's encoder + every link's root strain gauge, or
-        the encoders + tip accelerometer (``tip.sx``, ``tip.sy``: specific force in the tip frame); see
-        :func:`sensor_set`.
+        the encoders + the tip accelerometers (``tip.sx``, ``tip.sy``, and ``<link>.tip.sx``, ``.sy`` of every
+        link that declares one: specific force in the tip frame); see :func:`sensor_set`.
     torque_noise : float
         Standard deviation of the unknown torque disturbance at each joint torque, N m (process noise
         through B).

@@ -42,10 +42,11 @@ from flexlink.errors import FlexlinkError
 
 __all__ = ["ACCELEROMETER", "EstimatorAlong", "JointPDLaw", "MimoLQGLaw", "compare", "compare_laws",
            "default_torque_limit", "estimator_along", "inverse_dynamics_reference", "joint_pd_gains",
-           "kalman_gains_along", "plan", "run"]
+           "kalman_gains_along", "plan", "run", "sensor_noise"]
 
 
-#: The tip accelerometer's outputs (:func:`controllers.design.sensor_set`), read along the reference.
+#: The last tip's accelerometer outputs (:func:`controllers.design.sensor_set`), read along the reference; a
+#: link's own, ``<link>.tip.sx`` …, are read the same way (:func:`controllers.design.is_link_accelerometer`).
 ACCELEROMETER = ("tip.sx", "tip.sy")
 
 
@@ -53,10 +54,10 @@ def check_multijoint(d) -> None:
     """Refuse a design the multi-joint run cannot drive, before anything runs.
 
     It drives every joint by torque (no built-in law to carry along the path), starting at rest, with the
-    encoders, root strain gauges and tip accelerometer (:data:`ACCELEROMETER`).  An elastic joint's torque
-    turns its motor (:func:`drive_coordinate`).
+    encoders, root strain gauges and tip accelerometers (:data:`ACCELEROMETER`, ``<link>.tip.s*``).  An elastic
+    joint's torque turns its motor (:func:`drive_coordinate`).
     """
-    from controllers.design import DesignError
+    from controllers.design import DesignError, is_link_accelerometer
 
     model = d.plant.model
     for j in model.scene.joints:
@@ -66,10 +67,11 @@ def check_multijoint(d) -> None:
         if j.initial_rate != 0.0:
             raise DesignError(f'joint "{j.name}": a rest-to-rest manoeuvre starts at rest; initial_rate = '
                               f"{j.initial_rate} rad/s")
-    unknown = [s for s in d.kalman.sensors if not s.endswith((".theta", ".root.moment")) and s not in ACCELEROMETER]
+    unknown = [s for s in d.kalman.sensors if not s.endswith((".theta", ".root.moment")) and s not in ACCELEROMETER
+               and not is_link_accelerometer(s)]
     if unknown:
         raise DesignError(f"sensors {unknown}: the multi-joint run reads the encoders, root strain gauges (--sensors "
-                          "strain) and the tip accelerometer (--sensors accelerometer)")
+                          "strain) and the links' tip accelerometers (--sensors accelerometer)")
 
 
 def drive_coordinate(model, joint: str) -> str:
@@ -499,10 +501,26 @@ def metrics(pl: Plan, series: Mapping[str, np.ndarray], duration: float, limits:
             "realtime_factor": float((t[-1] - t[0]) / wall_time) if wall_time else None}
 
 
+def sensor_noise(law, levels: Mapping[str, float] | None = None) -> dict[str, float]:
+    """The standard deviation of the noise on each sensor a law reads.
+
+    ``levels`` where given (a Kalman design's ``noise``: what its estimator was told), else
+    :data:`controllers.design.SENSOR_NOISE` by kind (the PD's encoders and rate sensors): the levels the
+    single-joint run adds with ``--noise``.
+    """
+    from controllers.design import SENSOR_NOISE, sensor_kind
+
+    levels = levels or {}
+    return {s: float(levels[s]) if s in levels else SENSOR_NOISE[sensor_kind(s)] for s in law.sensors}
+
+
 def run(d, loop: FmuLoop, pl: Plan, ref: Reference, law, *, parameters: Mapping[str, float] | None = None,
-        band_deg: float = 0.1, band_m: float = 1e-3, x0: np.ndarray | None = None):
+        band_deg: float = 0.1, band_m: float = 1e-3, x0: np.ndarray | None = None,
+        noise: Mapping[str, float] | None = None, seed: int = 0):
     """One closed-loop run of ``law`` along ``ref`` through the FMU.
 
+    ``noise``: sensor name → standard deviation of the white Gaussian noise added to what the law reads (the
+    recorded outputs and the figures stay noise-free), drawn from ``seed`` (:meth:`FmuLoop.run`).
     Returns a :class:`controllers.manoeuvre.ManoeuvreResult` with :func:`metrics` (``series`` also holds each
     joint's ``theta_ref``).
     """
@@ -511,7 +529,7 @@ def run(d, loop: FmuLoop, pl: Plan, ref: Reference, law, *, parameters: Mapping[
     for name in [f"{j}.theta" for j in pl.joints] + [f"{lk}.tip.v" for lk in pl.tip_static]:
         if name not in loop.record:
             loop.record.append(name)
-    res = loop.run(law, ref, parameters=parameters)
+    res = loop.run(law, ref, parameters=parameters, noise=noise or None, seed=seed)
     x0 = d.plant.x0 if x0 is None else x0             # the operating point (without a design: the cached one)
     series = dict(res.series)
     for k, j in enumerate(pl.joints):
@@ -524,11 +542,13 @@ def run(d, loop: FmuLoop, pl: Plan, ref: Reference, law, *, parameters: Mapping[
 
 def compare(d, loop: FmuLoop, targets: Sequence[float], duration: float, settle: float, *,
             parameters: Mapping[str, float] | None = None, band_deg: float = 0.1, band_m: float = 1e-3,
-            pl: Plan | None = None) -> dict:
+            pl: Plan | None = None, noise: bool = False, seed: int = 0) -> dict:
     """The MIMO LQG and the joint PD, each through the FMU along the same reference and feedforward.
 
     The PD's torque limit is the LQG run's peak torque of each joint, so neither law gets more torque.  Returns
     ``{"lqr": result, "pd": result}``. ``pl``: the :func:`plan` to ``targets`` if the caller has it already.
+    ``noise``: each law reads its sensors with their noise (:func:`sensor_noise`, the Kalman design's levels),
+    drawn from ``seed``.
     """
     from controllers.manoeuvre import _check_times
 
@@ -537,15 +557,21 @@ def compare(d, loop: FmuLoop, targets: Sequence[float], duration: float, settle:
     pl = plan(d.plant, targets) if pl is None else pl
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, duration, settle)
     laws = (MimoLQGLaw(d, [d.lqr.torque_limits[j] for j in pl.joints], ref), JointPDLaw(d, [1.0] * len(pl.joints)))
-    return compare_laws(loop, pl, ref, *laws, d.plant.x0, parameters=parameters, band_deg=band_deg, band_m=band_m)
+    return compare_laws(loop, pl, ref, *laws, d.plant.x0, parameters=parameters, band_deg=band_deg, band_m=band_m,
+                        noise=d.kalman.noise if noise else None, seed=seed)
 
 
-def compare_laws(loop: FmuLoop, pl: Plan, ref: Reference, lqg_law, pd_law, x0: np.ndarray, **kw) -> dict:
+def compare_laws(loop: FmuLoop, pl: Plan, ref: Reference, lqg_law, pd_law, x0: np.ndarray, *,
+                 noise: Mapping[str, float] | None = None, seed: int = 0, **kw) -> dict:
     """:func:`compare` from its laws, which the design cache can hold without the design.
 
-    The LQG runs first, then the PD with its torque limits set to the LQG run's peaks.
+    The LQG runs first, then the PD with its torque limits set to the LQG run's peaks.  ``noise`` (None: none):
+    the Kalman design's sensor levels, each law's sensors read with :func:`sensor_noise` of them, the same
+    ``seed`` for both.
     """
-    lqg = run(None, loop, pl, ref, lqg_law, x0=x0, **kw)
+    lqg_noise = None if noise is None else sensor_noise(lqg_law, noise)
+    lqg = run(None, loop, pl, ref, lqg_law, x0=x0, noise=lqg_noise, seed=seed, **kw)
     pd_law.limits = np.asarray([lqg.metrics["joints"][j]["peak_torque_nm"] for j in pl.joints])
-    pd = run(None, loop, pl, ref, pd_law, x0=x0, **kw)
+    pd_noise = None if noise is None else sensor_noise(pd_law, noise)
+    pd = run(None, loop, pl, ref, pd_law, x0=x0, noise=pd_noise, seed=seed, **kw)
     return {"lqr": lqg, "pd": pd}

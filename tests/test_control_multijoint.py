@@ -191,7 +191,6 @@ def test_cli_multijoint(tmp_path, capsys):
         assert {"settling_time_s", "residual_vibration_rms_m", "joints", "links"} <= set(doc[c])
     assert doc["robustness"]["lqg"]["stable"] and len(doc["robustness"]["pd"]["actuators"]) == 2
     for bad, msg in ((["--target", "60"], "one angle per torque-driven joint"),
-                     (["--target", "60,20", "--noise"], "--noise"),
                      (["--target", "60,20", "--controller", "pd"], "--controller"),
                      (["--target", "60,20", "--torque-limit", "60,20,5"], "one per torque-driven joint"),
                      (["--target", "60,20", "--torque-limit", "60,-1"], "must be positive")):

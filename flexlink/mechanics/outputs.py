@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import casadi as ca
 
-from flexlink.mechanics.assembly import ChainAssembly, LinkParts
+from flexlink.mechanics.assembly import ChainAssembly, Frame, LinkParts
 from flexlink.mechanics.kinematics import TipKinematics
 from flexlink.mechanics.symbolic import Signal
 
@@ -123,13 +123,41 @@ def _joint_reactions(chain: ChainAssembly) -> list[tuple[Signal, ca.MX | ca.DM]]
     return out
 
 
+def _tip_acceleration(chain: ChainAssembly, frame: Frame) -> ca.MX:
+    """The absolute acceleration of a frame's tip origin: d/dt of its velocity along (q̇, q̈).
+
+    Exact, so it reads the torques through q̈ (feedthrough).
+    """
+    v_tip = frame.tip_velocity
+    return ca.jtimes(v_tip, chain.qa, chain.va) + ca.jtimes(v_tip, chain.va, chain.aa)
+
+
+def _specific_force(chain: ChainAssembly, frame: Frame, a_tip: ca.MX) -> ca.MX:
+    """What an accelerometer fixed in a frame's tip reads: ``Rᵀ (a − g)``.
+
+    The acceleration less gravity (at rest it reads +g upwards), resolved in that tip frame.
+    """
+    return ca.mtimes(frame.tip_rotation.T, a_tip - chain.g_vec)
+
+
+def _link_accelerometer(chain: ChainAssembly, i: int) -> list[tuple[Signal, ca.MX]]:
+    """A triaxial accelerometer at link i's tip (declared in the scene: ``sensors = ["accelerometer"]``).
+
+    It sits at the link's tip frame, where the next joint is placed, and reads as ``tip.sx`` … ``tip.sz`` read
+    at the last tip: the specific force, gravity included, in the (deflected) tip frame.
+    """
+    frame = chain.frames[i]
+    specific = _specific_force(chain, frame, _tip_acceleration(chain, frame))
+    name = chain.scene.links[i].name
+    return [(Signal(f"{name}.tip.s{c}", "m/s2", f"tip accelerometer of {name}: specific force {c} (gravity included), "
+                    "its tip frame", feedthrough=True), specific[k]) for k, c in enumerate("xyz")]
+
+
 def _end_effector(chain: ChainAssembly) -> list[tuple[Signal, ca.MX]]:
     """Position, absolute acceleration and accelerometer specific force of the last link's tip."""
-    qa, va, aa = chain.qa, chain.va, chain.aa
     last = chain.tool
-    v_tip = last.tip_velocity
-    a_tip = ca.jtimes(v_tip, qa, va) + ca.jtimes(v_tip, va, aa)
-    specific = ca.mtimes(last.tip_rotation.T, a_tip - chain.g_vec)
+    a_tip = _tip_acceleration(chain, last)
+    specific = _specific_force(chain, last, a_tip)
     return ([(Signal(f"tip.{c}", "m", f"end-effector position {c}, inertial frame"), last.tip_origin[k])
              for k, c in enumerate("xyz")]
             + [(Signal(f"tip.a{c}", "m/s2", f"end-effector absolute acceleration {c}", feedthrough=True), a_tip[k])
@@ -141,11 +169,15 @@ def _end_effector(chain: ChainAssembly) -> list[tuple[Signal, ca.MX]]:
 def chain_outputs(chain: ChainAssembly) -> tuple[list[Signal], list[ca.MX | ca.DM | float]]:
     """Every output of the chain, in the order the FMU lists them: links, reactions, end effector, energies.
 
+    Each link's outputs are followed by those of the sensors it declares (its tip accelerometer).
+
     The energies are plain numbers only for a chain without mass or stiffness; the builder takes both.
     """
     out: list[tuple[Signal, ca.MX | ca.DM | float]] = []
-    for i in range(len(chain.scene.joints)):
+    for i, link in enumerate(chain.scene.links):
         out += _link_outputs(chain, i)
+        if "accelerometer" in link.sensors:
+            out += _link_accelerometer(chain, i)
     out += _joint_reactions(chain)
     out += _end_effector(chain)
     out.append((Signal("energy.kinetic", "J", "kinetic energy"), chain.T))

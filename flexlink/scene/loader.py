@@ -27,6 +27,7 @@ from flexlink.scene import checks
 from flexlink.scene.checks import MISSING, is_number, show
 from flexlink.scene.schema import (
     DEFORMATIONS,
+    LINK_SENSORS,
     OPTIONAL,
     REQUIRED,
     RESERVED_NAMES,
@@ -379,7 +380,7 @@ class _Parser(_Values):
                     EI_out=given.get("EI_out"), GJ=given.get("GJ"),
                     polar_inertia=given.get("polar_inertia"), kelvin_voigt=kelvin_voigt,
                     deformation=deformation, shapes=shapes, kinematics=kinematics, payload=payload,
-                    initial_deformation=initial_deformation)
+                    initial_deformation=initial_deformation, sensors=self.sensors(t, "link", key))
 
     def rigid_link(self, t: dict, key: str) -> Link:
         """A rigid link (deformation = []), as a uniform rod or as a body.
@@ -409,7 +410,7 @@ class _Parser(_Values):
         initial_deformation = self.choice_key(t, "link", "initial_deformation", key)
         return Link(name=name, length=length, linear_density=linear_density, EI=None, polar_inertia=polar_inertia,
                     deformation=(), payload=payload, initial_deformation=initial_deformation,
-                    mass=mass, center_of_mass=com, inertia=inertia)
+                    mass=mass, center_of_mass=com, inertia=inertia, sensors=self.sensors(t, "link", key))
 
     def rigid_inertia(self, t: dict, key: str) -> tuple[float, ...]:
         """A rigid body's inertia about its centre of mass (kg m²), always as 6 values.
@@ -448,6 +449,19 @@ class _Parser(_Values):
             if d in value[:i]:
                 raise self.fail(f"{key}[{i + 1}]", f"{expected} (no duplicates)", d)
         return tuple(d for d in DEFORMATIONS if d in value)  # canonical order v, w, alpha
+
+    def sensors(self, t: dict, section: str, key: str) -> tuple[str, ...]:
+        """The link's declared sensors (:data:`LINK_SENSORS`): distinct names, in the table's order."""
+        value, where = self.get(t, section, "sensors"), f"{key}.sensors"
+        choices = ", ".join(f'"{c}"' for c in LINK_SENSORS)
+        if not isinstance(value, list):
+            raise self.fail(where, f"a list of distinct sensors from {choices}", value)
+        for i, s in enumerate(value):
+            if not isinstance(s, str) or s not in LINK_SENSORS:
+                raise self.fail(f"{where}[{i + 1}]", f"one of {choices}", s)
+            if s in value[:i]:
+                raise self.fail(f"{where}[{i + 1}]", f"a sensor not already listed ({choices})", s)
+        return tuple(s for s in LINK_SENSORS if s in value)
 
     def shapes(self, value: Any, key: str) -> Shapes:
         t = self.table(value, key, "link.shapes", 'a table {kind = "clamped-free", count = 3}')
@@ -508,7 +522,7 @@ class _Parser(_Values):
         return Link(name=name, length=length, linear_density=density * shapes.section_area, EI=None,
                     kelvin_voigt=kelvin_voigt, deformation=("v", "w", "alpha"), shapes=shapes,
                     kinematics=kinematics, payload=payload, initial_deformation=initial_deformation,
-                    density=density, E=E, poisson=poisson)
+                    density=density, E=E, poisson=poisson, sensors=self.sensors(t, section, key))
 
     def shell_shapes(self, value: Any, key: str) -> Shapes:
         section = "shell_link.shapes"

@@ -46,6 +46,9 @@ MESH_PATTERNS = ("symmetric", "A", "B")
 SHELL_KINEMATICS = ("linear", "first-order")
 KINEMATICS = ("linear", "first-order", "second-order")
 INITIAL_DEFORMATIONS = ("undeformed", "static")
+#: Sensors a link may carry besides those every link has (joint encoder, root strain gauge): each costs generated
+#: outputs, so a scene declares it (``sensors = ["accelerometer"]``: ``<link>.tip.sx``, ``.sy``, ``.sz``).
+LINK_SENSORS = ("accelerometer",)
 INTEGRATORS = ("ss22",)
 NEWTON_MATRIX_FORMS = ("auto", "dense", "columns")
 AXIS_TOLERANCE = 1e-9
@@ -235,6 +238,7 @@ class Link:
     mass: float | None = None                 # rigid link given as a body: kg
     center_of_mass: Vec3 | None = None        # rigid body: m, in the link frame
     inertia: tuple[float, ...] | None = None  # rigid body: kg m², (Ixx, Iyy, Izz, Ixy, Ixz, Iyz) about the centre
+    sensors: tuple[str, ...] = ()             # declared sensors (LINK_SENSORS) that add outputs to the model
 
     @property
     def is_shell(self) -> bool:
@@ -482,6 +486,10 @@ KEYS: tuple[Key, ...] = (
     _K("link", "payload", "table", default=EMPTY_TABLE, description="a tip body, see [link.payload]"),
     _K("link", "initial_deformation", "string", "", "undeformed", choices=INITIAL_DEFORMATIONS,
        description="static: start at the deformation that balances the initial loads"),
+    _K("link", "sensors", "list of strings", "", (), "distinct", LINK_SENSORS,
+       description="sensors that add outputs: accelerometer, a triaxial accelerometer at the link's tip "
+                   "(<link>.tip.sx, .sy, .sz: specific force, gravity included, in the link's tip frame; the "
+                   "last link's tip always has tip.sx … tip.sz, in the [tool] frame)"),
     _K("link", "mass", "number", "kg", OPTIONAL, "≥ 0; rigid link only",
        description="a rigid link given as a body: its mass (instead of linear_density); with center_of_mass "
                    "and inertia"),
@@ -518,6 +526,8 @@ KEYS: tuple[Key, ...] = (
     _K("shell_link", "payload", "table", default=EMPTY_TABLE, description="a tip body, see [link.payload]"),
     _K("shell_link", "initial_deformation", "string", "", "undeformed", choices=INITIAL_DEFORMATIONS,
        description="static: start at the deformation that balances the initial loads"),
+    _K("shell_link", "sensors", "list of strings", "", (), "distinct", LINK_SENSORS,
+       description="sensors that add outputs, as for a beam link (see [[link]] sensors)"),
     # ------------------------------------------------------------------------- shell [link.shapes]
     _K("shell_link.shapes", "kind", "string", "", REQUIRED, choices=("shell",),
        description="shell: this table describes a plate or box mesh"),
