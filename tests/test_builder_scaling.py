@@ -138,3 +138,77 @@ def test_dense_and_column_newton_matrices_give_the_same_fmu(tmp_path):
         scale = max(np.max(np.abs(runs[0][name])), 1e-300)
         assert np.max(np.abs(runs[0][name] - runs[1][name])) <= 1e-7 * scale, name
     assert np.max(np.abs(derivatives[0] - derivatives[1])) <= 1e-12 * np.max(np.abs(derivatives[0]))
+
+
+@pytest.mark.parametrize("deformation", [("v",), ("v", "w")], ids=["planar", "spatial"])
+def test_nodal_points_equal_dense_points(monkeypatch, deformation):
+    """A reduced FE link's fields at the points through its nodal coordinates (sparse element shapes, then the
+    modes) equal the dense φ(x_k) η they replace, and the point sums ∫u, ∫2xu equal the quadratic forms of
+    fs, fs_x: residual, mass matrix and outputs of a two-link second-order chain at random states."""
+    from flexlink.mechanics.shapes.base import point_rule
+    from flexlink.mechanics.shapes.reduction import ModalBeamBasis
+
+    shapes = {"kind": "fe", "count": 6, "modes": 8}
+    scene = _scene([_link(dict(shapes), deformation), _link(dict(shapes), deformation)])
+    nodal = build_model(scene)
+    monkeypatch.setattr(ModalBeamBasis, "nodal_basis", lambda self: None)
+    monkeypatch.setattr(ModalBeamBasis, "points", property(point_rule))
+    dense = build_model(scene)
+    for seed in range(3):
+        for x, y in zip(_evaluate(nodal, np.random.default_rng(seed)), _evaluate(dense, np.random.default_rng(seed)),
+                        strict=True):
+            assert np.max(np.abs(x - y)) <= 1e-12 * np.max(np.abs(y))
+
+
+def test_nodal_points_cost_less_than_dense_points(monkeypatch):
+    """The reason for the nodal form: the residual of a 16-mode link takes fewer operations (exact counts)."""
+    from flexlink.mechanics.shapes.base import point_rule
+    from flexlink.mechanics.shapes.reduction import ModalBeamBasis
+
+    scene = _scene([_link({"kind": "fe", "count": 16, "modes": 16})])
+    nodal = build_model(scene).residual.expand().n_instructions()
+    monkeypatch.setattr(ModalBeamBasis, "nodal_basis", lambda self: None)
+    monkeypatch.setattr(ModalBeamBasis, "points", property(point_rule))
+    assert nodal < 0.8 * build_model(scene).residual.expand().n_instructions()
+
+
+def test_rounding_noise_is_pruned_and_nothing_else():
+    """Mass-orthogonal modes have an exactly diagonal ∫φφᵀ once the noise of its sums is pruned (the
+    eigensolver leaves its off-diagonal entries at ~1e-17, the rounding of the quadrature's sums), with the
+    diagonal untouched; a non-orthogonal family (polynomials) loses nothing.  The bound is the rounding error
+    of the sum itself, so a true entry 1e-10 of the diagonal stays — as do the stiffness integral's 1e-10
+    entries, which are the eigensolver's own error (relative to the largest eigenvalue), not rounding."""
+    from flexlink.mechanics.shapes import make_basis
+    from flexlink.mechanics.shapes.base import prune_rounding
+    from flexlink.mechanics.shapes.fe import HermiteFEBasis
+    from flexlink.mechanics.shapes.reduction import ModalBeamBasis
+
+    g = ModalBeamBasis(HermiteFEBasis(16, 1.0, 2.0), 12).integrals
+    assert np.count_nonzero(g.phi_phi - np.diag(np.diag(g.phi_phi))) == 0
+    poly = make_basis("polynomial", 6, 0.8, 1.2).integrals
+    assert np.count_nonzero(poly.phi_phi) == 36 and np.count_nonzero(poly.curv) == 36
+    raw = np.array([[1.0, 1e-10, 1e-17], [1e-10, 2.0, 0.0], [1e-17, 0.0, 3.0]])
+    pruned = prune_rounding(raw, 100)
+    assert pruned[0, 1] == 1e-10 and pruned[0, 2] == 0.0 and np.all(np.diag(pruned) == np.diag(raw))
+
+
+def test_large_refresh_functions_keep_the_matrix_graph(monkeypatch, tmp_path):
+    """Past REFRESH_EXPAND_MAX_OPERATIONS the mass matrix and the forward derivatives are generated from
+    CasADi's matrix graph (compact code) and the FMU is the same: Co-Simulation to the Newton tolerance (the
+    refreshed matrices differ by rounding only) and Model Exchange's derivatives to rounding."""
+    import flexlink.export.codegen as codegen
+    from flexlink.export.fmu import build_fmu
+
+    links = [_link({"kind": "clamped-free", "count": 2}, ("v", "w")), _link({"kind": "clamped-free", "count": 2})]
+    scene = _scene([dict(x) for x in links], newton_matrix="columns")
+    default = {n: f.is_a("SXFunction") for n, (f, _) in codegen.generated_functions(build_model(scene)).items()}
+    assert all(default.values())
+    runs = [_run(build_fmu(scene, tmp_path / "scalar.fmu").fmu)]
+    monkeypatch.setattr(codegen, "REFRESH_EXPAND_MAX_OPERATIONS", 0)
+    forms = {n: f.is_a("SXFunction") for n, (f, _) in codegen.generated_functions(build_model(scene)).items()}
+    assert not forms["mass_matrix"] and not forms["residual_forward_all"] and not forms["outputs_forward"]
+    assert forms["residual"] and forms["outputs"]
+    runs.append(_run(build_fmu(scene, tmp_path / "graph.fmu").fmu))
+    for name in runs[0].dtype.names[1:]:
+        scale = max(np.max(np.abs(runs[0][name])), 1e-300)
+        assert np.max(np.abs(runs[0][name] - runs[1][name])) <= 1e-7 * scale, name

@@ -53,6 +53,15 @@ EXPAND_MAX_COORDINATES = 160
 # costs 26 derivative calls, 300 µs); the mild examples refresh it a few times per run, where only the build
 # counts (docs/performance.md, benchmarks/scaling.py).
 NEWTON_DENSE_MAX_COORDINATES = 12
+# The functions called only when the Newton matrix is refreshed (the mass matrix, the residual's forward
+# derivative that gives its columns) or when an importer asks for directional derivatives (the outputs' forward
+# derivative) keep CasADi's matrix graph above this many scalar operations: their dense products then compile
+# as loops over constant arrays instead of one line per product.  Measured 2026-11-26 on the 32-mode link with
+# second-order kinematics (its mass matrix is a sum over 96 points of 32×32 outer products, 222k operations
+# as scalar code): generated C 11.6 MB → 2.9 MB, build 156 s → 11 s (shared machine), the same step, its
+# four Newton refreshes in 3 s of motion 3.7 ms each instead of 0.6 ms.  Every example's functions stay under
+# it (the largest, examples/fast_two_link.toml's residual derivative, 46k), so their steps are unchanged.
+REFRESH_EXPAND_MAX_OPERATIONS = 60_000
 # FLEXLINK_OPTIMISE=O0|Og|O1|O2 imposes one level on the CasADi code instead (the generic C stays at -O2): the
 # test suite builds dozens of FMUs and runs each briefly, so it compiles them at O0 (docs/tests.md).
 # OPTIMISE_ENV is that variable's name (flexlink.export.cbuild; part of the FMU cache key).
@@ -174,46 +183,60 @@ def newton_matrix_template(model: SymbolicModel) -> str:
     return "newton_matrix_columns.c.in" if needs_residual_forward(model) else "newton_matrix_differences.c.in"
 
 
-def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> list[ca.Function]:
-    """The CasADi functions to generate, named for the model.
+@dataclass
+class _Generated:
+    """One function as it is generated: its scalar or matrix form, and its scalar operation count."""
+
+    function: ca.Function
+    operations: int
+
+
+def _prepare(f: ca.Function, ident: str, expanded: bool, refresh_only: bool = False) -> _Generated:
+    """A model function named for the model, as scalar code with CSE, or as its matrix graph.
+
+    Scalar (SX) code with common subexpressions merged: 15-45 % fewer operations on the examples, the same
+    values (CasADi's cse, issue 22).  The matrix graph is kept when the model is past EXPAND_MAX_COORDINATES,
+    or for a ``refresh_only`` function past REFRESH_EXPAND_MAX_OPERATIONS.
+    """
+    name = f"{ident}_{f.name()}"    # public symbols carry the model identifier
+    if not all(f.sparsity_out(i).is_dense() for i in range(f.n_out())):
+        # model.c hands the generated code plain arrays: a sparse output would leave entries unwritten
+        raise BuildError(f"{f.name()}: a generated function's outputs must be dense")
+    g = f.expand()
+    sx_args = g.sx_in()
+    scalar = ca.Function(name, sx_args, g.call(sx_args), f.name_in(), f.name_out(), {"cse": True})
+    operations = int(scalar.n_instructions())
+    if expanded and not (refresh_only and operations > REFRESH_EXPAND_MAX_OPERATIONS):
+        return _Generated(scalar, operations)
+    mx_args = f.mx_in()
+    return _Generated(ca.Function(name, mx_args, f.call(mx_args), f.name_in(), f.name_out()), operations)
+
+
+def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> list[_Generated]:
+    """The CasADi functions to generate, named for the model, with their operation counts.
 
     Residual, outputs, the validity ratios, and either the dense Newton matrix or the mass matrix (the
     columns of the Newton matrix come from it and the residual's forward derivative or differences); the
     forward derivatives of residual and outputs where they are used (:func:`needs_residual_forward`, [fmu]
     directional_derivatives): a generated model holds only what its scene asks for.
     """
-
-    def prepare(f: ca.Function) -> ca.Function:
-        name = f"{ident}_{f.name()}"    # public symbols carry the model identifier
-        if not all(f.sparsity_out(i).is_dense() for i in range(f.n_out())):
-            # model.c hands the generated code plain arrays: a sparse output would leave entries unwritten
-            raise BuildError(f"{f.name()}: a generated function's outputs must be dense")
-        if expanded:
-            # scalar code with common subexpressions merged: 15-45 % fewer operations on the examples, the
-            # same values (CasADi's cse, issue 22)
-            g = f.expand()
-            sx_args = g.sx_in()
-            return ca.Function(name, sx_args, g.call(sx_args), f.name_in(), f.name_out(), {"cse": True})
-        mx_args = f.mx_in()
-        return ca.Function(name, mx_args, f.call(mx_args), f.name_in(), f.name_out())
-
-    residual = prepare(model.residual)
-    outputs = prepare(model.outputs_function)
+    residual = _prepare(model.residual, ident, expanded)
+    outputs = _prepare(model.outputs_function, ident, expanded)
     if dense_newton_matrix(model):
-        newton = prepare(model.newton_matrix_function())
+        newton = _prepare(model.newton_matrix_function(), ident, expanded)
     else:
-        newton = prepare(model.mass_matrix_function())
+        newton = _prepare(model.mass_matrix_function(), ident, expanded, refresh_only=True)
     if model.validity is None:
         raise BuildError("the model has no validity function (flexlink.mechanics.model.build_model makes one)")
     functions = [residual, newton, outputs]
     residual_fwd, outputs_fwd = forward_functions(model)
     if needs_residual_forward(model):
-        functions.append(prepare(residual_fwd))
+        functions.append(_prepare(residual_fwd, ident, expanded, refresh_only=True))
     if model.scene.fmu.directional_derivatives:
-        functions.append(prepare(outputs_fwd))
-    functions.append(prepare(model.validity))
+        functions.append(_prepare(outputs_fwd, ident, expanded, refresh_only=True))
+    functions.append(_prepare(model.validity, ident, expanded))
     if model.parameter_check is not None:
-        functions.append(prepare(model.parameter_check))
+        functions.append(_prepare(model.parameter_check, ident, expanded))
     return functions
 
 
@@ -225,10 +248,8 @@ def generated_functions(model: SymbolicModel) -> dict[str, tuple[ca.Function, in
     """
     ident = model.scene.model_identifier
     expanded = model.n_q <= EXPAND_MAX_COORDINATES
-    out = {}
-    for f in _casadi_functions(model, ident, expanded):
-        out[f.name().removeprefix(f"{ident}_")] = (f, int((f if expanded else f.expand()).n_instructions()))
-    return out
+    return {g.function.name().removeprefix(f"{ident}_"): (g.function, g.operations)
+            for g in _casadi_functions(model, ident, expanded)}
 
 
 def _guid(casadi_c: str, variables: list[FmuVariable], model: SymbolicModel) -> str:
@@ -333,17 +354,16 @@ def _parameter_check_body(model: SymbolicModel) -> str:
             f"    return {ident}_parameter_check(work->arg, work->res, work->iw, work->w, 0);")
 
 
-def _write_unit(f: ca.Function, model: SymbolicModel, directory: Path, expanded: bool) -> tuple[Path, int]:
+def _write_unit(generated: _Generated, model: SymbolicModel, directory: Path) -> tuple[Path, int]:
     """One generated function as its own C file (and header); returns the file and its operation count.
 
     CasADi's code behind unit.c.in's preamble, at the optimisation level its size calls for.
     """
+    f, operations = generated.function, generated.operations   # counted on the scalar form whatever is written
     name = f.name()
     cg = ca.CodeGenerator(f"{name}.c", {"with_header": True, "prefix": f"{name}_", "casadi_real": "double"})
     cg.add(f)
     cg.generate(str(directory) + "/")
-    # elementary operations, counted on the scalar expansion whatever the generated form
-    operations = int((f if expanded else f.expand()).n_instructions())
     path = directory / f"{name}.c"
     preamble = _template("unit.c.in").substitute(unit=name, scene=model.scene.name,
                                                  optimise=_optimise_pragma(generated_code_optimisation(operations)))
@@ -361,8 +381,9 @@ def generate(model: SymbolicModel, directory: Path) -> GeneratedModel:
     directory.mkdir(parents=True, exist_ok=True)
     ident = model.scene.model_identifier
     expanded = model.n_q <= EXPAND_MAX_COORDINATES
-    functions = _casadi_functions(model, ident, expanded)
-    units = [_write_unit(f, model, directory, expanded) for f in functions]
+    prepared = _casadi_functions(model, ident, expanded)
+    functions = [g.function for g in prepared]
+    units = [_write_unit(g, model, directory) for g in prepared]
     operations = sum(ops for _, ops in units)
     variables = fmu_variables(model, _feedthrough(model))
     sz = {k: max(int(getattr(f, f"sz_{k}")()) for f in functions) for k in ("arg", "res", "iw", "w")}

@@ -83,6 +83,13 @@ class ShapeBasis(abc.ABC):
         """Edges of the intervals on which φ is smooth (one interval, cut in 8 panels, unless piecewise)."""
         return np.linspace(0.0, self.length, 9)
 
+    def nodal_basis(self) -> tuple[ShapeBasis, np.ndarray] | None:
+        """A local basis and the matrix Ψ with φ = (its shapes) Ψ, when this basis is a reduction of one.
+
+        The point rule then evaluates the fields through the local shapes (:class:`Factorisation`).
+        """
+        return None
+
     @functools.cached_property
     def points(self) -> PointRule:
         """The material points of the second-order kinematics (:func:`point_rule`), computed once and cached."""
@@ -90,6 +97,21 @@ class ShapeBasis(abc.ABC):
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(count={self.count}, length={self.length:g}, n={self.n})"
+
+
+def prune_rounding(gram: np.ndarray, terms: int) -> np.ndarray:
+    """A Gram matrix Σ_k w_k a_k a_kᵀ (w ≥ 0) with the entries that are rounding noise set to exactly 0.
+
+    Why: modes orthogonal in mass or stiffness have off-diagonal integrals of 1e-17 instead of 0, and every
+    such entry becomes an operation in every generated function (issue 22: 37 % of a residual's constants).
+    The rule: an entry is noise when it is within the rounding bound of its own sum, ``terms`` ε √(G_ii G_jj)
+    (the floating-point error of a sum of ``terms`` products is at most ``terms`` ε Σ|w_k a_ik a_jk|, itself at
+    most √(G_ii G_jj) by Cauchy–Schwarz), so no entry that the quadrature could tell from zero is dropped.
+    """
+    d = np.sqrt(np.clip(np.diag(gram), 0.0, None))
+    noise = np.abs(gram) <= terms * np.finfo(float).eps * np.outer(d, d)
+    np.fill_diagonal(noise, False)
+    return np.where(noise, 0.0, gram)
 
 
 def integrals_from_rule(basis: ShapeBasis, x: np.ndarray, w: np.ndarray) -> ShapeIntegrals:
@@ -107,7 +129,8 @@ def integrals_from_rule(basis: ShapeBasis, x: np.ndarray, w: np.ndarray) -> Shap
 
     def gram(a: np.ndarray, weights: np.ndarray) -> np.ndarray:
         m = a.T @ (weights[:, None] * a)
-        return 0.5 * (m + m.T)  # exactly symmetric for eigh, Cholesky and the symbolic model
+        m = 0.5 * (m + m.T)  # exactly symmetric for eigh, Cholesky and the symbolic model
+        return prune_rounding(m, x.size)
 
     ends = np.array([0.0, length])
     fields = dict(
@@ -125,6 +148,22 @@ def integrals_from_rule(basis: ShapeBasis, x: np.ndarray, w: np.ndarray) -> Shap
     for value in fields.values():
         value.setflags(write=False)
     return ShapeIntegrals(**fields)
+
+
+@dataclass(frozen=True)
+class Factorisation:
+    """φ and φ' at a rule's points as ``local @ modal``: sparse local shapes of nodal coordinates, dense modes.
+
+    A reduced finite-element basis (:class:`~flexlink.mechanics.shapes.reduction.ModalBeamBasis`) is
+    piecewise cubic: at each point only the four nodal coordinates of its element count.  Forming the
+    nodal values ``modal @ η`` once (N·n operations) and then the points from them (4 per point) costs
+    far less than the dense ``phi @ η`` (K·n) when the modes are many: the sums over the points then grow
+    like n², not K·n (issue 15, docs/performance.md).
+    """
+
+    phi: np.ndarray      # (K, N)  nodal shapes at the points (4 non-zeros a row for Hermite elements)
+    slope: np.ndarray    # (K, N)
+    modal: np.ndarray    # (N, n)  the modes in nodal coordinates
 
 
 @dataclass(frozen=True)
@@ -147,6 +186,7 @@ class PointRule:
     local: np.ndarray   # (K, K)  block diagonal: ∫ from the panel's start to x_k of the panel's polynomial
     panel_sums: np.ndarray   # (P, K)  the Gauss sum over each panel
     start: np.ndarray   # (K, P)  1 where panel p lies wholly before x_k: ∫₀^{x_k} f = local f + start (panel_sums f)
+    factor: Factorisation | None = None   # phi and slope as sparse local values of a few nodal fields
 
 
 #: Gauss points per panel of the point rule: the integration matrix is exact for v'² of cubic elements
@@ -179,7 +219,9 @@ def point_rule(basis: ShapeBasis, order: int = POINT_RULE_ORDER) -> PointRule:
         local[rows, rows] = h * S                          # this panel, up to each point
         panel_sums[p, rows] = w[rows]
         start[rows, :p] = 1.0                              # the earlier panels, whole
-    return PointRule(x, w, basis.evaluate(x, 0), basis.evaluate(x, 1), local, panel_sums, start)
+    nodal = basis.nodal_basis()
+    factor = None if nodal is None else Factorisation(nodal[0].evaluate(x, 0), nodal[0].evaluate(x, 1), nodal[1])
+    return PointRule(x, w, basis.evaluate(x, 0), basis.evaluate(x, 1), local, panel_sums, start, factor)
 
 
 def composite_gauss_legendre(edges: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:

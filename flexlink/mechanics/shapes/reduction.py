@@ -123,6 +123,10 @@ class ModalBeamBasis(ShapeBasis):
         """The FE nodes: the modes are piecewise cubics on the same elements."""
         return self.fe.panel_edges()
 
+    def nodal_basis(self) -> tuple[ShapeBasis, np.ndarray]:
+        """The Hermite elements and the modes in their nodal coordinates (φ = φ_FE Ψ)."""
+        return self.fe, self.psi
+
 
 class ModalTorsionBasis:
     """The first ``modes`` clamped twist modes of linear torsion elements (see ModalBeamBasis)."""
