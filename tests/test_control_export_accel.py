@@ -13,6 +13,7 @@ one-joint rotating link:
   summation) the plant's states agree to 1e-9 too; the torques differ by the closed loop's amplification of
   rounding, which numpy alone shows: the same law with one sum reordered (:class:`Reordered`) differs from
   it by as much;
+* the same with the gain scheduled over the path (``--schedule``);
 * with the torque applied one sample late (a Jacobi master, the SSP package's controller built for it),
   libcosim running the package equals the Python loop to 1e-9;
 * without a manoeuvre the export is refused with one message.
@@ -170,6 +171,36 @@ def test_one_joint_closed_loop_equals_the_law(tmp_path, example_fmu):
     runs = loops(example_fmu("rotating_link"), d, ref, fmu, [5.0], ["arm.tip.v"])
     check_loops(runs, d, ["arm.tip.v"])
     assert abs(math.degrees(runs["fmu"]["hub.theta"][-1]) - 30.0) < 1e-2
+
+
+def test_scheduled_accelerometer_fmu(tmp_path, example_fmu):
+    """``--schedule 3 --sensors accelerometer``: the LQR gain scheduled over the path (elbow −20° → 90°), the
+    accelerometer read along the reference, in the C as :class:`controllers.schedule.ScheduledLQGLaw`: the
+    plant's states to 1e-9, the torques within numpy's own rounding spread (the law reordered)."""
+    from controllers.schedule import ScheduledLQGLaw, design_schedule
+
+    class ScheduledReordered(ScheduledLQGLaw):
+        predicted = Reordered.predicted
+
+    targets = [math.radians(60.0), math.radians(90.0)]
+    d, ref = manoeuvre(TWO_LINK, targets, DURATION, SETTLE, LIMIT)
+    schedule = design_schedule(d, plan(d.plant, targets), 3)
+    fmu = export_controller_fmu(d, tmp_path / "ctrl.fmu", reference=ref, schedule=schedule, duration=DURATION)
+    ctrl = FmuLaw(fmu, builtin=True)
+    try:
+        with FmuLoop(example_fmu("two_link_payload"), record=RECORD) as loop:
+            b = loop.run(ctrl, ref)
+            a = loop.run(ScheduledLQGLaw(schedule, [LIMIT, LIMIT], ref), ref)
+            r = loop.run(ScheduledReordered(schedule, [LIMIT, LIMIT], ref), ref)
+    finally:
+        ctrl.close()
+    states, torques = ["shoulder.theta", "elbow.theta", *RECORD], list(d.lqr.inputs)
+    got, spread = difference(b, a, states + torques), difference(r, a, torques)
+    print(f"\n|FMU - ScheduledLQGLaw| {got}\n|reordered - ScheduledLQGLaw| {spread}")
+    for n in states:
+        assert got[n] <= 1e-9 * max(1.0, float(np.max(np.abs(a[n])))), n
+    assert max(got[u] for u in torques) <= 4 * max(spread.values()) + 1e-12
+    assert abs(math.degrees(b["elbow.theta"][-1] - targets[1])) < 1e-2
 
 
 def test_refusals(two_link, tmp_path):
