@@ -203,6 +203,29 @@ def test_scheduled_accelerometer_fmu(tmp_path, example_fmu):
     assert abs(math.degrees(b["elbow.theta"][-1] - targets[1])) < 1e-2
 
 
+def test_after_its_reference_the_fmu_holds_the_targets(two_link, example_fmu):
+    """Stepped 1 s past the end of its tables (the manoeuvre and 0.5 s), the controller FMU keeps their last
+    rows (the linearisation at rest at the targets, the filter's last gain): the arm stays at the targets
+    with the torques that hold it there (:func:`controllers.multijoint.plan`'s static residual)."""
+    d, ref, fmu = two_link
+    pl = plan(d.plant, TARGETS)
+    longer = inverse_dynamics_reference(d.plant, pl, d.dt, DURATION, SETTLE + 1.0)
+    ctrl = FmuLaw(fmu, builtin=True)
+    try:
+        with FmuLoop(example_fmu("two_link_payload"), record=RECORD) as loop:
+            res = loop.run(ctrl, longer)
+    finally:
+        ctrl.close()
+    n, last = len(ref.time), slice(-200, None)                  # the tables' end, the last 0.2 s
+    for k, (j, target) in enumerate(zip(("shoulder", "elbow"), TARGETS, strict=True)):
+        err = np.abs(np.degrees(res[f"{j}.theta"] - target))
+        tau = np.abs(res[f"{j}.tau"] - pl.u_end[k])
+        print(f"\n{j}: |error| {err[n]:.2e} deg at the tables' end, <= {np.max(err[last]):.2e} deg over the last "
+              f"0.2 s; |torque - holding| {tau[n]:.2e} → {np.max(tau[last]):.2e} N m")
+        assert np.max(err[last]) < 1e-3 and np.max(err[last]) < err[n]
+        assert np.max(tau[last]) < 1e-3 * LIMIT
+
+
 def test_refusals(two_link, tmp_path):
     """Without its manoeuvre the accelerometer's controller FMU is refused; a NaN measurement is an error."""
     import fmpy
