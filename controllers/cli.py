@@ -102,7 +102,8 @@ def add_control_parsers(subparsers) -> None:
     p.add_argument("--export-fmu", type=output_file, metavar="CTRL.fmu",
                    help="also write the sampled LQG (Kalman current estimator + discrete LQR, saturation) as a "
                         "pure-C FMI 2.0 Co-Simulation FMU, its sample time the fixed communication step; with "
-                        "--schedule the scheduled LQG, its matrices switched along the path (docs/control.md)")
+                        "--schedule the scheduled LQG, its matrices switched along the path; with --sensors "
+                        "accelerometer it plays the --target manoeuvre, its model along it as tables (docs/control.md)")
     p.add_argument("--export-ssp", type=output_file, metavar="SYSTEM.ssp",
                    help="also write an SSP 1.0 package: the scene's FMU and the controller FMU playing the "
                         "--target manoeuvre (needs --target and --duration), connected, the sample time as the "
@@ -399,11 +400,19 @@ def _export(args, d, schedule=None) -> None:
     """
     import sys
 
-    from controllers.export import export_controller_fmu
+    from controllers.export import export_controller_fmu, reads_along
 
-    path = export_controller_fmu(d, args.export_fmu, schedule=schedule, duration=args.duration)
+    ref = None
+    if reads_along(d) and args.target is not None and args.duration is not None:   # the accelerometer: built in
+        from controllers.multijoint import check_multijoint, inverse_dynamics_reference, plan
+
+        check_multijoint(d)
+        ref = inverse_dynamics_reference(d.plant, plan(d.plant, [math.radians(v) for v in args.target]), d.dt,
+                                         args.duration, args.settle)
+    path = export_controller_fmu(d, args.export_fmu, schedule=schedule, duration=args.duration, reference=ref)
     what = "sampled LQG" if schedule is None else f"sampled LQG scheduled at {len(schedule.designs)} poses"
-    print(f"wrote {path}: {what} of {', '.join(d.actuated_joints)} at {d.dt:g} s (inputs: "
+    plays = "" if ref is None else f", playing the manoeuvre ({args.duration + args.settle:g} s)"
+    print(f"wrote {path}: {what} of {', '.join(d.actuated_joints)} at {d.dt:g} s{plays} (inputs: "
           f"{', '.join(d.kalman.sensors)}, x_ref, u_ff, w; outputs: {', '.join(d.lqr.inputs)})", file=sys.stderr)
 
 

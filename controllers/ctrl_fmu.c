@@ -21,6 +21,15 @@
  * ahead with the torque being applied and outputs the torque of the next sample (controllers/ssp.py).
  * Before the first step the output is u0 + the feedforward of sample 0.
  *
+ * Sensors read along the reference (NALONG > 0: the tip accelerometer, controllers.multijoint.MimoLQGLaw with a
+ * measurement schedule; the reference is built in): sample k expects the measurement
+ *   y_hat = YREF[k] + CK[k] z + DK[k] (uprev − UFP[k])
+ * (the sensors linearised about the reference's state and the held feedforward, uprev the deviation torque
+ * held while y_k was sampled) instead of y0 + C (xref + z), and predicts with the plant sampled along the
+ * reference AK[k], BK[k] and the time-varying Kalman gain MKT[k] (NGAIN rows); w is then that model's
+ * reference step (REFW).  Each table stores its rows up to its last change: its last row holds after it,
+ * and after the reference (the linearisation at rest at the targets, the filter's last gain).
+ *
  * Gain scheduling (NSCHED > 0 design points, controllers/schedule.py): sample k uses the matrices (M, C, K,
  * Ad, Bd) interpolated linearly between the two design points around the path parameter
  * s(t_k) = tau^3 (10 - 15 tau + 6 tau^2), tau = t_k / TMOVE clipped to [0, 1] (the quintic's; 1 after the
@@ -42,6 +51,9 @@
 #ifndef NSCHED
 #define NSCHED 0
 #endif
+#ifndef NALONG
+#define NALONG 0
+#endif
 
 typedef struct {
     fmi2CallbackFunctions cb;
@@ -49,6 +61,7 @@ typedef struct {
     double in[NIN];
     double z[NX], e[NX], u[NU];
     double ad[NX][NX], bd[NX][NU], cy[NY][NX], mk[NX][NY], kd[NU][NX];   /* the matrices of this sample */
+    double uprev[NU];       /* deviation torque held while the measurement of this sample was taken */
     double t;
     long k;                 /* samples taken since the start: the row of the built-in reference */
     enum { INSTANTIATED, INITIALISING, STEPPING, FAILED } state;   /* FMI 2.0 CS state machine (§4.2.4) */
@@ -110,6 +123,23 @@ static void load(Ctrl *c, long k) {
 #endif
 }
 
+#if NALONG > 0
+/* Sample k's model along the reference (its row k, the last row after the table): the Kalman gain and the
+ * sampled plant into the instance's matrices, the innovation y − y_hat (header comment). */
+static void along(Ctrl *c, long k, double *innov) {
+    long r = k < NALONG ? k : NALONG - 1, g = k < NGAIN ? k : NGAIN - 1;
+    memcpy(c->ad, AKT[r], sizeof c->ad);
+    memcpy(c->bd, BKT[r], sizeof c->bd);
+    memcpy(c->mk, MKT[g], sizeof c->mk);
+    for (int i = 0; i < NY; i++) {
+        double s = c->in[i] - YREF[r][i];
+        for (int j = 0; j < NX; j++) s -= CKT[r][i * NX + j] * c->z[j];
+        for (int j = 0; j < NU; j++) s -= DKT[r][i * NU + j] * (c->uprev[j] - UFP[r][j]);
+        innov[i] = s;
+    }
+}
+#endif
+
 /* u = sat(u0 + uff − K e) */
 static void regulate(Ctrl *c, const double *uff, const double *e) {
     for (int i = 0; i < NU; i++) {
@@ -124,15 +154,18 @@ static void regulate(Ctrl *c, const double *uff, const double *e) {
  * later): z predicted with the torque being applied now (the output held), the torque of the next sample
  * from z and the next row of the reference. */
 static void sample(Ctrl *c) {
-    const double *y = c->in;
     double xref[NX], uff[NU], w[NX], innov[NY], z[NX];
     if (NSCHED > 0 || c->k == 0) load(c, c->k);
     reference(c, c->k, xref, uff, w);
+#if NALONG > 0
+    along(c, c->k, innov);
+#else
     for (int i = 0; i < NY; i++) {
-        double s = y[i] - Y0[i];
+        double s = c->in[i] - Y0[i];
         for (int j = 0; j < NX; j++) s -= c->cy[i][j] * (xref[j] + c->z[j]);
         innov[i] = s;
     }
+#endif
     for (int i = 0; i < NX; i++) {
         double s = c->z[i];
         for (int j = 0; j < NY; j++) s += c->mk[i][j] * innov[j];
@@ -148,6 +181,7 @@ static void sample(Ctrl *c) {
         z[i] = s;
     }
     memcpy(c->z, z, sizeof z);
+    for (int i = 0; i < NU; i++) c->uprev[i] = c->u[i] - U0[i];   /* held while the next sample is measured */
 #if DELAY == 1
     reference(c, c->k + 1, xref, uff, w);
     if (NSCHED > 0) load(c, c->k + 1);      /* the next sample's torque with the next sample's gain */
@@ -159,11 +193,16 @@ static void reset(Ctrl *c) {
     memset(c->in, 0, sizeof c->in);
     for (int i = 0; i < NY; i++) c->in[i] = Y0[i];
     memset(c->z, 0, sizeof c->z);
+    memset(c->uprev, 0, sizeof c->uprev);  /* DELAY 0: u0 held while sample 0 is measured */
     double xref[NX], uff[NU], w[NX];
     c->k = 0;
     load(c, 0);
     reference(c, 0, xref, uff, w);
     regulate(c, uff, c->z);             /* u0 + the feedforward of sample 0 */
+#if DELAY == 1
+    /* a Jacobi importer connects that output to the plant during initialisation: held at t_0 */
+    for (int i = 0; i < NU; i++) c->uprev[i] = c->u[i] - U0[i];
+#endif
     c->t = 0.0;
     c->state = INSTANTIATED;
 }

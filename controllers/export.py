@@ -16,6 +16,11 @@ same communication point, and the importer's order of stepping decides the delay
 ``reference`` the FMU also plays a manoeuvre's reference and feedforward itself (its reference inputs then
 add to it): a plant and this controller alone make the closed loop (:mod:`controllers.ssp`).
 
+With the tip accelerometer the law reads its sensors along the reference (the expected measurement, C_k,
+D_k, the plant sampled along it A_k, B_k and the time-varying Kalman gain M_k per sample:
+:class:`controllers.multijoint.MimoLQGLaw`); the FMU then plays its manoeuvre and carries those as tables
+(:func:`_along_data`), each up to its last change, its last row held after it.
+
 :class:`FmuLaw` drives such an FMU as a law of :class:`controllers.cosim.FmuLoop`: the plant FMU and the
 controller FMU stepped side by side by fmpy, the controller first.
 """
@@ -39,10 +44,11 @@ from controllers.design import DesignError, torque_inputs
 
 if TYPE_CHECKING:
     from controllers.manoeuvre import ControlDesign
+    from controllers.multijoint import MimoLQGLaw
     from controllers.schedule import Schedule
     from controllers.trajectory import Reference
 
-__all__ = ["FmuLaw", "export_controller_fmu", "reference_tables"]
+__all__ = ["FmuLaw", "along_law", "export_controller_fmu", "reads_along", "reference_tables"]
 
 C_SOURCE = Path(__file__).resolve().parent / "ctrl_fmu.c"
 
@@ -93,6 +99,44 @@ def _data(d: ControlDesign, limits: np.ndarray, guid: str,
             + _c_array("Y0", y0) + _c_array("U0", p.u0[torque_inputs(p)]) + _c_array("LIM", limits) + ref)
 
 
+def _rows(a: np.ndarray) -> np.ndarray:
+    """The rows of a per-sample table up to its last change (its last row then holds: ``ctrl_fmu.c``)."""
+    flat = np.reshape(np.asarray(a, dtype=float), (len(a), -1))
+    changed = np.flatnonzero(np.any(flat != flat[-1], axis=1))
+    return flat[: changed[-1] + 2] if len(changed) else flat[:1]
+
+
+def _along_data(law: MimoLQGLaw) -> str:
+    """The law's model along the reference as C tables (sensors read along it: the tip accelerometer).
+
+    Per sample k, of :class:`controllers.multijoint.MimoLQGLaw`: the expected measurement ``h(x_ref,k,
+    u_ff,k−1)`` (``YREF``), its rows ``C_k``, ``D_k`` (``CKT``, ``DKT``), the feedforward held while it is sampled
+    (``UFP``), the plant sampled along the reference ``A_k``, ``B_k`` (``AKT``, ``BKT``) — ``NALONG`` rows, the
+    rest at the targets after them — and the time-varying Kalman gain ``M_k`` (``MKT``, ``NGAIN`` rows).  Empty
+    when the law reads its sensors as at rest.
+    """
+    sc, al = law.schedule, law.along
+    if sc is None or al is None:
+        return "#define NALONG 0\n"
+    tables = {"YREF": sc.y_ref, "CKT": sc.C, "DKT": sc.D, "UFP": sc.u_ff_prev, "AKT": al.A, "BKT": al.B}
+    n = max(len(_rows(a)) for a in tables.values())
+    gain = _rows(al.M)
+    out = f"#define NALONG {n}\n#define NGAIN {len(gain)}\n" + _c_array("MKT", gain)
+    for name, a in tables.items():
+        out += _c_array(name, np.reshape(np.asarray(a, dtype=float), (len(a), -1))[:n])
+    return out
+
+
+def along_law(d: ControlDesign, reference: Reference, limits: Sequence[float] | np.ndarray,
+              schedule: Schedule | None = None) -> MimoLQGLaw:
+    """The Python law a controller FMU playing ``reference`` runs (:class:`MimoLQGLaw` or the scheduled one)."""
+    from controllers.multijoint import MimoLQGLaw
+    from controllers.schedule import ScheduledLQGLaw
+
+    lim = [float(v) for v in np.asarray(limits, dtype=float)]
+    return MimoLQGLaw(d, lim, reference) if schedule is None else ScheduledLQGLaw(schedule, lim, reference)
+
+
 def reference_tables(d: ControlDesign, reference: Reference, limits: Sequence[float] | np.ndarray,
                      schedule: Schedule | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The built-in reference of a controller FMU, one row per sample.
@@ -115,14 +159,22 @@ def reference_tables(d: ControlDesign, reference: Reference, limits: Sequence[fl
     -------
     tuple of arrays
         ``x_ref``, ``u_ff`` and the prediction's correction ``w`` of :class:`controllers.multijoint.MimoLQGLaw`
-        (or :class:`controllers.schedule.ScheduledLQGLaw`).
+        (or :class:`controllers.schedule.ScheduledLQGLaw`); with sensors read along the reference, that of the
+        plant sampled along it (:class:`controllers.multijoint.EstimatorAlong`).
     """
-    from controllers.multijoint import MimoLQGLaw
-    from controllers.schedule import ScheduledLQGLaw
+    law = along_law(d, reference, limits, schedule)
+    W = law.W if law.along is None else law.along.W
+    return reference.x.copy(), reference.u_ff.copy(), W.copy()
 
-    lim = [float(v) for v in np.asarray(limits, dtype=float)]
-    law = MimoLQGLaw(d, lim, reference) if schedule is None else ScheduledLQGLaw(schedule, lim, reference)
-    return reference.x.copy(), reference.u_ff.copy(), law.W.copy()
+
+def reads_along(d: ControlDesign) -> bool:
+    """Whether the design's sensors are read along a reference: any but encoders and root strain gauges.
+
+    Encoders and root strain gauges are linear in the state (``y₀ + C x`` is exact); the tip accelerometer is
+    not (:func:`controllers.laws.measurement_schedule`), and its controller FMU carries the law's model along
+    the manoeuvre as tables (:func:`export_controller_fmu`).
+    """
+    return bool(np.any(d.kalman.D != 0)) or any(not s.endswith((".theta", ".root.moment")) for s in d.kalman.sensors)
 
 
 def _variables(d: ControlDesign) -> list[tuple[str, str, str, str]]:
@@ -186,19 +238,24 @@ def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits
     """Write the design's sampled LQG (:class:`controllers.multijoint.MimoLQGLaw`) as an FMI 2.0 CS FMU.
 
     ``limits``: the torque saturation per actuated joint (default: the design's torque limits).  The sensors
-    must be linear in the state (encoders, root strain gauges), as for the multi-joint run.  ``reference``
-    (a :class:`controllers.trajectory.Reference` at the design's sample time): built in
-    (:func:`reference_tables`).  ``delay=1``: for an importer that applies the output one sample later
+    are those of the multi-joint run.  ``reference`` (a :class:`controllers.trajectory.Reference` at the design's
+    sample time): built in (:func:`reference_tables`); it is required with the tip accelerometer, whose
+    measurement model, sampled plant and Kalman gains along it become tables of the C (:func:`_along_data`).
+    ``delay=1``: for an importer that applies the output one sample later
     (Jacobi; :class:`controllers.ssp.PredictiveLQGLaw`).  ``schedule`` (a
     :class:`controllers.schedule.Schedule` whose first design is ``d``) with the manoeuvre's ``duration``:
     the matrices of :class:`controllers.schedule.ScheduledLQGLaw`, switched along the path in the C.
     """
     from flexlink.export.cbuild import compile_shared_library, fmi_headers_dir
 
-    if np.any(d.kalman.D != 0) or any(not s.endswith((".theta", ".root.moment")) for s in d.kalman.sensors):
-        raise DesignError(f"--export-fmu, --export-ssp: the controller FMU reads encoders and root strain gauges "
-                          f"(--sensors strain; the accelerometer is read along the reference only in Python), got "
-                          f"{d.kalman.sensors}")
+    if reads_along(d):
+        from controllers.multijoint import check_multijoint
+
+        check_multijoint(d)                 # the sensors the multi-joint law reads, one message for the others
+        if reference is None:
+            raise DesignError(f"--export-fmu: the controller FMU reads {', '.join(d.kalman.sensors)} along the "
+                              "manoeuvre's reference (the accelerometer), so it plays the manoeuvre itself: give "
+                              "--target and --duration")
     path = Path(path)
     if path.suffix != ".fmu":
         raise DesignError(f"--export-fmu {path}: expected a file name ending in .fmu")
@@ -206,14 +263,16 @@ def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits
     ident = identifier or "".join(c if c.isalnum() else "_" for c in f"{d.plant.model.scene.name}_lqg")
     if schedule is not None and (schedule.designs[0] is not d or not (duration is not None and duration > 0)):
         raise DesignError("a scheduled controller FMU needs the schedule of this design and the manoeuvre time")
-    tables = None
+    if delay not in (0, 1):
+        raise DesignError(f"delay: 0 or 1 sample, got {delay}")
+    tables, along = None, "#define NALONG 0\n"
     if reference is not None:
         if abs(reference.dt - d.dt) > 1e-12 * d.dt:
             raise DesignError(f"the reference samples at {reference.dt} s, the controller at {d.dt} s")
-        tables = reference_tables(d, reference, lim, schedule)
-    if delay not in (0, 1):
-        raise DesignError(f"delay: 0 or 1 sample, got {delay}")
-    data = _data(d, lim, "{GUID}", tables, delay)
+        law = along_law(d, reference, lim, schedule)
+        tables = (reference.x, reference.u_ff, law.W if law.along is None else law.along.W)
+        along = _along_data(law)
+    data = _data(d, lim, "{GUID}", tables, delay) + along
     if schedule is not None and duration is not None:
         data += _schedule_data(schedule, duration)
     guid = hashlib.sha256(data.encode()).hexdigest()[:32]

@@ -21,7 +21,9 @@ both libcosim and the delayed Python law leave the beam model's validity at t = 
 the torque limits): the package's controller is therefore built for it (``DELAY 1``,
 :class:`PredictiveLQGLaw`): it predicts the estimate one sample ahead with the torque being applied and
 outputs the next sample's torque.  The like-for-like comparison of the SSP run in libcosim is
-``JacobiDelay(PredictiveLQGLaw)`` in :class:`controllers.cosim.FmuLoop`.
+``JacobiDelay(PredictiveLQGLaw)`` in :class:`controllers.cosim.FmuLoop`.  A sensor with feedthrough (the tip
+accelerometer) also sees the torque libcosim connects to the plant while it initialises: that loop is then
+:class:`JacobiLoop`.
 """
 
 from __future__ import annotations
@@ -30,13 +32,14 @@ import os
 import shutil
 import tempfile
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
+from controllers.cosim import FmuLoop, LoopResult
 from controllers.design import DesignError
 from controllers.multijoint import MimoLQGLaw
 
@@ -45,7 +48,7 @@ if TYPE_CHECKING:
     from controllers.schedule import Schedule
     from controllers.trajectory import Reference
 
-__all__ = ["JacobiDelay", "PredictiveLQGLaw", "ScheduledPredictiveLQGLaw", "write_ssp"]
+__all__ = ["JacobiDelay", "JacobiLoop", "PredictiveLQGLaw", "ScheduledPredictiveLQGLaw", "write_ssp"]
 
 PLANT, CONTROLLER = "plant", "controller"
 
@@ -171,6 +174,28 @@ class JacobiDelay:
         return u
 
 
+class JacobiLoop(FmuLoop):
+    """:class:`controllers.cosim.FmuLoop` initialised as a Jacobi master initialises a connected system.
+
+    libcosim's fixed-step algorithm transfers the controller's initial output to the plant's inputs while
+    it initialises (``fixed_step_algorithm::initialize``: each simulator's ``setup``, iterations of
+    transfers, ``start_simulation``), so the plant's outputs at t_0 are read with that torque applied.  A
+    sensor with feedthrough (the tip accelerometer) sees it; here the plant's torque inputs are set to a
+    :class:`JacobiDelay` law's ``u_init`` after initialisation, before y_0 is read.
+    """
+
+    def run(self, law: JacobiDelay, reference: Reference, **kw: Any) -> LoopResult:  # type: ignore[override]
+        """:meth:`FmuLoop.run` with the torque ``law.u_init`` on the plant before the first sample."""
+        self._held = (list(law.inputs), np.asarray(law.u_init, dtype=float))
+        stepped: Any = law                    # FmuLoop steps any law with sensors, inputs, reset() and step()
+        return super().run(stepped, reference, **kw)
+
+    def _initialise(self, params: Mapping[str, float]) -> None:
+        super()._initialise(params)
+        names, values = self._held
+        self.slave.setReal([self.vr(n) for n in names], [float(v) for v in values])
+
+
 class PredictiveLQGLaw(MimoLQGLaw):
     """The sampled LQG for a loop that applies its torque one sample late.
 
@@ -189,15 +214,31 @@ class PredictiveLQGLaw(MimoLQGLaw):
         return np.clip(self.u0 + self.u_ff[0], -self.limits, self.limits)
 
     def reset(self) -> None:
-        """Sample 0 next, the initial torque being applied."""
+        """Sample 0 next, the initial torque being applied and held while y_0 is sampled.
+
+        A Jacobi master connects the controller's initial output to the plant during initialisation
+        (libcosim's ``fixed_step_algorithm::initialize``), so the plant's outputs at t_0 see it (:class:`JacobiLoop`).
+        """
         super().reset()
         self.v = self.initial()
+        self.u_prev = self.v - self.u0
 
     def step(self, y: np.ndarray, x_ref: np.ndarray, u_ff: np.ndarray) -> np.ndarray:
-        """Sample k: correct and predict with sample k's matrices, return sample k+1's torque (its gain)."""
+        """Sample k: correct and predict with sample k's matrices, return sample k+1's torque (its gain).
+
+        With the tip accelerometer the correction and prediction are :class:`MimoLQGLaw`'s along the reference
+        (its measurement model with the torque held while y_k was sampled, the plant and Kalman gain sampled
+        along the reference).
+        """
         M, C, _, Ad, Bd = self.matrices(self.k)
-        dx = self.dz + M @ (y - self.y0 - C @ (x_ref + self.dz))
-        self.dz = Ad @ dx + Bd @ (self.v - self.u0 - u_ff) - self.W[min(self.k, len(self.W) - 1)]
+        W = self.W
+        if self.along is not None and self.k < len(self.along.M):
+            M, Ad, Bd, W = self.along.M[self.k], self.along.A[self.k], self.along.B[self.k], self.along.W
+            dx = self.dz + M @ (y - self.predicted(x_ref, C))
+        else:
+            dx = self.dz + M @ (y - self.y0 - C @ (x_ref + self.dz))
+        self.dz = Ad @ dx + Bd @ (self.v - self.u0 - u_ff) - W[min(self.k, len(W) - 1)]
+        self.u_prev = self.v - self.u0              # held while y_k+1 is sampled
         self.k += 1
         nxt = min(self.k, len(self.u_ff) - 1)
         self.v = np.clip(self.u0 + self.u_ff[nxt] - self.matrices(self.k)[2] @ self.dz, -self.limits, self.limits)

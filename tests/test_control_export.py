@@ -98,6 +98,6 @@ def test_cli_export(tmp_path, capsys):
     assert main(["control", str(SCENE), "--design-only", "--torque-limit", str(LIMIT), "--export-fmu", str(out)]) == 0
     assert f"wrote {out}" in capsys.readouterr().err and validate_fmu(str(out)) == []
     assert main(["control", str(SCENE), "--design-only", "--torque-limit", str(LIMIT), "--sensors", "accelerometer",
-                 "--export-fmu", str(tmp_path / "acc.fmu")]) == 2
+                 "--export-fmu", str(tmp_path / "acc.fmu")]) == 2          # tests/test_control_export_accel.py
     err = capsys.readouterr().err
-    assert "encoders and root strain gauges" in err and err.count("\n") == 1 and not (tmp_path / "acc.fmu").exists()
+    assert "give --target and --duration" in err and err.count("\n") == 1 and not (tmp_path / "acc.fmu").exists()

@@ -149,8 +149,8 @@ def test_accelerometer_lqg_reaches_the_targets_and_settles(rig):
 
 def test_cli_runs_the_accelerometer_lqg_and_refuses_other_sensors(rig, capsys, tmp_path):
     """``flexlink control … --sensors accelerometer`` through the FMU; a sensor the run cannot read yet (a tip
-    deflection) is refused with one message before anything runs, and so is the controller FMU with the
-    accelerometer (its C has no measurement model along the reference)."""
+    deflection) is refused with one message before anything runs (the controller FMU and SSP package with the
+    accelerometer: tests/test_control_export_accel.py)."""
     from controllers.cli import add_control_parsers
 
     parser = argparse.ArgumentParser()
@@ -161,12 +161,6 @@ def test_cli_runs_the_accelerometer_lqg_and_refuses_other_sensors(rig, capsys, t
     doc = json.loads(capsys.readouterr().out)
     assert doc["sensors"] == ["shoulder.theta", "elbow.theta", "tip.sx", "tip.sy"]
     assert doc["lqg"]["settling_time_s"] is not None and doc["robustness"]["lqg"]["stable"]
-    ssp = tmp_path / "system.ssp"
-    args = parser.parse_args(["control", str(SCENE), "--target", "60,20", "--duration", str(DURATION), "--torque-limit",
-                              str(LIMIT), "--sensors", "accelerometer", "--export-ssp", str(ssp)])
-    with pytest.raises(DesignError, match="--export-ssp: the controller FMU reads encoders and root strain gauges"):
-        args.func(args)
-    assert not ssp.exists()
     designs, _ = rig
     d = design(designs["strain"].plant.model, torque_limit=LIMIT, dt=1e-3,
                sensors=["shoulder.theta", "elbow.theta", "fore.tip.v"])
