@@ -36,7 +36,9 @@ error 7 %); bytes and seconds per operation are the means of the four (22.5 … 
 On the six other examples timed the same way (elastic_joint, plate_raise, six_axis_arm, steel_beam_two_links,
 spatial_cantilever, fast_two_link) it lands within a factor of 3 of the measured operations, code and time
 (tests/test_budget.py holds them; worst: plate_raise's operations 2.9x over, one link of 30 coordinates 2.8x
-over); benchmarks/scaling.md's one link of 32 modes (265 s, 21 MB) it underestimates about 2.7x.  Treat it as
+over).  On benchmarks/scaling.md's one link of 32 modes with second-order kinematics it now overestimates
+about 2.8x (8.4 MB estimated; 3.0 MB since 2026-11-26, when the nodal point fields and the matrix graph of
+large refresh-time functions came, flexlink.export.codegen).  Treat it as
 an order of magnitude; the timings were taken on 2 cores shared with other sessions, so they are inflated
 (planar_chain_5: 31 s here, 10 s in benchmarks/scaling.md).
 """

@@ -67,6 +67,7 @@ def explain(scene_path) -> dict:
     modes = natural_frequencies(model)
     f_max = max(modes.frequencies_hz) if modes.frequencies_hz else 0.0
     step = 1.0 / (STEPS_PER_PERIOD * f_max) if f_max > 0 else scene.fmu.solver.step
+    functions = generated_functions(model)
     return {
         "scene": scene.name,
         "bodies": body_lines(scene),
@@ -80,7 +81,8 @@ def explain(scene_path) -> dict:
         "jacobian_constant": model.jacobian_constant,
         "operations": {"residual": int(model.residual.expand().n_instructions()),
                        "outputs": int(model.outputs_function.expand().n_instructions())},
-        "generated_operations": {name: ops for name, (_, ops) in generated_functions(model).items()},
+        "generated_operations": {name: ops for name, (_, ops) in functions.items()},
+        "matrix_graph": [name for name, (f, _) in functions.items() if not f.is_a("SXFunction")],
         "frequencies_hz": modes.frequencies_hz,
         "unstable_hz": modes.unstable_hz,
         "recommended_step": step,
@@ -109,6 +111,9 @@ def format_explanation(info: dict) -> str:
                  + ", ".join(f"{name} {ops}" for name, ops in generated.items()))
     in_step = set(CO_SIMULATION_STEP_FUNCTIONS) | ({"residual_forward_all"} if "mass_matrix" in generated else set())
     step = sum(ops for name, ops in generated.items() if name in in_step)
+    if info.get("matrix_graph"):
+        lines.append("  generated from CasADi's matrix graph (loops over constant arrays; larger than "
+                     "REFRESH_EXPAND_MAX_OPERATIONS as scalar code): " + ", ".join(info["matrix_graph"]))
     lines.append(f"  a Co-Simulation step evaluates {step} of them (residual, Newton matrix or mass matrix and the "
                  "residual's derivative where it is compiled, validity, outputs); the forward derivatives serve "
                  "fmi2GetDirectionalDerivative ([fmu] directional_derivatives)")
