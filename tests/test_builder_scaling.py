@@ -173,18 +173,26 @@ def test_nodal_points_cost_less_than_dense_points(monkeypatch):
 
 
 def test_rounding_noise_is_pruned_and_nothing_else():
-    """Mass-orthogonal modes have an exactly diagonal ∫φφᵀ once the noise of its sums is pruned (the
-    eigensolver leaves its off-diagonal entries at ~1e-17, the rounding of the quadrature's sums), with the
-    diagonal untouched; a non-orthogonal family (polynomials) loses nothing.  The bound is the rounding error
-    of the sum itself, so a true entry 1e-10 of the diagonal stays — as do the stiffness integral's 1e-10
-    entries, which are the eigensolver's own error (relative to the largest eigenvalue), not rounding."""
+    """Mass-orthogonal modes have an exactly diagonal ∫φφᵀ once the noise of its sums is pruned (the eigensolver
+    leaves its off-diagonal entries at ~1e-17, the rounding of the quadrature's sums), with the diagonal
+    untouched; a non-orthogonal family (polynomials) loses nothing.  The bound is the rounding error of the sum
+    itself, so a true entry 1e-10 of the diagonal stays — as do the stiffness projection's computed off-diagonal
+    entries (up to ~1e-10 of √(G_ii G_jj): the eigensolver's error, not rounding of the sum); the modal basis
+    sets those to their exact value, zero, itself (``ModalBeamBasis.integrals``)."""
     from flexlink.mechanics.shapes import make_basis
-    from flexlink.mechanics.shapes.base import prune_rounding
+    from flexlink.mechanics.shapes.base import ShapeBasis, prune_rounding
     from flexlink.mechanics.shapes.fe import HermiteFEBasis
     from flexlink.mechanics.shapes.reduction import ModalBeamBasis
 
-    g = ModalBeamBasis(HermiteFEBasis(16, 1.0, 2.0), 12).integrals
-    assert np.count_nonzero(g.phi_phi - np.diag(np.diag(g.phi_phi))) == 0
+    basis = ModalBeamBasis(HermiteFEBasis(16, 1.0, 2.0), 12)
+    computed = ShapeBasis.integrals.func(basis)                 # the quadrature's own, pruned by the rule only
+    assert np.count_nonzero(computed.phi_phi - np.diag(np.diag(computed.phi_phi))) == 0
+    d = np.sqrt(np.diag(computed.curv))
+    off = np.abs(computed.curv - np.diag(np.diag(computed.curv))) / np.outer(d, d)
+    assert 0 < off.max() < 1e-9      # the eigensolver's error, ~ε λ_max / √(λ_i λ_j): kept by the rule ...
+    modal = basis.integrals                                     # ... and zero by construction in the basis
+    for m, c in ((modal.phi_phi, computed.phi_phi), (modal.curv, computed.curv)):
+        assert np.count_nonzero(m - np.diag(np.diag(m))) == 0 and np.all(np.diag(m) == np.diag(c))
     poly = make_basis("polynomial", 6, 0.8, 1.2).integrals
     assert np.count_nonzero(poly.phi_phi) == 36 and np.count_nonzero(poly.curv) == 36
     raw = np.array([[1.0, 1e-10, 1e-17], [1e-10, 2.0, 0.0], [1e-17, 0.0, 3.0]])
@@ -192,10 +200,37 @@ def test_rounding_noise_is_pruned_and_nothing_else():
     assert pruned[0, 1] == 1e-10 and pruned[0, 2] == 0.0 and np.all(np.diag(pruned) == np.diag(raw))
 
 
+def _me_probe(path, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Model Exchange at one state: the derivatives (M from the generated mass matrix solves M a = −h) and the
+    directional derivative of every state derivative and output along the first state (the forward derivatives)."""
+    import fmpy
+    from fmpy.fmi2 import FMU2Model
+
+    md = fmpy.read_model_description(str(path))
+    model = FMU2Model(guid=md.guid, unzipDirectory=fmpy.extract(str(path)),
+                      modelIdentifier=md.modelExchange.modelIdentifier, instanceName=name)
+    model.instantiate()
+    model.setupExperiment(startTime=0.0)
+    model.enterInitializationMode()
+    model.exitInitializationMode()
+    model.enterContinuousTimeMode()
+    n = md.numberOfContinuousStates
+    x, dx = np.linspace(-0.3, 0.4, n), np.zeros(n)
+    model.setContinuousStates(x.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), n)
+    model.getDerivatives(dx.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), n)
+    unknowns = [u.variable.valueReference for u in (*md.derivatives, *md.outputs)]
+    seed_vr = [md.derivatives[0].variable.derivative.valueReference]
+    directional = np.array(model.getDirectionalDerivative(unknowns, seed_vr, [1.0]))
+    model.terminate()
+    model.freeInstance()
+    return dx, directional
+
+
 def test_large_refresh_functions_keep_the_matrix_graph(monkeypatch, tmp_path):
     """Past REFRESH_EXPAND_MAX_OPERATIONS the mass matrix and the forward derivatives are generated from
-    CasADi's matrix graph (compact code) and the FMU is the same: Co-Simulation to the Newton tolerance (the
-    refreshed matrices differ by rounding only) and Model Exchange's derivatives to rounding."""
+    CasADi's matrix graph (compact code) and give the same FMU: Model Exchange's derivatives (through the
+    generated mass matrix) and the directional derivatives of every state derivative and output (through both
+    forward derivatives) equal the scalar code's to rounding, and Co-Simulation to the Newton tolerance."""
     import flexlink.export.codegen as codegen
     from flexlink.export.fmu import build_fmu
 
@@ -203,12 +238,15 @@ def test_large_refresh_functions_keep_the_matrix_graph(monkeypatch, tmp_path):
     scene = _scene([dict(x) for x in links], newton_matrix="columns")
     default = {n: f.is_a("SXFunction") for n, (f, _) in codegen.generated_functions(build_model(scene)).items()}
     assert all(default.values())
-    runs = [_run(build_fmu(scene, tmp_path / "scalar.fmu").fmu)]
+    scalar = build_fmu(scene, tmp_path / "scalar.fmu").fmu
     monkeypatch.setattr(codegen, "REFRESH_EXPAND_MAX_OPERATIONS", 0)
     forms = {n: f.is_a("SXFunction") for n, (f, _) in codegen.generated_functions(build_model(scene)).items()}
     assert not forms["mass_matrix"] and not forms["residual_forward_all"] and not forms["outputs_forward"]
     assert forms["residual"] and forms["outputs"]
-    runs.append(_run(build_fmu(scene, tmp_path / "graph.fmu").fmu))
+    graph = build_fmu(scene, tmp_path / "graph.fmu").fmu
+    for a, b in zip(_me_probe(scalar, "scalar"), _me_probe(graph, "graph"), strict=True):
+        assert np.max(np.abs(a)) > 0 and np.max(np.abs(a - b)) <= 1e-12 * np.max(np.abs(a))
+    runs = [_run(scalar), _run(graph)]
     for name in runs[0].dtype.names[1:]:
         scale = max(np.max(np.abs(runs[0][name])), 1e-300)
         assert np.max(np.abs(runs[0][name] - runs[1][name])) <= 1e-7 * scale, name

@@ -194,6 +194,7 @@ def test_generated_code_optimisation_level(monkeypatch, tmp_path):
     monkeypatch.delenv("FLEXLINK_OPTIMISE", raising=False)
     assert generated_code_optimisation(5_000) == "O2"
     assert generated_code_optimisation(5_001) == "Og"
+    assert generated_code_optimisation(500_000, matrix_graph=True) == "O2"      # loops, not straight-line code
     monkeypatch.setenv("FLEXLINK_OPTIMISE", "O0")
     assert generated_code_optimisation(10) == "O0"
     monkeypatch.setenv("FLEXLINK_OPTIMISE", "O3")

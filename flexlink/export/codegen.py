@@ -53,14 +53,16 @@ EXPAND_MAX_COORDINATES = 160
 # costs 26 derivative calls, 300 µs); the mild examples refresh it a few times per run, where only the build
 # counts (docs/performance.md, benchmarks/scaling.py).
 NEWTON_DENSE_MAX_COORDINATES = 12
-# The functions called only when the Newton matrix is refreshed (the mass matrix, the residual's forward
-# derivative that gives its columns) or when an importer asks for directional derivatives (the outputs' forward
-# derivative) keep CasADi's matrix graph above this many scalar operations: their dense products then compile
-# as loops over constant arrays instead of one line per product.  Measured 2026-11-26 on the 32-mode link with
-# second-order kinematics (its mass matrix is a sum over 96 points of 32×32 outer products, 222k operations
-# as scalar code): generated C 11.6 MB → 2.9 MB, build 156 s → 11 s (shared machine), the same step, its
-# four Newton refreshes in 3 s of motion 3.7 ms each instead of 0.6 ms.  Every example's functions stay under
-# it (the largest, examples/fast_two_link.toml's residual derivative, 46k), so their steps are unchanged.
+# The functions off the Co-Simulation step's iteration -- the mass matrix (at a Newton-matrix refresh, in the
+# guards' definiteness check once a link deflects past a quarter of its validity limit, in Model Exchange's
+# derivatives), the residual's forward derivative (the Newton matrix's columns, directional derivatives) and the
+# outputs' (directional derivatives only) -- keep CasADi's matrix graph above this many scalar operations:
+# their dense products then compile as loops over constant arrays (at -O2) instead of one line per product.
+# Measured 2026-11-26 on the 32-mode link with second-order kinematics (its mass matrix is a sum over 96 points
+# of 32x32 outer products, 222k operations as scalar code): generated C 11.6 MB -> 3.0 MB and build 71 s ->
+# 14 s in the same session; the step 25 -> 37 us, because the guards evaluate that mass matrix every
+# communication step (docs/performance.md).  Every example's functions stay under it (the largest,
+# examples/fast_two_link.toml's residual derivative, 46k), so their code and steps are unchanged.
 REFRESH_EXPAND_MAX_OPERATIONS = 60_000
 # FLEXLINK_OPTIMISE=O0|Og|O1|O2 imposes one level on the CasADi code instead (the generic C stays at -O2): the
 # test suite builds dozens of FMUs and runs each briefly, so it compiles them at O0 (docs/tests.md).
@@ -68,17 +70,18 @@ REFRESH_EXPAND_MAX_OPERATIONS = 60_000
 OPTIMISE_LEVELS = ("O0", "Og", "O1", "O2")
 
 
-def generated_code_optimisation(operations: int) -> str:
+def generated_code_optimisation(operations: int, matrix_graph: bool = False) -> str:
     """The gcc optimisation level of one generated function of ``operations`` operations.
 
-    $FLEXLINK_OPTIMISE if set, else O2 or, above FULL_OPTIMISATION_MAX_OPERATIONS, Og.
+    $FLEXLINK_OPTIMISE if set, else O2 or, for scalar code above FULL_OPTIMISATION_MAX_OPERATIONS, Og (a matrix
+    graph's loops are short to compile and need -O2's loop optimisations).
     """
     level = os.environ.get(OPTIMISE_ENV, "").strip()
     if level:
         if level not in OPTIMISE_LEVELS:
             raise BuildError(f"{OPTIMISE_ENV}={level!r}: expected one of {', '.join(OPTIMISE_LEVELS)}")
         return level
-    return "Og" if operations > FULL_OPTIMISATION_MAX_OPERATIONS else "O2"
+    return "Og" if operations > FULL_OPTIMISATION_MAX_OPERATIONS and not matrix_graph else "O2"
 
 
 def _optimise_pragma(level: str) -> str:
@@ -98,7 +101,7 @@ class GeneratedModel:
     variables: list[FmuVariable]
     guid: str
     identifier: str
-    expanded: bool
+    matrix_graph: tuple[str, ...]  # the functions generated from CasADi's matrix graph, not as scalar code
     operations: int                # elementary operations in the generated functions
 
 
@@ -183,30 +186,38 @@ def newton_matrix_template(model: SymbolicModel) -> str:
     return "newton_matrix_columns.c.in" if needs_residual_forward(model) else "newton_matrix_differences.c.in"
 
 
-@dataclass
+@dataclass(frozen=True)
 class _Generated:
     """One function as it is generated: its scalar or matrix form, and its scalar operation count."""
 
     function: ca.Function
     operations: int
 
+    @property
+    def matrix_graph(self) -> bool:
+        """Whether it is generated from CasADi's matrix graph (MX) rather than as scalar code (SX)."""
+        return not self.function.is_a("SXFunction")
 
-def _prepare(f: ca.Function, ident: str, expanded: bool, refresh_only: bool = False) -> _Generated:
+
+def _prepare(f: ca.Function, ident: str, expanded: bool, off_step: bool = False) -> _Generated:
     """A model function named for the model, as scalar code with CSE, or as its matrix graph.
 
     Scalar (SX) code with common subexpressions merged: 15-45 % fewer operations on the examples, the same
-    values (CasADi's cse, issue 22).  The matrix graph is kept when the model is past EXPAND_MAX_COORDINATES,
-    or for a ``refresh_only`` function past REFRESH_EXPAND_MAX_OPERATIONS.
+    values (CasADi's cse, issue 22).  The matrix graph is kept when the model is past EXPAND_MAX_COORDINATES
+    (``expanded`` false), or for an ``off_step`` function past REFRESH_EXPAND_MAX_OPERATIONS.
     """
     name = f"{ident}_{f.name()}"    # public symbols carry the model identifier
     if not all(f.sparsity_out(i).is_dense() for i in range(f.n_out())):
         # model.c hands the generated code plain arrays: a sparse output would leave entries unwritten
         raise BuildError(f"{f.name()}: a generated function's outputs must be dense")
     g = f.expand()
+    if not expanded:                # counted on the scalar expansion, which is not generated
+        return _Generated(ca.Function(name, f.mx_in(), f.call(f.mx_in()), f.name_in(), f.name_out()),
+                          int(g.n_instructions()))
     sx_args = g.sx_in()
     scalar = ca.Function(name, sx_args, g.call(sx_args), f.name_in(), f.name_out(), {"cse": True})
     operations = int(scalar.n_instructions())
-    if expanded and not (refresh_only and operations > REFRESH_EXPAND_MAX_OPERATIONS):
+    if not (off_step and operations > REFRESH_EXPAND_MAX_OPERATIONS):
         return _Generated(scalar, operations)
     mx_args = f.mx_in()
     return _Generated(ca.Function(name, mx_args, f.call(mx_args), f.name_in(), f.name_out()), operations)
@@ -225,15 +236,15 @@ def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> list[
     if dense_newton_matrix(model):
         newton = _prepare(model.newton_matrix_function(), ident, expanded)
     else:
-        newton = _prepare(model.mass_matrix_function(), ident, expanded, refresh_only=True)
+        newton = _prepare(model.mass_matrix_function(), ident, expanded, off_step=True)
     if model.validity is None:
         raise BuildError("the model has no validity function (flexlink.mechanics.model.build_model makes one)")
     functions = [residual, newton, outputs]
     residual_fwd, outputs_fwd = forward_functions(model)
     if needs_residual_forward(model):
-        functions.append(_prepare(residual_fwd, ident, expanded, refresh_only=True))
+        functions.append(_prepare(residual_fwd, ident, expanded, off_step=True))
     if model.scene.fmu.directional_derivatives:
-        functions.append(_prepare(outputs_fwd, ident, expanded, refresh_only=True))
+        functions.append(_prepare(outputs_fwd, ident, expanded, off_step=True))
     functions.append(_prepare(model.validity, ident, expanded))
     if model.parameter_check is not None:
         functions.append(_prepare(model.parameter_check, ident, expanded))
@@ -366,7 +377,8 @@ def _write_unit(generated: _Generated, model: SymbolicModel, directory: Path) ->
     cg.generate(str(directory) + "/")
     path = directory / f"{name}.c"
     preamble = _template("unit.c.in").substitute(unit=name, scene=model.scene.name,
-                                                 optimise=_optimise_pragma(generated_code_optimisation(operations)))
+                                                 optimise=_optimise_pragma(generated_code_optimisation(
+                                                     operations, generated.matrix_graph)))
     path.write_text(preamble + path.read_text())
     return path, operations
 
@@ -393,4 +405,5 @@ def generate(model: SymbolicModel, directory: Path) -> GeneratedModel:
     (directory / "model.c").write_text(_model_c(model, variables, names))
     sources = [directory / "model.c", *(path for path, _ in units)]
     generated = [*sources, *(directory / f"{n}.h" for n in names)]
-    return GeneratedModel(directory, sources, generated, variables, guid, ident, expanded, operations)
+    matrix_graph = tuple(g.function.name().removeprefix(f"{ident}_") for g in prepared if g.matrix_graph)
+    return GeneratedModel(directory, sources, generated, variables, guid, ident, matrix_graph, operations)

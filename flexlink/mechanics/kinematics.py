@@ -210,12 +210,12 @@ def _foreshortening_points(rule: PointRule, d: LinkDeformation) -> _PointFields:
         modal = ca.DM(rule.factor.modal)
         phi_local, slope_local = (ca.sparsify(ca.DM(m)) for m in (rule.factor.phi, rule.factor.slope))
 
-        def at_points(shapes: ca.DM, eta: ca.MX) -> ca.MX:
-            local_shapes = phi_local if shapes is phi else slope_local
-            return ca.mtimes(local_shapes, ca.mtimes(modal, eta))
+        def values_and_slopes(eta: ca.MX) -> tuple[ca.MX, ca.MX]:
+            nodal = ca.mtimes(modal, eta)                  # formed once for both
+            return ca.mtimes(phi_local, nodal), ca.mtimes(slope_local, nodal)
     else:
-        def at_points(shapes: ca.DM, eta: ca.MX) -> ca.MX:
-            return ca.mtimes(shapes, eta)
+        def values_and_slopes(eta: ca.MX) -> tuple[ca.MX, ca.MX]:
+            return ca.mtimes(phi, eta), ca.mtimes(slope, eta)
 
     squares: ca.MX | float = 0
     rates: ca.MX | float = 0
@@ -225,9 +225,9 @@ def _foreshortening_points(rule: PointRule, d: LinkDeformation) -> _PointFields:
         if eta is None:
             fields[name] = fields[f"{name}_dot"] = None
             continue
-        s, s_dot = at_points(slope, eta), at_points(slope, _rate(eta_dot))
+        (value, s), (value_dot, s_dot) = values_and_slopes(eta), values_and_slopes(_rate(eta_dot))
         squares, rates = squares + s * s, rates + s * s_dot
-        fields[name], fields[f"{name}_dot"] = at_points(phi, eta), at_points(phi, _rate(eta_dot))
+        fields[name], fields[f"{name}_dot"] = value, value_dot
     return _PointFields(ca.DM(rule.w), -0.5 * integral(squares), -integral(rates), **fields)
 
 

@@ -112,8 +112,11 @@ def format_explanation(info: dict) -> str:
     in_step = set(CO_SIMULATION_STEP_FUNCTIONS) | ({"residual_forward_all"} if "mass_matrix" in generated else set())
     step = sum(ops for name, ops in generated.items() if name in in_step)
     if info.get("matrix_graph"):
-        lines.append("  generated from CasADi's matrix graph (loops over constant arrays; larger than "
-                     "REFRESH_EXPAND_MAX_OPERATIONS as scalar code): " + ", ".join(info["matrix_graph"]))
+        why = ("every function: the model has more than EXPAND_MAX_COORDINATES coordinates"
+               if len(info["matrix_graph"]) == len(generated) else
+               "off-step functions past REFRESH_EXPAND_MAX_OPERATIONS as scalar code")
+        lines.append(f"  generated from CasADi's matrix graph (loops over constant arrays; {why}): "
+                     + ", ".join(info["matrix_graph"]))
     lines.append(f"  a Co-Simulation step evaluates {step} of them (residual, Newton matrix or mass matrix and the "
                  "residual's derivative where it is compiled, validity, outputs); the forward derivatives serve "
                  "fmi2GetDirectionalDerivative ([fmu] directional_derivatives)")

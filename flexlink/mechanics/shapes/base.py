@@ -104,12 +104,13 @@ def prune_rounding(gram: np.ndarray, terms: int) -> np.ndarray:
 
     Why: modes orthogonal in mass or stiffness have off-diagonal integrals of 1e-17 instead of 0, and every
     such entry becomes an operation in every generated function (issue 22: 37 % of a residual's constants).
-    The rule: an entry is noise when it is within the rounding bound of its own sum, ``terms`` ε √(G_ii G_jj)
-    (the floating-point error of a sum of ``terms`` products is at most ``terms`` ε Σ|w_k a_ik a_jk|, itself at
-    most √(G_ii G_jj) by Cauchy–Schwarz), so no entry that the quadrature could tell from zero is dropped.
+    The rule: an entry is noise when it is within the rounding bound of its own sum, (``terms`` + 2) ε
+    √(G_ii G_jj) (the floating-point error of a sum of ``terms`` products of three factors is at most
+    γ_{terms+2} Σ|w_k a_ik a_jk|, itself at most √(G_ii G_jj) by Cauchy–Schwarz), so no entry that the
+    quadrature could tell from zero is dropped.
     """
     d = np.sqrt(np.clip(np.diag(gram), 0.0, None))
-    noise = np.abs(gram) <= terms * np.finfo(float).eps * np.outer(d, d)
+    noise = np.abs(gram) <= (terms + 2) * np.finfo(float).eps * np.outer(d, d)
     np.fill_diagonal(noise, False)
     return np.where(noise, 0.0, gram)
 
@@ -157,8 +158,8 @@ class Factorisation:
     A reduced finite-element basis (:class:`~flexlink.mechanics.shapes.reduction.ModalBeamBasis`) is
     piecewise cubic: at each point only the four nodal coordinates of its element count.  Forming the
     nodal values ``modal @ η`` once (N·n operations) and then the points from them (4 per point) costs
-    far less than the dense ``phi @ η`` (K·n) when the modes are many: the sums over the points then grow
-    like n², not K·n (issue 15, docs/performance.md).
+    far less than the dense ``phi @ η`` (K·n) when the modes are many: the point fields then cost N·n + 4K,
+    not K·n (issue 15, docs/performance.md).
     """
 
     phi: np.ndarray      # (K, N)  nodal shapes at the points (4 non-zeros a row for Hermite elements)

@@ -11,6 +11,7 @@ changes nothing but the size of the eigenproblem.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass
 
@@ -19,7 +20,7 @@ import numpy.typing as npt
 import scipy.linalg
 import scipy.sparse
 
-from .base import ShapeBasis
+from .base import ShapeBasis, ShapeIntegrals
 from .torsion import TorsionBasis, TorsionIntegrals
 
 
@@ -122,6 +123,23 @@ class ModalBeamBasis(ShapeBasis):
     def panel_edges(self) -> np.ndarray:
         """The FE nodes: the modes are piecewise cubics on the same elements."""
         return self.fe.panel_edges()
+
+    @functools.cached_property
+    def integrals(self) -> ShapeIntegrals:
+        """The projected integrals, with ∫φφᵀ and ∫φ''φ''ᵀ diagonal as the modes make them.
+
+        The modes solve the generalised eigenproblem of these very FE matrices, so both projections are diagonal
+        in exact arithmetic; computed, their off-diagonal entries are the eigensolver's error (up to 1e-10 of
+        √(G_ii G_jj)), which would otherwise depend on the machine's BLAS and cost an operation each in every
+        generated function.
+        """
+        g = ShapeBasis.integrals.func(self)     # type: ignore[attr-defined]
+        diagonal = {}
+        for name in ("phi_phi", "curv"):
+            m = np.diag(np.diag(getattr(g, name)))
+            m.setflags(write=False)
+            diagonal[name] = m
+        return dataclasses.replace(g, **diagonal)
 
     def nodal_basis(self) -> tuple[ShapeBasis, np.ndarray]:
         """The Hermite elements and the modes in their nodal coordinates (φ = φ_FE Ψ)."""
