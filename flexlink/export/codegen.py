@@ -60,9 +60,9 @@ NEWTON_DENSE_MAX_COORDINATES = 12
 # their dense products then compile as loops over constant arrays (at -O2) instead of one line per product.
 # Measured 2026-11-26 on the 32-mode link with second-order kinematics (its mass matrix is a sum over 96 points
 # of 32x32 outer products, 222k operations as scalar code): generated C 11.6 MB -> 3.0 MB and build 71 s ->
-# 14 s in the same session; the step 25 -> 37 us, because the guards evaluate that mass matrix every
-# communication step (docs/performance.md).  Every example's functions stay under it (the largest,
-# examples/fast_two_link.toml's residual derivative, 46k), so their code and steps are unchanged.
+# 14 s in the same session; the step 25 -> 30 us (37 us while these loops were compiled at -Og), because the
+# guards evaluate that mass matrix every communication step (docs/performance.md).  Every example's functions
+# stay under it (the largest, examples/fast_two_link.toml's residual derivative, 46k): their code is unchanged.
 REFRESH_EXPAND_MAX_OPERATIONS = 60_000
 # FLEXLINK_OPTIMISE=O0|Og|O1|O2 imposes one level on the CasADi code instead (the generic C stays at -O2): the
 # test suite builds dozens of FMUs and runs each briefly, so it compiles them at O0 (docs/tests.md).
