@@ -232,12 +232,9 @@ def test_cli_noise_with_every_links_accelerometer(elbow_scene, capsys):
     assert isinstance(doc["fixed"], str) or doc["fixed"]["settling_time_s"] is None
 
 
-def _exact_loop(d, law, ref) -> tuple[np.ndarray, float]:
-    """The law against the model's own equations integrated by cvodes over each sample (torque held), not the FMU.
-
-    No numerical damping of the fast modes (SS22's Θ > ½ has some). Returns the joint angles at the last sample
-    reached and its time; a run whose state runs away ends where cvodes gives up.
-    """
+def _cvodes_plant(d, sensors):
+    """The model's own equations as a plant: cvodes over one sample with the two torques held (x = (q, v)), and
+    the named sensors as symbols of x and the torques."""
     import casadi as ca
 
     model = d.plant.model
@@ -252,7 +249,20 @@ def _exact_loop(d, law, ref) -> tuple[np.ndarray, float]:
     flow = ca.integrator("sample", "cvodes", {"x": x, "p": u, "ode": ca.vertcat(v, acc)}, 0.0, d.dt,
                          {"abstol": 1e-12, "reltol": 1e-10})
     names = [s.name for s in model.outputs]
-    read = ca.Function("read", [x, u], [out(q, v, acc, u, p)[[names.index(s) for s in law.sensors]]])
+    return flow, x, u, out(q, v, acc, u, p)[[names.index(s) for s in sensors]]
+
+
+def _exact_loop(d, law, ref) -> tuple[np.ndarray, float]:
+    """The law against the model's own equations integrated by cvodes over each sample (torque held), not the FMU.
+
+    No numerical damping of the fast modes (SS22's Θ > ½ has some). Returns the joint angles at the last sample
+    reached and its time; a run whose state runs away ends where cvodes gives up.
+    """
+    import casadi as ca
+
+    n = d.plant.model.n_q
+    flow, x, u, sensors = _cvodes_plant(d, law.sensors)
+    read = ca.Function("read", [x, u], [sensors])
     X, U = d.plant.x0.copy(), d.plant.u0[[0, 1]].copy()
     law.reset()
     for k in range(len(ref.time)):
@@ -302,21 +312,11 @@ def _switch_innovations(d, *, linear_sensors: bool) -> np.ndarray:
     """
     import casadi as ca
 
-    model, p = d.plant.model, d.plant
-    n = model.n_q
+    p = d.plant
     pl = plan(p, MOVE)
     ref = inverse_dynamics_reference(p, pl, d.dt, DURATION, 0.2)
     law = MimoLQGLaw(d, [1e4, 1e4], ref)
-    res, out = model.residual.expand(), model.outputs_function.expand()
-    q, v, a, u = ca.SX.sym("q", n), ca.SX.sym("v", n), ca.SX.sym("a", n), ca.SX.sym("u", 2)
-    r = res(q, v, a, u, ca.DM(p.op.p))
-    zero = ca.SX.zeros(n)
-    acc = -ca.solve(ca.substitute(ca.jacobian(r, a), a, zero), ca.substitute(r, a, zero))
-    x = ca.vertcat(q, v)
-    flow = ca.integrator("sample", "cvodes", {"x": x, "p": u, "ode": ca.vertcat(v, acc)}, 0.0, d.dt,
-                         {"abstol": 1e-12, "reltol": 1e-10})
-    names = [s.name for s in model.outputs]
-    y_sym = out(q, v, acc, u, ca.DM(p.op.p))[[names.index(s) for s in law.sensors]]
+    flow, x, u, y_sym = _cvodes_plant(d, law.sensors)
     read = ca.Function("read", [x, u], [y_sym, ca.jacobian(y_sym, x), ca.jacobian(y_sym, u)])
     y_end, Cx, Du = (np.asarray(m, dtype=float) for m in read(pl.x_end, pl.u_end))
     sigma = np.array([d.kalman.noise[s] for s in law.sensors])
