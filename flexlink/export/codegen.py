@@ -211,14 +211,14 @@ def _prepare(f: ca.Function, ident: str, expanded: bool, off_step: bool = False)
         # model.c hands the generated code plain arrays: a sparse output would leave entries unwritten
         raise BuildError(f"{f.name()}: a generated function's outputs must be dense")
     g = f.expand()
-    if not expanded:                # counted on the scalar expansion, which is not generated
-        return _Generated(ca.Function(name, f.mx_in(), f.call(f.mx_in()), f.name_in(), f.name_out()),
-                          int(g.n_instructions()))
-    sx_args = g.sx_in()
-    scalar = ca.Function(name, sx_args, g.call(sx_args), f.name_in(), f.name_out(), {"cse": True})
-    operations = int(scalar.n_instructions())
-    if not (off_step and operations > REFRESH_EXPAND_MAX_OPERATIONS):
-        return _Generated(scalar, operations)
+    if expanded:
+        sx_args = g.sx_in()
+        scalar = ca.Function(name, sx_args, g.call(sx_args), f.name_in(), f.name_out(), {"cse": True})
+        operations = int(scalar.n_instructions())
+        if not (off_step and operations > REFRESH_EXPAND_MAX_OPERATIONS):
+            return _Generated(scalar, operations)
+    else:
+        operations = int(g.n_instructions())    # counted on the scalar expansion, which is not generated
     mx_args = f.mx_in()
     return _Generated(ca.Function(name, mx_args, f.call(mx_args), f.name_in(), f.name_out()), operations)
 
