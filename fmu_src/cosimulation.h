@@ -129,7 +129,8 @@ typedef struct {
     int step_discarded;               /* 1 after fmi2DoStep returned fmi2Discard (fmi2Terminated status) */
     /* directional derivatives: seeds and results */
     double dd_q[N_Q], dd_v[N_Q], dd_a[N_Q], dd_r[N_Q];
-    double dd_u[FMU_SZ(N_U)], dd_um[FMU_SZ(N_U)], dd_p[FMU_SZ(N_P)], dd_y[FMU_SZ(N_Y)];
+    double dd_u[FMU_SZ(N_U)], dd_um[FMU_SZ(N_U)], dd_p[FMU_SZ(N_P)], dd_y[FMU_SZ(N_Y)],
+           dd_ya[FMU_SZ(N_Y)];
     char message[1024], escaped[2048];
     struct SavedState *states;        /* the FMU states handed out: freed with the instance     */
 } Instance;

@@ -100,8 +100,8 @@ fmi2Status fmu_directional_derivative(Instance *inst, const fmi2ValueReference u
     }
     memset(inst->dd_a, 0, sizeof(inst->dd_a));
     fmu_model_inputs(d, d->time, inst->u0);
-    if (model_residual_forward(d->q, d->v, d->acceleration, inst->u0, d->p, inst->dd_q, inst->dd_v, inst->dd_a,
-                               inst->dd_um, inst->dd_p, inst->dd_r, &inst->work) ||
+    if (model_forward(d->q, d->v, d->acceleration, inst->u0, d->p, inst->dd_q, inst->dd_v, inst->dd_a,
+                      inst->dd_um, inst->dd_p, inst->dd_r, inst->dd_y, &inst->work) ||
         model_newton_matrix(d->q, d->v, d->acceleration, inst->u0, d->p, 1.0, 0.0, 0.0, inst->J, &inst->work)) {
         return fmu_error(inst, "%s: the model failed to evaluate at t = %.17g", F, d->time);
     }
@@ -110,9 +110,12 @@ fmi2Status fmu_directional_derivative(Instance *inst, const fmi2ValueReference u
     }
     for (int i = 0; i < N_Q; i++) inst->dd_a[i] = -inst->dd_r[i];
     lu_solve(inst->J, N_Q, inst->piv, inst->dd_a);
-    if (need_y && model_outputs_forward(d->q, d->v, d->acceleration, inst->u0, d->p, inst->dd_q, inst->dd_v,
-                                        inst->dd_a, inst->dd_um, inst->dd_p, inst->dd_y, &inst->work)) {
-        return fmu_error(inst, "%s: the model failed to evaluate its outputs at t = %.17g", F, d->time);
+    if (need_y) {   /* dd_y holds the outputs' derivative at da = 0: add its part in da */
+        if (model_outputs_acceleration_forward(d->q, d->v, d->acceleration, inst->u0, d->p, inst->dd_a,
+                                               inst->dd_ya, &inst->work)) {
+            return fmu_error(inst, "%s: the model failed to evaluate its outputs at t = %.17g", F, d->time);
+        }
+        for (int i = 0; i < N_Y; i++) inst->dd_y[i] += inst->dd_ya[i];
     }
     for (size_t i = 0; i < n_unknown; i++) {
         const VarInfo *v = &MODEL_VARS[unknown[i]];

@@ -26,7 +26,7 @@
 #include "solver_settings.h"   /* SolverSetting and the solver's limits, from flexlink/scene/solver.py */
 
 /* A model half that does not say ([fmu] directional_derivatives in config.h) provides the forward
- * derivatives of model_residual_forward and model_outputs_forward. */
+ * derivatives of model_forward and model_outputs_acceleration_forward. */
 #ifndef MODEL_DIRECTIONAL_DERIVATIVES
 #define MODEL_DIRECTIONAL_DERIVATIVES 1
 #endif
@@ -124,18 +124,18 @@ int model_newton_matrix(const double *q, const double *v, const double *a, const
 int model_outputs(const double *q, const double *v, const double *a, const double *u,
                   const double *p, double *y, ModelWork *work);
 
-/* Forward (directional) derivatives, for fmi2GetDirectionalDerivative: the derivative of r, resp. y,
- * at (q, v, a, u, p) in the direction (dq, dv, da, du, dp):
+/* Forward (directional) derivatives, for fmi2GetDirectionalDerivative: the derivatives of r and y
+ * together at (q, v, a, u, p) in the direction (dq, dv, da, du, dp):
  *     dr = dr/dq dq + dr/dv dv + dr/da da + dr/du du + dr/dp dp    (N_Q)
  *     dy = dy/dq dq + ... + dy/dp dp                                (N_Y)
- * The glue eliminates the acceleration itself (M(q) da = -dr with da = 0 in the first call), so a
- * model only provides these two partial derivatives (generated from CasADi's forward mode). */
-int model_residual_forward(const double *q, const double *v, const double *a, const double *u,
-                           const double *p, const double *dq, const double *dv, const double *da,
-                           const double *du, const double *dp, double *dr, ModelWork *work);
-int model_outputs_forward(const double *q, const double *v, const double *a, const double *u,
-                          const double *p, const double *dq, const double *dv, const double *da,
-                          const double *du, const double *dp, double *dy, ModelWork *work);
+ * and the outputs' derivative in the acceleration alone, dy = dy/da da.  The glue eliminates the
+ * acceleration itself: model_forward with da = 0, M(q) da = -dr, then the outputs' part in da.  One
+ * function for r and y shares their kinematics and its tangent (generated from CasADi's forward mode). */
+int model_forward(const double *q, const double *v, const double *a, const double *u, const double *p,
+                  const double *dq, const double *dv, const double *da, const double *du, const double *dp,
+                  double *dr, double *dy, ModelWork *work);
+int model_outputs_acceleration_forward(const double *q, const double *v, const double *a, const double *u,
+                                       const double *p, const double *da, double *dy, ModelWork *work);
 
 /* g = model_validity(q, u, p): the model's assumptions hold while every g[i] <= 1 (ratios of tip
  * deflections and rotations to the limits the beam model is meant for); MODEL_VALIDITY_NAMES[i] says

@@ -3,8 +3,10 @@
 * The foreshortening sums of the second-order model formed from tensors (few shape functions) equal the
   point sums they are built from (`flexlink.mechanics.kinematics.ForeshorteningTensors`).
 * The residual's expression grows like the number of links (its fitted exponent), not its square.
-* The two forms of the Newton matrix in the generated C — one dense Jacobian, or columns of the residual's
-  forward derivative with M from the Hessian of T — give the same FMU.
+* The forms of the Newton matrix in the generated C — one dense Jacobian, or columns of the residual's
+  forward derivative with M from the Hessian of T — give the same FMU; above 12 coordinates "auto" takes M
+  and differences of the residual.
+* Residual and outputs share one forward derivative, smaller than the two apart.
 """
 
 from __future__ import annotations
@@ -123,6 +125,55 @@ def test_dense_and_column_newton_matrices_give_the_same_fmu(tmp_path):
     assert np.max(np.abs(derivatives[0] - derivatives[1])) <= 1e-12 * np.max(np.abs(derivatives[0]))
 
 
+def test_residual_and_outputs_share_one_forward_derivative():
+    """The directional derivatives' functions (flexlink.export.derivatives): the forward derivative of
+    residual and outputs together equals CasADi's Jacobians of each times the seed, and the outputs' part in
+    the acceleration ∂y/∂a times its seed, to rounding at random states; as one function it costs less than
+    the two derivatives apart, which share every body's kinematics and its tangent."""
+    import casadi as ca
+
+    from flexlink.export.derivatives import forward_functions
+
+    links = [_link({"kind": "clamped-free", "count": 2}, ("v", "w")), _link({"kind": "clamped-free", "count": 2})]
+    model = build_model(_scene([dict(x) for x in links]))
+    forward, acceleration = forward_functions(model)
+    f = model.residual.expand()
+    args = f.sx_in()
+    x = ca.vertcat(*args)
+    r, y = f.call(args)[0], model.outputs_function.expand().call(args)[0]
+    jacobians = ca.Function("j", args, [ca.jacobian(r, x), ca.jacobian(y, x), ca.jacobian(y, args[2])])
+    rng = np.random.default_rng(7)
+    for _ in range(3):
+        point = [0.05 * rng.standard_normal(a.numel()) for a in args[:4]] + [model.p0]
+        seeds = [rng.standard_normal(a.numel()) for a in args]
+        jr, jy, jya = (np.asarray(m) for m in jacobians(*point))
+        dr, dy = (np.asarray(d).ravel() for d in forward(*point, *seeds))
+        dya = np.asarray(acceleration(*point, seeds[2])).ravel()
+        dx = np.concatenate(seeds)
+        for got, want in ((dr, jr @ dx), (dy, jy @ dx), (dya, jya @ seeds[2])):
+            assert np.max(np.abs(got - want)) <= 1e-12 * max(np.max(np.abs(want)), 1.0)
+
+    def operations(*outputs):
+        seeds = [ca.SX.sym(f"d{i}", a.sparsity()) for i, a in enumerate(args)]
+        jt = [ca.jtimes(o, x, ca.vertcat(*seeds)) for o in outputs]
+        return ca.Function("c", [*args, *seeds], jt, {"cse": True}).n_instructions()
+
+    assert operations(r, y) < 0.85 * (operations(r) + operations(y))
+
+
+def test_a_large_newton_matrix_comes_from_differences_unless_exact_columns_are_asked():
+    """Above NEWTON_DENSE_MAX_COORDINATES "auto" builds the Newton matrix from M and differences of the residual
+    (a column costs one residual, not one forward derivative); "columns" keeps the derivative's exact columns."""
+    from flexlink.export.codegen import NEWTON_DENSE_MAX_COORDINATES, newton_matrix_template
+
+    links = [_link({"kind": "clamped-free", "count": 4}) for _ in range(3)]
+    auto = build_model(_scene([dict(x) for x in links]))
+    assert auto.n_q > NEWTON_DENSE_MAX_COORDINATES
+    assert newton_matrix_template(auto) == "newton_matrix_differences.c.in"
+    exact = build_model(_scene([dict(x) for x in links], newton_matrix="columns"))
+    assert newton_matrix_template(exact) == "newton_matrix_columns.c.in"
+
+
 @pytest.mark.parametrize("deformation", [("v",), ("v", "w")], ids=["planar", "spatial"])
 def test_nodal_points_equal_dense_points(monkeypatch, deformation):
     """A reduced FE link's fields at the points through its nodal coordinates (sparse element shapes, then the
@@ -224,7 +275,7 @@ def test_large_refresh_functions_keep_the_matrix_graph(monkeypatch, tmp_path):
     scalar = build_fmu(scene, tmp_path / "scalar.fmu").fmu
     monkeypatch.setattr(codegen, "REFRESH_EXPAND_MAX_OPERATIONS", 0)
     forms = {n: f.is_a("SXFunction") for n, (f, _) in codegen.generated_functions(build_model(scene)).items()}
-    assert not forms["mass_matrix"] and not forms["residual_forward_all"] and not forms["outputs_forward"]
+    assert not forms["mass_matrix"] and not forms["forward"] and not forms["outputs_acceleration_forward"]
     assert forms["residual"] and forms["outputs"]
     graph = build_fmu(scene, tmp_path / "graph.fmu").fmu
     for a, b in zip(_me_probe(scalar, "scalar"), _me_probe(graph, "graph"), strict=True):

@@ -156,7 +156,8 @@ def test_flexible_pendulum_swing_matches_reference(tmp_path):
 
 
 def test_fmu_cache_key_covers_the_c_sources_and_templates(tmp_path, monkeypatch):
-    """A change to any file of fmu_src/ (C sources, headers, codegen templates) is a new cached FMU."""
+    """A change to any file of fmu_src/ (C sources, headers, codegen templates), or a new version of CasADi,
+    numpy or scipy, is a new cached FMU."""
     import shutil
 
     from flexlink.export import cache, cbuild
@@ -178,8 +179,14 @@ def test_fmu_cache_key_covers_the_c_sources_and_templates(tmp_path, monkeypatch)
         with (src / name).open("a") as f:
             f.write("\n")
         paths.append(cache.cached_fmu(scene))
+    real = cache._installed
+    for package in ("casadi", "numpy", "scipy"):       # an upgrade of what writes the code: a new FMU too
+        monkeypatch.setattr(cache, "_installed", lambda p, changed=package: real(p) + ("+1" if p == changed else ""))
+        paths.append(cache.cached_fmu(scene))
+    monkeypatch.setattr(cache, "_installed", real)
     assert len(set(paths)) == len(paths)
-    assert cache.cached_fmu(scene) == paths[-1]      # unchanged sources: the same cached FMU
+    assert cache.cached_fmu(scene) == paths[-4]      # unchanged sources and packages: the same cached FMU
+    assert real("casadi").startswith("casadi-") and real("no_such_package") == "no_such_package absent"
 
 
 def test_generated_code_optimisation_level(monkeypatch, tmp_path):

@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import hashlib
+import importlib.util
 import os
 from collections.abc import Iterator
 from pathlib import Path
@@ -25,6 +26,9 @@ if TYPE_CHECKING:
 __all__ = ["OPTIMISE_ENV", "cache_dir", "cached_fmu"]
 
 # OPTIMISE_ENV (flexlink.export.cbuild) imposes the generated code's optimisation level: part of the cache key.
+# The packages whose versions are part of it too: CasADi writes the generated C, numpy and scipy compute the
+# shape functions and their integrals (an upgrade may change the code or its last bits: the FMU is rebuilt).
+_GENERATORS = ("casadi", "numpy", "scipy")
 
 
 def cache_dir() -> Path:
@@ -37,15 +41,18 @@ def cached_fmu(scene: Scene | str | os.PathLike[str], model: SymbolicModel | Non
                fmi_version: int = 2) -> Path:
     """The FMU of a scene file (or of a Scene object), rebuilt only when something it is made of changed.
 
-    FMI 2.0, or with ``fmi_version=3`` FMI 3.0; rebuilt when the scene's content, flexlink or the C sources
-    change.  The key is the parsed scene, so a file and the same Scene object share one FMU.  Concurrent
-    callers (Dask workers, test processes) build it once: the first holds a lock file.
+    FMI 2.0, or with ``fmi_version=3`` FMI 3.0; rebuilt when the scene's content, flexlink, the C sources or
+    the versions of CasADi, numpy and scipy change.  The key is the parsed scene, so a file and the same Scene
+    object share one FMU.  Concurrent callers (Dask workers, test processes) build it once: the first holds a
+    lock file.
     """
     if not isinstance(scene, Scene):
         scene = load_scene(scene)             # first: a missing or bad file is a SceneError
     h = hashlib.sha256(repr(dataclasses.replace(scene, path=None)).encode())
     h.update(flexlink.__version__.encode())
     h.update(os.environ.get(OPTIMISE_ENV, "").encode())      # the generated code's optimisation level
+    for package in _GENERATORS:               # what writes the C and the shape integrals
+        h.update(_installed(package).encode())
     generic = fmu_src_dir()
     for f in sorted(generic.rglob("*")):     # C sources, headers and the templates of codegen
         if f.is_file() and "__pycache__" not in f.parts:
@@ -63,6 +70,20 @@ def cached_fmu(scene: Scene | str | os.PathLike[str], model: SymbolicModel | Non
             if not path.exists():             # built by another process while this one waited
                 fmu.build_fmu(scene, path, model=model, fmi_version=fmi_version)
     return path
+
+
+def _installed(package: str) -> str:
+    """The installed distribution of ``package``, as its ``.dist-info`` folder names it (``casadi-3.8.2``).
+
+    Found without importing the package or ``importlib.metadata`` (0.2 s of imports on a command whose FMU is
+    cached); a package installed some other way is named by its module file's modification time.
+    """
+    spec = importlib.util.find_spec(package)
+    if spec is None or spec.origin is None:
+        return f"{package} absent"
+    module = Path(spec.origin)
+    infos = sorted(p.name for p in module.parent.parent.glob(f"{package}-*.dist-info"))
+    return infos[-1] if infos else f"{package} {module.stat().st_mtime_ns}"
 
 
 @contextlib.contextmanager

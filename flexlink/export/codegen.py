@@ -45,18 +45,19 @@ from flexlink.scene.solver import SETTINGS
 FULL_OPTIMISATION_MAX_OPERATIONS = 5_000
 EXPAND_MAX_COORDINATES = 160
 # [fmu] newton_matrix = "auto": up to this many coordinates the Newton matrix is one dense symbolic Jacobian
-# (cheapest to refresh); above, it is assembled in C column by column from the residual's forward derivative
-# and M(q) comes from the Hessian of T (fmu_src/templates/newton_matrix_columns.c.in), so that the generated
-# code grows like the residual's, not n times it.  Measured on examples/fast_two_link.toml (26 coordinates,
-# a whipping arm that refreshes the matrix every 4th step): 254k operations for the dense matrix against
-# 94k for the residual's derivative and M; 53 µs per SS22 step dense, 112 µs by columns (a Newton matrix
-# costs 26 derivative calls, 300 µs); the mild examples refresh it a few times per run, where only the build
-# counts (docs/performance.md, benchmarks/scaling.py).
+# (cheapest to refresh); above, it is assembled in C column by column from M(q), the Hessian of T, and
+# forward differences of the residual (fmu_src/templates/newton_matrix_differences.c.in), so that the
+# generated code grows like the residual's, not n times it.  Measured on examples/fast_two_link.toml (26
+# coordinates, a whipping arm that refreshes the matrix every 4th step): 254k operations for the dense matrix
+# against 94k for the residual's derivative and M; 53 µs per SS22 step dense, 112 µs by columns of the
+# derivative (a Newton matrix cost 26 derivative calls, 300 µs; a difference column costs one residual,
+# about 2.3 times less); the mild examples refresh it a few times per run, where only the build counts
+# (docs/performance.md, benchmarks/scaling.py).
 NEWTON_DENSE_MAX_COORDINATES = 12
 # The functions off the Co-Simulation step's iteration -- the mass matrix (at a Newton-matrix refresh, in the
 # guards' definiteness check once a link deflects past a quarter of its validity limit, in Model Exchange's
-# derivatives), the residual's forward derivative (the Newton matrix's columns, directional derivatives) and the
-# outputs' (directional derivatives only) -- keep CasADi's matrix graph above this many scalar operations:
+# derivatives) and the forward derivatives of residual and outputs (directional derivatives, the Newton
+# matrix's columns where newton_matrix = "columns") -- keep CasADi's matrix graph above this many operations:
 # their dense products then compile as loops over constant arrays (at -O2) instead of one line per product.
 # Measured 2026-11-26 on the 32-mode link with second-order kinematics (its mass matrix is a sum over 96 points
 # of 32x32 outer products, 222k operations as scalar code): generated C 11.6 MB -> 3.0 MB and build 71 s ->
@@ -165,25 +166,18 @@ def dense_newton_matrix(model: SymbolicModel) -> bool:
         model.n_q <= min(NEWTON_DENSE_MAX_COORDINATES, EXPAND_MAX_COORDINATES)
 
 
-def needs_residual_forward(model: SymbolicModel) -> bool:
-    """Whether the residual's forward derivative is compiled.
-
-    Where ``fmi2GetDirectionalDerivative`` needs it ([fmu] directional_derivatives); the Newton matrix by
-    columns is then made of it, and otherwise of the mass matrix and differences of the residual
-    (:func:`newton_matrix_template`).
-    """
-    return model.scene.fmu.directional_derivatives
-
-
 def newton_matrix_template(model: SymbolicModel) -> str:
     """The C template of ``model_newton_matrix``.
 
-    A dense symbolic Jacobian, or column by column from the residual's forward derivative (exact) or,
-    without it, from M and forward differences of the residual.
+    A dense symbolic Jacobian; or column by column, from the mass matrix and forward differences of the
+    residual (``"auto"`` above NEWTON_DENSE_MAX_COORDINATES: a column costs one residual, the iteration
+    matrix's √ε error is far below what simplified Newton tolerates), or, where the scene asks for
+    ``"columns"`` and the directional derivatives are compiled, from the exact forward derivative.
     """
     if dense_newton_matrix(model):
         return "newton_matrix.c.in"
-    return "newton_matrix_columns.c.in" if needs_residual_forward(model) else "newton_matrix_differences.c.in"
+    exact = model.scene.fmu.newton_matrix == "columns" and model.scene.fmu.directional_derivatives
+    return "newton_matrix_columns.c.in" if exact else "newton_matrix_differences.c.in"
 
 
 @dataclass(frozen=True)
@@ -227,8 +221,8 @@ def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> list[
     """The CasADi functions to generate, named for the model, with their operation counts.
 
     Residual, outputs, the validity ratios, and either the dense Newton matrix or the mass matrix (the
-    columns of the Newton matrix come from it and the residual's forward derivative or differences); the
-    forward derivatives of residual and outputs where they are used (:func:`needs_residual_forward`, [fmu]
+    columns of the Newton matrix come from it and differences of the residual, or the forward derivative:
+    :func:`newton_matrix_template`); the forward derivatives where the scene asks for them ([fmu]
     directional_derivatives): a generated model holds only what its scene asks for.
     """
     residual = _prepare(model.residual, ident, expanded)
@@ -240,11 +234,8 @@ def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> list[
     if model.validity is None:
         raise BuildError("the model has no validity function (flexlink.mechanics.model.build_model makes one)")
     functions = [residual, newton, outputs]
-    residual_fwd, outputs_fwd = forward_functions(model)
-    if needs_residual_forward(model):
-        functions.append(_prepare(residual_fwd, ident, expanded, off_step=True))
     if model.scene.fmu.directional_derivatives:
-        functions.append(_prepare(outputs_fwd, ident, expanded, off_step=True))
+        functions += [_prepare(f, ident, expanded, off_step=True) for f in forward_functions(model)]
     functions.append(_prepare(model.validity, ident, expanded))
     if model.parameter_check is not None:
         functions.append(_prepare(model.parameter_check, ident, expanded))
@@ -335,23 +326,24 @@ def _model_c(model: SymbolicModel, variables: list[FmuVariable], units: list[str
         validity_names="\n".join(f"    {_c_string(name)}," for name in model.validity_names) or '    ""',
         parameter_check_names="\n".join(f"    {_c_string(n)}," for n in model.parameter_check_names) or '    ""',
         parameter_check_body=_parameter_check_body(model),
-        residual_forward_body=_forward_body(model, "residual_forward_all", "dr", needs_residual_forward(model)),
-        outputs_forward_body=_forward_body(model, "outputs_forward", "dy", model.scene.fmu.directional_derivatives),
+        forward_body=_forward_body(model, "forward", ("q", "v", "a", "u", "p", "dq", "dv", "da", "du", "dp"),
+                                   ("dr", "dy")),
+        outputs_acceleration_forward_body=_forward_body(model, "outputs_acceleration_forward",
+                                                        ("q", "v", "a", "u", "p", "da"), ("dy",)),
     )
 
 
-def _forward_body(model: SymbolicModel, function: str, result: str, compiled: bool) -> str:
-    """The body of model_residual_forward or model_outputs_forward.
+def _forward_body(model: SymbolicModel, function: str, arguments: tuple[str, ...], results: tuple[str, ...]) -> str:
+    """The body of model_forward or model_outputs_acceleration_forward.
 
     A call of the generated function, or a failure where the scene left it out (derivatives.c refuses
     before, from MODEL_DIRECTIONAL_DERIVATIVES).
     """
-    arguments = ("q", "v", "a", "u", "p", "dq", "dv", "da", "du", "dp")
-    if not compiled:
-        return "    " + " ".join(f"(void){x};" for x in (*arguments, result, "work")) + "\n    return 1;"
+    if not model.scene.fmu.directional_derivatives:
+        return "    " + " ".join(f"(void){x};" for x in (*arguments, *results, "work")) + "\n    return 1;"
     ident = model.scene.model_identifier
     lines = [f"    work->arg[{i}] = {x};" for i, x in enumerate(arguments)]
-    lines.append(f"    work->res[0] = {result};")
+    lines += [f"    work->res[{i}] = {x};" for i, x in enumerate(results)]
     lines.append(f"    return {ident}_{function}(work->arg, work->res, work->iw, work->w, 0);")
     return "\n".join(lines)
 

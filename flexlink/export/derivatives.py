@@ -4,10 +4,10 @@ Forward-mode functions for ``fmi2GetDirectionalDerivative`` and the structural d
 ``<ModelStructure>`` (docs/fmi.md).
 
 The FMU's continuous state is x = (q, v) (free coordinates and their rates); the derivatives are
-ẋ = (v, a) with the acceleration a from ``M(q) a = −r(q, v, 0, u, p)``.  The generated C gets the two
-partial derivatives it cannot form itself — of the residual and of the outputs, in a direction
-(dq, dv, da, du, dp) — and eliminates the acceleration with the factorised mass matrix
-(``fmu_src/model.h``: ``model_residual_forward``, ``model_outputs_forward``).
+ẋ = (v, a) with the acceleration a from ``M(q) a = −r(q, v, 0, u, p)``.  The generated C gets the
+partial derivatives it cannot form itself — of the residual and of the outputs together, in a direction
+(dq, dv, da, du, dp), and of the outputs in the acceleration alone — and eliminates the acceleration with
+the factorised mass matrix (``fmu_src/model.h``: ``model_forward``, ``model_outputs_acceleration_forward``).
 
 Dependencies are structural, from the sparsity of CasADi's Jacobians: a depends on whatever the
 residual rows coupled to it through M reads (the structural inverse of M: the transitive closure of
@@ -32,10 +32,16 @@ def _symbols(model: SymbolicModel):
 
 
 def forward_functions(model: SymbolicModel) -> tuple[ca.Function, ca.Function]:
-    """Jacobian-times-seed of the residual and of the outputs with respect to all their arguments.
+    """The forward derivatives that ``fmi2GetDirectionalDerivative`` needs, as two functions.
 
-    ``residual_forward(q, v, a, u, p, dq, dv, da, du, dp) → dr`` and
-    ``outputs_forward(q, v, a, u, p, dq, dv, da, du, dp) → dy``.
+    ``forward(q, v, a, u, p, dq, dv, da, du, dp) → (dr, dy)``: Jacobian-times-seed of the residual and of
+    the outputs in one function.  The two share the kinematics of every body and its tangent, so that
+    CSE makes one function about 30 % smaller than the residual's and the outputs' derivatives apart
+    (six-axis arm: 31 900 operations against 19 100 + 26 100; issue 15's code size).
+
+    ``outputs_acceleration_forward(q, v, a, u, p, da) → dy``: the outputs' derivative in the acceleration
+    alone (about a tenth of ``forward``).  The acceleration's seed is known only after ``forward``'s dr
+    has been solved with the mass matrix (``fmu_src/derivatives.c``), so it is added in a second call.
     """
     args = _symbols(model)
     seeds = [ca.MX.sym("d" + n, a.sparsity()) for n, a in zip("qvaup", args, strict=True)]
@@ -43,9 +49,12 @@ def forward_functions(model: SymbolicModel) -> tuple[ca.Function, ca.Function]:
     r = model.residual(*args)
     y = model.outputs_function(*args)
     names = [*"qvaup", "dq", "dv", "da", "du", "dp"]
-    fr = ca.Function("residual_forward_all", [*args, *seeds], [ca.jtimes(r, x, dx)], names, ["dr"])
-    fy = ca.Function("outputs_forward", [*args, *seeds], [ca.jtimes(y, x, dx)], names, ["dy"])
-    return fr, fy
+    forward = ca.Function("forward", [*args, *seeds], [ca.jtimes(r, x, dx), ca.jtimes(y, x, dx)], names,
+                          ["dr", "dy"])
+    a, da = args[2], seeds[2]
+    acceleration = ca.Function("outputs_acceleration_forward", [*args, da], [ca.jtimes(y, a, da)],
+                               [*"qvaup", "da"], ["dy"])
+    return forward, acceleration
 
 
 def _pattern(expr: ca.MX, wrt: ca.MX) -> np.ndarray:

@@ -85,10 +85,14 @@ ALLOW_LARGE_ENV = "FLEXLINK_ALLOW_LARGE"
 OPERATIONS_PER_TERM = 1800.0
 LINK_EXPONENT = 1.4
 DENSE_NEWTON_SCALE = 16.0              # a dense Newton matrix multiplies the code by 1 + n_q / 16
-COLUMNS_FACTOR = 1.5                   # the residual's forward derivative and M(q) for a Newton matrix by columns
-# [fmu] directional_derivatives = false: what is left without the two forward derivatives (measured with
-# `flexlink explain`: six-axis arm 26.5k of 72.0k operations, five-link chain 31.9k of 79.3k)
-LEAN_FRACTION = 0.39
+# a Newton matrix by columns (M(q) and differences of the residual) with the forward derivatives: measured
+# 2026-11-26 with `flexlink explain` once residual and outputs shared one forward function, six-axis arm 61.1k
+# operations and five-link chain 68.6k against 62.1k and 62.7k for the factor 1 (it was 1.5 with the two
+# forward derivatives apart, 72.0k and 79.3k)
+COLUMNS_FACTOR = 1.05
+# [fmu] directional_derivatives = false: what is left without the forward derivatives (the same measurement:
+# six-axis arm 26.2k of 61.1k operations, five-link chain 31.2k of 68.6k)
+LEAN_FRACTION = 0.44
 BYTES_PER_OPERATION = 23.3
 SECONDS_PER_OPERATION = 2.7e-4
 NEWTON_DENSE_MAX_COORDINATES = 12      # flexlink.export.codegen's: up to it the Newton matrix is dense

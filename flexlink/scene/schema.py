@@ -564,9 +564,10 @@ KEYS: tuple[Key, ...] = (
                    "link's tip without one (inertial frame)"),
     _K("fmu", "newton_matrix", "string", "", "auto", choices=NEWTON_MATRIX_FORMS,
        description="the SS22 Newton matrix in the generated C: one dense symbolic Jacobian (fastest to refresh, "
-                   "code n times the residual's), or by columns: of the residual's derivative (code like the "
-                   "residual's), or of differences of the residual without directional derivatives (no code); "
-                   "auto: dense up to 12 coordinates when the derivatives are compiled"),
+                   "code n times the residual's), or by columns from the mass matrix and differences of the "
+                   "residual (no code); \"columns\" takes the exact columns of the forward derivative where the "
+                   "directional derivatives are compiled; auto: dense up to 12 coordinates when the derivatives "
+                   "are compiled, differences above"),
     _K("fmu", "directional_derivatives", "boolean", "", True,
        description="compile the forward derivatives of the residual and the outputs that "
                    "fmi2GetDirectionalDerivative needs; false leaves them out of the generated C (the six-axis "

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from flexlink.export.codegen import generated_functions
+from flexlink.export.codegen import generated_functions, newton_matrix_template
 from flexlink.mechanics.analysis import natural_frequencies
 from flexlink.mechanics.model import build_model
 from flexlink.scene.loader import load_scene
@@ -20,8 +20,8 @@ from flexlink.tools.fidelity import (
 )
 
 # the generated functions a Co-Simulation step evaluates (fmu_src/ss22.c, cs_step.c, guards.c), and with a
-# Newton matrix by columns (mass_matrix generated) the residual's derivative it is made of; the rest serve the
-# directional derivatives, or a parameter change (parameter_check)
+# Newton matrix of exact columns ([fmu] newton_matrix = "columns") the forward derivative it is made of; the rest
+# serve the directional derivatives, or a parameter change (parameter_check)
 CO_SIMULATION_STEP_FUNCTIONS = ("residual", "newton_matrix", "mass_matrix", "outputs", "model_validity")
 
 
@@ -83,6 +83,7 @@ def explain(scene_path) -> dict:
                        "outputs": int(model.outputs_function.expand().n_instructions())},
         "generated_operations": {name: ops for name, (_, ops) in functions.items()},
         "matrix_graph": [name for name, (f, _) in functions.items() if not f.is_a("SXFunction")],
+        "newton_columns_exact": newton_matrix_template(model) == "newton_matrix_columns.c.in",
         "frequencies_hz": modes.frequencies_hz,
         "unstable_hz": modes.unstable_hz,
         "recommended_step": step,
@@ -109,7 +110,7 @@ def format_explanation(info: dict) -> str:
     generated = info["generated_operations"]
     lines.append(f"generated C: {sum(generated.values())} operations (scalar, after CSE) in "
                  + ", ".join(f"{name} {ops}" for name, ops in generated.items()))
-    in_step = set(CO_SIMULATION_STEP_FUNCTIONS) | ({"residual_forward_all"} if "mass_matrix" in generated else set())
+    in_step = set(CO_SIMULATION_STEP_FUNCTIONS) | ({"forward"} if info.get("newton_columns_exact") else set())
     step = sum(ops for name, ops in generated.items() if name in in_step)
     if info.get("matrix_graph"):
         why = ("every function: the model has more than EXPAND_MAX_COORDINATES coordinates"
@@ -118,8 +119,8 @@ def format_explanation(info: dict) -> str:
         lines.append(f"  generated from CasADi's matrix graph (loops over constant arrays; {why}): "
                      + ", ".join(info["matrix_graph"]))
     lines.append(f"  a Co-Simulation step evaluates {step} of them (residual, Newton matrix or mass matrix and the "
-                 "residual's derivative where it is compiled, validity, outputs); the forward derivatives serve "
-                 "fmi2GetDirectionalDerivative ([fmu] directional_derivatives)")
+                 "forward derivative where [fmu] newton_matrix = \"columns\" asks for it, validity, outputs); the "
+                 "forward derivatives serve fmi2GetDirectionalDerivative ([fmu] directional_derivatives)")
     freqs = info["frequencies_hz"]
     lines.append("natural frequencies (Hz): " + ", ".join(f"{f:.4g}" for f in freqs[:12])
                  + (f", … ({len(freqs)} in all)" if len(freqs) > 12 else ""))

@@ -89,9 +89,9 @@ int model_outputs(const double *q, const double *v, const double *a, const doubl
     return 0;
 }
 
-int model_residual_forward(const double *q, const double *v, const double *a, const double *u,
-                           const double *p, const double *dq, const double *dv, const double *da,
-                           const double *du, const double *dp, double *dr, ModelWork *work) {
+static int residual_forward(const double *q, const double *v, const double *a, const double *u,
+                            const double *p, const double *dq, const double *dv, const double *da,
+                            const double *du, const double *dp, double *dr, ModelWork *work) {
     const double d0 = q[0] - u[1], d1 = q[1] - u[4];
     const double dd0 = dq[0] - du[1], dd1 = dq[1] - du[4];
     (void)work;
@@ -103,13 +103,27 @@ int model_residual_forward(const double *q, const double *v, const double *a, co
     return 0;
 }
 
-int model_outputs_forward(const double *q, const double *v, const double *a, const double *u,
-                          const double *p, const double *dq, const double *dv, const double *da,
-                          const double *du, const double *dp, double *dy, ModelWork *work) {
+static int outputs_forward(const double *q, const double *v, const double *a, const double *u,
+                           const double *p, const double *dq, const double *dv, const double *da,
+                           const double *du, const double *dp, double *dy, ModelWork *work) {
     (void)q; (void)v; (void)a; (void)u; (void)p; (void)dp; (void)work;
     dy[0] = dq[0]; dy[1] = dq[1]; dy[2] = dv[0]; dy[3] = dv[1]; dy[4] = da[0]; dy[5] = da[1];
     for (int i = 0; i < 3; i++) { dy[6 + i] = du[1 + i]; dy[9 + i] = du[4 + i]; }
     return 0;
+}
+
+/* model.h's two forward derivatives, from the residual's and the outputs' in a full direction. */
+int model_forward(const double *q, const double *v, const double *a, const double *u, const double *p,
+                  const double *dq, const double *dv, const double *da, const double *du, const double *dp,
+                  double *dr, double *dy, ModelWork *work) {
+    return residual_forward(q, v, a, u, p, dq, dv, da, du, dp, dr, work) ||
+           outputs_forward(q, v, a, u, p, dq, dv, da, du, dp, dy, work);
+}
+
+int model_outputs_acceleration_forward(const double *q, const double *v, const double *a, const double *u,
+                                       const double *p, const double *da, double *dy, ModelWork *work) {
+    static const double zero[64] = {0};
+    return outputs_forward(q, v, a, u, p, zero, zero, da, zero, zero, dy, work);
 }
 
 /* No validity limits: the generic guards still refuse non-finite states. */
