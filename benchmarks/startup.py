@@ -11,8 +11,9 @@ FMU build cache and the design cache.  What is timed is the wall time from start
 * the process's exit for the others (``--help``, ``modes``, ``explain --estimate``, ``linearize``: their
   whole run, work included).
 
-``control`` is timed twice: from the design cache (a repeated command) and with it off
-(``FLEXLINK_DESIGN_CACHE=0``: the linearisation and the LQR/Kalman design, which import python-control).
+``control`` is timed from the design cache (a repeated command) and with it off (``FLEXLINK_DESIGN_CACHE=0``:
+the linearisation and the LQR/Kalman design, SciPy's Riccati solvers in :mod:`controllers.riccati`), for one
+joint (also with ``--json``, whose margins import python-control after the first FMU call) and for two.
 The table gives the median, the spread, the whole run's median (process start to exit: what the user waits
 for, the closed-loop run included) and which of the heavy modules the command imported
 (``python -X importtime`` of one more run: numpy, fmpy, CasADi, SciPy, python-control, matplotlib).
@@ -21,6 +22,10 @@ for, the closed-loop run included) and which of the heavy modules the command im
 tar -x -C DIR && echo COMMIT > DIR/COMMIT``: its ``flexlink`` and ``controllers`` are imported from DIR, the
 interpreter and packages are this one's), each of its runs right after this tree's, and adds its medians
 and the ratios of the same run: a change's before and after under the same load.
+
+The timed processes write and use Python's bytecode caches as an installed package does
+(``PYTHONDONTWRITEBYTECODE`` is cleared for them; the untimed run writes the caches): with it set and no
+``__pycache__`` yet, every run would compile flexlink's own sources again, ~0.2 s that no user pays twice.
 
 ``--write`` puts the table into docs/performance.md between ``<!-- startup:begin -->`` and
 ``<!-- startup:end -->`` (or into PAGE): the figures there come from this command, never typed.
@@ -42,6 +47,7 @@ ROOT = Path(__file__).resolve().parent.parent
 PAGE = ROOT / "docs" / "performance.md"
 BEGIN, END = "<!-- startup:begin -->", "<!-- startup:end -->"
 SCENE = "examples/rotating_link.toml"
+TWO_JOINTS = ["examples/two_link_payload.toml", "--target", "60,20", "--duration", "1.5", "--torque-limit", "60"]
 MARK = "FLEXLINK_STARTUP_FIRST_FMU_LOAD"
 
 # a process that runs `flexlink ARGS` and says on stderr when it first loads an FMU's binary
@@ -72,12 +78,22 @@ COMMANDS: list[tuple[str, list[str], str, dict[str, str]]] = [
     ("flexlink control (design cache)", ["control", SCENE, "--target", "90", "--duration", "1.5"], "fmu", {}),
     ("flexlink control (designing)", ["control", SCENE, "--target", "90", "--duration", "1.5"], "fmu",
      {"FLEXLINK_DESIGN_CACHE": "0"}),
+    ("flexlink control --json (designing)", ["control", SCENE, "--target", "90", "--duration", "1.5", "--json"],
+     "fmu", {"FLEXLINK_DESIGN_CACHE": "0"}),
+    ("flexlink control, two joints (designing)", ["control", *TWO_JOINTS], "fmu", {"FLEXLINK_DESIGN_CACHE": "0"}),
     ("flexlink linearize", ["linearize", SCENE, "--output", "hub.theta"], "exit", {}),
     # not a command: what the designing command cannot go below, python-control's own import (with numpy's)
     ("python -c 'import control'", [IMPORT, "import numpy, control"], "exit", {}),
 ]
 
 HEAVY = ("numpy", "fmpy", "casadi", "scipy", "control", "matplotlib")
+
+
+def _environment(env: dict[str, str]) -> dict[str, str]:
+    """The timed process's environment: this one's with ``env`` added, bytecode caches allowed."""
+    out = {**os.environ, **env}
+    out.pop("PYTHONDONTWRITEBYTECODE", None)
+    return out
 
 
 def timed_run(args: list[str], until: str, env: dict[str, str], root: Path = ROOT) -> tuple[float, float]:
@@ -90,7 +106,7 @@ def timed_run(args: list[str], until: str, env: dict[str, str], root: Path = ROO
     argv = [sys.executable, "-c", args[1]] if args[0] == IMPORT else [sys.executable, "-c", _PRELUDE, *args]
     t0 = time.perf_counter()
     proc = subprocess.Popen(argv, cwd=root, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, **env})
+                            env=_environment(env))
     seen = None
     for line in proc.stderr:
         if seen is None and line.startswith(MARK):
@@ -106,13 +122,23 @@ def timed_run(args: list[str], until: str, env: dict[str, str], root: Path = ROO
     return total, total
 
 
-def heavy_imports(args: list[str], env: dict[str, str], root: Path = ROOT) -> list[str]:
-    """The heavy top-level packages one run imports (``-X importtime``)."""
+def heavy_imports(args: list[str], env: dict[str, str], root: Path = ROOT) -> str:
+    """The heavy top-level packages one run imports (``-X importtime``), those imported after its first FMU
+    load after a ``;`` (``"numpy, fmpy; control"``: python-control only once the FMU runs)."""
     code = [args[1]] if args[0] == IMPORT else [_PRELUDE, *args]
     res = subprocess.run([sys.executable, "-X", "importtime", "-c", *code], cwd=root,
-                         capture_output=True, text=True, env={**os.environ, **env})
-    names = {line.split("|")[2].strip() for line in res.stderr.splitlines() if line.startswith("import time:")}
-    return [m for m in HEAVY if m in names]
+                         capture_output=True, text=True, env=_environment(env))
+    before: set[str] = set()
+    after: set[str] = set()
+    seen = before
+    for line in res.stderr.splitlines():        # importtime's lines and the mark, in the order they happened
+        if line.startswith(MARK):
+            seen = after
+        elif line.startswith("import time:"):
+            seen.add(line.split("|")[2].strip())
+    text = ", ".join(m for m in HEAVY if m in before) or "–"
+    later = [m for m in HEAVY if m in after and m not in before]
+    return text + ("; after it: " + ", ".join(later) if later else "")
 
 
 def measure(repeats: int, baseline: Path | None = None) -> dict:
@@ -160,14 +186,15 @@ def markdown(data: dict) -> str:
              f"{data['repeats']}" + (" --baseline DIR" if base else "") + "`): wall time from starting the process, "
              f"median of {data['repeats']} fresh processes per command, the commands alternated; load average "
              f"{data['load_start']:.1f} at the start, {data['load_end']:.1f} at the end (2 cores). Scene `{SCENE}`, "
-             "FMU and design caches filled. *Whole run*: to the process's exit (the closed-loop run included)."
+             "FMU, design and bytecode caches filled. *Whole run*: to the process's exit (the closed-loop run "
+             "included)."
              + (f" *Before*: commit `{base}`, each of its runs alternated with this tree's." if base else ""), ""]
     head = "| command | until | median [s] (target ≤ 1) | range [s] | whole run [s] |"
     rule = "| --- | --- | --- | --- | --- |"
     if base:
         head += " before: median, whole run [s] | after / before |"
         rule += " --- | --- |"
-    lines += [head + " heavy imports |", rule + " --- |"]
+    lines += [head + " heavy imports (before the first FMU call; after it) |", rule + " --- |"]
     for r in data["rows"]:
         until = "first FMU call" if r["until"] == "fmu" else "exit (whole run)"
         line = (f"| `{r['command']}` | {until} | {r['median_s']:.2f} | {r['min_s']:.2f}–{r['max_s']:.2f} | "
@@ -175,7 +202,7 @@ def markdown(data: dict) -> str:
         if base:
             line += (f" {r['baseline_median_s']:.2f}, {r['baseline_whole_s']:.2f} | "
                      f"{r['median_s'] / r['baseline_median_s']:.2f} |")
-        lines.append(line + f" {', '.join(r['imports']) or '–'} |")
+        lines.append(line + f" {r['imports']} |")
     lines.append(END)
     return "\n".join(lines)
 

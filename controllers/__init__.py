@@ -8,6 +8,8 @@ One module per concern (python-control's layout):
 =====================  ===================================================================================
 ``design``             Bryson weights, ``lqr``/``dlqr`` on every torque-driven joint, ``lqe``/``dlqe`` from
                        sensors, PD pole placement
+``riccati``            python-control's ``lqr``/``dlqr``/``lqe``/``dlqe`` and zero-order hold, bit for bit, on
+                       SciPy alone (no ``import control`` before the first FMU call)
 ``trajectory``         quintic reference; minimum-jerk rest-to-rest feedforward of the flexible model
 ``laws``               sampled laws (LQG, PD), stepped against the FMU or as ``control.StateSpace``
 ``closedloop``         python-control closed loop: prediction, loop transfer, margins

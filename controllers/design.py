@@ -1,6 +1,8 @@
 """Controller design on a linearised plant: LQR (Bryson's rule), Kalman estimator, joint PD baseline.
 
-Everything returns python-control objects or plain arrays that python-control produced:
+Everything returns plain arrays, equal to python-control's results to the last bit: the Riccati solutions
+and the sampling are :mod:`controllers.riccati`'s, python-control's own SciPy calls made without importing
+python-control (1.2–1.5 s of imports before a designing command's first FMU call, issue 22):
 
 * :func:`bryson_weights` — Q, R from physical limits (max joint error per joint, max tip deflection and
   root moment per link, torque limit per joint), ``Q = C_zᵀ diag(1/z_max²) C_z``, ``R = diag(1/u_max²)``;
@@ -22,11 +24,12 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
-import control as ct
 import numpy as np
 
+from controllers import riccati
+from controllers.riccati import SampledSystem
 from flexlink.errors import FlexlinkError
-from flexlink.run.linearize import LinearPlant
+from flexlink.run.linearize import LinearPlant, signal_name
 
 __all__ = [
     "SENSOR_NOISE",
@@ -47,10 +50,6 @@ __all__ = [
     "sensor_set",
     "torque_inputs",
 ]
-
-#: The Riccati solver of every LQR and Kalman design: SciPy's, so that a design does not change with whether
-#: Slycot (which ``control.disk_margins`` needs for several loops) is installed.
-RICCATI = "scipy"
 
 #: Default sensor noise, standard deviation per sensor kind (SI): a 16384-count/rev encoder (quantisation
 #: step / √12), a root strain-gauge bridge read as a bending moment, a MEMS accelerometer over a 500 Hz band.
@@ -151,15 +150,13 @@ def actuated_joints(plant: LinearPlant) -> list[str]:
     return [plant.inputs[i].removesuffix(".tau") for i in torque_inputs(plant)]
 
 
-def actuated_system(plant: LinearPlant) -> ct.StateSpace:
-    """``plant.sys`` restricted to the joint torques (the whole system when they are all its inputs)."""
+def _actuated_columns(plant: LinearPlant) -> list[int]:
+    """:func:`torque_inputs`, refused (one line) when there is none: the columns of B the designs act on."""
     cols = torque_inputs(plant)
     if not cols:
         drives = ", ".join(f'{j.name} (drive = "{j.drive}")' for j in plant.model.scene.joints)
         raise FlexlinkError(f"no torque-driven joint: nothing to actuate (joints: {drives})")
-    if cols == list(range(len(plant.inputs))):
-        return plant.sys
-    return plant.sys[:, cols]
+    return cols
 
 
 def per_joint(value, joints: Sequence[str], what: str, known: Sequence[str] | None = None) -> dict[str, float]:
@@ -177,9 +174,15 @@ def per_joint(value, joints: Sequence[str], what: str, known: Sequence[str] | No
     return {j: float(value) for j in joints}
 
 
-def sample(plant: LinearPlant, dt: float) -> ct.StateSpace:
-    """The plant sampled with a zero-order hold at ``dt`` (``control.sample_system``), names kept."""
-    return ct.sample_system(plant.sys, dt, method="zoh", name=plant.sys.name + "_d")
+def sample(plant: LinearPlant, dt: float, inputs: Sequence[int] | None = None) -> SampledSystem:
+    """The plant sampled with a zero-order hold at ``dt``, names kept: ``control.sample_system``'s matrices.
+
+    ``inputs`` (indices in ``plant.inputs``, default all) restricts B and D to those columns.
+    """
+    cols = list(range(len(plant.inputs))) if inputs is None else list(inputs)
+    return SampledSystem.sample(plant.A, plant.B[:, cols], plant.C, plant.D[:, cols], dt, name=plant.name + "_d",
+                                states=plant.states, inputs=[signal_name(plant.inputs[i]) for i in cols],
+                                outputs=[signal_name(s) for s in plant.outputs])
 
 
 class DesignError(FlexlinkError):
@@ -240,8 +243,8 @@ def bryson_weights(plant: LinearPlant, limits: Mapping[str, float], torque_limit
     Q : (n, n) ndarray, R : (m, m) ndarray (m torque-driven joints, in :func:`torque_inputs` order)
     """
     rows = [plant.output_row(name) for name in limits]
-    Cz = plant.sys.C[rows]
-    if np.any(plant.sys.D[rows] != 0):
+    Cz = plant.C[rows]
+    if np.any(plant.D[rows] != 0):
         raise FlexlinkError(f"Bryson weights on outputs with feedthrough ({list(limits)}) are not supported")
     w = np.array([1.0 / float(v) ** 2 for v in limits.values()])
     Q = Cz.T @ np.diag(w) @ Cz
@@ -259,7 +262,8 @@ class LQRDesign:
     Kd, Sd, poles_d : sampled ``control.dlqr`` results at ``dt``
     Q, R : the weights; ``limits`` and ``torque_limits`` (joint → N m) the physical values they came from;
         ``torque_limit`` the first actuated joint's (what the single-joint laws saturate at)
-    plant_d : the ZOH-sampled plant (``control.StateSpace``, ``dt`` set), joint torques as its inputs
+    plant_d : the ZOH-sampled plant (:class:`controllers.riccati.SampledSystem`: ``A``, ``B``, ``dt``; its
+        ``sys`` is python-control's), joint torques as its inputs
     inputs : FMU names of the m joint torques (the rows of K)
     """
 
@@ -273,7 +277,7 @@ class LQRDesign:
     Kd: np.ndarray
     Sd: np.ndarray
     poles_d: np.ndarray
-    plant_d: ct.StateSpace
+    plant_d: SampledSystem
     limits: dict = field(default_factory=dict)
     torque_limit: float = np.inf
     torque_limits: dict = field(default_factory=dict)
@@ -409,8 +413,8 @@ def stabilizability(plant: LinearPlant, B: np.ndarray | None = None, tol: float 
     on or right of the imaginary axis.  Returns (eigenvalue, description) pairs, the description naming the
     frequency and the coordinate that dominates the mode.
     """
-    A = np.asarray(plant.sys.A)
-    B = np.asarray(actuated_system(plant).B if B is None else B)
+    A = np.asarray(plant.A)
+    B = np.asarray(plant.B[:, _actuated_columns(plant)] if B is None else B)
     lam, wl, _ = _modes(A)
     n = plant.model.n_q
     mech = plant.mechanics
@@ -425,7 +429,7 @@ def stabilizability(plant: LinearPlant, B: np.ndarray | None = None, tol: float 
 
 def _detectability(plant: LinearPlant, C: np.ndarray, tol: float = 1e-8) -> list[tuple[complex, str]]:
     """The dual of :func:`stabilizability`: critical modes the sensors C do not see."""
-    A = np.asarray(plant.sys.A)
+    A = np.asarray(plant.A)
     C = np.asarray(C)
     lam, _, vr = _modes(A)
     n = plant.model.n_q
@@ -475,21 +479,22 @@ def design_lqr(plant: LinearPlant, dt: float, torque_limit, limits: Mapping[str,
         No torque-driven joint; a mode on the imaginary axis (rigid-body or undamped flexible) that the
         torques cannot move or the limits do not weigh, named by its frequency.
     """
-    sys = actuated_system(plant)
+    cols = _actuated_columns(plant)
     tl = _torque_limits(plant, torque_limit)
     limits = dict(limits) if limits is not None else default_limits(plant, torque_limit, **limit_kw)
     Q, R = bryson_weights(plant, limits, torque_limit)
-    _check_stabilizable(plant, np.asarray(sys.B))
-    unweighted = _detectability(plant, plant.sys.C[[plant.output_row(z) for z in limits]])
+    _check_stabilizable(plant, plant.B[:, cols])
+    unweighted = _detectability(plant, plant.C[[plant.output_row(z) for z in limits]])
     if unweighted:
         raise DesignError(f"the LQR weights (limits on {', '.join(limits)}) do not weigh "
                           + "; ".join(d for _, d in unweighted) + ": give it a limit")
     try:
         # SciPy's Riccati solvers whether or not Slycot is installed (python-control would switch to
         # Slycot's, which warns "may be inaccurate" on the six-axis arm's lightly damped modes)
-        K, S, E = ct.lqr(sys, Q, R, method=RICCATI)
-        plant_d = ct.sample_system(sys, dt, method="zoh", name=plant.sys.name + "_d")
-        Kd, Sd, Ed = ct.dlqr(plant_d, Q, R, method=RICCATI)
+        # (controllers.riccati: python-control's lqr/sample_system/dlqr with method="scipy", bit for bit)
+        K, S, E = riccati.lqr(plant.A, plant.B[:, cols], Q, R)
+        plant_d = sample(plant, dt, cols)
+        Kd, Sd, Ed = riccati.dlqr(plant_d.A, plant_d.B, Q, R)
     except (ValueError, np.linalg.LinAlgError) as e:
         raise DesignError(f"the LQR Riccati equation has no stabilising solution ({_one_line(e)})") from None
     return LQRDesign(plant, dt, Q, R, np.asarray(K), np.asarray(S), np.asarray(E), np.asarray(Kd), np.asarray(Sd),
@@ -586,16 +591,16 @@ def design_kalman(plant: LinearPlant, dt: float, sensors: Sequence[str] | str = 
         raise DesignError("no sensors: the Kalman estimator needs at least one measured output (the scene has no "
                           "joint encoder, strain gauge or accelerometer to read)")
     rows = [plant.output_row(s) for s in sensors]
-    C, D = plant.sys.C[rows], plant.sys.D[rows]
+    C, D = plant.C[rows], plant.D[rows]
     noise = dict(noise or {})
     sigma = {s: float(noise[s]) if s in noise else SENSOR_NOISE[_sensor_kind(s)] for s in sensors}
     RN = np.diag([sigma[s] ** 2 for s in sensors])
-    n = plant.sys.nstates
+    n = plant.nstates
     nq = n // 2
     elastic = [k for k, c in enumerate(plant.model.coordinates) if not c.endswith(".theta")]
     # a torque disturbance at every joint torque; generalized forces on the elastic coordinates, through M⁻¹
     cols_u = torque_inputs(plant)
-    Bq = plant.sys.B[nq:]                        # M⁻¹ B_u
+    Bq = plant.B[nq:]                            # M⁻¹ B_u
     lin_minv = np.linalg.inv(plant.mechanics.M)
     cols = [Bq[:, i] for i in cols_u] + ([lin_minv[:, k] for k in elastic] if elastic_noise > 0 else [])
     G = np.vstack([np.zeros((nq, len(cols))), np.column_stack(cols)])
@@ -606,12 +611,13 @@ def design_kalman(plant: LinearPlant, dt: float, sensors: Sequence[str] | str = 
                           + ": no estimator can track it (add an encoder or a strain gauge on that part)")
     try:
         # G QN Gᵀ is passed whole (G = I): python-control insists on exact symmetry
-        L, P, E = ct.lqe(plant.sys.A, np.eye(n), C, _sym(G @ QN @ G.T), RN, method=RICCATI)
+        # (controllers.riccati: python-control's lqe/sample_system/dlqe with method="scipy", bit for bit)
+        L, P, E = riccati.lqe(plant.A, np.eye(n), C, _sym(G @ QN @ G.T), RN)
         plant_d = sample(plant, dt)
         # the disturbance is held over each sample like the torque: G_d = ∫₀^dt e^{Aτ} dτ G; per-sample
         # covariances QN and RN (the continuous design above uses them as spectral densities: same ratio)
-        Gd = ct.sample_system(ct.ss(plant.sys.A, G, np.zeros((1, n)), 0), dt, method="zoh").B
-        Ld, Pd, Ed = ct.dlqe(plant_d.A, np.eye(n), C, _sym(Gd @ QN @ Gd.T), RN, method=RICCATI)
+        _, Gd = riccati.zoh(plant.A, G, dt)
+        Ld, Pd, Ed = riccati.dlqe(plant_d.A, np.eye(n), C, _sym(Gd @ QN @ Gd.T), RN)
     except (ValueError, np.linalg.LinAlgError) as e:
         raise DesignError(f"the Kalman Riccati equation has no stabilising solution ({_one_line(e)})") from None
     Md = Pd @ C.T @ np.linalg.inv(C @ Pd @ C.T + RN)
@@ -642,7 +648,7 @@ class PDDesign:
 
     def gain_matrix(self, plant: LinearPlant) -> np.ndarray:
         """The PD as a state feedback ``u = −K x`` on the plant's state (for python-control)."""
-        K = np.zeros((1, plant.sys.nstates))
+        K = np.zeros((1, plant.nstates))
         K[0, plant.state_index(f"{self.joint}.theta")] = self.kp
         K[0, plant.state_index(f"der({self.joint}.theta)")] = self.kd
         return K
@@ -659,7 +665,7 @@ def design_pd(plant: LinearPlant, wn: float, zeta: float = 0.7) -> PDDesign:
     joint = plant.model.scene.joints[0].name
     i_th = plant.output_row(f"{joint}.theta")
     s = wn * (-zeta + 1j * np.sqrt(1.0 - zeta**2))
-    G = complex(np.squeeze(plant.sys[i_th, 0](s)))
+    G = _frequency_response(plant, i_th, 0, s)
     g = -1.0 / G
     kd = g.imag / s.imag
     kp = g.real - s.real * kd
@@ -667,8 +673,18 @@ def design_pd(plant: LinearPlant, wn: float, zeta: float = 0.7) -> PDDesign:
         raise FlexlinkError(f"the PD pair at {wn:.3g} rad/s, zeta {zeta} needs non-positive gains "
                             f"(kp {kp:.3g}, kd {kd:.3g}): choose a lower frequency")
     pd = PDDesign(float(kp), float(kd), float(wn), float(zeta), 0.0, np.array([]), joint)
-    A, B = plant.sys.A, plant.sys.B
+    A, B = plant.A, plant.B
     pd.poles = np.linalg.eigvals(A - B @ pd.gain_matrix(plant))
     i = plant.model.coordinates.index(f"{joint}.theta")
     pd.inertia = float(plant.mechanics.M[i, i])
     return pd
+
+
+def _frequency_response(plant: LinearPlant, output: int, input: int, s: complex) -> complex:
+    """``C (sI − A)⁻¹ B + D`` of one output and input at ``s``, without importing python-control.
+
+    python-control's own evaluation of ``plant.sys[output, input](s)`` when Slycot is absent: one LU solve.
+    """
+    n = plant.nstates
+    xr = np.linalg.solve(np.complex128(s) * np.eye(n) - plant.A, plant.B[:, [input]])
+    return complex((plant.C[[output], :] @ xr + plant.D[[output], :][:, [input]])[0, 0])

@@ -1,12 +1,14 @@
 """The design cache of ``flexlink control`` (issue 22: a repeated command starts in under a second).
 
-A run needs, before its first FMU call, the linearisation, the LQR/Kalman design (python-control: seconds
-of imports alone), the reference and the law's affine form (:class:`controllers.laws.AffineForm`).  Only
-the last two and a few numbers enter the run itself.  They are stored, keyed by the parsed scene,
+A run needs, before its first FMU call, the linearisation and the LQR/Kalman design (the model builder:
+CasADi and SciPy, most of a second of imports; :mod:`controllers.riccati`), the reference and the law's
+affine form (:class:`controllers.laws.AffineForm`).  Only the last two and a few numbers enter the run
+itself.  They are stored, keyed by the parsed scene,
 flexlink's version, the sources of flexlink and of the ``controllers`` package and every option the design
 and the reference depend on, in ``~/.cache/flexlink/designs/`` beside the build cache (written to a
 private file and renamed: a reader never sees half an entry).  A repeated command loads them and runs
-the FMU: it imports neither python-control nor the design modules.  A missing, unreadable or outdated
+the FMU: it imports neither the model builder nor the design modules (nor python-control, which
+``--json``'s margins import after a designing run's first FMU call).  A missing, unreadable or outdated
 entry is a miss, never an error.  ``FLEXLINK_DESIGN_CACHE=0`` turns the cache off; another value is the
 folder to use instead.
 """

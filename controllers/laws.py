@@ -128,7 +128,7 @@ def measurement_schedule(plant: LinearPlant, sensors: list[str], reference: Refe
         U[:, cols[i]] = plant.u0[i] + u_prev[:, j]
     Y, Cs, Ds = f.map(N)(X.T, U.T, plant.op.p)
     p_ = len(sensors)
-    n = plant.sys.nstates
+    n = plant.nstates
     Cs = np.asarray(Cs, dtype=float).reshape(p_, N, n).transpose(1, 0, 2)   # columns k·n + j → [k, :, j]
     Ds = np.asarray(Ds, dtype=float).reshape(p_, N, len(cols_p)).transpose(1, 0, 2)
     if inputs is None:
@@ -183,7 +183,7 @@ class SampledLaw:
         self.y0 = plant.y0[rows]
         self.u0 = float(plant.u0[0])
         self.input = plant.inputs[0]
-        self.n = plant.sys.nstates
+        self.n = plant.nstates
         self.k = 0
 
     def reset(self) -> None:

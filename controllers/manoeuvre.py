@@ -28,7 +28,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from controllers.closedloop import margins, predict
 from controllers.cosim import FmuLoop, LoopResult
 from controllers.design import KalmanDesign, LQRDesign, PDDesign, design_kalman, design_lqr, design_pd
 from controllers.figures import ManoeuvreResult
@@ -54,7 +53,7 @@ CONTROLLERS = ("lqr", "pd")
 
 @dataclass
 class ControlDesign:
-    """The plant and every controller designed on it (all python-control results inside)."""
+    """The plant and every controller designed on it (python-control's results, :mod:`controllers.riccati`)."""
 
     plant: LinearPlant
     dt: float
@@ -198,9 +197,9 @@ def _target(d: ControlDesign, target: float) -> float:
         return d._targets[target]
     model = d.plant.model
     other = linear_plant(model, angle=target, parameters=_params(d), outputs=[f"{d.link}.tip.v"])
-    scale = max(1.0, float(np.max(np.abs(d.plant.sys.A))))
+    scale = max(1.0, float(np.max(np.abs(d.plant.A))))
     same_u = np.allclose(other.u0, d.plant.u0, atol=1e-9 * max(1.0, d.torque_limit))
-    if not same_u or not np.allclose(other.sys.A, d.plant.sys.A, atol=1e-9 * scale):
+    if not same_u or not np.allclose(other.A, d.plant.A, atol=1e-9 * scale):
         raise FlexlinkError("the first joint's loads change between the start and the target (gravity about its "
                             "axis?): this controller is designed about one pose and cannot move between two")
     d._targets[target] = float(other.y0[0])
@@ -294,6 +293,8 @@ def predict_manoeuvre(d: ControlDesign, target: float, duration: float, settle: 
     It is python-control's ``forced_response`` without saturation; ``plant`` may differ from the design plant
     (e.g. another payload).
     """
+    from controllers.closedloop import predict  # python-control: only where its systems are needed (issue 22)
+
     _check_times(duration, settle, d.dt)
     law = d.law(controller)
     ref = reference(d, controller, target, duration, settle)
@@ -307,5 +308,7 @@ def stability_report(d: ControlDesign, controller: str, parameters: Mapping[str,
     The plant is linearised at ``parameters`` while the controller stays the nominal one: how far a design
     holds when the arm differs from the one it was designed on.
     """
+    from controllers.closedloop import margins  # python-control: only where its systems are needed
+
     plant = d.plant if not parameters else linear_plant(d.plant.model, parameters={**_params(d), **parameters})
     return margins(plant, d.law(controller))

@@ -345,7 +345,7 @@ def estimator_along(d, reference: Reference, Cs: np.ndarray) -> EstimatorAlong:
     cols = torque_inputs(p)
     model = p.model
     fmu = [k for k, s_ in enumerate(model.inputs) if s_.fmu_variable]
-    N, n, m = len(reference.time), p.sys.nstates, len(cols)
+    N, n, m = len(reference.time), p.nstates, len(cols)
     U = np.tile(p.op.u, (N, 1))
     u_ff = np.asarray(reference.u_ff, dtype=float).reshape(N, m)
     for j, i in enumerate(cols):
@@ -441,7 +441,7 @@ class JointPDLaw:
         self.kp, self.kd = joint_pd_gains(d, zeta)
         self.u0 = p.u0[torque_inputs(p)]
         self.y0 = p.y0[[p.output_row(s) for s in self.sensors]]
-        n = p.sys.nstates
+        n = p.nstates
         self.rows = [r for j in joints for r in (p.state_index(f"{j}.theta"), n // 2 + p.state_index(f"{j}.theta"))]
         self.G = self.gain_matrix()
         self.limits = np.asarray(limits, dtype=float)

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    import control as ct
+    from controllers.riccati import SampledSystem
 
 __all__ = ["Reference", "check_times", "min_jerk_feedforward", "min_jerk_reference", "quintic", "quintic_reference"]
 
@@ -73,7 +73,7 @@ def _grid(duration: float, total: float, dt: float):
 def quintic_reference(plant, delta: float, duration: float, total: float, dt: float, inertia: float) -> Reference:
     """The joint PD's reference: quintic angle and rate, elastic coordinates zero, ``u_ff = J θ̈``."""
     n_move, n_total, t = _grid(duration, total, dt)
-    n = plant.sys.nstates
+    n = plant.nstates
     j = plant.model.coordinates.index(plant.model.scene.joints[0].name + ".theta")
     th, thd, thdd = quintic(t, delta, duration)
     x = np.zeros((len(t), n))
@@ -81,7 +81,7 @@ def quintic_reference(plant, delta: float, duration: float, total: float, dt: fl
     return Reference("quintic", dt, duration, t, x, inertia * thdd, j)
 
 
-def min_jerk_feedforward(plant_d: ct.StateSpace, x_final, n_steps: int) -> np.ndarray:
+def min_jerk_feedforward(plant_d: SampledSystem, x_final, n_steps: int) -> np.ndarray:
     """The smoothest torque sequence that takes the sampled plant from rest to ``x_final`` in N steps.
 
     Torque sequence u_0 … u_{N−1} of minimal Σ_{k=0}^{N} (u_k − u_{k−1})² (u_{−1} = u_N = 0) with
@@ -114,7 +114,7 @@ def min_jerk_feedforward(plant_d: ct.StateSpace, x_final, n_steps: int) -> np.nd
     return HiGt @ lam
 
 
-def min_jerk_reference(plant_d: ct.StateSpace, joint_index: int, delta: float, duration: float, total: float,
+def min_jerk_reference(plant_d: SampledSystem, joint_index: int, delta: float, duration: float, total: float,
                        x_final=None) -> Reference:
     """The LQR's reference: :func:`min_jerk_feedforward` and the sampled plant's response to it.
 

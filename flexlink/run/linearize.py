@@ -102,6 +102,11 @@ class LinearPlant:
                      inputs=[signal_name(s) for s in self.inputs], outputs=[signal_name(s) for s in self.outputs])
 
     @property
+    def nstates(self) -> int:
+        """The number of states, ``sys.nstates`` without building ``sys``."""
+        return int(self.A.shape[0])
+
+    @property
     def states(self) -> list[str]:
         """The state names, in the plant's order: ``q`` then ``der(q)`` (:func:`state_names`)."""
         return state_names(self.model)
