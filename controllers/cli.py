@@ -572,7 +572,9 @@ def _run_scheduled(args, d, targets, run_params, fmu) -> int:
     import numpy as np
 
     from controllers.multijoint import inverse_dynamics_reference, plan
-    from controllers.schedule import compare_schedule, design_schedule, radius_along_path
+    from controllers.plots import path_margins_text
+    from controllers.robustness import along_path
+    from controllers.schedule import compare_schedule, design_schedule
 
     pl = plan(d.plant, targets)
     schedule = design_schedule(d, pl, args.schedule)
@@ -584,14 +586,19 @@ def _run_scheduled(args, d, targets, run_params, fmu) -> int:
     noise = {"noise": d.kalman.noise, "seed": args.seed} if args.noise else {}    # both laws read the design's sensors
     with _loop(fmu, run_params) as loop:
         runs = compare_schedule(d, schedule, loop, pl, ref, parameters=run_params, **noise)
-    radius = radius_along_path(d, schedule, pl, np.linspace(0.0, 1.0, 2 * args.schedule - 1).tolist())
+    # the margins of both laws frozen at poses along the path: the design points and 3 between each two
+    margins = along_path(d, schedule, pl, np.linspace(0.0, 1.0, 4 * args.schedule - 3).tolist())
+    radius = [{"sigma": p["sigma"], "pose_deg": p["pose_deg"], "fixed": f["spectral_radius"],
+               "scheduled": p["spectral_radius"]}
+              for p, f in zip(margins["scheduled"]["points"], margins["fixed"]["points"], strict=True)]
     move = _move(d, targets)
     done = {k: r for k, r in runs.items() if not isinstance(r, str)}
     if args.plot:
         from controllers.plots import plot_multijoint
 
         plot_multijoint(args.plot, done, title=f"{d.plant.model.scene.name}: {move} in {args.duration:g} s; LQG "
-                                               f"scheduled at {args.schedule} poses against the fixed LQG")
+                                               f"scheduled at {args.schedule} poses against the fixed LQG",
+                        caption=path_margins_text(margins))
     if args.json:
         print(json.dumps({**{k: (r if isinstance(r, str) else r.metrics) for k, r in runs.items()},
                           "joints": d.actuated_joints, "targets_deg": [math.degrees(t) for t in targets],
@@ -599,7 +606,8 @@ def _run_scheduled(args, d, targets, run_params, fmu) -> int:
                           "schedule": {"points": args.schedule, "sigma": schedule.sigma.tolist(),
                                        "poses_deg": [{j: math.degrees(v) for j, v in p.items()}
                                                      for p in schedule.poses]},
-                          "frozen_spectral_radius": radius, "parameters": run_params,
+                          "frozen_spectral_radius": radius, "robustness_along_path": margins,
+                          "parameters": run_params,
                           "noise": {"sigma": noise["noise"], "seed": args.seed} if noise else None}))
         return 0
     print(f"{d.plant.model.scene.name}: rest-to-rest {move} in {args.duration:g} s (+ {args.settle:g} s settle), "
@@ -609,6 +617,7 @@ def _run_scheduled(args, d, targets, run_params, fmu) -> int:
           + " deg), interpolated by the path parameter; fixed LQG: designed at the start pose")
     print("  frozen-pose spectral radius (sampled loop, < 1 holds the pose), fixed / scheduled: "
           + ", ".join(f"{r['fixed']:.4f}/{r['scheduled']:.4f}" for r in radius))
+    print("  " + path_margins_text(margins).replace("\n", "\n  "))
     for k, r in runs.items():
         if isinstance(r, str):
             print(f"  {k} LQG: left the beam model's validity: {r}")
