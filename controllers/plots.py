@@ -240,4 +240,5 @@ def path_margins_text(along: dict) -> str:
         for act in w["actuators"]:
             lines.append(f"  {act['input']:<16} gain margin {at(act['gain_margin_db'], '.3g', ' dB')}, phase margin "
                          f"{at(act['phase_margin_deg'], '.3g', '°')}, disk margin {at(act['disk_margin'], '.3g')}")
-    return "\n".join(lines)
+    notes = {a.get("note") for a in along.values()} - {None}
+    return "\n".join(lines + [f"note: {n}" for n in sorted(notes)])

@@ -410,8 +410,12 @@ def along_path(d, schedule, pl, samples: Sequence[float], n_points: int = 4000) 
     worst of each over the samples, and where, is :func:`worst_along_path`.  Frozen poses: the moving arm's
     velocity terms are not in these loops (as in the schedule's design).
 
-    Returns ``{"scheduled": {"points": [...], "worst": {...}}, "fixed": {...}}``, JSON-ready values
-    (:func:`robustness_figures` per point, the poles left out).
+    With sensors that read the torques (accelerometers) the run's estimator is the time-varying Kalman filter
+    along the reference (:func:`controllers.multijoint.estimator_along`), not these frozen-pose designs: each
+    law's entry then says so in ``note``.
+
+    Returns ``{"scheduled": {"points": [...], "worst": {...}, "note": str | None}, "fixed": {...}}``, JSON-ready
+    values (:func:`robustness_figures` per point, the poles left out).
     """
     from controllers.schedule import plant_at, redesign
 
@@ -428,7 +432,11 @@ def along_path(d, schedule, pl, samples: Sequence[float], n_points: int = 4000) 
             fig = robustness_figures({"loop": loop})["loop"]
             del fig["closed_loop_poles"]
             out[name].append({**where, "spectral_radius": float(np.max(np.abs(loop["closed_loop_poles"]))), **fig})
-    return {name: {"points": pts, "worst": worst_along_path(pts)} for name, pts in out.items()}
+    note = None
+    if np.any(d.kalman.D[:, torque_inputs(d.lqr.plant)] != 0):
+        note = ("the sensors read the torques (accelerometers): the run's estimator follows the reference, and "
+                "these loops, with the designs' stationary estimators, are not the run's")
+    return {name: {"points": pts, "worst": worst_along_path(pts), "note": note} for name, pts in out.items()}
 
 
 def worst_along_path(points: Sequence[Mapping[str, Any]]) -> dict[str, Any]:

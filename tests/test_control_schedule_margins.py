@@ -230,3 +230,18 @@ def test_cli_reports_the_margins_along_the_path(path, tmp_path, capsys):
     out = capsys.readouterr().out
     assert f"gain margin {entry['value']:.3g} dB (σ {entry['sigma']:.3g})" in out
     assert "fixed LQG: UNSTABLE at σ = 0.5" in out
+
+
+def test_accelerometer_loops_are_marked_not_the_runs(path):
+    """With the accelerometers the run's estimator follows the reference (controllers.multijoint), so the
+    frozen-pose loops with the designs' stationary estimators are marked as not the run's; not so with the
+    strain gauges."""
+    *_, along = path
+    assert along["scheduled"]["note"] is None and along["fixed"]["note"] is None
+    d = design(build_model(load_scene(SCENE)), torque_limit=LIMIT, dt=DT, sensors="accelerometer")
+    pl = plan(d.plant, TARGETS)
+    acc = along_path(d, design_schedule(d, pl, 2), pl, [0.0])
+    assert "not the run's" in acc["scheduled"]["note"] and "not the run's" in acc["fixed"]["note"]
+    from controllers.plots import path_margins_text
+
+    assert "note: the sensors read the torques" in path_margins_text(acc)
