@@ -98,7 +98,8 @@ def add_control_parsers(subparsers) -> None:
     p.add_argument("--schedule", type=int, metavar="N",
                    help="with several torque-driven joints: gain scheduling over the path, the LQG designed at N "
                         "poses along it (N >= 2, start and target included) and interpolated; the run compares it "
-                        "with the fixed LQG designed at the start (docs/control.md)")
+                        "with the fixed LQG designed at the start; both laws' margins along the path, worst case "
+                        "and where, are reported (with --design-only, without a run) (docs/control.md)")
     p.add_argument("--export-fmu", type=output_file, metavar="CTRL.fmu",
                    help="also write the sampled LQG (Kalman current estimator + discrete LQR, saturation) as a "
                         "pure-C FMI 2.0 Co-Simulation FMU, its sample time the fixed communication step; with "
@@ -237,15 +238,15 @@ def cmd_control(args) -> int:
         d = design(model, torque_limit=limit, dt=args.sample_time, sensors=args.sensors, root_moment=args.root_moment)
     except (ValueError, np.linalg.LinAlgError) as e:
         raise FlexlinkError(f"{args.scene}: the LQR/Kalman design failed ({' '.join(str(e).split())})") from None
-    if args.schedule is not None and (args.design_only or len(d.actuated_joints) < 2):
-        raise FlexlinkError("--schedule: gain scheduling over the path is part of the multi-joint run (several "
-                            "torque-driven joints, --target and --duration, no --design-only)")
+    if args.schedule is not None and (len(d.actuated_joints) < 2 or targets is None or args.duration is None):
+        raise FlexlinkError("--schedule: gain scheduling over the path needs several torque-driven joints and the "
+                            "path: --target and --duration")
     if args.export_fmu and args.schedule is None:      # with --schedule: once the schedule is designed
         _export(args, d)
     if args.export_ssp and args.schedule is None:
         _export_ssp(args, d, targets)
     if args.design_only:
-        return _report_design(args, d)
+        return _report_design(args, d, targets)
     assert targets is not None and target is not None        # required without --design-only (checked above)
     if len(d.actuated_joints) > 1:
         return _run_multijoint(args, d, targets, run_params, key)
@@ -267,6 +268,8 @@ def _check_control_args(args) -> None:
                             f"{args.schedule}")
     if not args.design_only and (args.target is None or args.duration is None):
         raise FlexlinkError("--target and --duration are required for the closed-loop run (or give --design-only)")
+    if args.schedule is not None and (args.target is None or args.duration is None):
+        raise FlexlinkError("--schedule: gain scheduling over the path needs the path: --target and --duration")
     if args.design_only and args.torque_limit is None and (args.target is None or args.duration is None):
         raise FlexlinkError("--design-only needs --torque-limit (or --target and --duration for the default)")
 
@@ -699,16 +702,22 @@ def _robustness_json(d, controller: str) -> dict:
     return robustness_figures(rob)
 
 
-def _report_design(args, d) -> int:
-    """``flexlink control --design-only``: gains' shapes, weights, margins, closed-loop poles."""
+def _report_design(args, d, targets=None) -> int:
+    """``flexlink control --design-only``: gains' shapes, weights, margins, closed-loop poles.
+
+    With ``--schedule`` also the schedule's margins along the path (:func:`_schedule_margins`), and its
+    controller FMU or SSP package on request.
+    """
     wn, zeta = d.lqr.rigid_pair
     rob = _robustness_json(d, "lqr")
+    along = None if args.schedule is None else _schedule_margins(args, d, targets)
     if args.json:
         print(json.dumps({
             "actuated_joints": d.actuated_joints, "inputs": d.lqr.inputs, "states": d.plant.states,
             "sample_time_s": d.dt, "torque_limits_nm": d.lqr.torque_limits, "bryson_limits": d.lqr.limits,
             "sensors": d.kalman.sensors, "K": d.lqr.K.tolist(), "Kd": d.lqr.Kd.tolist(),
-            "rigid_pair_rad_s": wn, "rigid_pair_zeta": zeta, "robustness": rob}))
+            "rigid_pair_rad_s": wn, "rigid_pair_zeta": zeta, "robustness": rob,
+            **({} if along is None else {"robustness_along_path": along})}))
         return 0
     model = d.plant.model
     print(f"{model.scene.name}: LQR on {', '.join(d.actuated_joints)} ({d.plant.sys.nstates} states), sample time "
@@ -739,4 +748,30 @@ def _report_design(args, d) -> int:
     if "lqg_delay1_unaware" in rob:
         print(f"  the sampled LQG with that delay (not predicting it): "
               f"{'stable' if rob['lqg_delay1_unaware']['stable'] else 'UNSTABLE'}")
+    if along is not None:
+        from controllers.plots import path_margins_text
+
+        print(f"  scheduled at {args.schedule} poses along the path; " + path_margins_text(along).replace("\n", "\n  "))
     return 0
+
+
+def _schedule_margins(args, d, targets) -> dict:
+    """``--design-only --schedule N``: the schedule designed along the path (exported on request), its margins.
+
+    :func:`controllers.robustness.along_path` at the design points and three poses between each two, as a
+    scheduled run reports them.
+    """
+    import numpy as np
+
+    from controllers.multijoint import check_multijoint, plan
+    from controllers.robustness import along_path
+    from controllers.schedule import design_schedule
+
+    check_multijoint(d)
+    pl = plan(d.plant, targets)
+    schedule = design_schedule(d, pl, args.schedule)
+    if args.export_fmu:
+        _export(args, d, schedule)
+    if args.export_ssp:
+        _export_ssp(args, d, targets, schedule)
+    return along_path(d, schedule, pl, np.linspace(0.0, 1.0, 4 * args.schedule - 3).tolist())

@@ -12,7 +12,7 @@ frozen at nine poses (the design points and three between each two).
   gain 10^(GM/20) of the reported worst gain margin, and grows at 1.05 × it; the fixed law, reported
   unstable at the target pose, grows there at the nominal gain.  A margin that says stable is stable in the
   FMU;
-* ``flexlink control --schedule 3`` reports them (``--json``, the printed run, the plot).
+* ``flexlink control --schedule 3`` reports them (``--json``, the plot, ``--design-only``'s printout).
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ from controllers.multijoint import MimoLQGLaw, plan
 from controllers.robustness import along_path
 from controllers.schedule import design_schedule, redesign
 from controllers.trajectory import Reference
+from flexlink.errors import FlexlinkError
 from flexlink.mechanics.model import build_model
 from flexlink.run.linearize import linear_plant
 from flexlink.scene.loader import load_scene, parse_scene
@@ -202,7 +203,8 @@ def test_worst_margin_against_the_fmu(path, example_fmu):
 def test_cli_reports_the_margins_along_the_path(path, tmp_path, capsys):
     """``flexlink control --schedule 3 --json --plot``: the margins along the path under
     ``robustness_along_path`` (the points' σ, the worst case and where), the frozen spectral radius at the same
-    poses, the plot written; the printed run names the worst margins with their σ."""
+    poses, the plot written; ``--design-only`` prints the worst margins with their σ; without the path,
+    ``--schedule`` is refused in one message."""
     import argparse
 
     from controllers.cli import add_control_parsers
@@ -225,11 +227,15 @@ def test_cli_reports_the_margins_along_the_path(path, tmp_path, capsys):
     got = rob["scheduled"]["worst"]["actuators"][i]["gain_margin_db"]
     assert got["sigma"] == entry["sigma"] and got["value"] == pytest.approx(entry["value"], rel=1e-9)
     assert rob["fixed"]["worst"]["unstable_sigma"] == along["fixed"]["worst"]["unstable_sigma"]
-    args = parser.parse_args(common)
+    args = parser.parse_args([*common, "--design-only"])                  # the margins without a run
     assert args.func(args) == 0
     out = capsys.readouterr().out
     assert f"gain margin {entry['value']:.3g} dB (σ {entry['sigma']:.3g})" in out
     assert "fixed LQG: UNSTABLE at σ = 0.5" in out
+    for bad in (["--design-only"], ["--design-only", "--target", "60,90"]):    # no path: refused before the design
+        args = parser.parse_args(["control", str(SCENE), "--torque-limit", "60", "--schedule", "3", *bad])
+        with pytest.raises(FlexlinkError, match="needs the path"):
+            args.func(args)
 
 
 def test_accelerometer_loops_are_marked_not_the_runs(path):
