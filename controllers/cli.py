@@ -100,6 +100,10 @@ def add_control_parsers(subparsers) -> None:
                         "poses along it (N >= 2, start and target included) and interpolated; the run compares it "
                         "with the fixed LQG designed at the start; both laws' margins along the path, worst case "
                         "and where, are reported (with --design-only, without a run) (docs/control.md)")
+    p.add_argument("--integral", type=_finite, metavar="TI",
+                   help="with several torque-driven joints: integral action on the joint positions in the LQG, "
+                        "integral time TI s (Bryson weight 1/(0.5 deg x TI)^2 on each joint's error integral; "
+                        "strain gauges; not with --schedule or the exports) (docs/control.md)")
     p.add_argument("--export-fmu", type=output_file, metavar="CTRL.fmu",
                    help="also write the sampled LQG (Kalman current estimator + discrete LQR, saturation) as a "
                         "pure-C FMI 2.0 Co-Simulation FMU, its sample time the fixed communication step; with "
@@ -241,6 +245,9 @@ def cmd_control(args) -> int:
     if args.schedule is not None and (len(d.actuated_joints) < 2 or targets is None or args.duration is None):
         raise FlexlinkError("--schedule: gain scheduling over the path needs several torque-driven joints and the "
                             "path: --target and --duration")
+    if args.integral is not None and len(d.actuated_joints) < 2:
+        raise FlexlinkError("--integral: integral action is part of the multi-joint LQG (several torque-driven "
+                            "joints)")
     if args.export_fmu and args.schedule is None:      # with --schedule: once the schedule is designed
         _export(args, d)
     if args.export_ssp and args.schedule is None:
@@ -268,6 +275,11 @@ def _check_control_args(args) -> None:
                             f"{args.schedule}")
     if not args.design_only and (args.target is None or args.duration is None):
         raise FlexlinkError("--target and --duration are required for the closed-loop run (or give --design-only)")
+    if args.integral is not None and not args.integral > 0:
+        raise FlexlinkError(f"--integral: the integral time must be a positive number of seconds, got {args.integral}")
+    if args.integral is not None and (args.schedule is not None or args.export_fmu or args.export_ssp):
+        raise FlexlinkError("--integral: integral action is not yet in the scheduled LQG or the controller FMU; "
+                            "leave out --schedule, --export-fmu and --export-ssp")
     if args.schedule is not None and (args.target is None or args.duration is None):
         raise FlexlinkError("--schedule: gain scheduling over the path needs the path: --target and --duration")
     if args.design_only and args.torque_limit is None and (args.target is None or args.duration is None):
@@ -313,11 +325,11 @@ def _run_single(args, d, plant, target: float, limit, run_params: dict, key: str
 def _cache_key(args, scene) -> str | None:
     """The design cache's key of a run (:mod:`controllers.design_cache`).
 
-    None for what the cache does not hold (--design-only, --noise, --plot, exports, --schedule) or when it is
-    off.
+    None for what the cache does not hold (--design-only, --noise, --plot, exports, --schedule, --integral) or
+    when it is off.
     """
     if (args.design_only or args.noise or args.plot or args.export_fmu or args.export_ssp
-            or args.schedule is not None or args.target is None):
+            or args.schedule is not None or args.integral is not None or args.target is None):
         return None
     from controllers.design_cache import cache_key, enabled
 
@@ -494,27 +506,33 @@ def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int
     fmu = cached_fmu(args.scene)
     if args.schedule is not None:
         return _run_scheduled(args, d, targets, run_params, fmu)
+    integ = None
     with _loop(fmu, run_params) as loop:
-        runs = compare(d, loop, targets, args.duration, args.settle, parameters=run_params, pl=pl,
-                       noise=args.noise, seed=args.seed)
+        if args.integral is None:
+            runs = compare(d, loop, targets, args.duration, args.settle, parameters=run_params, pl=pl,
+                           noise=args.noise, seed=args.seed)
+        else:
+            runs, integ = _compare_integral(args, d, pl, loop, run_params)
     move = _move(d, targets)
     if args.plot:
         from controllers.plots import plot_multijoint
         from controllers.robustness import robustness_figures
 
+        loop_rob = d.robustness()["lqg"] if integ is None else _integral_loop(integ)
         plot_multijoint(args.plot, runs, title=f"{d.plant.model.scene.name}: {move} in {args.duration:g} s; LQG "
                                                "(MIMO, Kalman) against joint PD with the LQG's peak torques",
-                        robustness=robustness_figures({"lqg": d.robustness()["lqg"]})["lqg"])
+                        robustness=robustness_figures({"lqg": loop_rob})["lqg"])
     kp, kd = joint_pd_gains(d)
     info = {"name": d.plant.model.scene.name, "dt": d.dt, "joints": d.actuated_joints, "sensors": d.kalman.sensors,
-            "move": move, "kp": kp.tolist(), "kd": kd.tolist()}
+            "move": move, "kp": kp.tolist(), "kd": kd.tolist(), "integral_time_s": args.integral}
     doc = None
     if args.json:
-        rob = _robustness_json(d, "lqr")
+        rob = _robustness_json(d, "lqr", integ)
         rob["pd"] = _pd_robustness(d, runs["pd"])
         doc = {"joints": d.actuated_joints, "targets_deg": [math.degrees(t) for t in targets],
                "duration_s": args.duration, "settle_s": args.settle, "sample_time_s": d.dt,
                "sensors": d.kalman.sensors, "pd_gains": {"kp": kp.tolist(), "kd": kd.tolist()}, "robustness": rob,
+               "integral_time_s": args.integral,
                "noise": {"sigma": d.kalman.noise, "seed": args.seed} if args.noise else None}
     if key is not None:
         from controllers.design_cache import load, store
@@ -526,6 +544,28 @@ def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int
                     "json": doc if doc is not None else (load(key) or {}).get("json")})
     _report_multijoint(args, info, runs, run_params, doc)
     return 0
+
+
+def _compare_integral(args, d, pl, loop, run_params):
+    """``--integral TI``: the LQG with integral action (:mod:`controllers.integral`) and the joint PD, compared.
+
+    As :func:`controllers.multijoint.compare`, the LQG's law replaced; returns the runs and the integral design.
+    """
+    from controllers.integral import IntegralLQGLaw, design_integral
+    from controllers.multijoint import JointPDLaw, compare_laws, inverse_dynamics_reference
+
+    integ = design_integral(d, args.integral)
+    ref = inverse_dynamics_reference(d.plant, pl, d.dt, args.duration, args.settle)
+    lqg = IntegralLQGLaw(integ, [d.lqr.torque_limits[j] for j in pl.joints], ref)
+    runs = compare_laws(loop, pl, ref, lqg, JointPDLaw(d, [1.0] * len(pl.joints)), d.plant.x0,
+                        parameters=run_params, noise=d.kalman.noise if args.noise else None, seed=args.seed)
+    return runs, integ
+
+
+def _integral_loop(integ) -> dict:
+    from controllers.integral import integral_robustness
+
+    return integral_robustness(integ)
 
 
 def _run_multijoint_cached(args, scene, entry: dict, run_params: dict) -> int:
@@ -670,6 +710,8 @@ def _print_comparison(args, info: dict, runs: dict) -> None:
           f"sample time {info['dt']:g} s; feedforward: the model's inverse dynamics along the joints' quintics")
     print(f"  LQG: LQR on {', '.join(info['joints'])} + Kalman ({', '.join(info['sensors'])}), torque limits "
           + ", ".join(f"{v:g}" for v in lqg["torque_limits_nm"].values()) + " N m")
+    if info.get("integral_time_s") is not None:
+        print(f"  LQG with integral action on the joint positions, integral time {info['integral_time_s']:g} s")
     print("  PD:  kp " + ", ".join(f"{v:.4g}" for v in info["kp"]) + " N m/rad, kd "
           + ", ".join(f"{v:.4g}" for v in info["kd"]) + " N m s/rad, torque limits = the LQG run's peaks")
     if args.noise:
@@ -679,12 +721,13 @@ def _print_comparison(args, info: dict, runs: dict) -> None:
         print(f"  wrote {args.plot}")
 
 
-def _robustness_json(d, controller: str) -> dict:
+def _robustness_json(d, controller: str, integ=None) -> dict:
     """The design's margins as JSON values (``controllers.robustness.robustness_figures``).
 
     They are the continuous LQR's, the sampled LQG's, and with one sample of computation delay the predictive
     LQG's and those of the LQG unaware of it (sensors without feedthrough); with the PD, its own sampled loop
-    as ``"pd"`` too.
+    as ``"pd"`` too; with ``integ`` (:func:`controllers.integral.design_integral`) the sampled LQG with integral
+    action as ``"lqg_integral"``.
     """
     import numpy as np
 
@@ -699,6 +742,8 @@ def _robustness_json(d, controller: str) -> dict:
     if controller == "pd":
         law = d.law("pd")
         rob["pd"] = loop_at_a_time(sampled_plant(d.plant, d.dt, law.sensors), -law.K @ law.S, [law.input])
+    if integ is not None:
+        rob["lqg_integral"] = _integral_loop(integ)
     return robustness_figures(rob)
 
 
@@ -709,14 +754,19 @@ def _report_design(args, d, targets=None) -> int:
     controller FMU or SSP package on request.
     """
     wn, zeta = d.lqr.rigid_pair
-    rob = _robustness_json(d, "lqr")
+    integ = None
+    if args.integral is not None:
+        from controllers.integral import design_integral
+
+        integ = design_integral(d, args.integral)
+    rob = _robustness_json(d, "lqr", integ)
     along = None if args.schedule is None else _schedule_margins(args, d, targets)
     if args.json:
         print(json.dumps({
             "actuated_joints": d.actuated_joints, "inputs": d.lqr.inputs, "states": d.plant.states,
             "sample_time_s": d.dt, "torque_limits_nm": d.lqr.torque_limits, "bryson_limits": d.lqr.limits,
             "sensors": d.kalman.sensors, "K": d.lqr.K.tolist(), "Kd": d.lqr.Kd.tolist(),
-            "rigid_pair_rad_s": wn, "rigid_pair_zeta": zeta, "robustness": rob,
+            "rigid_pair_rad_s": wn, "rigid_pair_zeta": zeta, "robustness": rob, "integral_time_s": args.integral,
             **({} if along is None else {"robustness_along_path": along})}))
         return 0
     model = d.plant.model
@@ -728,7 +778,8 @@ def _report_design(args, d, targets=None) -> int:
         return "inf" if v is None else f"{v:.3g}"
 
     for loop, what in (("lqr", "continuous LQR, full state"), ("lqg", f"sampled LQG at {d.dt:g} s"),
-                       ("lqg_delay1", "predictive LQG, one sample of delay (the SSP package's)")):
+                       ("lqg_delay1", "predictive LQG, one sample of delay (the SSP package's)"),
+                       ("lqg_integral", f"sampled LQG with integral action (integral time {args.integral} s)")):
         if loop not in rob:
             continue
         r = rob[loop]

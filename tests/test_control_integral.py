@@ -7,11 +7,14 @@
 * through the FMU, holding the start pose against a constant torque the model lacks (2 N m at the shoulder,
   −1 N m at the elbow): the LQG without integral action keeps the steady joint error that python-control's
   DC gain of its closed loop predicts; with it the error dies out as its slowest closed-loop pole allows;
-* the rest-to-rest manoeuvre with the integral law settles on its targets; the refusals.
+* the rest-to-rest manoeuvre with the integral law settles on its targets; on the six-axis arm run with a
+  heavier payload than designed for, the LQG ends off its targets and the integral LQG on them;
+* ``flexlink control --integral`` and its refusals.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import warnings
 
@@ -162,3 +165,56 @@ def test_refusals(rig):
     acc = design(build_model(load_scene(SCENE)), torque_limit=LIMIT, dt=DT, sensors="accelerometer")
     with pytest.raises(DesignError, match="accelerometers"):
         design_integral(acc)
+
+
+SIX = EXAMPLES / "six_axis_arm_torque.toml"
+SIX_LIMITS = {"base": 20.0, "shoulder": 100.0, "elbow": 50.0, "wrist_roll": 4.0, "wrist_pitch": 8.0, "flange": 1.0}
+
+
+def test_six_axis_heavier_payload(example_fmu):
+    """The six-axis arm (gravity) designed with its 2 kg payload and run with 3 kg (``tool.payload.mass``, an FMU
+    parameter): the LQG ends off its targets (the payload's extra weight over the loop's stiffness), the LQG
+    with integral action on them (a constant disturbance leaves no steady error under integral action)."""
+    d = design(build_model(load_scene(SIX)), torque_limit=SIX_LIMITS, dt=DT)
+    targets = [math.radians(v) for v in (30.0, -20.0, 20.0, 30.0, -10.0, 45.0)]
+    pl = plan(d.plant, targets)
+    ref = inverse_dynamics_reference(d.plant, pl, DT, 1.0, 1.5)
+    limits = [SIX_LIMITS[j] for j in pl.joints]
+    laws = {"lqg": MimoLQGLaw(d, limits, ref), "integral": IntegralLQGLaw(design_integral(d, TI), limits, ref)}
+    final = {}
+    with FmuLoop(example_fmu("six_axis_arm_torque")) as fl:
+        for name, law in laws.items():
+            m = run(d, fl, pl, ref, law, parameters={"tool.payload.mass": 3.0}).metrics
+            final[name] = {j: m["joints"][j]["final_error_deg"] for j in pl.joints}
+            print(f"\n{name}: settling {m['settling_time_s']} s, final errors (deg) "
+                  + ", ".join(f"{j} {v:.3g}" for j, v in final[name].items()))
+    assert max(abs(v) for v in final["lqg"].values()) > 0.1              # outside the settle band
+    assert max(abs(v) for v in final["integral"].values()) < 0.01
+
+
+def test_cli(tmp_path, capsys):
+    """``flexlink control --integral TI``: the run (its LQG with integral action settles; ``--json`` carries
+    the integral loop's margins as ``lqg_integral``, stable) and the refusals, each one message."""
+    import argparse
+
+    from controllers.cli import add_control_parsers
+    from flexlink.errors import FlexlinkError
+
+    parser = argparse.ArgumentParser()
+    add_control_parsers(parser.add_subparsers(dest="command"))
+    base = ["control", str(SCENE), "--target", "60,20", "--duration", "1.5", "--torque-limit", "60"]
+    args = parser.parse_args([*base, "--integral", "0.5", "--json"])
+    assert args.func(args) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["integral_time_s"] == 0.5 and doc["lqg"]["settling_time_s"] is not None
+    assert doc["robustness"]["lqg_integral"]["stable"]
+    assert len(doc["robustness"]["lqg_integral"]["actuators"]) == 2
+    for bad, msg in ((["--integral", "0"], "must be a positive"),
+                     (["--integral", "0.5", "--schedule", "3"], "not yet in the scheduled LQG"),
+                     (["--integral", "0.5", "--sensors", "accelerometer"], "accelerometers")):
+        args = parser.parse_args([*base, *bad])
+        with pytest.raises((FlexlinkError, DesignError), match=msg):
+            args.func(args)
+    one = ["control", str(EXAMPLES / "rotating_link.toml"), "--target", "30", "--duration", "1", "--integral", "0.5"]
+    with pytest.raises(FlexlinkError, match="several torque-driven joints"):
+        (args := parser.parse_args(one)).func(args)
