@@ -160,19 +160,20 @@ def plot_multijoint(path: str | os.PathLike, results: dict, title: str = "", rob
         m, s, c = res.metrics, res.series, f"C{k}"
         t = s["time"]
         ts = "not settled" if m["settling_time_s"] is None else f"settles in {m['settling_time_s']:.3g} s"
-        label = f"{LABELS.get(name, name)}: {ts}"
+        lab = LABELS.get(name, name)
+        label = f"{lab}: {ts}"
         for i, j in enumerate(m["joints"]):
             ls = styles[i % 4]
             a_th.plot(t, np.degrees(s[f"{j}.theta"]), c, ls=ls, lw=1.1, label=f"{label} ({j})" if i == 0 else j)
             if k == 0:
                 a_th.plot(t, np.degrees(s[f"{j}.theta_ref"]), "k", ls=ls, lw=0.6)
             a_err.plot(t, np.degrees(s[f"{j}.theta"] - s[f"{j}.theta_ref"]), c, ls=ls, lw=1.0,
-                       label=f"{name.upper()} {j}: final {m['joints'][j]['final_error_deg']:.2g} deg")
+                       label=f"{lab} {j}: final {m['joints'][j]['final_error_deg']:.2g} deg")
             a_tau.plot(t, s[f"{j}.tau"], c, ls=ls, lw=0.9,
-                       label=f"{name.upper()} {j}: peak {m['joints'][j]['peak_torque_nm']:.3g} N m")
+                       label=f"{lab} {j}: peak {m['joints'][j]['peak_torque_nm']:.3g} N m")
         for i, (lk, f) in enumerate(m["links"].items()):
             a_tip.plot(t, 1e3 * s[f"{lk}.tip.v"], c, ls=styles[i % 4], lw=1.0,
-                       label=f"{name.upper()} {lk}: residual {1e3 * f['residual_vibration_rms_m']:.3g} mm RMS")
+                       label=f"{lab} {lk}: residual {1e3 * f['residual_vibration_rms_m']:.3g} mm RMS")
     a_th.set_ylabel("joint angle (deg); black: reference")
     a_err.set_ylabel("tracking error (deg)")
     a_tip.set_ylabel("tip.v (mm)")
