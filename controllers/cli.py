@@ -609,28 +609,21 @@ def _move(d, targets) -> str:
 def _run_scheduled(args, d, targets, run_params, fmu) -> int:
     """``--schedule N``: the LQG scheduled over the path against the fixed one (:mod:`controllers.schedule`).
 
-    Besides the two runs, the frozen-pose spectral radius of both at the design points and halfway between
-    them shows where the fixed design loses margin.
+    Besides the two runs, the frozen-pose spectral radius and margins of both at the design points and three
+    poses between each two (:func:`_path_margins`) show where each loses margin.
     """
     import numpy as np
 
-    from controllers.multijoint import inverse_dynamics_reference, plan
+    from controllers.multijoint import inverse_dynamics_reference
     from controllers.plots import path_margins_text
-    from controllers.robustness import along_path
-    from controllers.schedule import compare_schedule, design_schedule
+    from controllers.schedule import compare_schedule
 
-    pl = plan(d.plant, targets)
-    schedule = design_schedule(d, pl, args.schedule)
-    if args.export_fmu:
-        _export(args, d, schedule)
-    if args.export_ssp:
-        _export_ssp(args, d, targets, schedule)
+    pl, schedule = _scheduled_design(args, d, targets)
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, args.duration, args.settle)
     noise = {"noise": d.kalman.noise, "seed": args.seed} if args.noise else {}    # both laws read the design's sensors
     with _loop(fmu, run_params) as loop:
         runs = compare_schedule(d, schedule, loop, pl, ref, parameters=run_params, **noise)
-    # the margins of both laws frozen at poses along the path: the design points and 3 between each two
-    margins = along_path(d, schedule, pl, np.linspace(0.0, 1.0, 4 * args.schedule - 3).tolist())
+    margins = _path_margins(d, schedule, pl, args.schedule)
     radius = [{"sigma": p["sigma"], "pose_deg": p["pose_deg"], "fixed": f["spectral_radius"],
                "scheduled": p["spectral_radius"]}
               for p, f in zip(margins["scheduled"]["points"], margins["fixed"]["points"], strict=True)]
@@ -812,17 +805,31 @@ def _schedule_margins(args, d, targets) -> dict:
     :func:`controllers.robustness.along_path` at the design points and three poses between each two, as a
     scheduled run reports them.
     """
-    import numpy as np
-
-    from controllers.multijoint import check_multijoint, plan
-    from controllers.robustness import along_path
-    from controllers.schedule import design_schedule
+    from controllers.multijoint import check_multijoint
 
     check_multijoint(d)
+    pl, schedule = _scheduled_design(args, d, targets)
+    return _path_margins(d, schedule, pl, args.schedule)
+
+
+def _scheduled_design(args, d, targets):
+    """The plan to ``targets`` and the schedule of ``--schedule N`` along it, its controller exported on request."""
+    from controllers.multijoint import plan
+    from controllers.schedule import design_schedule
+
     pl = plan(d.plant, targets)
     schedule = design_schedule(d, pl, args.schedule)
     if args.export_fmu:
         _export(args, d, schedule)
     if args.export_ssp:
         _export_ssp(args, d, targets, schedule)
-    return along_path(d, schedule, pl, np.linspace(0.0, 1.0, 4 * args.schedule - 3).tolist())
+    return pl, schedule
+
+
+def _path_margins(d, schedule, pl, points: int) -> dict:
+    """Both laws' margins frozen at the ``points`` design points and three poses between each two."""
+    import numpy as np
+
+    from controllers.robustness import along_path
+
+    return along_path(d, schedule, pl, np.linspace(0.0, 1.0, 4 * points - 3).tolist())
