@@ -17,6 +17,7 @@ One module per concern (python-control's layout):
 ``cosim``              ``FmuLoop``: the FMU instantiated once with ``FMU2Slave``, reset between runs
 ``manoeuvre``          design everything on one plant; rest-to-rest runs and their figures
 ``multijoint``         every joint's rest-to-rest run: inverse-dynamics feedforward, MIMO LQG against joint PD
+``integral``           integral action on the joint positions: the augmented sampled LQR, its law, margins
 ``plots``              time responses, closed-loop poles, loop Bode with margins
 ``cli``, ``demo``      ``flexlink control`` / ``flexlink linearize``; the README's control job
 =====================  ===================================================================================
@@ -51,6 +52,7 @@ _EXPORTS = {
     "plot_manoeuvre": "plots", "plot_multijoint": "plots",
     "MimoLQGLaw": "multijoint", "JointPDLaw": "multijoint", "compare": "multijoint",
     "inverse_dynamics_reference": "multijoint",
+    "design_integral": "integral", "IntegralLQGLaw": "integral",
     "run_control_demo": "demo",
 }
 

@@ -98,7 +98,12 @@ def add_control_parsers(subparsers) -> None:
     p.add_argument("--schedule", type=int, metavar="N",
                    help="with several torque-driven joints: gain scheduling over the path, the LQG designed at N "
                         "poses along it (N >= 2, start and target included) and interpolated; the run compares it "
-                        "with the fixed LQG designed at the start (docs/control.md)")
+                        "with the fixed LQG designed at the start; both laws' margins along the path, worst case "
+                        "and where, are reported (with --design-only, without a run) (docs/control.md)")
+    p.add_argument("--integral", type=_finite, metavar="TI",
+                   help="with several torque-driven joints: integral action on the joint positions in the LQG, "
+                        "integral time TI s (Bryson weight 1/(0.5 deg x TI)^2 on each joint's error integral; "
+                        "strain gauges; not with --schedule or the exports) (docs/control.md)")
     p.add_argument("--export-fmu", type=output_file, metavar="CTRL.fmu",
                    help="also write the sampled LQG (Kalman current estimator + discrete LQR, saturation) as a "
                         "pure-C FMI 2.0 Co-Simulation FMU, its sample time the fixed communication step; with "
@@ -237,15 +242,18 @@ def cmd_control(args) -> int:
         d = design(model, torque_limit=limit, dt=args.sample_time, sensors=args.sensors, root_moment=args.root_moment)
     except (ValueError, np.linalg.LinAlgError) as e:
         raise FlexlinkError(f"{args.scene}: the LQR/Kalman design failed ({' '.join(str(e).split())})") from None
-    if args.schedule is not None and (args.design_only or len(d.actuated_joints) < 2):
-        raise FlexlinkError("--schedule: gain scheduling over the path is part of the multi-joint run (several "
-                            "torque-driven joints, --target and --duration, no --design-only)")
+    if args.schedule is not None and (len(d.actuated_joints) < 2 or targets is None or args.duration is None):
+        raise FlexlinkError("--schedule: gain scheduling over the path needs several torque-driven joints and the "
+                            "path: --target and --duration")
+    if args.integral is not None and len(d.actuated_joints) < 2:
+        raise FlexlinkError("--integral: integral action is part of the multi-joint LQG (several torque-driven "
+                            "joints)")
     if args.export_fmu and args.schedule is None:      # with --schedule: once the schedule is designed
         _export(args, d)
     if args.export_ssp and args.schedule is None:
         _export_ssp(args, d, targets)
     if args.design_only:
-        return _report_design(args, d)
+        return _report_design(args, d, targets)
     assert targets is not None and target is not None        # required without --design-only (checked above)
     if len(d.actuated_joints) > 1:
         return _run_multijoint(args, d, targets, run_params, key)
@@ -267,6 +275,13 @@ def _check_control_args(args) -> None:
                             f"{args.schedule}")
     if not args.design_only and (args.target is None or args.duration is None):
         raise FlexlinkError("--target and --duration are required for the closed-loop run (or give --design-only)")
+    if args.integral is not None and not args.integral > 0:
+        raise FlexlinkError(f"--integral: the integral time must be a positive number of seconds, got {args.integral}")
+    if args.integral is not None and (args.schedule is not None or args.export_fmu or args.export_ssp):
+        raise FlexlinkError("--integral: integral action is not yet in the scheduled LQG or the controller FMU; "
+                            "leave out --schedule, --export-fmu and --export-ssp")
+    if args.schedule is not None and (args.target is None or args.duration is None):
+        raise FlexlinkError("--schedule: gain scheduling over the path needs the path: --target and --duration")
     if args.design_only and args.torque_limit is None and (args.target is None or args.duration is None):
         raise FlexlinkError("--design-only needs --torque-limit (or --target and --duration for the default)")
 
@@ -310,11 +325,11 @@ def _run_single(args, d, plant, target: float, limit, run_params: dict, key: str
 def _cache_key(args, scene) -> str | None:
     """The design cache's key of a run (:mod:`controllers.design_cache`).
 
-    None for what the cache does not hold (--design-only, --noise, --plot, exports, --schedule) or when it is
-    off.
+    None for what the cache does not hold (--design-only, --noise, --plot, exports, --schedule, --integral) or
+    when it is off.
     """
     if (args.design_only or args.noise or args.plot or args.export_fmu or args.export_ssp
-            or args.schedule is not None or args.target is None):
+            or args.schedule is not None or args.integral is not None or args.target is None):
         return None
     from controllers.design_cache import cache_key, enabled
 
@@ -491,27 +506,33 @@ def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int
     fmu = cached_fmu(args.scene)
     if args.schedule is not None:
         return _run_scheduled(args, d, targets, run_params, fmu)
+    integ = None
     with _loop(fmu, run_params) as loop:
-        runs = compare(d, loop, targets, args.duration, args.settle, parameters=run_params, pl=pl,
-                       noise=args.noise, seed=args.seed)
+        if args.integral is None:
+            runs = compare(d, loop, targets, args.duration, args.settle, parameters=run_params, pl=pl,
+                           noise=args.noise, seed=args.seed)
+        else:
+            runs, integ = _compare_integral(args, d, pl, loop, run_params)
     move = _move(d, targets)
     if args.plot:
         from controllers.plots import plot_multijoint
         from controllers.robustness import robustness_figures
 
+        loop_rob = d.robustness()["lqg"] if integ is None else _integral_loop(integ)
         plot_multijoint(args.plot, runs, title=f"{d.plant.model.scene.name}: {move} in {args.duration:g} s; LQG "
                                                "(MIMO, Kalman) against joint PD with the LQG's peak torques",
-                        robustness=robustness_figures({"lqg": d.robustness()["lqg"]})["lqg"])
+                        robustness=robustness_figures({"lqg": loop_rob})["lqg"])
     kp, kd = joint_pd_gains(d)
     info = {"name": d.plant.model.scene.name, "dt": d.dt, "joints": d.actuated_joints, "sensors": d.kalman.sensors,
-            "move": move, "kp": kp.tolist(), "kd": kd.tolist()}
+            "move": move, "kp": kp.tolist(), "kd": kd.tolist(), "integral_time_s": args.integral}
     doc = None
     if args.json:
-        rob = _robustness_json(d, "lqr")
+        rob = _robustness_json(d, "lqr", integ)
         rob["pd"] = _pd_robustness(d, runs["pd"])
         doc = {"joints": d.actuated_joints, "targets_deg": [math.degrees(t) for t in targets],
                "duration_s": args.duration, "settle_s": args.settle, "sample_time_s": d.dt,
                "sensors": d.kalman.sensors, "pd_gains": {"kp": kp.tolist(), "kd": kd.tolist()}, "robustness": rob,
+               "integral_time_s": args.integral,
                "noise": {"sigma": d.kalman.noise, "seed": args.seed} if args.noise else None}
     if key is not None:
         from controllers.design_cache import load, store
@@ -523,6 +544,28 @@ def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int
                     "json": doc if doc is not None else (load(key) or {}).get("json")})
     _report_multijoint(args, info, runs, run_params, doc)
     return 0
+
+
+def _compare_integral(args, d, pl, loop, run_params):
+    """``--integral TI``: the LQG with integral action (:mod:`controllers.integral`) and the joint PD, compared.
+
+    As :func:`controllers.multijoint.compare`, the LQG's law replaced; returns the runs and the integral design.
+    """
+    from controllers.integral import IntegralLQGLaw, design_integral
+    from controllers.multijoint import JointPDLaw, compare_laws, inverse_dynamics_reference
+
+    integ = design_integral(d, args.integral)
+    ref = inverse_dynamics_reference(d.plant, pl, d.dt, args.duration, args.settle)
+    lqg = IntegralLQGLaw(integ, [d.lqr.torque_limits[j] for j in pl.joints], ref)
+    runs = compare_laws(loop, pl, ref, lqg, JointPDLaw(d, [1.0] * len(pl.joints)), d.plant.x0,
+                        parameters=run_params, noise=d.kalman.noise if args.noise else None, seed=args.seed)
+    return runs, integ
+
+
+def _integral_loop(integ) -> dict:
+    from controllers.integral import integral_robustness
+
+    return integral_robustness(integ)
 
 
 def _run_multijoint_cached(args, scene, entry: dict, run_params: dict) -> int:
@@ -566,32 +609,32 @@ def _move(d, targets) -> str:
 def _run_scheduled(args, d, targets, run_params, fmu) -> int:
     """``--schedule N``: the LQG scheduled over the path against the fixed one (:mod:`controllers.schedule`).
 
-    Besides the two runs, the frozen-pose spectral radius of both at the design points and halfway between
-    them shows where the fixed design loses margin.
+    Besides the two runs, the frozen-pose spectral radius and margins of both at the design points and three
+    poses between each two (:func:`_path_margins`) show where each loses margin.
     """
     import numpy as np
 
-    from controllers.multijoint import inverse_dynamics_reference, plan
-    from controllers.schedule import compare_schedule, design_schedule, radius_along_path
+    from controllers.multijoint import inverse_dynamics_reference
+    from controllers.plots import path_margins_text
+    from controllers.schedule import compare_schedule
 
-    pl = plan(d.plant, targets)
-    schedule = design_schedule(d, pl, args.schedule)
-    if args.export_fmu:
-        _export(args, d, schedule)
-    if args.export_ssp:
-        _export_ssp(args, d, targets, schedule)
+    pl, schedule = _scheduled_design(args, d, targets)
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, args.duration, args.settle)
     noise = {"noise": d.kalman.noise, "seed": args.seed} if args.noise else {}    # both laws read the design's sensors
     with _loop(fmu, run_params) as loop:
         runs = compare_schedule(d, schedule, loop, pl, ref, parameters=run_params, **noise)
-    radius = radius_along_path(d, schedule, pl, np.linspace(0.0, 1.0, 2 * args.schedule - 1).tolist())
+    margins = _path_margins(d, schedule, pl, args.schedule)
+    radius = [{"sigma": p["sigma"], "pose_deg": p["pose_deg"], "fixed": f["spectral_radius"],
+               "scheduled": p["spectral_radius"]}
+              for p, f in zip(margins["scheduled"]["points"], margins["fixed"]["points"], strict=True)]
     move = _move(d, targets)
     done = {k: r for k, r in runs.items() if not isinstance(r, str)}
     if args.plot:
         from controllers.plots import plot_multijoint
 
         plot_multijoint(args.plot, done, title=f"{d.plant.model.scene.name}: {move} in {args.duration:g} s; LQG "
-                                               f"scheduled at {args.schedule} poses against the fixed LQG")
+                                               f"scheduled at {args.schedule} poses against the fixed LQG",
+                        caption=path_margins_text(margins))
     if args.json:
         print(json.dumps({**{k: (r if isinstance(r, str) else r.metrics) for k, r in runs.items()},
                           "joints": d.actuated_joints, "targets_deg": [math.degrees(t) for t in targets],
@@ -599,7 +642,8 @@ def _run_scheduled(args, d, targets, run_params, fmu) -> int:
                           "schedule": {"points": args.schedule, "sigma": schedule.sigma.tolist(),
                                        "poses_deg": [{j: math.degrees(v) for j, v in p.items()}
                                                      for p in schedule.poses]},
-                          "frozen_spectral_radius": radius, "parameters": run_params,
+                          "frozen_spectral_radius": radius, "robustness_along_path": margins,
+                          "parameters": run_params,
                           "noise": {"sigma": noise["noise"], "seed": args.seed} if noise else None}))
         return 0
     print(f"{d.plant.model.scene.name}: rest-to-rest {move} in {args.duration:g} s (+ {args.settle:g} s settle), "
@@ -609,6 +653,7 @@ def _run_scheduled(args, d, targets, run_params, fmu) -> int:
           + " deg), interpolated by the path parameter; fixed LQG: designed at the start pose")
     print("  frozen-pose spectral radius (sampled loop, < 1 holds the pose), fixed / scheduled: "
           + ", ".join(f"{r['fixed']:.4f}/{r['scheduled']:.4f}" for r in radius))
+    print("  " + path_margins_text(margins).replace("\n", "\n  "))
     for k, r in runs.items():
         if isinstance(r, str):
             print(f"  {k} LQG: left the beam model's validity: {r}")
@@ -658,6 +703,8 @@ def _print_comparison(args, info: dict, runs: dict) -> None:
           f"sample time {info['dt']:g} s; feedforward: the model's inverse dynamics along the joints' quintics")
     print(f"  LQG: LQR on {', '.join(info['joints'])} + Kalman ({', '.join(info['sensors'])}), torque limits "
           + ", ".join(f"{v:g}" for v in lqg["torque_limits_nm"].values()) + " N m")
+    if info.get("integral_time_s") is not None:
+        print(f"  LQG with integral action on the joint positions, integral time {info['integral_time_s']:g} s")
     print("  PD:  kp " + ", ".join(f"{v:.4g}" for v in info["kp"]) + " N m/rad, kd "
           + ", ".join(f"{v:.4g}" for v in info["kd"]) + " N m s/rad, torque limits = the LQG run's peaks")
     if args.noise:
@@ -667,12 +714,13 @@ def _print_comparison(args, info: dict, runs: dict) -> None:
         print(f"  wrote {args.plot}")
 
 
-def _robustness_json(d, controller: str) -> dict:
+def _robustness_json(d, controller: str, integ=None) -> dict:
     """The design's margins as JSON values (``controllers.robustness.robustness_figures``).
 
     They are the continuous LQR's, the sampled LQG's, and with one sample of computation delay the predictive
     LQG's and those of the LQG unaware of it (sensors without feedthrough); with the PD, its own sampled loop
-    as ``"pd"`` too.
+    as ``"pd"`` too; with ``integ`` (:func:`controllers.integral.design_integral`) the sampled LQG with integral
+    action as ``"lqg_integral"``.
     """
     import numpy as np
 
@@ -687,19 +735,32 @@ def _robustness_json(d, controller: str) -> dict:
     if controller == "pd":
         law = d.law("pd")
         rob["pd"] = loop_at_a_time(sampled_plant(d.plant, d.dt, law.sensors), -law.K @ law.S, [law.input])
+    if integ is not None:
+        rob["lqg_integral"] = _integral_loop(integ)
     return robustness_figures(rob)
 
 
-def _report_design(args, d) -> int:
-    """``flexlink control --design-only``: gains' shapes, weights, margins, closed-loop poles."""
+def _report_design(args, d, targets=None) -> int:
+    """``flexlink control --design-only``: gains' shapes, weights, margins, closed-loop poles.
+
+    With ``--schedule`` also the schedule's margins along the path (:func:`_schedule_margins`), and its
+    controller FMU or SSP package on request.
+    """
     wn, zeta = d.lqr.rigid_pair
-    rob = _robustness_json(d, "lqr")
+    integ = None
+    if args.integral is not None:
+        from controllers.integral import design_integral
+
+        integ = design_integral(d, args.integral)
+    rob = _robustness_json(d, "lqr", integ)
+    along = None if args.schedule is None else _schedule_margins(args, d, targets)
     if args.json:
         print(json.dumps({
             "actuated_joints": d.actuated_joints, "inputs": d.lqr.inputs, "states": d.plant.states,
             "sample_time_s": d.dt, "torque_limits_nm": d.lqr.torque_limits, "bryson_limits": d.lqr.limits,
             "sensors": d.kalman.sensors, "K": d.lqr.K.tolist(), "Kd": d.lqr.Kd.tolist(),
-            "rigid_pair_rad_s": wn, "rigid_pair_zeta": zeta, "robustness": rob}))
+            "rigid_pair_rad_s": wn, "rigid_pair_zeta": zeta, "robustness": rob, "integral_time_s": args.integral,
+            **({} if along is None else {"robustness_along_path": along})}))
         return 0
     model = d.plant.model
     print(f"{model.scene.name}: LQR on {', '.join(d.actuated_joints)} ({d.plant.sys.nstates} states), sample time "
@@ -710,7 +771,8 @@ def _report_design(args, d) -> int:
         return "inf" if v is None else f"{v:.3g}"
 
     for loop, what in (("lqr", "continuous LQR, full state"), ("lqg", f"sampled LQG at {d.dt:g} s"),
-                       ("lqg_delay1", "predictive LQG, one sample of delay (the SSP package's)")):
+                       ("lqg_delay1", "predictive LQG, one sample of delay (the SSP package's)"),
+                       ("lqg_integral", f"sampled LQG with integral action (integral time {args.integral} s)")):
         if loop not in rob:
             continue
         r = rob[loop]
@@ -730,4 +792,44 @@ def _report_design(args, d) -> int:
     if "lqg_delay1_unaware" in rob:
         print(f"  the sampled LQG with that delay (not predicting it): "
               f"{'stable' if rob['lqg_delay1_unaware']['stable'] else 'UNSTABLE'}")
+    if along is not None:
+        from controllers.plots import path_margins_text
+
+        print(f"  scheduled at {args.schedule} poses along the path; " + path_margins_text(along).replace("\n", "\n  "))
     return 0
+
+
+def _schedule_margins(args, d, targets) -> dict:
+    """``--design-only --schedule N``: the schedule designed along the path (exported on request), its margins.
+
+    :func:`controllers.robustness.along_path` at the design points and three poses between each two, as a
+    scheduled run reports them.
+    """
+    from controllers.multijoint import check_multijoint
+
+    check_multijoint(d)
+    pl, schedule = _scheduled_design(args, d, targets)
+    return _path_margins(d, schedule, pl, args.schedule)
+
+
+def _scheduled_design(args, d, targets):
+    """The plan to ``targets`` and the schedule of ``--schedule N`` along it, its controller exported on request."""
+    from controllers.multijoint import plan
+    from controllers.schedule import design_schedule
+
+    pl = plan(d.plant, targets)
+    schedule = design_schedule(d, pl, args.schedule)
+    if args.export_fmu:
+        _export(args, d, schedule)
+    if args.export_ssp:
+        _export_ssp(args, d, targets, schedule)
+    return pl, schedule
+
+
+def _path_margins(d, schedule, pl, points: int) -> dict:
+    """Both laws' margins frozen at the ``points`` design points and three poses between each two."""
+    import numpy as np
+
+    from controllers.robustness import along_path
+
+    return along_path(d, schedule, pl, np.linspace(0.0, 1.0, 4 * points - 3).tolist())

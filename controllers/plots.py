@@ -11,7 +11,8 @@ import numpy as np
 
 from controllers.closedloop import closed_loop, loop_transfer, margins
 
-__all__ = ["plot_loop_bode", "plot_manoeuvre", "plot_multijoint", "plot_poles", "plot_time_responses"]
+__all__ = ["margins_text", "path_margins_text", "plot_loop_bode", "plot_manoeuvre", "plot_multijoint", "plot_poles",
+           "plot_time_responses"]
 
 
 def _pyplot():
@@ -141,13 +142,15 @@ def plot_manoeuvre(path: str | os.PathLike, results: Sequence, design, predictio
 LABELS = {"lqr": "LQG", "pd": "PD", "fixed": "fixed LQG", "scheduled": "scheduled LQG"}
 
 
-def plot_multijoint(path: str | os.PathLike, results: dict, title: str = "", robustness: dict | None = None) -> None:
+def plot_multijoint(path: str | os.PathLike, results: dict, title: str = "", robustness: dict | None = None,
+                    caption: str | None = None) -> None:
     """Plot the multi-joint comparison (:func:`controllers.multijoint.compare`) to ``path``.
 
     Joint angles against their references, tracking errors, every link's tip deflection and the torques, LQG and PD,
     the figures of each run (settling time, residual vibration, peak torque) in the legends; with ``robustness`` (a
     loop of :func:`controllers.robustness.robustness_figures`, the sampled LQG's), its margins at each actuator
-    under the plot.
+    under the plot; ``caption`` (lines of text, a scheduled run's margins along the path: :func:`path_margins_text`)
+    instead.
     """
     plt = _pyplot()
     fig, axes = plt.subplots(2, 2, figsize=(13, 8), sharex=True)
@@ -157,19 +160,20 @@ def plot_multijoint(path: str | os.PathLike, results: dict, title: str = "", rob
         m, s, c = res.metrics, res.series, f"C{k}"
         t = s["time"]
         ts = "not settled" if m["settling_time_s"] is None else f"settles in {m['settling_time_s']:.3g} s"
-        label = f"{LABELS.get(name, name)}: {ts}"
+        lab = LABELS.get(name, name)
+        label = f"{lab}: {ts}"
         for i, j in enumerate(m["joints"]):
             ls = styles[i % 4]
             a_th.plot(t, np.degrees(s[f"{j}.theta"]), c, ls=ls, lw=1.1, label=f"{label} ({j})" if i == 0 else j)
             if k == 0:
                 a_th.plot(t, np.degrees(s[f"{j}.theta_ref"]), "k", ls=ls, lw=0.6)
             a_err.plot(t, np.degrees(s[f"{j}.theta"] - s[f"{j}.theta_ref"]), c, ls=ls, lw=1.0,
-                       label=f"{name.upper()} {j}: final {m['joints'][j]['final_error_deg']:.2g} deg")
+                       label=f"{lab} {j}: final {m['joints'][j]['final_error_deg']:.2g} deg")
             a_tau.plot(t, s[f"{j}.tau"], c, ls=ls, lw=0.9,
-                       label=f"{name.upper()} {j}: peak {m['joints'][j]['peak_torque_nm']:.3g} N m")
+                       label=f"{lab} {j}: peak {m['joints'][j]['peak_torque_nm']:.3g} N m")
         for i, (lk, f) in enumerate(m["links"].items()):
             a_tip.plot(t, 1e3 * s[f"{lk}.tip.v"], c, ls=styles[i % 4], lw=1.0,
-                       label=f"{name.upper()} {lk}: residual {1e3 * f['residual_vibration_rms_m']:.3g} mm RMS")
+                       label=f"{lab} {lk}: residual {1e3 * f['residual_vibration_rms_m']:.3g} mm RMS")
     a_th.set_ylabel("joint angle (deg); black: reference")
     a_err.set_ylabel("tracking error (deg)")
     a_tip.set_ylabel("tip.v (mm)")
@@ -183,9 +187,11 @@ def plot_multijoint(path: str | os.PathLike, results: dict, title: str = "", rob
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    if robustness is not None:
-        fig.subplots_adjust(bottom=0.09 + 0.017 * (len(robustness["actuators"]) + 2))
-        fig.text(0.01, 0.01, margins_text(robustness), fontsize=7, family="monospace", va="bottom")
+    if caption is None and robustness is not None:
+        caption = margins_text(robustness)
+    if caption is not None:
+        fig.subplots_adjust(bottom=0.09 + 0.017 * (caption.count("\n") + 1))
+        fig.text(0.01, 0.01, caption, fontsize=7, family="monospace", va="bottom")
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -210,3 +216,30 @@ def margins_text(rob: dict) -> str:
                      f"±{f(ml['disk_gain_margin_db'], ' dB')} with ±{f(ml['disk_phase_margin_deg'], '°')} "
                      "at every actuator simultaneously")
     return "\n".join(lines)
+
+
+def path_margins_text(along: dict) -> str:
+    """The worst margins along a scheduled path (:func:`controllers.robustness.along_path`), a few lines.
+
+    Per law (scheduled, fixed): whether every frozen pose holds (else where not), then per actuator the smallest
+    gain margin, phase margin and disk margin over the stable poses, and the simultaneous disk margin and peak
+    sensitivity of all loops, each with the path parameter σ where it is.
+    """
+    def at(e, fmt, unit=""):
+        return "–" if e is None else f"{e['value']:{fmt}}{unit} (σ {e['sigma']:.3g})"
+
+    first = next(iter(along.values()))["points"]
+    sigma = ", ".join(f"{p['sigma']:.3g}" for p in first)
+    lines = [f"sampled LQG frozen at each pose of the path, σ = {sigma}; worst over them:"]
+    for name, a in along.items():
+        w = a["worst"]
+        verdict = (f"stable at every pose (largest spectral radius {at(w['spectral_radius'], '.4f')})" if w["stable"]
+                   else "UNSTABLE at σ = " + ", ".join(f"{s:.3g}" for s in w["unstable_sigma"])
+                   + "; over the stable poses")
+        lines.append(f"{name} LQG: {verdict}; all at once disk margin {at(w['multiloop_disk_margin'], '.3g')}, "
+                     f"peak sensitivity {at(w['peak_sensitivity'], '.3g')}")
+        for act in w["actuators"]:
+            lines.append(f"  {act['input']:<16} gain margin {at(act['gain_margin_db'], '.3g', ' dB')}, phase margin "
+                         f"{at(act['phase_margin_deg'], '.3g', '°')}, disk margin {at(act['disk_margin'], '.3g')}")
+    notes = {a.get("note") for a in along.values()} - {None}
+    return "\n".join(lines + [f"note: {n}" for n in sorted(notes)])

@@ -75,3 +75,19 @@ def clamped_free_lambdas(count: int) -> np.ndarray:
     """Roots of 1 + cos λ cosh λ = 0, written as cos λ + 1/cosh λ = 0 (no overflow), one per (i−1/2)π ± π/2."""
     return np.array([brentq(lambda lam: math.cos(lam) + 1.0 / math.cosh(lam), (i - 1) * math.pi, i * math.pi,
                             xtol=1e-15) for i in range(1, count + 1)])
+
+
+def broken_loop_margins(T, i: int, w):
+    """python-control's (gain margin dB, |phase margin| deg) of the loop ``T`` (torques applied → torques asked
+    for, positive feedback) broken at input i with the other channels closed (``control.feedback``), from its
+    frequency response on the grid w (``control.frd``, interpolated; ``stability_margins``, every crossover)."""
+    import warnings
+
+    import control as ct
+
+    m = T.ninputs
+    L = -ct.feedback(T, np.diag([0.0 if k == i else 1.0 for k in range(m)]), sign=1)[i, i]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        gm, pm, *_ = ct.stability_margins(ct.frd(L, w, smooth=True), returnall=True)
+    return float(20 * np.log10(np.min(gm[gm > 1]))), float(np.min(np.abs(pm)))
