@@ -205,9 +205,9 @@ class PredictiveLQGLaw(MimoLQGLaw):
     ``sat(u₀ + u_ff,k+1 − K_d ẑ_k+1)``.  ``initial()``: the torque before the first sample, u₀ + u_ff,0.
     """
 
-    def __init__(self, d: ControlDesign, limits: Sequence[float], reference: Reference):
+    def __init__(self, d: ControlDesign, limits: Sequence[float], reference: Reference, prediction: str = "model"):
         self.u_ff = reference.u_ff
-        super().__init__(d, limits, reference)
+        super().__init__(d, limits, reference, prediction)
 
     def initial(self) -> np.ndarray:
         """The torque before the first sample: u₀ + u_ff,0, saturated (the FMU's output before its first step)."""
@@ -227,17 +227,17 @@ class PredictiveLQGLaw(MimoLQGLaw):
         """Sample k: correct and predict with sample k's matrices, return sample k+1's torque (its gain).
 
         With the tip accelerometer the correction and prediction are :class:`MimoLQGLaw`'s along the reference
-        (its measurement model with the torque held while y_k was sampled, the plant and Kalman gain sampled
-        along the reference).
+        (its measurement model — the model's outputs at the estimate — with the torque held while y_k was
+        sampled, the plant and Kalman gain sampled along the reference).
         """
         M, C, _, Ad, Bd = self.matrices(self.k)
         W = self.W
         if self.along is not None and self.k < len(self.along.M):
             M, Ad, Bd, W = self.along.M[self.k], self.along.A[self.k], self.along.B[self.k], self.along.W
-            dx = self.dz + M @ (y - self.predicted(x_ref, C))
+            dx = self.finite(self.dz + M @ (y - self.predicted(x_ref, C)))
         else:
             dx = self.dz + M @ (y - self.y0 - C @ (x_ref + self.dz))
-        self.dz = Ad @ dx + Bd @ (self.v - self.u0 - u_ff) - W[min(self.k, len(W) - 1)]
+        self.dz = self.finite(Ad @ dx + Bd @ (self.v - self.u0 - u_ff) - W[min(self.k, len(W) - 1)])
         self.u_prev = self.v - self.u0              # held while y_k+1 is sampled
         self.k += 1
         nxt = min(self.k, len(self.u_ff) - 1)
@@ -256,11 +256,11 @@ class ScheduledPredictiveLQGLaw(PredictiveLQGLaw):
 
     kind = "scheduled"
 
-    def __init__(self, schedule: Schedule, limits: Sequence[float], reference: Reference):
+    def __init__(self, schedule: Schedule, limits: Sequence[float], reference: Reference, prediction: str = "model"):
         from controllers.schedule import ScheduledLQGLaw
 
-        self.scheduled = ScheduledLQGLaw(schedule, limits, reference)
-        super().__init__(schedule.designs[0], limits, reference)
+        self.scheduled = ScheduledLQGLaw(schedule, limits, reference, prediction)
+        super().__init__(schedule.designs[0], limits, reference, prediction)
         self.W = self.scheduled.W
 
     def matrices(self, k: int) -> tuple[np.ndarray, ...]:
