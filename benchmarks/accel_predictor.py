@@ -6,7 +6,8 @@ On examples/two_link_payload.toml (tip accelerometer) and on the same arm with a
 its upper link (at the elbow), the multi-joint LQG with ``--sensors accelerometer`` is run through the plant
 FMU in closed loop twice in the same process, on the same reference and feedforward: with
 ``prediction="linear"`` (ŷ = h(x_ref) + C_k δx̂ + D_k δu, the former law) and ``prediction="model"`` (ŷ =
-h(x̂, u_{k−1}), the model's sensor outputs at the estimate; :mod:`controllers.sensor_model`).  Printed per run:
+h(x̂, u_{k−1}), the model's sensor outputs at the estimate; :mod:`controllers.sensor_model`), each as the Python
+law and as its controller FMU (``--export-fmu``'s C) stepped beside the plant FMU by fmpy.  Printed per run:
 settling time, residual tip vibration (RMS after the manoeuvre), peak torques, and the chatter: the RMS of the
 torque increments u_k − u_{k−1} from 20 ms after the manoeuvre's end (after the LQR's kick at the reference's
 jump to rest) to the end, and the number of samples after the manoeuvre where a torque is more than 5 N m off
@@ -25,6 +26,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE = ROOT / "examples" / "two_link_payload.toml"
+PREDICTIONS = ("linear", "model")
 
 
 def elbow_scene(directory: Path) -> Path:
@@ -53,6 +55,7 @@ def chatter(res, joints: list[str], duration: float, dt: float) -> dict:
 def run_scene(scene: Path, targets: list[float], duration: float, settle: float, limit: float) -> dict:
     """Both predictions on one scene, through its FMU, in the same process."""
     from controllers.cosim import FmuLoop
+    from controllers.export import FmuLaw, export_controller_fmu
     from controllers.manoeuvre import design
     from controllers.multijoint import MimoLQGLaw, inverse_dynamics_reference, plan, run
     from flexlink.export.cache import cached_fmu
@@ -63,17 +66,30 @@ def run_scene(scene: Path, targets: list[float], duration: float, settle: float,
     pl = plan(d.plant, targets)
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, duration, settle)
     out = {"sensors": d.kalman.sensors}
-    with FmuLoop(cached_fmu(scene)) as loop:
-        for prediction in ("linear", "model"):
-            law = MimoLQGLaw(d, [limit] * len(pl.joints), ref, prediction)
-            res = run(d, loop, pl, ref, law)
-            m = res.metrics
-            out[prediction] = {"settling_time_s": m["settling_time_s"],
-                               "residual_vibration_rms_m": m["residual_vibration_rms_m"],
-                               "peak_torque_nm": {j: m["joints"][j]["peak_torque_nm"] for j in pl.joints},
-                               "final_error_deg": {j: m["joints"][j]["final_error_deg"] for j in pl.joints},
-                               "chatter": chatter(res, pl.joints, duration, d.dt)}
+    limits = np.full(len(pl.joints), limit)
+    with FmuLoop(cached_fmu(scene)) as loop, tempfile.TemporaryDirectory() as tmp:
+        for prediction in PREDICTIONS:
+            law = MimoLQGLaw(d, list(limits), ref, prediction)
+            out[prediction] = figures(run(d, loop, pl, ref, law), pl.joints, duration, d.dt)
+            # the controller FMU of the same law (ctrl_fmu.c, with the generated sensor function for "model")
+            ctrl = FmuLaw(export_controller_fmu(d, Path(tmp) / f"{prediction}.fmu", limits=limits, reference=ref,
+                                                prediction=prediction), builtin=True)
+            ctrl.limits = limits                    # what multijoint.run's figures read of a law
+            try:
+                out[f"{prediction} (controller FMU)"] = figures(run(d, loop, pl, ref, ctrl), pl.joints, duration,
+                                                                d.dt)
+            finally:
+                ctrl.close()
     return out
+
+
+def figures(res, joints: list[str], duration: float, dt: float) -> dict:
+    """The run's figures of the table."""
+    m = res.metrics
+    return {"settling_time_s": m["settling_time_s"], "residual_vibration_rms_m": m["residual_vibration_rms_m"],
+            "peak_torque_nm": {j: m["joints"][j]["peak_torque_nm"] for j in joints},
+            "final_error_deg": {j: m["joints"][j]["final_error_deg"] for j in joints},
+            "chatter": chatter(res, joints, duration, dt)}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -97,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
           "after +20 ms (N m) | samples > 5 N m off |")
     print("|---|---|---|---|---|---|---|")
     for name, r in result.items():
-        for pred in ("linear", "model"):
+        for pred in [k for k in r if k != "sensors"]:
             m = r[pred]
             st = "none" if m["settling_time_s"] is None else f"{m['settling_time_s']:.3f}"
             peaks = ", ".join(f"{v:.1f}" for v in m["peak_torque_nm"].values())

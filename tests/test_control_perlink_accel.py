@@ -111,6 +111,33 @@ def test_elbow_and_tip_accelerometers_reach_the_targets_as_the_tip_alone(rig, ex
     assert both.metrics["settling_time_s"] == pytest.approx(tip.metrics["settling_time_s"], abs=0.05)
 
 
+def _chatter(res, joint: str) -> float:
+    """RMS of a joint's torque increments from 20 ms after the manoeuvre's end (after the LQR's kick) to the end."""
+    t, u = res.series["time"], res.series[f"{joint}.tau"]
+    return float(np.sqrt(np.mean(np.diff(u)[t[1:] >= DURATION + 0.02 - 1e-12] ** 2)))
+
+
+def test_the_models_measurement_prediction_removes_the_chatter(rig, example_fmu):
+    """Through the FMU, noise-free, the example's 60°/20° manoeuvre with both accelerometers, the law predicting its
+    measurements linearly along the reference and by the model's sensor outputs at its estimate (the default), in
+    the same run.  The measure of "no chatter" is independent of both: the tip accelerometer alone, whose run does
+    not chatter (the elbow's torque after the kick stays far below its limit) with either prediction."""
+    d, loop = rig
+    runs = {p: _lqg_run(d, loop, MOVE, law=lambda d, pl, ref, p=p: MimoLQGLaw(d, [LIMIT, LIMIT], ref, p))[0]
+            for p in ("linear", "model")}
+    tip_design = design(build_model(load_scene(EXAMPLE)), torque_limit=LIMIT, dt=DT, sensors="accelerometer")
+    with FmuLoop(example_fmu("two_link_payload")) as tip_loop:
+        tip, _, _ = _lqg_run(tip_design, tip_loop, MOVE, law=lambda d, pl, ref: MimoLQGLaw(d, [LIMIT, LIMIT], ref,
+                                                                                         "linear"))
+    figures = {name: (_chatter(r, "elbow"), r.metrics["joints"]["elbow"]["peak_torque_nm"])
+               for name, r in (*runs.items(), ("tip only, linear", tip))}
+    print(f"\nelbow torque-increment RMS after the kick, elbow peak torque (N m): {figures}")
+    assert figures["linear"][1] == LIMIT and figures["linear"][0] > 10 * figures["tip only, linear"][0]
+    assert figures["model"][1] < 0.5 * LIMIT and figures["model"][0] < 2 * figures["tip only, linear"][0]
+    for name in ("linear", "model"):
+        assert runs[name].metrics["settling_time_s"] == pytest.approx(tip.metrics["settling_time_s"], abs=0.01)
+
+
 def _innovation_covariances(law, R: np.ndarray, n_samples: int) -> np.ndarray:
     """S_k = C_k Σ_k C_kᵀ + R of the law's filter when the only noise is the sensors' R.
 
