@@ -292,7 +292,7 @@ class MimoLQGLaw:
         u_ff,k−1) + C_k δẑ + D_k (u_{k−1} − u_ff,k−1)``.
         """
         if self.h is not None:
-            return np.asarray(self.h(self.x0 + x_ref + self.dz, self.u0 + self.u_prev), dtype=float).ravel()
+            return np.asarray(self.h.call([self.x0 + x_ref + self.dz, self.u0 + self.u_prev])[0], dtype=float).ravel()
         sc, k = self.schedule, self.k
         if sc is not None and k < len(sc.y_ref):
             return sc.y_ref[k] + sc.C[k] @ self.dz + sc.D[k] @ (self.u_prev - sc.u_ff_prev[k])

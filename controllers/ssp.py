@@ -175,14 +175,23 @@ class JacobiDelay:
 
 
 class JacobiLoop(FmuLoop):
-    """:class:`controllers.cosim.FmuLoop` initialised as a Jacobi master initialises a connected system.
+    """:class:`controllers.cosim.FmuLoop` stepping the plant as libcosim's Jacobi master steps a connected system.
 
-    libcosim's fixed-step algorithm transfers the controller's initial output to the plant's inputs while
-    it initialises (``fixed_step_algorithm::initialize``: each simulator's ``setup``, iterations of
-    transfers, ``start_simulation``), so the plant's outputs at t_0 are read with that torque applied.  A
-    sensor with feedthrough (the tip accelerometer) sees it; here the plant's torque inputs are set to a
-    :class:`JacobiDelay` law's ``u_init`` after initialisation, before y_0 is read.
+    Two things of libcosim's fixed-step algorithm, so that the two masters' runs agree bit for bit:
+
+    * It transfers the controller's initial output to the plant's inputs while it initialises
+      (``fixed_step_algorithm::initialize``: each simulator's ``setup``, iterations of transfers,
+      ``start_simulation``), so the plant leaves initialisation with that torque applied (its outputs at t_0,
+      and the start of its integrator, see it; the tip accelerometer reads it).  Here the plant's torque
+      inputs are set to a :class:`JacobiDelay` law's ``u_init`` before its initialisation ends.
+    * Its time is integer nanoseconds: step k is ``fmi2DoStep(t_k, t_k+1 − t_k)`` with ``t_k = k Δ / 10⁹`` in
+      double (Δ the step in ns), not ``(k h, h)``.  The plant's integrator sees the step size's last bits, and
+      the accelerometer LQG's loop carries such differences on (docs/control.md), so this loop steps the plant
+      on that grid too.
     """
+
+    #: libcosim's time unit per second (``cosim::time_point`` counts nanoseconds)
+    TICKS = 1_000_000_000
 
     def run(self, law: JacobiDelay, reference: Reference, **kw: Any) -> LoopResult:  # type: ignore[override]
         """:meth:`FmuLoop.run` with the torque ``law.u_init`` on the plant before the first sample."""
@@ -191,9 +200,19 @@ class JacobiLoop(FmuLoop):
         return super().run(stepped, reference, **kw)
 
     def _initialise(self, params: Mapping[str, float]) -> None:
-        super()._initialise(params)
-        names, values = self._held
-        self.slave.setReal([self.vr(n) for n in names], [float(v) for v in values])
+        names, values = self._held          # set before initialisation ends: the plant starts with it applied
+        super()._initialise({**params, **{n: float(v) for n, v in zip(names, values, strict=True)}})
+        s = self.slave
+        if getattr(s, "_jacobi_raw_step", None) is None:    # once per instance: the loop fetches it each run
+            s._jacobi_raw_step = s.fmi2DoStep
+            s.fmi2DoStep = self._libcosim_step
+
+    def _libcosim_step(self, component: Any, t: float, h: float, no_set_prior: int) -> int:
+        """``fmi2DoStep`` of sample ``k = t / h`` on libcosim's nanosecond grid (class docstring)."""
+        ticks = int(h * self.TICKS)                 # cosim::to_duration: truncated to whole nanoseconds
+        k = round(t / h)
+        t0, t1 = (k * ticks) / self.TICKS, ((k + 1) * ticks) / self.TICKS
+        return self.slave._jacobi_raw_step(component, t0, t1 - t0, no_set_prior)
 
 
 class PredictiveLQGLaw(MimoLQGLaw):

@@ -17,7 +17,7 @@ one-joint rotating link:
 * the same with the gain scheduled over the path (``--schedule``);
 * with the torque applied one sample late (a Jacobi master, the SSP package's controller built for it),
   libcosim running the package over full manoeuvres and their settling equals fmpy stepping the package's two
-  FMUs, to 1e-9 (the accelerometers to 1e-8: :data:`ACCEL_FLOOR`);
+  FMUs as libcosim does, to 1e-9 (measured: bit for bit);
 * without a manoeuvre the export is refused with one message; a diverged estimate is ``fmi2Error``.
 """
 
@@ -287,12 +287,6 @@ def test_refusals(two_link, tmp_path):
         law.step(y, ref.x[0], ref.u_ff[0])
 
 
-#: The accelerometers' agreement between two runs of the loop that differ by rounding, relative to their scale: the
-#: model's sensor function (a linear solve with the links' stiffness, rows of C up to 3e5 m/s² per unit) has a
-#: rounding floor that the torque carries into the feedthrough; a 1e-14 change of one measurement moves tip.sx by
-#: up to 8e-8 m/s² of 15 over the 60°/−30° run (2e-10 with the linear prediction; docs/control.md).
-ACCEL_FLOOR = 1e-8
-
 #: Full manoeuvres and settling for the SSP package: the fixed LQG on the bent-elbow move, the scheduled one (three
 #: design points) on the example's move, where the elbow passes the straight arm.
 SSP_CASES = {"fixed 60/-30": ([60.0, -30.0], 0), "scheduled 60/20": ([60.0, 20.0], 3)}
@@ -303,9 +297,10 @@ SSP_CASES = {"fixed 60/-30": ([60.0, -30.0], 0), "scheduled 60/20": ([60.0, 20.0
 def test_libcosim_runs_the_accelerometer_package_as_fmpy(case, tmp_path, example_fmu):
     """The SSP package with the accelerometer's controller (predictive, for libcosim's one sample of delay; the
     measurement predicted by the generated sensor model), over a full manoeuvre and 0.5 s of settling: libcosim's
-    run equals, to 1e-9, fmpy stepping the package's own two FMUs as the Jacobi master does (the controller's
-    initial torque on the plant while it initialises, then the torque output a sample before), and both settle
-    on the targets; the Python law (its sums in numpy's order) gives the same joint angles to 1e-6 deg."""
+    run equals, to 1e-9, fmpy stepping the package's own two FMUs as the Jacobi master does (:class:`JacobiLoop`:
+    the controller's initial torque on the plant while it initialises, libcosim's nanosecond time grid, then the
+    torque output a sample before; measured bit for bit), and both settle on the targets; the Python law (its
+    sums in numpy's order) gives the same joint angles to 1e-6 deg."""
     import zipfile
 
     from controllers.schedule import design_schedule
@@ -345,8 +340,7 @@ def test_libcosim_runs_the_accelerometer_package_as_fmpy(case, tmp_path, example
     for name in sensors + RECORD:                              # after step k: t_1 … t_n
         x = np.asarray(run.values[f"{PLANT}:{name}"])
         worst[name] = float(np.max(np.abs(x - fm[name][1:])))
-        # the accelerometers read the torque, which carries the sensor function's rounding floor (docs/control.md)
-        bound[name] = (ACCEL_FLOOR if ".s" in name else 1e-9) * max(1.0, float(np.max(np.abs(fm[name]))))
+        bound[name] = 1e-9 * max(1.0, float(np.max(np.abs(fm[name]))))
     for u in torques:                                          # output after step k: applied over [t_k, t_k+1]
         x = np.asarray(run.values[f"{CONTROLLER}:{u}"])
         worst[u] = float(np.max(np.abs(x[:-1] - fm[u][1:-1])))
