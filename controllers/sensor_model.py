@@ -28,7 +28,7 @@ import numpy as np
 if TYPE_CHECKING:
     from flexlink.run.linearize import LinearPlant
 
-__all__ = ["SENSOR_FUNCTION", "SensorSource", "sensor_model", "write_sensor_source"]
+__all__ = ["SENSOR_FUNCTION", "SensorSource", "sensor_model", "sensor_outputs", "write_sensor_source"]
 
 #: The generated function's (and its C file's) name in the controller FMU.
 SENSOR_FUNCTION = "ctrl_sensors"
@@ -59,24 +59,32 @@ def sensor_model(plant: LinearPlant, sensors: list[str], inputs: list[int]) -> c
     if key in plant.cache:
         return plant.cache[key]
     model = plant.model
-    names = [s.name for s in model.outputs]
-    rows = [names.index(s) for s in sensors]
-    n = model.n_q
-    res, out = model.residual.expand(), model.outputs_function.expand()
-    q, v, a = ca.SX.sym("q", n), ca.SX.sym("v", n), ca.SX.sym("a", n)
     tau = ca.SX.sym("u", len(inputs))
     fmu = [k for k, s in enumerate(model.inputs) if s.fmu_variable]
     u = ca.SX(ca.DM(np.asarray(plant.op.u, dtype=float)))
     for j, i in enumerate(inputs):
         u[fmu[i]] = tau[j]
-    p = ca.DM(np.asarray(plant.op.p, dtype=float))
+    x, y = sensor_outputs(model, sensors, u, ca.DM(np.asarray(plant.op.p, dtype=float)))
+    f = ca.Function(SENSOR_FUNCTION, [x, tau], [y], ["x", "u"], ["y"])
+    plant.cache[key] = f
+    return f
+
+
+def sensor_outputs(model, sensors: list[str], u: ca.SX, p: ca.SX | ca.DM) -> tuple[ca.SX, ca.SX]:
+    """The state symbol ``x = (q, v)`` and the named outputs of ``model`` at ``x``, ``u``, ``p`` (SX).
+
+    The acceleration is the model's own, ``a = −M⁻¹ r(q, v, 0, u, p)`` with ``M = ∂r/∂a`` (the residual is
+    affine in ``a``): what the FMU's outputs read.
+    """
+    names = [s.name for s in model.outputs]
+    rows = [names.index(s) for s in sensors]
+    n = model.n_q
+    res, out = model.residual.expand(), model.outputs_function.expand()
+    q, v, a = ca.SX.sym("q", n), ca.SX.sym("v", n), ca.SX.sym("a", n)
     r = res(q, v, a, u, p)
     zero = ca.SX.zeros(n)
     acc = -ca.solve(ca.substitute(ca.jacobian(r, a), a, zero), ca.substitute(r, a, zero))
-    y = out(q, v, acc, u, p)[rows]
-    f = ca.Function(SENSOR_FUNCTION, [ca.vertcat(q, v), tau], [y], ["x", "u"], ["y"])
-    plant.cache[key] = f
-    return f
+    return ca.vertcat(q, v), out(q, v, acc, u, p)[rows]
 
 
 @dataclass
