@@ -18,6 +18,7 @@ One module per concern (python-control's layout):
 ``manoeuvre``          design everything on one plant; rest-to-rest runs and their figures
 ``multijoint``         every joint's rest-to-rest run: inverse-dynamics feedforward, MIMO LQG against joint PD
 ``integral``           integral action on the joint positions: the augmented sampled LQR, its law, margins
+``sensor_model``       the model's sensor outputs as the estimator's measurement prediction (CasADi, and its C)
 ``plots``              time responses, closed-loop poles, loop Bode with margins
 ``cli``, ``demo``      ``flexlink control`` / ``flexlink linearize``; the README's control job
 =====================  ===================================================================================

@@ -16,10 +16,13 @@ same communication point, and the importer's order of stepping decides the delay
 ``reference`` the FMU also plays a manoeuvre's reference and feedforward itself (its reference inputs then
 add to it): a plant and this controller alone make the closed loop (:mod:`controllers.ssp`).
 
-With the tip accelerometer the law reads its sensors along the reference (the expected measurement, C_k,
-D_k, the plant sampled along it A_k, B_k and the time-varying Kalman gain M_k per sample:
+With the tip accelerometer the law reads its sensors along the reference (the plant sampled along it A_k,
+B_k and the time-varying Kalman gain M_k per sample, and the expected measurement: the model's sensor
+outputs at the estimate, or with ``prediction="linear"`` their linearisation h(x_ref,k), C_k, D_k:
 :class:`controllers.multijoint.MimoLQGLaw`); the FMU then plays its manoeuvre and carries those as tables
-(:func:`_along_data`), each up to its last change, its last row held after it.
+(:func:`_along_data`), each up to its last change, its last row held after it, and the model's sensor
+function as C that CasADi generates (``ctrl_sensors.c``, :mod:`controllers.sensor_model`) beside the
+generic ``ctrl_fmu.c``.  Such a controller has no reference inputs: its tables hold for its own reference.
 
 :class:`FmuLaw` drives such an FMU as a law of :class:`controllers.cosim.FmuLoop`: the plant FMU and the
 controller FMU stepped side by side by fmpy, the controller first.
@@ -113,28 +116,34 @@ def _along_data(law: MimoLQGLaw) -> str:
     u_ff,k−1)`` (``YREF``), its rows ``C_k``, ``D_k`` (``CKT``, ``DKT``), the feedforward held while it is sampled
     (``UFP``), the plant sampled along the reference ``A_k``, ``B_k`` (``AKT``, ``BKT``) — ``NALONG`` rows, the
     rest at the targets after them — and the time-varying Kalman gain ``M_k`` (``MKT``, ``NGAIN`` rows).  Empty
-    when the law reads its sensors as at rest.
+    when the law reads its sensors as at rest.  With the model's own sensor function (``law.h``, the default
+    prediction) the expected measurement is computed by the generated ``ctrl_sensors.c`` instead of ``YREF``,
+    ``CKT``, ``DKT`` and ``UFP``.
     """
     sc, al = law.schedule, law.along
     if sc is None or al is None:
-        return "#define NALONG 0\n"
-    tables = {"YREF": sc.y_ref, "CKT": sc.C, "DKT": sc.D, "UFP": sc.u_ff_prev, "AKT": al.A, "BKT": al.B}
+        return "#define NALONG 0\n#define REF_INPUTS 1\n"
+    tables = {"AKT": al.A, "BKT": al.B}
+    if law.h is None:                  # the linear measurement model; else the generated sensor function
+        tables.update({"YREF": sc.y_ref, "CKT": sc.C, "DKT": sc.D, "UFP": sc.u_ff_prev})
     n = max(len(_rows(a)) for a in tables.values())
     gain = _rows(al.M)
-    out = f"#define NALONG {n}\n#define NGAIN {len(gain)}\n" + _c_array("MKT", gain)
+    out = f"#define NALONG {n}\n#define NGAIN {len(gain)}\n#define REF_INPUTS 0\n" + _c_array("MKT", gain)
     for name, a in tables.items():
         out += _c_array(name, np.reshape(np.asarray(a, dtype=float), (len(a), -1))[:n])
     return out
 
 
 def along_law(d: ControlDesign, reference: Reference, limits: Sequence[float] | np.ndarray,
-              schedule: Schedule | None = None) -> MimoLQGLaw:
+              schedule: Schedule | None = None, prediction: str = "model") -> MimoLQGLaw:
     """The Python law a controller FMU playing ``reference`` runs (:class:`MimoLQGLaw` or the scheduled one)."""
     from controllers.multijoint import MimoLQGLaw
     from controllers.schedule import ScheduledLQGLaw
 
     lim = [float(v) for v in np.asarray(limits, dtype=float)]
-    return MimoLQGLaw(d, lim, reference) if schedule is None else ScheduledLQGLaw(schedule, lim, reference)
+    if schedule is None:
+        return MimoLQGLaw(d, lim, reference, prediction)
+    return ScheduledLQGLaw(schedule, lim, reference, prediction)
 
 
 def reference_tables(d: ControlDesign, reference: Reference, limits: Sequence[float] | np.ndarray,
@@ -177,23 +186,30 @@ def reads_along(d: ControlDesign) -> bool:
     return bool(np.any(d.kalman.D != 0)) or any(not s.endswith((".theta", ".root.moment")) for s in d.kalman.sensors)
 
 
-def _variables(d: ControlDesign) -> list[tuple[str, str, str, str]]:
-    """(name, causality, description, start) of every variable, in value-reference order."""
+def _variables(d: ControlDesign, reference_inputs: bool = True) -> list[tuple[str, str, str, str]]:
+    """(name, causality, description, start) of every variable, in value-reference order.
+
+    ``reference_inputs=False``: no ``x_ref``, ``u_ff``, ``w`` inputs (a controller that reads its sensors along
+    its built-in reference: its tables and measurement model hold for that reference only).
+    """
     p, kf = d.plant, d.kalman
     y0 = p.y0[[p.output_row(s) for s in kf.sensors]]
     out = [(s, "input", f"sensor {s} (absolute)", f"{v:.17g}") for s, v in zip(kf.sensors, y0, strict=True)]
-    out += [(f"x_ref[{i}]", "input", f"reference of {s} (deviation from the operating point)", "0")
-            for i, s in enumerate(p.states)]
-    out += [(f"u_ff[{j}]", "input", f"feedforward {u} (deviation)", "0") for j, u in enumerate(d.lqr.inputs)]
-    out += [(f"w[{i}]", "input", f"reference's step in the prediction of {s} (0 along a plant trajectory)", "0")
-            for i, s in enumerate(p.states)]
+    if reference_inputs:
+        out += [(f"x_ref[{i}]", "input", f"reference of {s} (deviation from the operating point)", "0")
+                for i, s in enumerate(p.states)]
+        out += [(f"u_ff[{j}]", "input", f"feedforward {u} (deviation)", "0") for j, u in enumerate(d.lqr.inputs)]
+        out += [(f"w[{i}]", "input", f"reference's step in the prediction of {s} (0 along a plant trajectory)", "0")
+                for i, s in enumerate(p.states)]
     out += [(u, "output", f"torque {u} (absolute, saturated)", "") for u in d.lqr.inputs]
     return out
 
 
-def _model_description(d: ControlDesign, ident: str, guid: str) -> str:
-    vs = _variables(d)
+def _model_description(d: ControlDesign, ident: str, guid: str, sources: Sequence[str] = ("ctrl_fmu.c",),
+                       reference_inputs: bool = True) -> str:
+    vs = _variables(d, reference_inputs)
     nu = len(d.lqr.inputs)
+    files = "".join(f'<File name="{escape(f)}"/>' for f in sources)
     lines = []
     for vr, (name, caus, desc, start) in enumerate(vs):
         if caus == "input":
@@ -214,7 +230,7 @@ def _model_description(d: ControlDesign, ident: str, guid: str) -> str:
   <CoSimulation modelIdentifier="{escape(ident)}" canHandleVariableCommunicationStepSize="false"
     canInterpolateInputs="false" canBeInstantiatedOnlyOncePerProcess="false" canNotUseMemoryManagementFunctions="false"
     canGetAndSetFMUstate="false" canSerializeFMUstate="false" providesDirectionalDerivative="false">
-    <SourceFiles><File name="ctrl_fmu.c"/></SourceFiles>
+    <SourceFiles>{files}</SourceFiles>
   </CoSimulation>
   <DefaultExperiment startTime="0" stepSize="{d.dt:.17g}"/>
   <ModelVariables>
@@ -234,7 +250,8 @@ def _model_description(d: ControlDesign, ident: str, guid: str) -> str:
 
 def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits: Sequence[float] | None = None,
                           identifier: str | None = None, reference: Reference | None = None, delay: int = 0,
-                          schedule: Schedule | None = None, duration: float | None = None) -> Path:
+                          schedule: Schedule | None = None, duration: float | None = None,
+                          prediction: str = "model") -> Path:
     """Write the design's sampled LQG (:class:`controllers.multijoint.MimoLQGLaw`) as an FMI 2.0 CS FMU.
 
     ``limits``: the torque saturation per actuated joint (default: the design's torque limits).  The sensors
@@ -245,6 +262,9 @@ def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits
     (Jacobi; :class:`controllers.ssp.PredictiveLQGLaw`).  ``schedule`` (a
     :class:`controllers.schedule.Schedule` whose first design is ``d``) with the manoeuvre's ``duration``:
     the matrices of :class:`controllers.schedule.ScheduledLQGLaw`, switched along the path in the C.
+    ``prediction``: how the accelerometer's law predicts its measurements (:class:`MimoLQGLaw`): ``"model"``,
+    the model's sensor outputs at the estimate, generated as C by CasADi (``ctrl_sensors.c``:
+    :mod:`controllers.sensor_model`), or ``"linear"``, their linearisation along the reference as tables.
     """
     from flexlink.export.cbuild import compile_shared_library, fmi_headers_dir
 
@@ -265,27 +285,34 @@ def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits
         raise DesignError("a scheduled controller FMU needs the schedule of this design and the manoeuvre time")
     if delay not in (0, 1):
         raise DesignError(f"delay: 0 or 1 sample, got {delay}")
-    tables, along = None, "#define NALONG 0\n"
+    tables, along, law = None, "#define NALONG 0\n#define REF_INPUTS 1\n", None
     if reference is not None:
         if abs(reference.dt - d.dt) > 1e-12 * d.dt:
             raise DesignError(f"the reference samples at {reference.dt} s, the controller at {d.dt} s")
-        law = along_law(d, reference, lim, schedule)
+        law = along_law(d, reference, lim, schedule, prediction)
         tables = (reference.x, reference.u_ff, law.W if law.along is None else law.along.W)
         along = _along_data(law)
     data = _data(d, lim, "{GUID}", tables, delay) + along
     if schedule is not None and duration is not None:
         data += _schedule_data(schedule, duration)
-    guid = hashlib.sha256(data.encode()).hexdigest()[:32]
-    guid = f"{{{guid[:8]}-{guid[8:12]}-{guid[12:16]}-{guid[16:20]}-{guid[20:32]}}}"
     with tempfile.TemporaryDirectory(prefix="flexlink-ctrl-") as tmp:
         root = Path(tmp)
         src = root / "sources"
         src.mkdir()
+        sources = [src / "ctrl_fmu.c"]
+        if law is not None and law.h is not None:
+            from controllers.sensor_model import write_sensor_source
+
+            gen = write_sensor_source(law.h, src, d.plant.model.scene.name, law.sensors)
+            data += gen.defines() + _c_array("X0", d.plant.x0)
+            sources.append(gen.source)
+        guid = hashlib.sha256("".join([data, *(f.read_text() for f in sources[1:])]).encode()).hexdigest()[:32]
+        guid = f"{{{guid[:8]}-{guid[8:12]}-{guid[12:16]}-{guid[16:20]}-{guid[20:32]}}}"
         shutil.copy(C_SOURCE, src / "ctrl_fmu.c")
         (src / "ctrl_data.h").write_text(data.replace('"{GUID}"', f'"{guid}"', 1))
-        (root / "modelDescription.xml").write_text(_model_description(d, ident, guid))
-        compile_shared_library([src / "ctrl_fmu.c"], [src, fmi_headers_dir()],
-                               root / "binaries" / "linux64" / f"{ident}.so")
+        (root / "modelDescription.xml").write_text(_model_description(d, ident, guid, [f.name for f in sources],
+                                                                      "REF_INPUTS 1" in data))
+        compile_shared_library(sources, [src, fmi_headers_dir()], root / "binaries" / "linux64" / f"{ident}.so")
         path.parent.mkdir(parents=True, exist_ok=True)
         try:
             with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
@@ -319,7 +346,8 @@ class FmuLaw:
         names = [v.name for v in vs if v.causality == "input"]
         self.inputs = [v.name for v in vs if v.causality == "output"]
         n_in, nx = len(names), sum(n.startswith("x_ref[") for n in names)
-        self.sensors = names[: n_in - 2 * nx - len(self.inputs)]
+        # without reference inputs (a controller reading its sensors along its own reference) all are sensors
+        self.sensors = names[: n_in - 2 * nx - len(self.inputs)] if nx else names
         self.builtin = builtin
         if W is None and not builtin:
             self.host.close()
@@ -349,7 +377,7 @@ class FmuLaw:
 
         ny, nx = len(self.sensors), len(x_ref)
         self.in_[:ny] = y
-        if not self.builtin:
+        if not self.builtin and len(self.in_) > ny:
             self.in_[ny:ny + nx] = x_ref
             self.in_[ny + nx:ny + nx + len(self.inputs)] = u_ff
             self.in_[ny + nx + len(self.inputs):] = self.W[self.k]

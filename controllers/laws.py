@@ -80,20 +80,12 @@ def _sensor_function(plant: LinearPlant, sensors: list[str], inputs: tuple[int, 
         return plant.cache[key]
     import casadi as ca
 
+    from controllers.sensor_model import sensor_outputs
+
     model = plant.model
-    names = [s.name for s in model.outputs]
-    rows = [names.index(s) for s in sensors]
-    n = model.n_q
-    res, out = model.residual.expand(), model.outputs_function.expand()
-    q, v, a = ca.SX.sym("q", n), ca.SX.sym("v", n), ca.SX.sym("a", n)
-    u = ca.SX.sym("u", res.size1_in(3))
-    p = ca.SX.sym("p", res.size1_in(4))
-    r = res(q, v, a, u, p)
-    zero = ca.SX.zeros(n)
-    M = ca.substitute(ca.jacobian(r, a), a, zero)
-    acc = -ca.solve(M, ca.substitute(r, a, zero))
-    y = out(q, v, acc, u, p)[rows]
-    x = ca.vertcat(q, v)
+    u = ca.SX.sym("u", model.residual.size1_in(3))
+    p = ca.SX.sym("p", model.residual.size1_in(4))
+    x, y = sensor_outputs(model, sensors, u, p)
     cols = [k for k, s in enumerate(model.inputs) if s.fmu_variable]
     Cx, Du = ca.jacobian(y, x), ca.jacobian(y, u)[:, [cols[i] for i in inputs]]
     xu = ca.vertcat(x, u)

@@ -19,9 +19,13 @@ Both laws see deviations from that reference:
   model's output at the reference state, acceleration and held feedforward torque, ``h(x_ref,k, u_ff,k−1)
   + C_k δx + D_k (u_{k−1} − u_ff,k−1)``, sampled at t_k while the previous torque is held; the estimator
   then predicts with the plant sampled along the reference and the time-varying Kalman gain
-  (:func:`estimator_along`).  Without saturation, with encoders and strain gauges, it is
-  :func:`controllers.robustness.lqg_compensator`, whose loop-at-a-time margins ``flexlink control
-  --design-only`` reports.
+  (:func:`estimator_along`).  Those gains are designed on that linearisation, but the measurement each
+  sample expects is, by default, the model's own sensor outputs at the prior estimate and the held torque,
+  ``h(x̂_k|k−1, u_{k−1})`` (:mod:`controllers.sensor_model`): the measurement update of an extended Kalman
+  filter with the designed (linearised) gains.  The linear form misses the accelerometers' centripetal and
+  Coriolis terms, quadratic in the rates, and the torques chattered after a manoeuvre (docs/control.md).
+  Without saturation, with encoders and strain gauges, it is :func:`controllers.robustness.lqg_compensator`,
+  whose loop-at-a-time margins ``flexlink control --design-only`` reports.
 * :class:`JointPDLaw` — one PD per joint on its encoder and rate, the same feedforward, each joint's
   rigid-body pair at the LQR's slowest pair (locked-arm inertia ``M_jj``); its torque limit is the LQG run's
   peak torque of that joint (:func:`compare`), so it never uses more torque than the LQG did.
@@ -40,10 +44,14 @@ from controllers.cosim import FmuLoop
 from controllers.trajectory import Reference, quintic
 from flexlink.errors import FlexlinkError
 
-__all__ = ["ACCELEROMETER", "EstimatorAlong", "JointPDLaw", "MimoLQGLaw", "compare", "compare_laws",
+__all__ = ["ACCELEROMETER", "PREDICTIONS", "EstimatorAlong", "JointPDLaw", "MimoLQGLaw", "compare", "compare_laws",
            "default_torque_limit", "estimator_along", "inverse_dynamics_reference", "joint_pd_gains",
            "kalman_gains_along", "plan", "run", "sensor_noise"]
 
+
+#: How :class:`MimoLQGLaw` predicts a sensor that is not affine in the state: the model's outputs at the estimate
+#: (EKF-style, the default) or their linearisation along the reference.
+PREDICTIONS = ("model", "linear")
 
 #: The last tip's accelerometer outputs (:func:`controllers.design.sensor_set`), read along the reference; a
 #: link's own, ``<link>.tip.sx`` …, are read the same way (:func:`controllers.design.is_link_accelerometer`).
@@ -237,10 +245,13 @@ class MimoLQGLaw:
 
     kind = "lqr"
 
-    def __init__(self, d, limits: Sequence[float], reference: Reference):
+    def __init__(self, d, limits: Sequence[float], reference: Reference, prediction: str = "model"):
         from controllers.design import torque_inputs
         from controllers.laws import measurement_schedule
+        from controllers.sensor_model import sensor_model
 
+        if prediction not in PREDICTIONS:
+            raise FlexlinkError(f"prediction: one of {', '.join(PREDICTIONS)}, got {prediction!r}")
         p = d.plant
         cols = torque_inputs(p)
         self.dt, self.sensors, self.inputs = d.dt, list(d.kalman.sensors), list(d.lqr.inputs)
@@ -254,6 +265,10 @@ class MimoLQGLaw:
         # sensors not affine in the state (the tip accelerometer): read along the reference, as LQGLaw.follow
         self.schedule = measurement_schedule(p, self.sensors, reference, cols)
         self.along = None if self.schedule is None else estimator_along(d, reference, self.schedule.C)
+        # such sensors are predicted by the model itself at the estimate (EKF-style), unless told "linear"
+        self.prediction = "linear" if self.schedule is None else prediction
+        self.x0 = p.x0
+        self.h = sensor_model(p, self.sensors, cols) if self.prediction == "model" else None
         self.reset()
 
     def reset(self) -> None:
@@ -269,14 +284,26 @@ class MimoLQGLaw:
     def predicted(self, x_ref: np.ndarray, C: np.ndarray) -> np.ndarray:
         """The measurement ``ŷ_k`` the estimator expects at sample ``k`` from its prior deviation estimate.
 
-        Sensors linear in the state: ``y₀ + C (x_ref + δẑ)``.  With a measurement schedule (a sensor with
-        feedthrough, sampled at t_k while the previous torque u_{k−1} is held: :mod:`controllers.laws`):
-        ``h(x_ref,k, u_ff,k−1) + C_k δẑ + D_k (u_{k−1} − u_ff,k−1)``, the sensors linearised along the reference.
+        Sensors linear in the state: ``y₀ + C (x_ref + δẑ)``.  With a sensor that is not (the accelerometer,
+        with feedthrough, sampled at t_k while the previous torque u_{k−1} is held: :mod:`controllers.laws`):
+        ``prediction="model"`` (the default), the model's own outputs at the prior estimate and the held torque,
+        ``h(x₀ + x_ref,k + δẑ, u₀ + u_{k−1})`` (:mod:`controllers.sensor_model`: an extended Kalman filter's
+        measurement prediction); ``"linear"``, the sensors linearised along the reference, ``h(x_ref,k,
+        u_ff,k−1) + C_k δẑ + D_k (u_{k−1} − u_ff,k−1)``.
         """
+        if self.h is not None:
+            return np.asarray(self.h.call([self.x0 + x_ref + self.dz, self.u0 + self.u_prev])[0], dtype=float).ravel()
         sc, k = self.schedule, self.k
         if sc is not None and k < len(sc.y_ref):
             return sc.y_ref[k] + sc.C[k] @ self.dz + sc.D[k] @ (self.u_prev - sc.u_ff_prev[k])
         return self.y0 + C @ (x_ref + self.dz) + self.D @ self.u_prev
+
+    def finite(self, dx: np.ndarray) -> np.ndarray:
+        """``dx``, or a FlexlinkError when the estimate is not finite (diverged: the controller FMU refuses too)."""
+        if not np.all(np.isfinite(dx)):
+            raise FlexlinkError(f"the LQG's estimate is not finite at sample {self.k} (t = {self.k * self.dt:.6g} s): "
+                                "it diverged")
+        return dx
 
     def step(self, y, x_ref, u_ff) -> np.ndarray:
         """One sample: correct the estimate with ``y``, the saturated torques, then predict the next sample."""
@@ -285,9 +312,9 @@ class MimoLQGLaw:
         if self.along is not None and self.k < len(self.along.M):
             al = self.along
             M, Ad, Bd, W = al.M[self.k], al.A[self.k], al.B[self.k], al.W
-        dx = self.dz + M @ (y - self.predicted(x_ref, C))
+        dx = self.finite(self.dz + M @ (y - self.predicted(x_ref, C)))
         u = np.clip(self.u0 + u_ff - K @ dx, -self.limits, self.limits)
-        self.dz = Ad @ dx + Bd @ (u - self.u0 - u_ff) - W[self.k]
+        self.dz = self.finite(Ad @ dx + Bd @ (u - self.u0 - u_ff) - W[self.k])
         self.u_prev = u - self.u0
         self.k += 1
         return u

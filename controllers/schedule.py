@@ -143,8 +143,8 @@ class ScheduledLQGLaw(MimoLQGLaw):
 
     kind = "scheduled"
 
-    def __init__(self, schedule: Schedule, limits: Sequence[float], reference: Reference):
-        super().__init__(schedule.designs[0], limits, reference)
+    def __init__(self, schedule: Schedule, limits: Sequence[float], reference: Reference, prediction: str = "model"):
+        super().__init__(schedule.designs[0], limits, reference, prediction)
         sigma = path_fraction(reference)
         self._at = [schedule.matrices(float(s)) for s in sigma]
         _, _, _, Ad, Bd = self._at[-1]                 # after the manoeuvre: the target's design

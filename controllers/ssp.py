@@ -175,14 +175,23 @@ class JacobiDelay:
 
 
 class JacobiLoop(FmuLoop):
-    """:class:`controllers.cosim.FmuLoop` initialised as a Jacobi master initialises a connected system.
+    """:class:`controllers.cosim.FmuLoop` stepping the plant as libcosim's Jacobi master steps a connected system.
 
-    libcosim's fixed-step algorithm transfers the controller's initial output to the plant's inputs while
-    it initialises (``fixed_step_algorithm::initialize``: each simulator's ``setup``, iterations of
-    transfers, ``start_simulation``), so the plant's outputs at t_0 are read with that torque applied.  A
-    sensor with feedthrough (the tip accelerometer) sees it; here the plant's torque inputs are set to a
-    :class:`JacobiDelay` law's ``u_init`` after initialisation, before y_0 is read.
+    Two things of libcosim's fixed-step algorithm, so that the two masters' runs agree bit for bit:
+
+    * It transfers the controller's initial output to the plant's inputs while it initialises
+      (``fixed_step_algorithm::initialize``: each simulator's ``setup``, iterations of transfers,
+      ``start_simulation``), so the plant leaves initialisation with that torque applied (its outputs at t_0,
+      and the start of its integrator, see it; the tip accelerometer reads it).  Here the plant's torque
+      inputs are set to a :class:`JacobiDelay` law's ``u_init`` before its initialisation ends.
+    * Its time is integer nanoseconds: step k is ``fmi2DoStep(t_k, t_k+1 − t_k)`` with ``t_k = k Δ / 10⁹`` in
+      double (Δ the step in ns), not ``(k h, h)``.  The plant's integrator sees the step size's last bits, and
+      the accelerometer LQG's loop carries such differences on (docs/control.md), so this loop steps the plant
+      on that grid too.
     """
+
+    #: libcosim's time unit per second (``cosim::time_point`` counts nanoseconds)
+    TICKS = 1_000_000_000
 
     def run(self, law: JacobiDelay, reference: Reference, **kw: Any) -> LoopResult:  # type: ignore[override]
         """:meth:`FmuLoop.run` with the torque ``law.u_init`` on the plant before the first sample."""
@@ -191,9 +200,19 @@ class JacobiLoop(FmuLoop):
         return super().run(stepped, reference, **kw)
 
     def _initialise(self, params: Mapping[str, float]) -> None:
-        super()._initialise(params)
-        names, values = self._held
-        self.slave.setReal([self.vr(n) for n in names], [float(v) for v in values])
+        names, values = self._held          # set before initialisation ends: the plant starts with it applied
+        super()._initialise({**params, **{n: float(v) for n, v in zip(names, values, strict=True)}})
+        s = self.slave
+        if getattr(s, "_jacobi_raw_step", None) is None:    # once per instance: the loop fetches it each run
+            s._jacobi_raw_step = s.fmi2DoStep
+            s.fmi2DoStep = self._libcosim_step
+
+    def _libcosim_step(self, component: Any, t: float, h: float, no_set_prior: int) -> int:
+        """``fmi2DoStep`` of sample ``k = t / h`` on libcosim's nanosecond grid (class docstring)."""
+        ticks = int(h * self.TICKS)                 # cosim::to_duration: truncated to whole nanoseconds
+        k = round(t / h)
+        t0, t1 = (k * ticks) / self.TICKS, ((k + 1) * ticks) / self.TICKS
+        return self.slave._jacobi_raw_step(component, t0, t1 - t0, no_set_prior)
 
 
 class PredictiveLQGLaw(MimoLQGLaw):
@@ -205,9 +224,9 @@ class PredictiveLQGLaw(MimoLQGLaw):
     ``sat(u₀ + u_ff,k+1 − K_d ẑ_k+1)``.  ``initial()``: the torque before the first sample, u₀ + u_ff,0.
     """
 
-    def __init__(self, d: ControlDesign, limits: Sequence[float], reference: Reference):
+    def __init__(self, d: ControlDesign, limits: Sequence[float], reference: Reference, prediction: str = "model"):
         self.u_ff = reference.u_ff
-        super().__init__(d, limits, reference)
+        super().__init__(d, limits, reference, prediction)
 
     def initial(self) -> np.ndarray:
         """The torque before the first sample: u₀ + u_ff,0, saturated (the FMU's output before its first step)."""
@@ -227,17 +246,17 @@ class PredictiveLQGLaw(MimoLQGLaw):
         """Sample k: correct and predict with sample k's matrices, return sample k+1's torque (its gain).
 
         With the tip accelerometer the correction and prediction are :class:`MimoLQGLaw`'s along the reference
-        (its measurement model with the torque held while y_k was sampled, the plant and Kalman gain sampled
-        along the reference).
+        (its measurement model — the model's outputs at the estimate — with the torque held while y_k was
+        sampled, the plant and Kalman gain sampled along the reference).
         """
         M, C, _, Ad, Bd = self.matrices(self.k)
         W = self.W
         if self.along is not None and self.k < len(self.along.M):
             M, Ad, Bd, W = self.along.M[self.k], self.along.A[self.k], self.along.B[self.k], self.along.W
-            dx = self.dz + M @ (y - self.predicted(x_ref, C))
+            dx = self.finite(self.dz + M @ (y - self.predicted(x_ref, C)))
         else:
             dx = self.dz + M @ (y - self.y0 - C @ (x_ref + self.dz))
-        self.dz = Ad @ dx + Bd @ (self.v - self.u0 - u_ff) - W[min(self.k, len(W) - 1)]
+        self.dz = self.finite(Ad @ dx + Bd @ (self.v - self.u0 - u_ff) - W[min(self.k, len(W) - 1)])
         self.u_prev = self.v - self.u0              # held while y_k+1 is sampled
         self.k += 1
         nxt = min(self.k, len(self.u_ff) - 1)
@@ -256,11 +275,11 @@ class ScheduledPredictiveLQGLaw(PredictiveLQGLaw):
 
     kind = "scheduled"
 
-    def __init__(self, schedule: Schedule, limits: Sequence[float], reference: Reference):
+    def __init__(self, schedule: Schedule, limits: Sequence[float], reference: Reference, prediction: str = "model"):
         from controllers.schedule import ScheduledLQGLaw
 
-        self.scheduled = ScheduledLQGLaw(schedule, limits, reference)
-        super().__init__(schedule.designs[0], limits, reference)
+        self.scheduled = ScheduledLQGLaw(schedule, limits, reference, prediction)
+        super().__init__(schedule.designs[0], limits, reference, prediction)
         self.W = self.scheduled.W
 
     def matrices(self, k: int) -> tuple[np.ndarray, ...]:
