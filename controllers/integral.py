@@ -31,7 +31,8 @@ from typing import Any
 import control as ct
 import numpy as np
 
-from controllers.design import RICCATI, DesignError, torque_inputs
+from controllers import riccati
+from controllers.design import DesignError, torque_inputs
 from controllers.multijoint import MimoLQGLaw
 from controllers.robustness import loop_at_a_time, lqg_plant
 from controllers.trajectory import Reference
@@ -93,7 +94,7 @@ def design_integral(d, integral_time: float | Mapping[str, float] = 0.5) -> Inte
     qi = [1.0 / (d.lqr.limits[e] * ti[j]) ** 2 for j, e in zip(joints, encoders, strict=True)]
     Qa = np.block([[np.asarray(d.lqr.Q), np.zeros((n, m))], [np.zeros((m, n)), np.diag(qi)]])
     try:
-        K, _, E = ct.dlqr(Aa, Ba, Qa, np.asarray(d.lqr.R), method=RICCATI)
+        K, _, E = riccati.dlqr(Aa, Ba, Qa, np.asarray(d.lqr.R))
     except (ValueError, np.linalg.LinAlgError) as e:
         raise DesignError(f"integral action: the augmented Riccati equation has no stabilising solution "
                           f"({' '.join(str(e).split())})") from None
