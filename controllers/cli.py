@@ -802,7 +802,7 @@ def _report_design(args, d, targets=None) -> int:
 def _schedule_margins(args, d, targets) -> dict:
     """``--design-only --schedule N``: the schedule designed along the path (exported on request), its margins.
 
-    :func:`controllers.robustness.along_path` at the design points and three poses between each two, as a
+    :func:`controllers.schedule.along_path` at the design points and three poses between each two, as a
     scheduled run reports them.
     """
     from controllers.multijoint import check_multijoint
@@ -830,6 +830,6 @@ def _path_margins(d, schedule, pl, points: int) -> dict:
     """Both laws' margins frozen at the ``points`` design points and three poses between each two."""
     import numpy as np
 
-    from controllers.robustness import along_path
+    from controllers.schedule import along_path
 
     return along_path(d, schedule, pl, np.linspace(0.0, 1.0, 4 * points - 3).tolist())

@@ -219,7 +219,7 @@ def margins_text(rob: dict) -> str:
 
 
 def path_margins_text(along: dict) -> str:
-    """The worst margins along a scheduled path (:func:`controllers.robustness.along_path`), a few lines.
+    """The worst margins along a scheduled path (:func:`controllers.schedule.along_path`), a few lines.
 
     Per law (scheduled, fixed): whether every frozen pose holds (else where not), then per actuator the smallest
     gain margin, phase margin and disk margin over the stable poses, and the simultaneous disk margin and peak

@@ -32,18 +32,19 @@ import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import control as ct
 import numpy as np
 
 from controllers.design import DesignError, design_kalman, design_lqr, torque_inputs
 from controllers.multijoint import MimoLQGLaw, Plan, reference_step
-from controllers.robustness import compensator, lqg_plant
+from controllers.robustness import compensator, loop_at_a_time, lqg_plant, robustness_figures
 from controllers.trajectory import Reference
 from flexlink.run.linearize import linear_plant
 
-__all__ = ["Schedule", "ScheduledLQGLaw", "design_schedule", "frozen_radius", "model_at_pose", "path_fraction",
-           "redesign"]
+__all__ = ["Schedule", "ScheduledLQGLaw", "along_path", "design_schedule", "frozen_radius", "model_at_pose",
+           "path_fraction", "redesign", "worst_along_path"]
 
 
 def model_at_pose(model, pose: Mapping[str, float]):
@@ -205,3 +206,76 @@ def compare_schedule(d, schedule: Schedule, loop, pl: Plan, ref: Reference, **kw
             raise
         out["fixed"] = str(e)
     return out
+
+
+#: Worst case of each margin along a path: the smallest (gain, phase, disk margins; the gain reduction
+#: tolerated, a negative dB figure, is worst where it is closest to 0 dB) or the largest (peak sensitivity).
+_WORST = {"gain_margin_db": min, "gain_reduction_margin_db": max, "phase_margin_deg": min, "disk_margin": min,
+          "peak_sensitivity": max}
+
+
+def along_path(d, schedule, pl, samples: Sequence[float], n_points: int = 4000) -> dict[str, dict[str, Any]]:
+    """The sampled LQG's margins along a planned path, for the scheduled law and the fixed one.
+
+    At each path parameter σ in ``samples`` the arm is linearised at rest at that pose (the schedule's
+    frozen-pose plant, :func:`plant_at`) and each law is frozen there: the scheduled one
+    with the schedule's matrices interpolated at σ (:meth:`Schedule.matrices`, what
+    :class:`ScheduledLQGLaw` uses at that point of the path), the fixed one with the start
+    design's.  :func:`controllers.robustness.loop_at_a_time` of each loop gives the margins at each actuator,
+    the simultaneous disk margin, the peak sensitivity and the poles, whose largest modulus is the frozen-pose
+    spectral radius; the worst of each over the samples, and where, is :func:`worst_along_path`.  Frozen
+    poses: the moving arm's velocity terms are not in these loops (as in the schedule's design).
+
+    With sensors that read the torques (accelerometers) the run's estimator is the time-varying Kalman filter
+    along the reference (:func:`controllers.multijoint.estimator_along`), not these frozen-pose designs: each
+    law's entry then says so in ``note``.
+
+    Returns ``{"scheduled": {"points": [...], "worst": {...}, "note": str | None}, "fixed": {...}}``, JSON-ready
+    values (:func:`controllers.robustness.robustness_figures` per point, the poles left out).
+    """
+    fixed = (d.kalman.Md, d.kalman.C, d.lqr.Kd, np.asarray(d.lqr.plant_d.A), np.asarray(d.lqr.plant_d.B))
+    out: dict[str, list] = {"scheduled": [], "fixed": []}
+    for s in samples:
+        pose = {j: float(a + s * (b - a)) for j, a, b in zip(pl.joints, pl.angle_start, pl.target, strict=True)}
+        here = redesign(d, plant_at(d, pose))
+        P = lqg_plant(here.lqr, here.kalman)
+        D = here.kalman.D[:, torque_inputs(here.lqr.plant)]
+        where = {"sigma": float(s), "pose_deg": {j: math.degrees(v) for j, v in pose.items()}}
+        for name, (M, C, K, Ad, Bd) in (("scheduled", schedule.matrices(float(s))), ("fixed", fixed)):
+            loop = loop_at_a_time(P, compensator(Ad, Bd, K, M, C, D, d.dt), d.lqr.inputs, n_points)
+            fig = robustness_figures({"loop": loop})["loop"]
+            del fig["closed_loop_poles"]
+            out[name].append({**where, "spectral_radius": float(np.max(np.abs(loop["closed_loop_poles"]))), **fig})
+    note = None
+    if np.any(d.kalman.D[:, torque_inputs(d.lqr.plant)] != 0):
+        note = ("the sensors read the torques (accelerometers): the run's estimator follows the reference, and "
+                "these loops, with the designs' stationary estimators, are not the run's")
+    return {name: {"points": pts, "worst": worst_along_path(pts), "note": note} for name, pts in out.items()}
+
+
+def worst_along_path(points: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """The worst of each margin over the points of :func:`along_path`, with the σ and pose where it is.
+
+    ``stable`` is whether every frozen loop is; ``unstable_sigma`` lists where one is not.  The margins are
+    the worst over the stable points (an unstable loop has none: no perturbation is needed); an unbounded
+    margin (``None``) is never the worst.  Each entry is ``{"value", "sigma", "pose_deg"}``.
+    """
+    stable = [p for p in points if p["stable"]]
+
+    def worst(values, pick) -> dict[str, Any] | None:
+        found = [(v, p) for v, p in values if v is not None]
+        if not found:
+            return None
+        v, p = pick(found, key=lambda vp: vp[0])
+        return {"value": v, "sigma": p["sigma"], "pose_deg": p["pose_deg"]}
+
+    actuators = []
+    for i, a in enumerate(points[0]["actuators"]):
+        actuators.append({"input": a["input"], **{k: worst([(p["actuators"][i][k], p) for p in stable], pick)
+                                                  for k, pick in _WORST.items()}})
+    return {"stable": len(stable) == len(points),
+            "unstable_sigma": [p["sigma"] for p in points if not p["stable"]],
+            "spectral_radius": worst([(p["spectral_radius"], p) for p in points], max),
+            "peak_sensitivity": worst([(p["peak_sensitivity"], p) for p in stable], max),
+            "multiloop_disk_margin": worst([(p["multiloop"]["disk_margin"], p) for p in stable], min),
+            "actuators": actuators}

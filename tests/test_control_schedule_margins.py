@@ -1,4 +1,4 @@
-"""The margins of a scheduled LQG along its path (``controllers.robustness.along_path``, issue 16) on
+"""The margins of a scheduled LQG along its path (``controllers.schedule.along_path``, issue 16) on
 examples/two_link_payload.toml: shoulder 0 → 60°, elbow −20° → 90° in 1.5 s, three design points, the laws
 frozen at nine poses (the design points and three between each two).
 
@@ -30,8 +30,7 @@ from conftest import EXAMPLES, broken_loop_margins
 from controllers.cosim import FmuLoop
 from controllers.manoeuvre import design
 from controllers.multijoint import MimoLQGLaw, plan
-from controllers.robustness import along_path
-from controllers.schedule import design_schedule, redesign
+from controllers.schedule import along_path, design_schedule, redesign
 from controllers.trajectory import Reference
 from flexlink.errors import FlexlinkError
 from flexlink.mechanics.model import build_model
