@@ -92,6 +92,8 @@ static SS22Status step_matrix(SS22 *s, double dt, const double *alpha, const dou
     s->factorisations++;
     f->rate = -1.0;
     f->estimated = 0;
+    f->late = 0;
+    f->waste = 0.0;
     if (!all_finite(f->LU, N_Q * N_Q)) { f->valid = 0; return SS22_NOT_FINITE; }
     if (lu_factor(f->LU, N_Q, f->piv)) { f->valid = 0; return SS22_SINGULAR; }
     f->dt = dt; f->theta1 = s->theta1; f->theta2 = s->theta2;
@@ -120,6 +122,19 @@ static int predict(const SS22 *s, double dt, const double *alpha, double *a) {
     const double ratio = (dt + s->dt_last) / (s->dt_last + s->dt_before);
     for (int i = 0; i < N_Q; i++) a[i] = alpha[i] + ratio * (alpha[i] - s->alpha_before[i]);
     return 1;
+}
+
+/* A contraction rate measured with a matrix from an earlier step.  The ratio of its first two increments in a
+ * step (first) flatters it: the first increment is mostly the part of the correction that is linear in the
+ * acceleration (the stiff elastic modes: their K is constant), which any matrix of this step size solves
+ * exactly, and the matrix's own error shows from the second increment on (fast_two_link, a matrix 5000 steps
+ * old: 0.009, then 0.18, 0.18, 0.18; docs/integrator.md).  Such a ratio only raises a known rate (or gives the
+ * first one, for the floored one-increment rule), and ends no iteration on a matrix whose rate after a first
+ * increment (late) is not known yet. */
+static void record_rate(SS22Factor *f, double rate, int first) {
+    if (!first) { f->rate = rate; f->late = 1; }
+    else f->rate = f->rate >= 0.0 ? fmax(f->rate, rate) : rate;
+    f->estimated = 0;
 }
 #endif
 
@@ -151,6 +166,7 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
         int converged = 0;
         int fresh = -1;          /* increments made with a matrix evaluated in this step; -1: an older one */
         double previous = INFINITY;
+        int with_f = 0;          /* iterations made with the current matrix f */
         for (int it = 0; it < s->max_iterations; it++) {
             weighted_state(s, dt, q, v, a);
             if (model_residual(s->q_bar, s->v_bar, a, s->u_bar, p, s->r, work)) return SS22_MODEL_FAILED;
@@ -160,7 +176,9 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
                 /* first iteration: the matrix of an earlier step (simplified Newton across steps) */
                 if ((st = step_matrix(s, dt, a, p, work, it == 0, &f)) != SS22_OK) return st;
                 if (it > 0 || s->factorisations != used) fresh = 0;
+                with_f = 0;
             }
+            with_f++;
             for (int i = 0; i < N_Q; i++) delta[i] = -s->r[i];
             lu_solve(f->LU, N_Q, f->piv, delta);
             /* the increment's effect on the end-of-step rate, against the coordinate's nominal scale */
@@ -174,10 +192,7 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
             if (fresh >= 0) fresh++;
             if (!isfinite(err)) return SS22_NOT_FINITE;
             if (err <= s->tolerance) {
-                if (it > 0 && fresh < 0) {       /* two increments of a matrix from an earlier step */
-                    f->rate = err / previous;
-                    f->estimated = 0;
-                }
+                if (it > 0 && fresh < 0) record_rate(f, err / previous, it == 1);
                 converged = 1;
                 break;
             }
@@ -198,15 +213,18 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
             }
             const double rate = err / previous;
             previous = err;
-            if (fresh < 0) {     /* a fresh matrix's rate is Newton's own, not what it will show when older */
-                f->rate = rate;
-                f->estimated = 0;
-            }
+            /* an older matrix's first ratio is judged with its rate measured later in a step (record_rate) */
+            const int first = it == 1 && fresh < 0;
+            const double judged = !first ? rate : f->late ? fmax(rate, f->rate) : INFINITY;
+            /* a fresh matrix's rate is Newton's own, not what it will show when older */
+            if (fresh < 0) record_rate(f, rate, first);
             /* linear convergence at rate < 1: what is left is about rate/(1-rate) times this increment */
-            if (rate < 0.5 && rate / (1.0 - rate) * err <= s->tolerance) { converged = 1; break; }
+            if (judged < 0.5 && judged / (1.0 - judged) * err <= s->tolerance) { converged = 1; break; }
             /* at this rate an older matrix cannot reach the tolerance within the iterations left */
             const int too_slow = fresh < 0 && err * pow(rate, s->max_iterations - 1 - it) > s->tolerance;
-            if (rate <= 0.5 && !too_slow) {
+            /* an old matrix whose extra iterations have paid for a new one (ss22.h, SS22_REFRESH_COST) */
+            const int stale = fresh < 0 && f->waste >= SS22_REFRESH_COST;
+            if (rate <= 0.5 && !too_slow && !stale) {
                 fresh = -1;      /* contracting: judged as an older matrix from here on */
                 continue;
             }
@@ -216,9 +234,10 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
                 if (err <= SS22_ROUNDING_FACTOR * s->tolerance) { converged = 1; break; }
                 return SS22_NOT_CONVERGED;
             }
-            f = NULL;   /* simplified Newton: refresh the matrix when it contracts poorly or too slowly */
+            f = NULL;   /* simplified Newton: refresh the matrix when it contracts poorly, too slowly or stale */
         }
         if (!converged) return SS22_NOT_CONVERGED;
+        if (with_f > 2) f->waste += with_f - 2;
     }
 #endif
     for (int i = 0; i < N_Q; i++) {
