@@ -136,7 +136,7 @@ static const char *invalid_data(const FmuData *d) {
         return "solver history";
     for (int k = 0; k < SS22_CACHE; k++) {
         const SS22Factor *f = &d->ss22.cache[k];
-        if ((f->valid | f->late) & ~1) return "solver cache";
+        if (f->valid & ~1) return "solver cache";
         if (f->valid && !((f->rate == -1.0 || (f->rate >= 0.0 && isfinite(f->rate))) &&
                           f->estimated >= 0 && f->estimated <= SS22_RATE_MEASURE_EVERY && f->waste >= 0.0 && isfinite(f->waste)))
             return "solver cache";

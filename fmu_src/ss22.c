@@ -92,7 +92,6 @@ static SS22Status step_matrix(SS22 *s, double dt, const double *alpha, const dou
     s->factorisations++;
     f->rate = -1.0;
     f->estimated = 0;
-    f->late = 0;
     f->waste = 0.0;
     if (!all_finite(f->LU, N_Q * N_Q)) { f->valid = 0; return SS22_NOT_FINITE; }
     if (lu_factor(f->LU, N_Q, f->piv)) { f->valid = 0; return SS22_SINGULAR; }
@@ -124,17 +123,22 @@ static int predict(const SS22 *s, double dt, const double *alpha, double *a) {
     return 1;
 }
 
-/* A contraction rate measured with a matrix from an earlier step.  The ratio of its first two increments in a
- * step (first) flatters it: the first increment is mostly the part of the correction that is linear in the
- * acceleration (the stiff elastic modes: their K is constant), which any matrix of this step size solves
- * exactly, and the matrix's own error shows from the second increment on (fast_two_link, a matrix 5000 steps
- * old: 0.009, then 0.18, 0.18, 0.18; docs/integrator.md).  Such a ratio only raises a known rate (or gives the
- * first one, for the floored one-increment rule), and ends no iteration on a matrix whose rate after a first
- * increment (late) is not known yet. */
-static void record_rate(SS22Factor *f, double rate, int first) {
-    if (!first) { f->rate = rate; f->late = 1; }
-    else f->rate = f->rate >= 0.0 ? fmax(f->rate, rate) : rate;
+/* The kept contraction rate of a matrix from an earlier step, given the ratio of two successive increments
+ * (rate) and whether it is one that only raises the kept rate (raise_only).  A ratio of increments is not a
+ * rate: with an old matrix it alternates between small and large from one increment to the next
+ * (flexible_pendulum, one step: 1.7e-5, 0.2, 1.6e-4, and the next increment was 0.03 of the last;
+ * docs/integrator.md), and a ratio to an increment at the rounding floor of the residual is noise (one step
+ * on linux64 and win64: 1e-4 and 5.3e-5).  Judged on the latest ratio, steps were accepted up to 1e5
+ * tolerances from their solution, and which ones depended on the platform.  So the kept rate rises to any
+ * larger ratio and falls by at most SS22_RATE_DECAY a ratio (CVODE's crate = max(0.3 crate, ratio)); a step's
+ * first ratio (its first increment is mostly the stiff linear part, which any matrix of the step size solves:
+ * fast_two_link, a matrix 5000 steps old, 0.009 then 0.18, 0.18, 0.18) and a ratio to an increment already
+ * below the tolerance only raise it. */
+static double record_rate(SS22Factor *f, double rate, int raise_only) {
+    if (f->rate < 0.0) f->rate = rate;
+    else f->rate = fmax(rate, raise_only ? f->rate : SS22_RATE_DECAY * f->rate);
     f->estimated = 0;
+    return f->rate;
 }
 #endif
 
@@ -192,7 +196,8 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
             if (fresh >= 0) fresh++;
             if (!isfinite(err)) return SS22_NOT_FINITE;
             if (err <= s->tolerance) {
-                if (it > 0 && fresh < 0) record_rate(f, err / previous, it == 1);
+                /* a ratio to an increment below the tolerance, perhaps at the rounding floor: it only raises */
+                if (it > 0 && fresh < 0) record_rate(f, err / previous, 1);
                 converged = 1;
                 break;
             }
@@ -213,11 +218,11 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
             }
             const double rate = err / previous;
             previous = err;
-            /* an older matrix's first ratio is judged with its rate measured later in a step (record_rate) */
+            /* an older matrix is judged on its kept rate, but never on a step's first ratio (record_rate); a
+             * fresh one's rate is Newton's own, not what it will show when older, and is not kept */
             const int first = it == 1 && fresh < 0;
-            const double judged = !first ? rate : f->late ? fmax(rate, f->rate) : INFINITY;
-            /* a fresh matrix's rate is Newton's own, not what it will show when older */
-            if (fresh < 0) record_rate(f, rate, first);
+            const double kept = fresh < 0 ? record_rate(f, rate, first) : rate;
+            const double judged = first ? INFINITY : kept;
             /* linear convergence at rate < 1: what is left is about rate/(1-rate) times this increment */
             if (judged < 0.5 && judged / (1.0 - judged) * err <= s->tolerance) { converged = 1; break; }
             /* at this rate an older matrix cannot reach the tolerance within the iterations left */

@@ -28,6 +28,9 @@
  * such step iterates once more and measures the rate again. */
 #define SS22_RATE_MEASURE_EVERY 4
 #define SS22_RATE_FLOOR 1e-3
+/* The kept contraction rate of a matrix falls by at most this factor per measured ratio of increments (ss22.c,
+ * record_rate; CVODE's CRDOWN). */
+#define SS22_RATE_DECAY 0.3
 
 /* A matrix from an earlier step is refreshed, at the current iterate of a step that would need a third
  * iteration, once the iterations spent beyond two a step since it was made add up to SS22_REFRESH_COST: about
@@ -57,10 +60,9 @@ typedef struct {
     double dt, theta1, theta2;   /* key of the cached factorisation */
     int valid;
     uint64_t stamp;              /* last use, for replacement */
-    double rate;                 /* contraction of the simplified Newton iteration last measured with this
-                                    matrix (||increment k+1|| / ||increment k||), or -1 before a measure */
+    double rate;                 /* kept contraction rate of the simplified Newton iteration with this matrix
+                                    (ss22.c, record_rate), or -1 before a measure */
     int estimated;               /* steps accepted since on that rate without measuring it again */
-    int late;                    /* rate includes a ratio measured after a step's first increment (ss22.c) */
     double waste;                /* iterations spent beyond two a step since it was evaluated */
     double LU[N_Q * N_Q];
     int piv[N_Q];
