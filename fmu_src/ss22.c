@@ -92,6 +92,7 @@ static SS22Status step_matrix(SS22 *s, double dt, const double *alpha, const dou
     s->factorisations++;
     f->rate = -1.0;
     f->estimated = 0;
+    f->waste = 0.0;
     if (!all_finite(f->LU, N_Q * N_Q)) { f->valid = 0; return SS22_NOT_FINITE; }
     if (lu_factor(f->LU, N_Q, f->piv)) { f->valid = 0; return SS22_SINGULAR; }
     f->dt = dt; f->theta1 = s->theta1; f->theta2 = s->theta2;
@@ -120,6 +121,24 @@ static int predict(const SS22 *s, double dt, const double *alpha, double *a) {
     const double ratio = (dt + s->dt_last) / (s->dt_last + s->dt_before);
     for (int i = 0; i < N_Q; i++) a[i] = alpha[i] + ratio * (alpha[i] - s->alpha_before[i]);
     return 1;
+}
+
+/* The kept contraction rate of a matrix from an earlier step, given the ratio of two successive increments
+ * (rate) and whether it is one that only raises the kept rate (raise_only).  A ratio of increments is not a
+ * rate: with an old matrix it alternates between small and large from one increment to the next
+ * (flexible_pendulum, one step: 1.7e-5, 0.2, 1.6e-4, and the next increment was 0.03 of the last;
+ * docs/integrator.md), and a ratio to an increment at the rounding floor of the residual is noise (one step
+ * on linux64 and win64: 1e-4 and 5.3e-5).  Judged on the latest ratio, steps were accepted up to 1e5
+ * tolerances from their solution, and which ones depended on the platform.  So the kept rate rises to any
+ * larger ratio and falls by at most SS22_RATE_DECAY a ratio (CVODE's crate = max(0.3 crate, ratio)); a step's
+ * first ratio (its first increment is mostly the stiff linear part, which any matrix of the step size solves:
+ * fast_two_link, a matrix 5000 steps old, 0.009 then 0.18, 0.18, 0.18) and a ratio to an increment already
+ * below the tolerance only raise it. */
+static double record_rate(SS22Factor *f, double rate, int raise_only) {
+    if (f->rate < 0.0) f->rate = rate;
+    else f->rate = fmax(rate, raise_only ? f->rate : SS22_RATE_DECAY * f->rate);
+    f->estimated = 0;
+    return f->rate;
 }
 #endif
 
@@ -151,6 +170,7 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
         int converged = 0;
         int fresh = -1;          /* increments made with a matrix evaluated in this step; -1: an older one */
         double previous = INFINITY;
+        int with_f = 0;          /* iterations made with the current matrix f */
         for (int it = 0; it < s->max_iterations; it++) {
             weighted_state(s, dt, q, v, a);
             if (model_residual(s->q_bar, s->v_bar, a, s->u_bar, p, s->r, work)) return SS22_MODEL_FAILED;
@@ -160,7 +180,9 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
                 /* first iteration: the matrix of an earlier step (simplified Newton across steps) */
                 if ((st = step_matrix(s, dt, a, p, work, it == 0, &f)) != SS22_OK) return st;
                 if (it > 0 || s->factorisations != used) fresh = 0;
+                with_f = 0;
             }
+            with_f++;
             for (int i = 0; i < N_Q; i++) delta[i] = -s->r[i];
             lu_solve(f->LU, N_Q, f->piv, delta);
             /* the increment's effect on the end-of-step rate, against the coordinate's nominal scale */
@@ -174,10 +196,8 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
             if (fresh >= 0) fresh++;
             if (!isfinite(err)) return SS22_NOT_FINITE;
             if (err <= s->tolerance) {
-                if (it > 0 && fresh < 0) {       /* two increments of a matrix from an earlier step */
-                    f->rate = err / previous;
-                    f->estimated = 0;
-                }
+                /* a ratio to an increment below the tolerance, perhaps at the rounding floor: it only raises */
+                if (it > 0 && fresh < 0) record_rate(f, err / previous, 1);
                 converged = 1;
                 break;
             }
@@ -198,15 +218,18 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
             }
             const double rate = err / previous;
             previous = err;
-            if (fresh < 0) {     /* a fresh matrix's rate is Newton's own, not what it will show when older */
-                f->rate = rate;
-                f->estimated = 0;
-            }
+            /* an older matrix is judged on its kept rate, but never on a step's first ratio (record_rate); a
+             * fresh one's rate is Newton's own, not what it will show when older, and is not kept */
+            const int first = it == 1 && fresh < 0;
+            const double kept = fresh < 0 ? record_rate(f, rate, first) : rate;
+            const double judged = first ? INFINITY : kept;
             /* linear convergence at rate < 1: what is left is about rate/(1-rate) times this increment */
-            if (rate < 0.5 && rate / (1.0 - rate) * err <= s->tolerance) { converged = 1; break; }
+            if (judged < 0.5 && judged / (1.0 - judged) * err <= s->tolerance) { converged = 1; break; }
             /* at this rate an older matrix cannot reach the tolerance within the iterations left */
             const int too_slow = fresh < 0 && err * pow(rate, s->max_iterations - 1 - it) > s->tolerance;
-            if (rate <= 0.5 && !too_slow) {
+            /* an old matrix whose extra iterations have paid for a new one (ss22.h, SS22_REFRESH_COST) */
+            const int stale = fresh < 0 && f->waste >= SS22_REFRESH_COST;
+            if (rate <= 0.5 && !too_slow && !stale) {
                 fresh = -1;      /* contracting: judged as an older matrix from here on */
                 continue;
             }
@@ -216,9 +239,10 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
                 if (err <= SS22_ROUNDING_FACTOR * s->tolerance) { converged = 1; break; }
                 return SS22_NOT_CONVERGED;
             }
-            f = NULL;   /* simplified Newton: refresh the matrix when it contracts poorly or too slowly */
+            f = NULL;   /* simplified Newton: refresh the matrix when it contracts poorly, too slowly or stale */
         }
         if (!converged) return SS22_NOT_CONVERGED;
+        if (with_f > 2) f->waste += with_f - 2;
     }
 #endif
     for (int i = 0; i < N_Q; i++) {

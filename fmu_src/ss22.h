@@ -28,6 +28,22 @@
  * such step iterates once more and measures the rate again. */
 #define SS22_RATE_MEASURE_EVERY 4
 #define SS22_RATE_FLOOR 1e-3
+/* The kept contraction rate of a matrix falls by at most this factor per measured ratio of increments (ss22.c,
+ * record_rate; CVODE's CRDOWN). */
+#define SS22_RATE_DECAY 0.3
+
+/* A matrix from an earlier step is refreshed, at the current iterate of a step that would need a third
+ * iteration, once the iterations spent beyond two a step since it was made add up to SS22_REFRESH_COST: about
+ * what a new one costs, in iterations (residual + solve).  Above 12 coordinates the Newton matrix is evaluated by
+ * columns, each a forward derivative of the residual, and costs about 2 N_Q residuals (measured with
+ * benchmarks/ss22_ab.py: 53 on fast_two_link, N_Q = 26; 47 on planar_chain_5, 20; 34 on six_axis_arm; 4 on
+ * rotating_link, 4; but 5 on the 12-coordinate planar_chain_3, where it is not by columns: there the rule
+ * refreshes later than it would pay to).  Paying for a refresh once it has been paid for in wasted iterations
+ * costs at most twice the best choice made with hindsight (the rent-or-buy rule).  A whipping chain's mass
+ * matrix M(q) turns with the chain: the kept matrix's contraction rate grew from 2e-4 to 0.35 over 5950 steps
+ * of fast_two_link, all of it from M's change
+ * (docs/integrator.md), while only a rate above 0.5 refreshed it; its steps iterated 7 times. */
+#define SS22_REFRESH_COST (2.0 * N_Q)
 
 #define SS22_CACHE 4     /* factorisations kept: the regular step, a shortened last one, and the Δt/2 of the
                             order-4 option with their rounding variants (2 entries thrashed: 1800 LUs in 15000 steps) */
@@ -44,9 +60,10 @@ typedef struct {
     double dt, theta1, theta2;   /* key of the cached factorisation */
     int valid;
     uint64_t stamp;              /* last use, for replacement */
-    double rate;                 /* contraction of the simplified Newton iteration last measured with this
-                                    matrix (||increment k+1|| / ||increment k||), or -1 before a measure */
+    double rate;                 /* kept contraction rate of the simplified Newton iteration with this matrix
+                                    (ss22.c, record_rate), or -1 before a measure */
     int estimated;               /* steps accepted since on that rate without measuring it again */
+    double waste;                /* iterations spent beyond two a step since it was evaluated */
     double LU[N_Q * N_Q];
     int piv[N_Q];
 } SS22Factor;

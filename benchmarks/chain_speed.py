@@ -1,0 +1,176 @@
+"""Issue 22's chain comparison: SS22 in the FMU against the best of CVODES and IDAS at equal error, and where
+each one's time goes.
+
+    python benchmarks/chain_speed.py [SCENE.toml] [--stop T] [--repeats N] [--reference-rtol R] [--json]
+
+Default scene: ``benchmarks/scenes/planar_chain_3.toml`` (3 flexible links, 3 modes each, second-order
+kinematics), over ``flexlink bench``'s manoeuvre (``flexlink.tools.bench``: the same equations, the same
+error measure, CPU seconds per simulated second, medians of ``--repeats`` runs, every method timed in the same
+process).  The reference is CVODES at ``--reference-rtol`` (default 1e-10, not the bench's 1e-12: on this chain
+CVODES at 1e-12 takes minutes a simulated second), its own error stated against the run at a tenth of it.
+For each error level 1e-3, 1e-4, 1e-5 each method's cost is read off
+its own cost-against-error curve (log-log interpolation between its settings; a level beyond a method's
+settings is not reported), and the ratio is CVODES's or IDAS's, whichever is cheaper, over SS22's.
+
+Where the time goes: the FMU's sources compiled with ``benchmarks/step_floor.c`` time one residual, one Newton
+matrix, one LU and one solve at a state of the run, and count the Newton iterations and factorisations a
+step; CasADi's own statistics count CVODES's steps, right-hand sides and Jacobians over the run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+import step_floor  # noqa: E402
+
+DEFAULT = HERE / "scenes" / "planar_chain_3.toml"
+LEVELS = (1e-3, 1e-4, 1e-5)
+STEPS = tuple(1e-3 / 2**k for k in range(10))            # 1 ms … 2 µs
+TOLERANCES = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)
+
+
+def cost_at(rows: list[dict], level: float) -> float | None:
+    """A method's CPU s/s at error ``level``: log-log interpolation between the two settings whose errors bracket
+    it along the method's settings ordered by error; else (a level beyond them, or a curve that is not monotone
+    there) its cheapest setting whose error is at most ``level``, as ``benchmarks/report.py`` judges."""
+    pts = sorted((r["error"], r["cpu_s_per_simulated_s"]) for r in rows if r["error"] is not None)
+    for (e0, c0), (e1, c1) in zip(pts[:-1], pts[1:], strict=True):
+        if e0 <= level <= e1 and e1 > e0 and c1 <= c0:
+            w = np.log(level / e0) / np.log(e1 / e0)
+            return float(np.exp(np.log(c0) + w * np.log(c1 / c0)))
+    ok = [c for e, c in pts if e <= level]
+    return min(ok) if ok else None
+
+
+def levels(rows: list[dict]) -> list[dict]:
+    """SS22's (order 2 and order 4) and the best of CVODES/IDAS's cost at each error level, and their ratios."""
+    out = []
+    for level in LEVELS:
+        ss22 = cost_at([r for r in rows if r["method"] == "ss22 (FMU)"], level)
+        order4 = cost_at([r for r in rows if r["method"].startswith("ss22 order 4")], level)
+        best = [c for c in (cost_at([r for r in rows if r["method"] == m], level) for m in ("cvodes", "idas"))
+                if c is not None]
+        sundials = min(best) if best else None
+        out.append({"error": level, "ss22_cpu": ss22, "order4_cpu": order4, "sundials_cpu": sundials,
+                    "ratio": sundials / ss22 if sundials and ss22 else None,
+                    "ratio_order4": sundials / order4 if sundials and order4 else None})
+    return out
+
+
+def sundials_counts(case, plugin: str, tol: float) -> dict:
+    """One run of CasADi's CVODES or IDAS over ``case`` as ``flexlink bench`` runs it: steps, right-hand
+    sides, Jacobians and Newton iterations summed over the input pieces."""
+    import casadi as ca
+
+    from flexlink.tools.bench import _model_inputs, _ode, _segments
+
+    x, u, p, rhs = _ode(case.model)
+    xk = np.concatenate(case.model.start_state())
+    total = {"nsteps": 0, "nfevals": 0, "nlinsetups": 0, "nniters": 0}
+    for lo, _hi, grid in _segments(case):
+        F = ca.integrator("F", plugin, {"x": x, "p": ca.vertcat(u, p), "ode": rhs}, lo, grid,
+                          {"abstol": tol * 1e-3, "reltol": tol, "max_num_steps": 10**7})
+        xk = np.asarray(F(x0=xk, p=np.concatenate([_model_inputs(case, lo), case.model.p0]))["xf"])[:, -1]
+        stats = F.stats()
+        for k in total:
+            total[k] += int(stats.get(k, 0))
+    return total
+
+
+def measure(scene_path: Path, stop: float, repeats: int, reference_rtol: float) -> dict:
+    """Every row, the ratios at the error levels and the per-step split."""
+    from flexlink.export.cache import cached_fmu
+    from flexlink.mechanics.analysis import natural_frequencies
+    from flexlink.mechanics.model import build_model
+    from flexlink.scene.loader import load_scene
+    from flexlink.tools.bench import bench_casadi, bench_ss22, default_case, reference_outputs, relative_error
+
+    scene = load_scene(scene_path)
+    model = build_model(scene)
+    case = default_case(model, stop=stop)
+    ref = reference_outputs(case, reference_rtol)
+    reference_error = relative_error(case, ref, reference_outputs(case, reference_rtol / 10))
+    fmu = cached_fmu(scene, model=model)
+    rows = [r.as_dict() for r in bench_ss22(case, fmu, STEPS, [(0.5, 0.5)], ref, repeats)]
+    # order 4 (Richardson) only where it is stable, ω_max Δt ≤ 0.3 (the FMU refuses larger steps): at its bound,
+    # two thirds of it, then the halvings below
+    omega_max = 2 * np.pi * max(natural_frequencies(model).frequencies_hz)
+    order4 = [0.299 / omega_max, 0.2 / omega_max, *[h for h in STEPS if omega_max * h <= 0.2][:6]]
+    rows += [r.as_dict() for r in bench_ss22(case, fmu, order4, [(0.5, 0.5)], ref, repeats, order=4)]
+    for plugin in ("cvodes", "idas"):
+        for r in bench_casadi(case, plugin, TOLERANCES, ref, repeats):
+            d = r.as_dict()
+            d.update(sundials_counts(case, plugin, float(d["setting"].split("=")[1])))
+            rows.append(d)
+    with tempfile.TemporaryDirectory() as tmp:
+        exe = step_floor.compile_driver(fmu, tmp)
+        split = [step_floor.measure(exe, fmu, case, step=h, repeats=repeats) for h in STEPS[:4]]
+    return {"scene": scene_path.stem, "n_q": model.n_q, "stop": stop, "repeats": repeats, "rows": rows,
+            "split": split,
+            "reference_rtol": reference_rtol, "reference_error": reference_error}
+
+
+def markdown(data: dict) -> str:
+    """The rows, the ratios and the split as Markdown."""
+    out = [f"{data['scene']} ({data['n_q']} coordinates), {data['stop']:g} s of the bench manoeuvre, medians of "
+           f"{data['repeats']} runs (reference: CVODES rtol {data['reference_rtol']:g}, its error "
+           f"{data['reference_error']:.1e})", "",
+           "| method | setting | CPU s/s | error | iterations/step | LU/step | steps | rhs | Jacobians |",
+           "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in data["rows"]:
+        if r["error"] is None:
+            out.append(f"| {r['method']} | {r['setting']} | refused | {str(r['failure'])[:60]} | | | | | |")
+            continue
+        it = "" if r["iterations_per_step"] is None else f"{r['iterations_per_step']:.2f}"
+        lu = "" if r["lu_per_step"] is None else f"{r['lu_per_step']:.3f}"
+        out.append(f"| {r['method']} | {r['setting']} | {r['cpu_s_per_simulated_s']:.3g} | {r['error']:.2e} | {it} | "
+                   f"{lu} | {r.get('nsteps', '')} | {r.get('nfevals', '')} | {r.get('nlinsetups', '')} |")
+    out += ["", "| error | SS22 CPU s/s | SS22 order 4 CPU s/s | best of CVODES/IDAS CPU s/s | ratio | "
+            "ratio, order 4 |",
+            "| --- | --- | --- | --- | --- | --- |"]
+    for lv in levels(data["rows"]):
+        cells = [f"{x:.3g}" if x is not None else "–"
+                 for x in (lv["ss22_cpu"], lv["order4_cpu"], lv["sundials_cpu"], lv["ratio"], lv["ratio_order4"])]
+        out.append(f"| {lv['error']:g} | " + " | ".join(cells) + " |")
+    out += ["", "| SS22 step | µs/step | residual µs | Newton matrix µs | LU µs | solve µs | iterations/step | "
+            "LU/step | (it × (residual + solve) + LU/step × (matrix + LU)) / step |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for s in data["split"]:
+        it = s["newton_iterations"] / max(s["ss22_steps"], 1)
+        lu = s["factorisations"] / max(s["ss22_steps"], 1)
+        model_cost = it * (s["residual_s"] + s["lu_solve_s"]) + lu * (s["newton_matrix_s"] + s["lu_factor_s"])
+        out.append(f"| {s['step']:g} | {s['step_s'] * 1e6:.2f} | {s['residual_s'] * 1e6:.2f} | "
+                   f"{s['newton_matrix_s'] * 1e6:.2f} | {s['lu_factor_s'] * 1e6:.2f} | {s['lu_solve_s'] * 1e6:.3f} | "
+                   f"{it:.2f} | {lu:.3f} | {model_cost / s['step_s']:.2f} |")
+    if data.get("note"):
+        out += ["", f"Note: {data['note']}."]
+    return "\n".join(out)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("scene", nargs="?", default=str(DEFAULT))
+    parser.add_argument("--stop", type=float, default=2.0, help="end of the manoeuvre, s (default 2: ±τ)")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--reference-rtol", type=float, default=1e-10)
+    parser.add_argument("--json", action="store_true")
+    parser.add_argument("--from-json", help="render a --json output again instead of measuring")
+    args = parser.parse_args(argv)
+    if args.from_json:
+        data = json.loads(Path(args.from_json).read_text())
+    else:
+        data = measure(Path(args.scene), args.stop, args.repeats, args.reference_rtol)
+    print(json.dumps(data, indent=1) if args.json else markdown(data))
+
+
+if __name__ == "__main__":
+    main()
