@@ -91,3 +91,18 @@ def broken_loop_margins(T, i: int, w):
         warnings.simplefilter("ignore")
         gm, pm, *_ = ct.stability_margins(ct.frd(L, w, smooth=True), returnall=True)
     return float(20 * np.log10(np.min(gm[gm > 1]))), float(np.min(np.abs(pm)))
+
+
+def assert_margins_are_python_controls(actuators, T, dt: float, where: str = "") -> None:
+    """Each actuator's gain and phase margins (``actuators``: our figures, one dict per loop input) equal
+    python-control's on the loop ``T`` broken at that input (:func:`broken_loop_margins`, on a grid up to
+    Nyquist), to the grid's resolution."""
+    import pytest
+
+    w = np.logspace(-3, np.log10(np.pi / dt), 6000)[:-1]
+    for i, fig in enumerate(actuators):
+        gm, pm = broken_loop_margins(T, i, w)
+        print(f"\n{where}{fig['input']}: gain margin {fig['gain_margin_db']:.4f} dB (python-control {gm:.4f}), "
+              f"phase margin {fig['phase_margin_deg']:.3f}°")
+        assert fig["gain_margin_db"] == pytest.approx(gm, abs=2e-3)
+        assert abs(fig["phase_margin_deg"]) == pytest.approx(pm, abs=2e-2)

@@ -112,19 +112,8 @@ static int outputs_forward(const double *q, const double *v, const double *a, co
     return 0;
 }
 
-/* model.h's two forward derivatives, from the residual's and the outputs' in a full direction. */
-int model_forward(const double *q, const double *v, const double *a, const double *u, const double *p,
-                  const double *dq, const double *dv, const double *da, const double *du, const double *dp,
-                  double *dr, double *dy, ModelWork *work) {
-    return residual_forward(q, v, a, u, p, dq, dv, da, du, dp, dr, work) ||
-           outputs_forward(q, v, a, u, p, dq, dv, da, du, dp, dy, work);
-}
-
-int model_outputs_acceleration_forward(const double *q, const double *v, const double *a, const double *u,
-                                       const double *p, const double *da, double *dy, ModelWork *work) {
-    static const double zero[64] = {0};
-    return outputs_forward(q, v, a, u, p, zero, zero, da, zero, zero, dy, work);
-}
+/* model.h's two forward derivatives, from the residual's and the outputs' in a full direction */
+#include "../forward_from_parts.h"
 
 /* No validity limits: the generic guards still refuse non-finite states. */
 const char *const MODEL_VALIDITY_NAMES[1] = {""};
