@@ -34,11 +34,12 @@
 
 /* A matrix from an earlier step is refreshed, at the current iterate of a step that would need a third
  * iteration, once the iterations spent beyond two a step since it was made add up to SS22_REFRESH_COST: about
- * what a new one costs, in iterations (residual + solve).  Above 12 coordinates the Newton matrix is evaluated by
- * columns, each a forward derivative of the residual, and costs about 2 N_Q residuals (measured with
- * benchmarks/ss22_ab.py: 53 on fast_two_link, N_Q = 26; 47 on planar_chain_5, 20; 34 on six_axis_arm; 4 on
- * rotating_link, 4; but 5 on the 12-coordinate planar_chain_3, where it is not by columns: there the rule
- * refreshes later than it would pay to).  Paying for a refresh once it has been paid for in wasted iterations
+ * what a new one costs, in iterations (residual + solve).  It was measured when above 12 coordinates the Newton
+ * matrix was evaluated by columns of the residual's forward derivative, about 2 N_Q residuals (benchmarks/
+ * ss22_ab.py: 53 on fast_two_link, N_Q = 26; 47 on planar_chain_5, 20; 34 on six_axis_arm; 4 on rotating_link,
+ * 4; 5 on the 12-coordinate planar_chain_3, not by columns).  Since "auto" takes differences of the residual
+ * there, a matrix costs about N_Q residuals and the mass matrix (benchmarks/scaling.py: about 16 on the six-axis
+ * arm, 23 on planar_chain_5), so the rule refreshes up to twice later than it would pay to.  Paying for a refresh once it has been paid for in wasted iterations
  * costs at most twice the best choice made with hindsight (the rent-or-buy rule).  A whipping chain's mass
  * matrix M(q) turns with the chain: the kept matrix's contraction rate grew from 2e-4 to 0.35 over 5950 steps
  * of fast_two_link, all of it from M's change

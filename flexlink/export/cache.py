@@ -76,14 +76,20 @@ def _installed(package: str) -> str:
     """The installed distribution of ``package``, as its ``.dist-info`` folder names it (``casadi-3.8.2``).
 
     Found without importing the package or ``importlib.metadata`` (0.2 s of imports on a command whose FMU is
-    cached); a package installed some other way is named by its module file's modification time.
+    cached); a package installed some other way (an editable install, whose ``.dist-info`` lies elsewhere) is
+    named by its module file's modification time, one imported from a zip by its path.
     """
     spec = importlib.util.find_spec(package)
     if spec is None or spec.origin is None:
         return f"{package} absent"
     module = Path(spec.origin)
     infos = sorted(p.name for p in module.parent.parent.glob(f"{package}-*.dist-info"))
-    return infos[-1] if infos else f"{package} {module.stat().st_mtime_ns}"
+    if infos:
+        return "|".join(infos)                # every one: two installs side by side are not one of them
+    try:
+        return f"{package} {module.stat().st_mtime_ns}"
+    except OSError:                           # imported from a zip: its path is all there is
+        return f"{package} {spec.origin}"
 
 
 @contextlib.contextmanager

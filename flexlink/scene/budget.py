@@ -228,7 +228,7 @@ def estimate(scene: Scene) -> SceneCost:
     dense = scene.fmu.newton_matrix == "dense" or (n_q <= NEWTON_DENSE_MAX_COORDINATES and not lean
                                                     and scene.fmu.newton_matrix == "auto")
     operations = int(OPERATIONS_PER_TERM * terms * ((1 + n_q / DENSE_NEWTON_SCALE) if dense else COLUMNS_FACTOR))
-    if lean:     # no forward derivatives of the residual and the outputs: 37-40 % of a robot's code is left
+    if lean:     # no forward derivatives of the residual and the outputs: 43-46 % of a robot's code is left
         operations = int(operations * LEAN_FRACTION)
     cost = SceneCost(scene.path or scene.name, links, joints, operations, int(BYTES_PER_OPERATION * operations),
                      1.0 + SECONDS_PER_OPERATION * operations)

@@ -571,7 +571,7 @@ KEYS: tuple[Key, ...] = (
     _K("fmu", "directional_derivatives", "boolean", "", True,
        description="compile the forward derivatives of the residual and the outputs that "
                    "fmi2GetDirectionalDerivative needs; false leaves them out of the generated C (the six-axis "
-                   "arm's 1.64 MB become 0.61 MB), builds a Newton matrix by columns from differences of the "
+                   "arm's 1.44 MB become 0.61 MB), builds a Newton matrix by columns from differences of the "
                    "residual and declares providesDirectionalDerivative=\"false\""),
 )
 del _K, _SOLVER

@@ -12,7 +12,7 @@ int model_forward(const double *q, const double *v, const double *a, const doubl
 
 int model_outputs_acceleration_forward(const double *q, const double *v, const double *a, const double *u,
                                        const double *p, const double *da, double *dy, ModelWork *work) {
-    static const double zero[64] = {0};
+    static const double zero[N_Q + N_U + N_P + 1] = {0};    /* long enough for any seed */
     return outputs_forward(q, v, a, u, p, zero, zero, da, zero, zero, dy, work);
 }
 #endif
