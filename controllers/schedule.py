@@ -170,22 +170,6 @@ def frozen_radius(law_matrices: tuple[np.ndarray, ...], plant_design) -> float:
     return float(np.max(np.abs(cl.poles())))
 
 
-def radius_along_path(d, schedule: Schedule, pl: Plan, samples: Sequence[float]) -> list[dict]:
-    """The frozen-pose stability of the fixed design and of the schedule along the path.
-
-    At each path parameter in ``samples``: the pose (deg), and the frozen-pose spectral radius of the fixed
-    design ``d`` and of the schedule there (the plant designed on at that pose: :func:`redesign`).
-    """
-    out = []
-    for s in samples:
-        pose = _pose(pl, float(s))
-        here = redesign(d, plant_at(d, pose))
-        out.append({"sigma": float(s), "pose_deg": {j: math.degrees(v) for j, v in pose.items()},
-                    "fixed": frozen_radius(_matrices(d), here),
-                    "scheduled": frozen_radius(schedule.matrices(float(s)), here)})
-    return out
-
-
 def compare_schedule(d, schedule: Schedule, loop, pl: Plan, ref: Reference, **kw) -> dict:
     """The scheduled LQG and the fixed one (``d``), each through the FMU, on the same manoeuvre.
 
@@ -233,10 +217,10 @@ def along_path(d, schedule, pl, samples: Sequence[float], n_points: int = 4000) 
     Returns ``{"scheduled": {"points": [...], "worst": {...}, "note": str | None}, "fixed": {...}}``, JSON-ready
     values (:func:`controllers.robustness.robustness_figures` per point, the poles left out).
     """
-    fixed = (d.kalman.Md, d.kalman.C, d.lqr.Kd, np.asarray(d.lqr.plant_d.A), np.asarray(d.lqr.plant_d.B))
+    fixed = _matrices(d)
     out: dict[str, list] = {"scheduled": [], "fixed": []}
     for s in samples:
-        pose = {j: float(a + s * (b - a)) for j, a, b in zip(pl.joints, pl.angle_start, pl.target, strict=True)}
+        pose = _pose(pl, float(s))
         here = redesign(d, plant_at(d, pose))
         P = lqg_plant(here.lqr, here.kalman)
         D = here.kalman.D[:, torque_inputs(here.lqr.plant)]
