@@ -129,13 +129,40 @@ int model_outputs(const double *q, const double *v, const double *a, const doubl
  *     dr = dr/dq dq + dr/dv dv + dr/da da + dr/du du + dr/dp dp    (N_Q)
  *     dy = dy/dq dq + ... + dy/dp dp                                (N_Y)
  * and the outputs' derivative in the acceleration alone, dy = dy/da da.  The glue eliminates the
- * acceleration itself: model_forward with da = 0, M(q) da = -dr, then the outputs' part in da.  One
- * function for r and y shares their kinematics and its tangent (generated from CasADi's forward mode). */
+ * acceleration itself: model_forward with da = 0, M(q) da = -dr, then the outputs' part in da.  dy may
+ * be NULL (the Newton matrix's columns).  Either generated derivative code (CasADi's forward mode, one
+ * function for r and y sharing their kinematics and its tangent) or, where MODEL_COMPLEX_STEP, a call of
+ * model_complex_forward below. */
 int model_forward(const double *q, const double *v, const double *a, const double *u, const double *p,
                   const double *dq, const double *dv, const double *da, const double *du, const double *dp,
                   double *dr, double *dy, ModelWork *work);
 int model_outputs_acceleration_forward(const double *q, const double *v, const double *a, const double *u,
                                        const double *p, const double *da, double *dy, ModelWork *work);
+
+/* MODEL_COMPLEX_STEP (config.h): the forward derivatives come from the generated residual and outputs
+ * themselves, evaluated in complex arithmetic at x + i h dx (the complex step, complex_step.c), instead of
+ * generated derivative code.  The two functions below are the same generated code compiled with
+ * casadi_real = double _Complex (one small unit each, which includes the real unit).  A C compiler without
+ * C99 complex arithmetic (MSVC's C compiler) leaves them out: model_forward then fails, and
+ * fmi2GetDirectionalDerivative with it, with its message; every other function is unaffected. */
+#ifndef MODEL_COMPLEX_STEP
+#define MODEL_COMPLEX_STEP 0
+#endif
+#if MODEL_COMPLEX_STEP && !defined(__STDC_NO_COMPLEX__) && !(defined(_MSC_VER) && !defined(__clang__))
+#define MODEL_HAS_COMPLEX 1   /* double _Complex is a keyword type: no complex.h (and its I) here */
+int model_residual_complex(const double _Complex *q, const double _Complex *v, const double _Complex *a,
+                           const double _Complex *u, const double _Complex *p, double _Complex *r);
+int model_outputs_complex(const double _Complex *q, const double _Complex *v, const double _Complex *a,
+                          const double _Complex *u, const double _Complex *p, double _Complex *y);
+#else
+#define MODEL_HAS_COMPLEX 0
+#endif
+/* model_forward and model_outputs_acceleration_forward by the complex step (complex_step.c); dy may be
+ * NULL (the Newton matrix's columns need dr alone).  Non-zero if the model failed to evaluate, or without
+ * complex arithmetic. */
+int model_complex_forward(const double *q, const double *v, const double *a, const double *u, const double *p,
+                          const double *dq, const double *dv, const double *da, const double *du,
+                          const double *dp, double *dr, double *dy);
 
 /* g = model_validity(q, u, p): the model's assumptions hold while every g[i] <= 1 (ratios of tip
  * deflections and rotations to the limits the beam model is meant for); MODEL_VALIDITY_NAMES[i] says

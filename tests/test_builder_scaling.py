@@ -125,11 +125,12 @@ def test_dense_and_column_newton_matrices_give_the_same_fmu(tmp_path):
     assert np.max(np.abs(derivatives[0] - derivatives[1])) <= 1e-12 * np.max(np.abs(derivatives[0]))
 
 
-def test_residual_and_outputs_share_one_forward_derivative():
-    """The directional derivatives' functions (flexlink.export.derivatives): the forward derivative of
-    residual and outputs together equals CasADi's Jacobians of each times the seed, and the outputs' part in
-    the acceleration ∂y/∂a times its seed, to rounding at random states; as one function it costs less than
-    the two derivatives apart, which share every body's kinematics and its tangent."""
+def test_residual_and_outputs_share_one_forward_derivative(monkeypatch):
+    """CasADi's forward-mode functions (flexlink.export.derivatives, the directional derivatives of a model the
+    complex step does not apply to): the forward derivative of residual and outputs together equals CasADi's
+    Jacobians of each times the seed, and the outputs' part in the acceleration ∂y/∂a times its seed, to
+    rounding at random states; as one function it costs less than the two derivatives apart, which share every
+    body's kinematics and its tangent."""
     import casadi as ca
 
     from flexlink.export.derivatives import forward_functions
@@ -158,9 +159,10 @@ def test_residual_and_outputs_share_one_forward_derivative():
         jt = [ca.jtimes(o, x, ca.vertcat(*seeds)) for o in outputs]
         return ca.Function("c", [*args, *seeds], jt, {"cse": True}).n_instructions()
 
-    from flexlink.export.codegen import generated_functions
+    from flexlink.export import codegen
 
-    generated = generated_functions(model)["forward"][1]     # what the build compiles (scalar, after CSE)
+    monkeypatch.setattr(codegen, "COMPLEX_STEP", False)
+    generated = codegen.generated_functions(model)["forward"][1]     # what the build compiles (scalar, after CSE)
     assert generated < 0.85 * (operations(r) + operations(y))
 
 
@@ -264,12 +266,15 @@ def _me_probe(path, name: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_large_refresh_functions_keep_the_matrix_graph(monkeypatch, tmp_path):
-    """Past REFRESH_EXPAND_MAX_OPERATIONS the mass matrix and the forward derivatives are generated from
-    CasADi's matrix graph (compact code) and give the same FMU: Model Exchange's derivatives (through the
-    generated mass matrix) and the directional derivatives of every state derivative and output (through both
-    forward derivatives) equal the scalar code's to rounding, and Co-Simulation to the Newton tolerance."""
+    """Past REFRESH_EXPAND_MAX_OPERATIONS the mass matrix and CasADi's forward derivatives (the form a model
+    the complex step does not apply to keeps) are generated from CasADi's matrix graph (compact code) and give
+    the same FMU: Model Exchange's derivatives (through the generated mass matrix) and the directional
+    derivatives of every state derivative and output (through both forward derivatives) equal the scalar
+    code's to rounding, and Co-Simulation to the Newton tolerance."""
     import flexlink.export.codegen as codegen
     from flexlink.export.fmu import build_fmu
+
+    monkeypatch.setattr(codegen, "COMPLEX_STEP", False)
 
     links = [_link({"kind": "clamped-free", "count": 2}, ("v", "w")), _link({"kind": "clamped-free", "count": 2})]
     scene = _scene([dict(x) for x in links], newton_matrix="columns")

@@ -1,9 +1,10 @@
-"""``[fmu] directional_derivatives = false``: the forward derivatives behind fmi2GetDirectionalDerivative are
-left out of the generated C (issue 22: a generated model holds only what its scene asks for; issue 15's code
-size), the FMU says so in its model description and refuses the call with the reason, and nothing else
-changes: with a dense Newton matrix its Co-Simulation and Model Exchange results equal, bit for bit, those of
-the FMU built with them; by columns (the default without them) the matrix comes from differences of the
-residual, and the results agree to the Newton iteration's own error."""
+"""``[fmu] directional_derivatives = false``: the forward derivatives behind fmi2GetDirectionalDerivative (the
+complex step on the residual and outputs, tests/test_complex_step.py) are left out of the generated C (issue
+22: a generated model holds only what its scene asks for), the FMU says so in its model description and
+refuses the call with the reason, and nothing else changes: with a dense Newton matrix its Co-Simulation and
+Model Exchange results equal, bit for bit, those of the FMU built with them; by columns (the default without
+them) the matrix comes from differences of the residual, and the results agree to the Newton iteration's own
+error."""
 
 from __future__ import annotations
 
@@ -59,7 +60,8 @@ def test_the_fmu_declares_no_derivatives_and_leaves_their_code_out(pair):
     assert md.modelExchange.providesDirectionalDerivative is False
     assert fmpy.read_model_description(str(with_d)).coSimulation.providesDirectionalDerivative is True
     left_out = _generated(with_d) - _generated(without)
-    assert left_out == {"rotating_link_forward.c", "rotating_link_outputs_acceleration_forward.c"}
+    # the derivatives are the complex step on the residual and outputs: their complex-arithmetic twins go
+    assert left_out == {"rotating_link_residual_complex.c", "rotating_link_outputs_complex.c"}
     assert not fmpy.validation.validate_fmu(str(without))
 
 
@@ -107,8 +109,8 @@ def test_a_newton_matrix_by_columns_without_derivatives_is_made_of_differences()
     differences' error does not show beside the iteration's own."""
     exact = cached_fmu(_scene("two_link_payload", newton_matrix="columns"))
     differences = cached_fmu(_scene("two_link_payload", newton_matrix="columns", directional_derivatives=False))
-    assert _generated(exact) - _generated(differences) == {"two_link_payload_forward.c",
-                                                           "two_link_payload_outputs_acceleration_forward.c"}
+    assert _generated(exact) - _generated(differences) == {"two_link_payload_residual_complex.c",
+                                                           "two_link_payload_outputs_complex.c"}
     y_exact, counts_exact = _shoulder_push(exact)
     y_differences, counts_differences = _shoulder_push(differences)
     assert counts_exact["factorisations"] > 3, counts_exact          # the matrix is refreshed as the arm moves

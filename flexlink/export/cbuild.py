@@ -36,7 +36,7 @@ LOG_CATEGORIES: tuple[str, ...] = (
 #: functions behind it (cosimulation.h) by concern, the integrator and dense LU.
 GENERIC_SOURCES: tuple[str, ...] = (
     "fmi2Functions.c", "calls.c", "logging.c", "instance.c", "variables.c", "cs_step.c", "model_exchange.c",
-    "derivatives.c", "fmu_state.c", "guards.c", "richardson.c", "ss22.c", "linalg.c",
+    "derivatives.c", "complex_step.c", "fmu_state.c", "guards.c", "richardson.c", "ss22.c", "linalg.c",
 )
 #: The FMI API layer of each FMI version, by concern: an FMU carries one (the functions behind it are shared).
 API_SOURCES: dict[int, tuple[str, ...]] = {
@@ -187,7 +187,7 @@ def compile_shared_library(
     platform
         ``"linux64"`` (a ``.so`` with the host's compiler) or ``"win64"`` (a ``.dll`` cross-compiled with
         MinGW-w64: the same flags but ``-fPIC``, which PE code does not need; the C runtime is the
-        system's ``msvcrt.dll``, so the DLL depends on no MinGW library).
+        system's ``msvcrt.dll`` and libgcc is linked statically, so the DLL depends on no MinGW library).
 
     Raises
     ------
@@ -208,7 +208,10 @@ def compile_shared_library(
             for _ in pool.map(lambda k: _run([*cc, *flags, "-c", str(files[k]), "-o", str(objects[k])],
                                              output.name), order):
                 pass
-        _run([*cc, *flags, *(str(o) for o in objects), "-o", str(output), "-lm"], output.name)
+        # libgcc's helpers (the complex step's complex products and quotients) linked in: on win64 they
+        # would otherwise come from MinGW's libgcc_s_seh-1.dll, which a Windows host does not have
+        link = ["-static-libgcc"] if platform == "win64" else []
+        _run([*cc, *flags, *(str(o) for o in objects), *link, "-o", str(output), "-lm"], output.name)
     return output
 
 

@@ -28,7 +28,7 @@ import casadi as ca
 import numpy as np
 
 from flexlink.export.cbuild import OPTIMISE_ENV, BuildError, fmu_src_dir
-from flexlink.export.derivatives import forward_functions
+from flexlink.export.derivatives import complex_step_applies, forward_functions
 from flexlink.export.variables import FmuVariable, fmu_variables
 from flexlink.mechanics.model import SymbolicModel
 from flexlink.scene.solver import SETTINGS
@@ -65,6 +65,10 @@ NEWTON_DENSE_MAX_COORDINATES = 12
 # guards evaluate that mass matrix every communication step (docs/performance.md).  Every example's functions
 # stay under it (the largest, examples/fast_two_link.toml's residual derivative, 46k): their code is unchanged.
 REFRESH_EXPAND_MAX_OPERATIONS = 60_000
+# The forward derivatives by the complex step wherever it applies (flexlink.export.derivatives); False keeps
+# CasADi's forward functions for every model, as a model with a non-analytic operation does (the tests build
+# both forms and compare them).
+COMPLEX_STEP = True
 # FLEXLINK_OPTIMISE=O0|Og|O1|O2 imposes one level on the CasADi code instead (the generic C stays at -O2): the
 # test suite builds dozens of FMUs and runs each briefly, so it compiles them at O0 (docs/tests.md).
 # OPTIMISE_ENV is that variable's name (flexlink.export.cbuild; part of the FMU cache key).
@@ -217,13 +221,23 @@ def _prepare(f: ca.Function, ident: str, expanded: bool, off_step: bool = False)
     return _Generated(ca.Function(name, mx_args, f.call(mx_args), f.name_in(), f.name_out()), operations)
 
 
-def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> list[_Generated]:
+@dataclass(frozen=True)
+class _Plan:
+    """What a build generates: the CasADi functions, and whether the forward derivatives are complex steps."""
+
+    functions: list[_Generated]
+    complex_step: bool        # the forward derivatives by the complex step on residual and outputs
+
+
+def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> _Plan:
     """The CasADi functions to generate, named for the model, with their operation counts.
 
     Residual, outputs, the validity ratios, and either the dense Newton matrix or the mass matrix (the
     columns of the Newton matrix come from it and differences of the residual, or the forward derivative:
-    :func:`newton_matrix_template`); the forward derivatives where the scene asks for them ([fmu]
-    directional_derivatives): a generated model holds only what its scene asks for.
+    :func:`newton_matrix_template`); where the scene asks for the forward derivatives ([fmu]
+    directional_derivatives), they are the complex step on the residual and outputs when it applies
+    (:func:`flexlink.export.derivatives.complex_step_applies`: nothing more to generate), else CasADi's
+    forward functions.  A generated model holds only what its scene asks for.
     """
     residual = _prepare(model.residual, ident, expanded)
     outputs = _prepare(model.outputs_function, ident, expanded)
@@ -234,12 +248,14 @@ def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> list[
     if model.validity is None:
         raise BuildError("the model has no validity function (flexlink.mechanics.model.build_model makes one)")
     functions = [residual, newton, outputs]
-    if model.scene.fmu.directional_derivatives:
+    derivatives = model.scene.fmu.directional_derivatives
+    complex_step = derivatives and COMPLEX_STEP and complex_step_applies(residual.function, outputs.function)
+    if derivatives and not complex_step:
         functions += [_prepare(f, ident, expanded, off_step=True) for f in forward_functions(model)]
     functions.append(_prepare(model.validity, ident, expanded))
     if model.parameter_check is not None:
         functions.append(_prepare(model.parameter_check, ident, expanded))
-    return functions
+    return _Plan(functions, bool(complex_step))
 
 
 def generated_functions(model: SymbolicModel) -> dict[str, tuple[ca.Function, int]]:
@@ -251,7 +267,8 @@ def generated_functions(model: SymbolicModel) -> dict[str, tuple[ca.Function, in
     ident = model.scene.model_identifier
     expanded = model.n_q <= EXPAND_MAX_COORDINATES
     return {g.function.name().removeprefix(f"{ident}_"): (g.function, g.operations)
-            for g in _casadi_functions(model, ident, expanded)}
+            for g in _casadi_functions(model, ident, expanded).functions}
+
 
 
 def _guid(casadi_c: str, variables: list[FmuVariable], model: SymbolicModel) -> str:
@@ -263,7 +280,8 @@ def _guid(casadi_c: str, variables: list[FmuVariable], model: SymbolicModel) -> 
     return "{" + str(uuid.UUID(bytes=digest.digest()[:16], version=5)) + "}"
 
 
-def _config_h(model: SymbolicModel, guid: str, variables: list[FmuVariable], sz: dict[str, int]) -> str:
+def _config_h(model: SymbolicModel, guid: str, variables: list[FmuVariable], sz: dict[str, int],
+              complex_step: bool) -> str:
     """``config.h``: sizes, GUID and flags of the model."""
     return _template("config.h.in").substitute(
         scene=model.scene.name, identifier=model.scene.model_identifier, guid=guid, n_q=model.n_q,
@@ -271,7 +289,7 @@ def _config_h(model: SymbolicModel, guid: str, variables: list[FmuVariable], sz:
         n_static=len(model.static_coordinates), n_vars=len(variables), n_validity=len(model.validity_names),
         n_parameter_checks=len(model.parameter_check_names),
         linear_in_state=int(model.linear_in_state), jacobian_constant=int(model.jacobian_constant),
-        directional_derivatives=int(model.scene.fmu.directional_derivatives),
+        directional_derivatives=int(model.scene.fmu.directional_derivatives), complex_step=int(complex_step),
         **{f"sz_{k}": v for k, v in sz.items()},
     )
 
@@ -309,7 +327,7 @@ def _law_tables(model: SymbolicModel) -> str:
     return "\n".join(arrays) + "\nconst KinematicLaw MODEL_LAWS[N_LAWS] = {\n" + "\n".join(law_rows) + "\n};\n"
 
 
-def _model_c(model: SymbolicModel, variables: list[FmuVariable], units: list[str]) -> str:
+def _model_c(model: SymbolicModel, variables: list[FmuVariable], units: list[str], complex_step: bool) -> str:
     """``model.c``: the variable table, the kinematic laws and the functions of ``fmu_src/model.h``."""
     ident = model.scene.model_identifier
     static = ""
@@ -327,20 +345,26 @@ def _model_c(model: SymbolicModel, variables: list[FmuVariable], units: list[str
         parameter_check_names="\n".join(f"    {_c_string(n)}," for n in model.parameter_check_names) or '    ""',
         parameter_check_body=_parameter_check_body(model),
         forward_body=_forward_body(model, "forward", ("q", "v", "a", "u", "p", "dq", "dv", "da", "du", "dp"),
-                                   ("dr", "dy")),
+                                   ("dr", "dy"), complex_step),
         outputs_acceleration_forward_body=_forward_body(model, "outputs_acceleration_forward",
-                                                        ("q", "v", "a", "u", "p", "da"), ("dy",)),
+                                                        ("q", "v", "a", "u", "p", "da"), ("dy",), complex_step),
     )
 
 
-def _forward_body(model: SymbolicModel, function: str, arguments: tuple[str, ...], results: tuple[str, ...]) -> str:
+def _forward_body(model: SymbolicModel, function: str, arguments: tuple[str, ...], results: tuple[str, ...],
+                  complex_step: bool) -> str:
     """The body of model_forward or model_outputs_acceleration_forward.
 
-    A call of the generated function, or a failure where the scene left it out (derivatives.c refuses
-    before, from MODEL_DIRECTIONAL_DERIVATIVES).
+    A call of the generated function, or of the complex step (fmu_src/complex_step.c) with the seeds the
+    function takes, or a failure where the scene left the derivatives out (derivatives.c refuses before,
+    from MODEL_DIRECTIONAL_DERIVATIVES).
     """
     if not model.scene.fmu.directional_derivatives:
         return "    " + " ".join(f"(void){x};" for x in (*arguments, *results, "work")) + "\n    return 1;"
+    if complex_step:
+        seeds = ", ".join(f"d{x}" if f"d{x}" in arguments else "NULL" for x in "qvaup")
+        out = ", ".join(x if x in results else "NULL" for x in ("dr", "dy"))
+        return f"    (void)work;\n    return model_complex_forward(q, v, a, u, p, {seeds}, {out});"
     ident = model.scene.model_identifier
     lines = [f"    work->arg[{i}] = {x};" for i, x in enumerate(arguments)]
     lines += [f"    work->res[{i}] = {x};" for i, x in enumerate(results)]
@@ -375,27 +399,45 @@ def _write_unit(generated: _Generated, model: SymbolicModel, directory: Path) ->
     return path, operations
 
 
+def _write_complex_unit(generated: _Generated, model: SymbolicModel, directory: Path, wrapper: str) -> Path:
+    """The complex-arithmetic twin of one generated unit (complex_unit.c.in): it includes the real unit."""
+    f = generated.function
+    unit = f.name()
+    path = directory / f"{unit}_complex.c"
+    path.write_text(_template("complex_unit.c.in").substitute(
+        unit=unit, scene=model.scene.name, wrapper=wrapper, indent=" " * (4 + len(wrapper)),
+        sz_arg=max(int(f.sz_arg()), 5), sz_res=max(int(f.sz_res()), 1), sz_iw=max(int(f.sz_iw()), 1),
+        sz_w=max(int(f.sz_w()), 1)))
+    return path
+
+
 def generate(model: SymbolicModel, directory: Path) -> GeneratedModel:
     """Write the model half of the FMU's C sources into ``directory``.
 
     model.c, and one unit per generated function (compiled side by side,
-    :func:`flexlink.export.cbuild.compile_shared_library`).
+    :func:`flexlink.export.cbuild.compile_shared_library`), with the complex-step twins of the residual's
+    and the outputs' units where the forward derivatives are taken so.
     """
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     ident = model.scene.model_identifier
     expanded = model.n_q <= EXPAND_MAX_COORDINATES
-    prepared = _casadi_functions(model, ident, expanded)
+    plan = _casadi_functions(model, ident, expanded)
+    prepared = plan.functions
     functions = [g.function for g in prepared]
     units = [_write_unit(g, model, directory) for g in prepared]
     operations = sum(ops for _, ops in units)
     variables = fmu_variables(model, _feedthrough(model))
     sz = {k: max(int(getattr(f, f"sz_{k}")()) for f in functions) for k in ("arg", "res", "iw", "w")}
     guid = _guid("".join(path.read_text() for path, _ in units), variables, model)
-    (directory / "config.h").write_text(_config_h(model, guid, variables, sz))
+    (directory / "config.h").write_text(_config_h(model, guid, variables, sz, plan.complex_step))
     names = [f.name() for f in functions]
-    (directory / "model.c").write_text(_model_c(model, variables, names))
-    sources = [directory / "model.c", *(path for path, _ in units)]
+    (directory / "model.c").write_text(_model_c(model, variables, names, plan.complex_step))
+    twins = []
+    if plan.complex_step:       # residual and outputs are the first and third functions (_casadi_functions)
+        twins = [_write_complex_unit(prepared[0], model, directory, "model_residual_complex"),
+                 _write_complex_unit(prepared[2], model, directory, "model_outputs_complex")]
+    sources = [directory / "model.c", *(path for path, _ in units), *twins]
     generated = [*sources, *(directory / f"{n}.h" for n in names)]
     matrix_graph = tuple(g.function.name().removeprefix(f"{ident}_") for g in prepared if g.matrix_graph)
     return GeneratedModel(directory, sources, generated, variables, guid, ident, matrix_graph, operations)

@@ -17,30 +17,32 @@ panels.  A shell link's reduction (reduction.fixed_interface_modes) makes its st
 6 degrees of freedom of each node off the root, and solves a dense eigenproblem of half that size.
 
 Build time and code size are a rough model, fitted to builds at the default optimisation
-(``FLEXLINK_OPTIMISE`` unset, this machine, 2026-11-25: one ``build_fmu(scene, dir)`` per scene, wall time; the
-operations and C bytes are its BuildReport's):
+(``FLEXLINK_OPTIMISE`` unset, this machine, 2026-11-27: one ``build_fmu(scene, dir)`` per scene, wall time; the
+operations and C bytes are its BuildReport's; the directional derivatives by the complex step, which adds no
+code):
 
     scene                  n_q  operations  C [MB]  build [s]
-    rotating_link            4      15 087    0.37       4.7
-    two_link_payload         6      23 935    0.55       7.2
-    steel_beam_gravity      10      88 946    2.03      21.9
-    planar_chain_5          20      88 096    1.98      30.9
+    rotating_link            4       6 651    0.18       3.7
+    two_link_payload         6      11 801    0.29       8.7
+    steel_beam_gravity      10      47 653    1.03      11.6
+    planar_chain_5          20      31 218    0.70      14.8
 
 operations ≈ OPERATIONS_PER_TERM · Σ_links (1 + n_i)^LINK_EXPONENT · (1 + n_q / DENSE_NEWTON_SCALE with a dense
-Newton matrix, n_q ≤ 12; COLUMNS_FACTOR by columns) (a link's energy gathers products of its own coordinates;
-a dense Newton matrix is n_q derivatives of the residual), code ≈ BYTES_PER_OPERATION · operations, build ≈
-SECONDS_PER_OPERATION · operations + 1 s.  Fit: the exponent (1.0 … 2.0) and the dense scale (2, 4, 8, 16)
-that minimise the worst log-error of the operations on these four, the factor their geometric mean (worst fit
-error 7 %); bytes and seconds per operation are the means of the four (22.5 … 24.7 B, 2.4 … 3.4 · 10⁻⁴ s).
+Newton matrix, n_q ≤ 12) (a link's energy gathers products of its own coordinates; a dense Newton matrix is n_q
+derivatives of the residual), code ≈ BYTES_PER_OPERATION · operations, build ≈ SECONDS_PER_OPERATION ·
+operations + 1 s.  Fit: the exponent (1.0 … 2.0) and the dense scale (2, 4, 8, 16) that minimise the worst
+log-error of the operations on these four, the factor their geometric mean; the exponent 1.4 and scale 16 of
+the earlier fit are kept (worst error 17 %; the best, 13 %, at 1.6 overestimates the examples outside the fit
+more).  Bytes and seconds per
+operation are the means of the four (21.7 … 27.4 B, 2.2 … 6.5 · 10⁻⁴ s).
 
 On the six other examples timed the same way (elastic_joint, plate_raise, six_axis_arm, steel_beam_two_links,
 spatial_cantilever, fast_two_link) it lands within a factor of 3 of the measured operations, code and time
-(tests/test_budget.py holds them; worst: plate_raise's operations 2.9x over, one link of 30 coordinates 2.8x
-over).  On benchmarks/scaling.md's one link of 32 modes with second-order kinematics it now overestimates
-about 2.8x (8.4 MB estimated; 3.0 MB since 2026-11-26, when the nodal point fields and the matrix graph of
-large refresh-time functions came, flexlink.export.codegen).  Treat it as
-an order of magnitude; the timings were taken on 2 cores shared with other sessions, so they are inflated
-(planar_chain_5: 31 s here, 10 s in benchmarks/scaling.md).
+(tests/test_budget.py holds them; worst: spatial_cantilever's one link of 30 coordinates 2.1x over), except
+plate_raise, 3.6x over: the model is fitted on second-order kinematics, whose foreshortening terms a
+first-order link has none of (rotating_link with 4 modes: 777 operations first-order, 15 408 second-order), so
+it overestimates first-order links, the safe side of a budget.  Treat it as an order of magnitude; the timings
+were taken on 2 cores shared with other sessions, so they are inflated.
 """
 
 from __future__ import annotations
@@ -82,19 +84,13 @@ ANNOUNCE_SECONDS = 30.0
 ALLOW_LARGE_ENV = "FLEXLINK_ALLOW_LARGE"
 
 # The rough cost model (module docstring): operations = OPERATIONS_PER_TERM · Σ (1 + n_i)^LINK_EXPONENT · form.
-OPERATIONS_PER_TERM = 1800.0
+# The directional derivatives add no code (the complex step on the residual and outputs,
+# flexlink.export.derivatives): [fmu] directional_derivatives = false changes only the Newton matrix's form.
+OPERATIONS_PER_TERM = 896.0
 LINK_EXPONENT = 1.4
 DENSE_NEWTON_SCALE = 16.0              # a dense Newton matrix multiplies the code by 1 + n_q / 16
-# a Newton matrix by columns (M(q) and differences of the residual) with the forward derivatives: measured
-# 2026-11-26 with `flexlink explain` once residual and outputs shared one forward function, six-axis arm 61.1k
-# operations and five-link chain 68.6k against 62.1k and 62.7k for the factor 1 (it was 1.5 with the two
-# forward derivatives apart, 72.0k and 79.3k)
-COLUMNS_FACTOR = 1.05
-# [fmu] directional_derivatives = false: what is left without the forward derivatives (the same measurement:
-# six-axis arm 26.2k of 61.1k operations, five-link chain 31.2k of 68.6k)
-LEAN_FRACTION = 0.44
-BYTES_PER_OPERATION = 23.3
-SECONDS_PER_OPERATION = 2.7e-4
+BYTES_PER_OPERATION = 24.0
+SECONDS_PER_OPERATION = 4.3e-4
 NEWTON_DENSE_MAX_COORDINATES = 12      # flexlink.export.codegen's: up to it the Newton matrix is dense
 
 
@@ -227,9 +223,7 @@ def estimate(scene: Scene) -> SceneCost:
     lean = not scene.fmu.directional_derivatives
     dense = scene.fmu.newton_matrix == "dense" or (n_q <= NEWTON_DENSE_MAX_COORDINATES and not lean
                                                     and scene.fmu.newton_matrix == "auto")
-    operations = int(OPERATIONS_PER_TERM * terms * ((1 + n_q / DENSE_NEWTON_SCALE) if dense else COLUMNS_FACTOR))
-    if lean:     # no forward derivatives of the residual and the outputs: 43-46 % of a robot's code is left
-        operations = int(operations * LEAN_FRACTION)
+    operations = int(OPERATIONS_PER_TERM * terms * ((1 + n_q / DENSE_NEWTON_SCALE) if dense else 1.0))
     cost = SceneCost(scene.path or scene.name, links, joints, operations, int(BYTES_PER_OPERATION * operations),
                      1.0 + SECONDS_PER_OPERATION * operations)
     return replace(cost, over=tuple(_over_budget(cost)))

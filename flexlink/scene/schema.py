@@ -565,14 +565,15 @@ KEYS: tuple[Key, ...] = (
     _K("fmu", "newton_matrix", "string", "", "auto", choices=NEWTON_MATRIX_FORMS,
        description="the SS22 Newton matrix in the generated C: one dense symbolic Jacobian (fastest to refresh, "
                    "code n times the residual's), or by columns from the mass matrix and differences of the "
-                   "residual (no code); \"columns\" takes the exact columns of the forward derivative where the "
-                   "directional derivatives are compiled; auto: dense up to 12 coordinates when the derivatives "
-                   "are compiled, differences above"),
+                   "residual (no code); \"columns\" takes exact columns from the directional derivatives "
+                   "(the complex step, a few residuals a column) where they are compiled; auto: dense up to "
+                   "12 coordinates when the derivatives are compiled, differences above"),
     _K("fmu", "directional_derivatives", "boolean", "", True,
-       description="compile the forward derivatives of the residual and the outputs that "
-                   "fmi2GetDirectionalDerivative needs; false leaves them out of the generated C (the six-axis "
-                   "arm's 1.44 MB become 0.61 MB), builds a Newton matrix by columns from differences of the "
-                   "residual and declares providesDirectionalDerivative=\"false\""),
+       description="provide fmi2GetDirectionalDerivative: the forward derivatives of the residual and the "
+                   "outputs by the complex step on their generated code (no derivative code is generated; "
+                   "docs/fmi.md); false leaves out its two small complex units, builds a Newton matrix by "
+                   "columns from differences of the residual and declares "
+                   "providesDirectionalDerivative=\"false\""),
 )
 del _K, _SOLVER
 

@@ -84,11 +84,23 @@ def explain(scene_path) -> dict:
         "generated_operations": {name: ops for name, (_, ops) in functions.items()},
         "matrix_graph": [name for name, (f, _) in functions.items() if not f.is_a("SXFunction")],
         "newton_columns_exact": newton_matrix_template(model) == "newton_matrix_columns.c.in",
+        "directional_derivatives": ("none" if not scene.fmu.directional_derivatives else
+                                    "forward mode" if "forward" in functions else "complex step"),
         "frequencies_hz": modes.frequencies_hz,
         "unstable_hz": modes.unstable_hz,
         "recommended_step": step,
         "scene_step": scene.fmu.solver.step,
     }
+
+
+def _derivatives_line(how: str) -> str:
+    """How fmi2GetDirectionalDerivative's forward derivatives are computed, in one line."""
+    if how == "none":
+        return "no directional derivatives ([fmu] directional_derivatives = false)"
+    if how == "complex step":
+        return ("directional derivatives: the complex step on the residual and outputs (no derivative code; "
+                "each costs a few residuals)")
+    return "directional derivatives: CasADi's forward-mode functions (the generated \"forward\" above)"
 
 
 def format_explanation(info: dict) -> str:
@@ -119,8 +131,8 @@ def format_explanation(info: dict) -> str:
         lines.append(f"  generated from CasADi's matrix graph (loops over constant arrays; {why}): "
                      + ", ".join(info["matrix_graph"]))
     lines.append(f"  a Co-Simulation step evaluates {step} of them (residual, Newton matrix or mass matrix and the "
-                 "forward derivative where [fmu] newton_matrix = \"columns\" asks for it, validity, outputs); the "
-                 "forward derivatives serve fmi2GetDirectionalDerivative ([fmu] directional_derivatives)")
+                 "forward derivative where [fmu] newton_matrix = \"columns\" asks for it, validity, outputs)")
+    lines.append("  " + _derivatives_line(info.get("directional_derivatives", "forward mode")))
     freqs = info["frequencies_hz"]
     lines.append("natural frequencies (Hz): " + ", ".join(f"{f:.4g}" for f in freqs[:12])
                  + (f", … ({len(freqs)} in all)" if len(freqs) > 12 else ""))
