@@ -90,6 +90,13 @@ fmi2Status fmu_directional_derivative(Instance *inst, const fmi2ValueReference u
     FmuData *d = &inst->d;
     fmi2Status status;
     int need_y = 0;
+#if MODEL_COMPLEX_STEP && !MODEL_HAS_COMPLEX
+    (void)unknown; (void)n_unknown; (void)known; (void)n_known; (void)dv_known; (void)dv_unknown; (void)need_y;
+    (void)status; (void)d;
+    return fmu_error(inst, "%s: this binary was compiled without C99 complex arithmetic (MSVC's C compiler?), "
+                     "which the directional derivatives (the complex step) need; compile the FMU's sources with "
+                     "gcc, clang or MinGW-w64", F);
+#endif
     if (read_knowns(inst, known, n_known, dv_known) != fmi2OK) return fmi2Error;
     if (check_unknowns(inst, unknown, n_unknown, &need_y) != fmi2OK) return fmi2Error;
     model_input_seeds(inst);
@@ -100,8 +107,10 @@ fmi2Status fmu_directional_derivative(Instance *inst, const fmi2ValueReference u
     }
     memset(inst->dd_a, 0, sizeof(inst->dd_a));
     fmu_model_inputs(d, d->time, inst->u0);
+    /* By the complex step the outputs' derivative is one evaluation in the whole direction, da included,
+     * once da is known; CasADi's forward functions give it with dr at da = 0 and add the part in da. */
     if (model_forward(d->q, d->v, d->acceleration, inst->u0, d->p, inst->dd_q, inst->dd_v, inst->dd_a,
-                      inst->dd_um, inst->dd_p, inst->dd_r, inst->dd_y, &inst->work) ||
+                      inst->dd_um, inst->dd_p, inst->dd_r, MODEL_COMPLEX_STEP ? NULL : inst->dd_y, &inst->work) ||
         model_newton_matrix(d->q, d->v, d->acceleration, inst->u0, d->p, 1.0, 0.0, 0.0, inst->J, &inst->work)) {
         return fmu_error(inst, "%s: the model failed to evaluate at t = %.17g", F, d->time);
     }
@@ -110,6 +119,12 @@ fmi2Status fmu_directional_derivative(Instance *inst, const fmi2ValueReference u
     }
     for (int i = 0; i < N_Q; i++) inst->dd_a[i] = -inst->dd_r[i];
     lu_solve(inst->J, N_Q, inst->piv, inst->dd_a);
+#if MODEL_COMPLEX_STEP
+    if (need_y && model_complex_forward(d->q, d->v, d->acceleration, inst->u0, d->p, inst->dd_q, inst->dd_v,
+                                        inst->dd_a, inst->dd_um, inst->dd_p, NULL, inst->dd_y)) {
+        return fmu_error(inst, "%s: the model failed to evaluate its outputs at t = %.17g", F, d->time);
+    }
+#else
     if (need_y) {   /* dd_y holds the outputs' derivative at da = 0: add its part in da */
         if (model_outputs_acceleration_forward(d->q, d->v, d->acceleration, inst->u0, d->p, inst->dd_a,
                                                inst->dd_ya, &inst->work)) {
@@ -117,6 +132,7 @@ fmi2Status fmu_directional_derivative(Instance *inst, const fmi2ValueReference u
         }
         for (int i = 0; i < N_Y; i++) inst->dd_y[i] += inst->dd_ya[i];
     }
+#endif
     for (size_t i = 0; i < n_unknown; i++) {
         const VarInfo *v = &MODEL_VARS[unknown[i]];
         switch (v->kind) {

@@ -112,3 +112,42 @@ def test_only_real_analytic_operations_take_the_complex_step():
         assert not complex_step_applies(ca.Function(name, [x], [expr])), name
     m = ca.MX.sym("m", 2)
     assert not complex_step_applies(ca.Function("graph", [m], [2 * m]))     # a matrix graph is not scalar code
+
+
+def test_a_binary_without_complex_arithmetic_refuses_only_the_derivatives(example_fmu, tmp_path, capfd):
+    """The FMU's sources compiled as by a C compiler without C99 complex arithmetic (MSVC's C compiler defines no
+    complex types; ``__STDC_NO_COMPLEX__`` says so): it builds, steps as the shipped binary does, and answers
+    fmi2GetDirectionalDerivative with fmi2Error and the reason."""
+    import subprocess
+
+    from fmpy import simulate_fmu
+    from fmpy.fmi1 import FMICallException
+    from fmpy.fmi2 import FMU2Slave
+    from fmpy.model_description import read_build_description
+
+    fmu = example_fmu("rotating_link")
+    with zipfile.ZipFile(fmu) as z:
+        z.extractall(tmp_path)
+    files = read_build_description(fmu)[0].sourceFileSets[0].sourceFiles
+    library = tmp_path / "binaries" / "linux64" / "rotating_link.so"
+    subprocess.run(["gcc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", "-shared", "-fPIC",
+                    "-fvisibility=hidden", "-D__STDC_NO_COMPLEX__=1", f"-I{tmp_path / 'sources'}",
+                    *(str(tmp_path / "sources" / f) for f in files), "-o", str(library), "-lm"], check=True)
+    shipped = simulate_fmu(str(fmu), stop_time=0.2, output_interval=1e-3)
+    rebuilt = simulate_fmu(str(tmp_path), stop_time=0.2, output_interval=1e-3)
+    for name in shipped.dtype.names:
+        np.testing.assert_array_equal(rebuilt[name], shipped[name])
+    md = read_model_description(str(fmu))
+    inst = FMU2Slave(guid=md.guid, unzipDirectory=str(tmp_path), modelIdentifier="rotating_link",
+                     instanceName="no-complex")
+    inst.instantiate(loggingOn=True)
+    try:
+        inst.setupExperiment(startTime=0.0)
+        inst.enterInitializationMode()
+        inst.exitInitializationMode()
+        vr = {v.name: v.valueReference for v in md.modelVariables}
+        with pytest.raises(FMICallException, match="status 3"):      # fmi2Error
+            inst.getDirectionalDerivative([vr["arm.tip.v"]], [vr["hub.tau"]], [1.0])
+    finally:
+        inst.freeInstance()
+    assert "compiled without C99 complex arithmetic" in capfd.readouterr().out
