@@ -15,6 +15,7 @@ import math
 from controllers.options import SENSORS
 from controllers.options import angles as _angles
 from controllers.options import finite as _finite
+from controllers.options import limits as _limits
 from flexlink.errors import FlexlinkError
 from flexlink.paths import SCENE_HELP, output_file, plot_file
 
@@ -74,15 +75,26 @@ def add_control_parsers(subparsers) -> None:
                    help="window after the manoeuvre for the residual vibration and final error (default 1.5)")
     p.add_argument("--controller", choices=("lqr", "pd"), default="lqr",
                    help="lqr: LQR + Kalman estimator with model feedforward; pd: joint PD baseline")
-    p.add_argument("--torque-limit", type=_angles, metavar="NM[,NM...]",
+    p.add_argument("--torque-limit", type=_limits, metavar="NM[,NM...]|JOINT=NM,...",
                    help="saturation and Bryson torque limit of every joint, or one per torque-driven joint "
-                        "comma-separated in scene order (default: 1.5 x the rigid quintic's peak torque of the "
-                        "first joint; with several joints 1.5 x the largest peak of the inverse-dynamics "
-                        "feedforward)")
-    p.add_argument("--root-moment", type=_finite, metavar="NM",
-                   help="Bryson limit of every link's root bending moment in the LQR weights (default: 10 %% of the "
-                        "torque limit of the joint carrying the link; the torque limit itself gives the two-link "
-                        "example >= 6 dB and >= 30 deg at each actuator, docs/control.md)")
+                        "comma-separated in scene order, or by joint name (default: 1.5 x the rigid quintic's peak "
+                        "torque of the first joint; with several joints 1.5 x the largest peak of the "
+                        "inverse-dynamics feedforward)")
+    p.add_argument("--joint-error", type=_limits, metavar="DEG[,DEG...]|JOINT=DEG,...",
+                   help="Bryson limit of each joint's angle error in the LQR weights: one for all, one per joint "
+                        "with an encoder in scene order, or by joint name (default 0.5 deg; smaller = heavier)")
+    p.add_argument("--tip-deflection", type=_limits, metavar="MM[,MM...]|LINK=MM,...",
+                   help="Bryson limit of each link's tip deflection (tip.v) in mm: one for all, one per flexible "
+                        "link in scene order, or by link name (default 5 mm)")
+    p.add_argument("--root-moment", type=_limits, metavar="NM[,NM...]|LINK=NM,...",
+                   help="Bryson limit of each link's root bending moment in the LQR weights: one for all, one per "
+                        "link, or by link name (default: 10 %% of the torque limit of the joint carrying the link; "
+                        "the torque limit itself gives the two-link example >= 6 dB and >= 30 deg at each "
+                        "actuator, docs/control.md)")
+    p.add_argument("--mode-limit", type=_limits, metavar="V|LINK=V,...|LINK.eta[K]=V,...",
+                   help="Bryson limit of modal coordinates (the FMU outputs <link>.eta[k]): one for every mode, all "
+                        "the modes of a link by its name, or one mode by its output name (default: none, the "
+                        "modes weighed through the tip deflection and root moment)")
     p.add_argument("--sample-time", type=_finite, default=1e-3, metavar="S", help="controller sample time (1 ms)")
     p.add_argument("--sensors", choices=SENSORS, default="strain",
                    help="Kalman sensors besides the joint encoders: the links' root strain gauges or the tip "
@@ -203,6 +215,7 @@ def cmd_control(args) -> int:
     Every check that needs no model runs first, so that bad input costs no build; a repeated command is
     answered from the design cache (:mod:`controllers.design_cache`) without the linearisation and design.
     """
+    from controllers.weights import check_names, overrides
     from flexlink.run.simulate import parse_assignments
     from flexlink.scene.loader import load_scene
 
@@ -213,6 +226,7 @@ def cmd_control(args) -> int:
 
         check_times(args.duration, args.settle, args.sample_time)       # before the model and the FMU are built
     scene = load_scene(args.scene)
+    check_names(scene, args)                    # a misspelt joint or link costs no model build
     key = _cache_key(args, scene)
     if key is not None:
         from controllers.design_cache import load
@@ -230,6 +244,7 @@ def cmd_control(args) -> int:
 
     model = build_model(scene)
     check_scene(model)
+    weights = overrides(model, args)
     plant = linear_plant(model, outputs=[f"{model.scene.joints[0].name}.theta"])
     targets = [math.radians(v) for v in args.target] if args.target is not None else None
     target = targets[0] if targets else None
@@ -239,7 +254,7 @@ def cmd_control(args) -> int:
     if limit is None:
         limit = _default_limits(plant, targets, args.duration, args.sample_time)
     try:
-        d = design(model, torque_limit=limit, dt=args.sample_time, sensors=args.sensors, root_moment=args.root_moment)
+        d = design(model, torque_limit=limit, dt=args.sample_time, sensors=args.sensors, limits=weights)
     except (ValueError, np.linalg.LinAlgError) as e:
         raise FlexlinkError(f"{args.scene}: the LQR/Kalman design failed ({' '.join(str(e).split())})") from None
     if args.schedule is not None and (len(d.actuated_joints) < 2 or targets is None or args.duration is None):
@@ -266,10 +281,6 @@ def _check_control_args(args) -> None:
     """Refuse contradictory or out-of-range options of ``flexlink control`` before the scene is read."""
     if not (args.sample_time > 0):
         raise FlexlinkError(f"--sample-time must be positive, got {args.sample_time}")
-    if args.root_moment is not None and not args.root_moment > 0:
-        raise FlexlinkError(f"--root-moment must be positive, got {args.root_moment}")
-    if args.torque_limit is not None and not all(v > 0 for v in args.torque_limit):
-        raise FlexlinkError(f"--torque-limit must be positive, got {','.join(f'{v:g}' for v in args.torque_limit)}")
     if args.schedule is not None and args.schedule < 2:
         raise FlexlinkError(f"--schedule: at least 2 design points along the path (start and target), got "
                             f"{args.schedule}")
@@ -312,6 +323,7 @@ def _run_single(args, d, plant, target: float, limit, run_params: dict, key: str
                        title=f"{model.scene.name}: {args.controller.upper()}, {args.target[0]:g} deg in "
                              f"{args.duration:g} s, torque limit {limit:g} N m")
     info = {"name": model.scene.name, "start_deg": math.degrees(float(plant.x0[0])), "limit": limit, "wn": wn,
+            "bryson_limits": d.lqr.limits,
             "zeta": zeta, "sensors": d.kalman.sensors if args.controller == "lqr" else d.law("pd").sensors}
     if args.controller == "pd":
         info.update(kp=d.joint_pd.kp, kd=d.joint_pd.kd, pd_zeta=d.joint_pd.zeta)
@@ -337,7 +349,9 @@ def _cache_key(args, scene) -> str | None:
         return None
     return cache_key(scene, {"target": args.target, "duration": args.duration, "settle": args.settle,
                              "controller": args.controller, "torque_limit": args.torque_limit,
-                             "root_moment": args.root_moment, "sample_time": args.sample_time,
+                             "root_moment": args.root_moment, "joint_error": args.joint_error,
+                             "tip_deflection": args.tip_deflection, "mode_limit": args.mode_limit,
+                             "sample_time": args.sample_time,
                              "sensors": args.sensors})
 
 
@@ -387,6 +401,7 @@ def _report_single(args, info: dict, m: dict, run_params: dict, rob: dict | None
     if args.json:
         m = dict(m)
         m.update({"sensors": info["sensors"], "rigid_pair_rad_s": info["wn"], "rigid_pair_zeta": info["zeta"],
+                  "bryson_limits": info.get("bryson_limits"),
                   "parameters": run_params, "robustness": rob})
         print(json.dumps(m))
         return
@@ -466,8 +481,8 @@ def _torque_limits(plant, values):
     """
     from controllers.design import actuated_joints
 
-    if values is None or len(values) == 1:
-        return None if values is None else values[0]
+    if values is None or isinstance(values, dict) or len(values) == 1:
+        return values[0] if isinstance(values, list) else values
     joints = actuated_joints(plant)
     if len(values) != len(joints):
         raise FlexlinkError(f"--torque-limit: one limit for all joints or one per torque-driven joint "
@@ -532,6 +547,7 @@ def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int
         doc = {"joints": d.actuated_joints, "targets_deg": [math.degrees(t) for t in targets],
                "duration_s": args.duration, "settle_s": args.settle, "sample_time_s": d.dt,
                "sensors": d.kalman.sensors, "pd_gains": {"kp": kp.tolist(), "kd": kd.tolist()}, "robustness": rob,
+               "torque_limits_nm": d.lqr.torque_limits, "bryson_limits": d.lqr.limits,
                "integral_time_s": args.integral,
                "noise": {"sigma": d.kalman.noise, "seed": args.seed} if args.noise else None}
     if key is not None:
@@ -639,6 +655,7 @@ def _run_scheduled(args, d, targets, run_params, fmu) -> int:
         print(json.dumps({**{k: (r if isinstance(r, str) else r.metrics) for k, r in runs.items()},
                           "joints": d.actuated_joints, "targets_deg": [math.degrees(t) for t in targets],
                           "duration_s": args.duration, "settle_s": args.settle, "sample_time_s": d.dt,
+                          "torque_limits_nm": d.lqr.torque_limits, "bryson_limits": d.lqr.limits,
                           "schedule": {"points": args.schedule, "sigma": schedule.sigma.tolist(),
                                        "poses_deg": [{j: math.degrees(v) for j, v in p.items()}
                                                      for p in schedule.poses]},
@@ -758,6 +775,7 @@ def _report_design(args, d, targets=None) -> int:
         print(json.dumps({
             "actuated_joints": d.actuated_joints, "inputs": d.lqr.inputs, "states": d.plant.states,
             "sample_time_s": d.dt, "torque_limits_nm": d.lqr.torque_limits, "bryson_limits": d.lqr.limits,
+            "lqr_weights": {"Q": d.lqr.Q.tolist(), "R": d.lqr.R.tolist()},
             "sensors": d.kalman.sensors, "K": d.lqr.K.tolist(), "Kd": d.lqr.Kd.tolist(),
             "rigid_pair_rad_s": wn, "rigid_pair_zeta": zeta, "robustness": rob, "integral_time_s": args.integral,
             **({} if along is None else {"robustness_along_path": along})}))
@@ -766,6 +784,9 @@ def _report_design(args, d, targets=None) -> int:
     print(f"{model.scene.name}: LQR on {', '.join(d.actuated_joints)} ({d.plant.sys.nstates} states), sample time "
           f"{d.dt:g} s, torque limits " + ", ".join(f"{j} {v:g} N m" for j, v in d.lqr.torque_limits.items()))
     print(f"  Kalman sensors: {', '.join(d.kalman.sensors)}; slowest LQR pair {wn:.3g} rad/s (zeta {zeta:.2f})")
+    from controllers.weights import describe
+
+    print(f"  Bryson limits (Q = sum of C_z^T C_z / limit^2, R = diag(1/torque limit^2)): {describe(d.lqr.limits)}")
 
     def db(v):
         return "inf" if v is None else f"{v:.3g}"
