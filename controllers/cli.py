@@ -114,8 +114,9 @@ def add_control_parsers(subparsers) -> None:
                         "and where, are reported (with --design-only, without a run) (docs/control.md)")
     p.add_argument("--integral", type=_finite, metavar="TI",
                    help="with several torque-driven joints: integral action on the joint positions in the LQG, "
-                        "integral time TI s (Bryson weight 1/(0.5 deg x TI)^2 on each joint's error integral; "
-                        "strain gauges; not with --schedule or the exports) (docs/control.md)")
+                        "integral time TI s (Bryson weight 1/(joint-error limit x TI)^2 on each joint's error "
+                        "integral; strain gauges; also in --export-fmu and --export-ssp; not with --schedule) "
+                        "(docs/control.md)")
     p.add_argument("--export-fmu", type=output_file, metavar="CTRL.fmu",
                    help="also write the sampled LQG (Kalman current estimator + discrete LQR, saturation) as a "
                         "pure-C FMI 2.0 Co-Simulation FMU, its sample time the fixed communication step; with "
@@ -288,9 +289,9 @@ def _check_control_args(args) -> None:
         raise FlexlinkError("--target and --duration are required for the closed-loop run (or give --design-only)")
     if args.integral is not None and not args.integral > 0:
         raise FlexlinkError(f"--integral: the integral time must be a positive number of seconds, got {args.integral}")
-    if args.integral is not None and (args.schedule is not None or args.export_fmu or args.export_ssp):
-        raise FlexlinkError("--integral: integral action is not yet in the scheduled LQG or the controller FMU; "
-                            "leave out --schedule, --export-fmu and --export-ssp")
+    if args.integral is not None and args.schedule is not None:
+        raise FlexlinkError("--integral: integral action is not yet in the scheduled LQG; leave out --schedule (or "
+                            "--integral)")
     if args.schedule is not None and (args.target is None or args.duration is None):
         raise FlexlinkError("--schedule: gain scheduling over the path needs the path: --target and --duration")
     if args.design_only and args.torque_limit is None and (args.target is None or args.duration is None):
@@ -439,8 +440,12 @@ def _export(args, d, schedule=None) -> None:
         check_multijoint(d)
         ref = inverse_dynamics_reference(d.plant, plan(d.plant, [math.radians(v) for v in args.target]), d.dt,
                                          args.duration, args.settle)
-    path = export_controller_fmu(d, args.export_fmu, schedule=schedule, duration=args.duration, reference=ref)
+    integ = _integral_design(args, d)
+    path = export_controller_fmu(d, args.export_fmu, schedule=schedule, duration=args.duration, reference=ref,
+                                 integral=integ)
     what = "sampled LQG" if schedule is None else f"sampled LQG scheduled at {len(schedule.designs)} poses"
+    if integ is not None:
+        what += f" with integral action (integral time {args.integral:g} s)"
     plays = "" if ref is None else f", playing the manoeuvre ({args.duration + args.settle:g} s)"
     print(f"wrote {path}: {what} of {', '.join(d.actuated_joints)} at {d.dt:g} s{plays} (inputs: "
           f"{', '.join(d.kalman.sensors)}, x_ref, u_ff, w; outputs: {', '.join(d.lqr.inputs)})", file=sys.stderr)
@@ -467,10 +472,22 @@ def _export_ssp(args, d, targets, schedule=None) -> None:
     pl = plan(d.plant, targets)
     _check_times(args.duration, args.settle, d.dt)
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, args.duration, args.settle)
-    path = write_ssp(d, cached_fmu(args.scene), args.export_ssp, ref, schedule=schedule)
+    integ = _integral_design(args, d)
+    path = write_ssp(d, cached_fmu(args.scene), args.export_ssp, ref, schedule=schedule, integral=integ)
     what = "" if schedule is None else f" scheduled at {len(schedule.designs)} poses"
+    if integ is not None:
+        what += f" with integral action (integral time {args.integral:g} s)"
     print(f"wrote {path}: {d.plant.model.scene.name}'s FMU and its sampled LQG{what} ({', '.join(d.actuated_joints)}) "
           f"for {args.duration + args.settle:g} s at a {d.dt:g} s communication step", file=sys.stderr)
+
+
+def _integral_design(args, d):
+    """``--integral TI``'s augmented design (:func:`controllers.integral.design_integral`), None without it."""
+    if args.integral is None:
+        return None
+    from controllers.integral import design_integral
+
+    return design_integral(d, args.integral)
 
 
 def _torque_limits(plant, values):

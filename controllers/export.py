@@ -46,6 +46,7 @@ import numpy as np
 from controllers.design import DesignError, torque_inputs
 
 if TYPE_CHECKING:
+    from controllers.integral import IntegralDesign
     from controllers.manoeuvre import ControlDesign
     from controllers.multijoint import MimoLQGLaw
     from controllers.schedule import Schedule
@@ -80,15 +81,19 @@ def _schedule_data(schedule: Schedule, duration: float) -> str:
 
 
 def _data(d: ControlDesign, limits: np.ndarray, guid: str,
-          tables: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, delay: int = 0) -> str:
+          tables: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, delay: int = 0,
+          integral: IntegralDesign | None = None) -> str:
     """The text of ``ctrl_data.h``: the design's numbers.
 
     ctrl_data.h: sizes, the estimator's and regulator's matrices, operating point, limits, sample time;
-    with ``tables`` (x_ref, u_ff, w per sample) the built-in reference; the delay it compensates.
+    with ``tables`` (x_ref, u_ff, w per sample) the built-in reference; the delay it compensates; with
+    ``integral`` the augmented design's state gain as ``KD``, its integral gain ``KI`` and the encoders'
+    rows ``IROW`` among the sensors (``INTEGRAL 1``).
     """
     p, kf = d.plant, d.kalman
     nx, ny, nu = p.sys.nstates, len(kf.sensors), len(d.lqr.inputs)
     y0 = p.y0[[p.output_row(s) for s in kf.sensors]]
+    kd = d.lqr.Kd if integral is None else integral.Kx
     ref = "#define NREF 0\n"
     if tables is not None:
         x, u, w = tables
@@ -98,8 +103,16 @@ def _data(d: ControlDesign, limits: np.ndarray, guid: str,
             f'#define NX {nx}\n#define NY {ny}\n#define NU {nu}\n#define DT {d.dt:.17g}\n#define GUID "{guid}"\n'
             f"#define DELAY {int(delay)}\n"
             + _c_array("AD", d.lqr.plant_d.A) + _c_array("BD", np.asarray(d.lqr.plant_d.B).reshape(nx, nu))
-            + _c_array("CY", kf.C) + _c_array("MK", kf.Md) + _c_array("KD", d.lqr.Kd)
-            + _c_array("Y0", y0) + _c_array("U0", p.u0[torque_inputs(p)]) + _c_array("LIM", limits) + ref)
+            + _c_array("CY", kf.C) + _c_array("MK", kf.Md) + _c_array("KD", kd)
+            + _c_array("Y0", y0) + _c_array("U0", p.u0[torque_inputs(p)]) + _c_array("LIM", limits) + ref
+            + ("" if integral is None else _integral_data(integral)))
+
+
+def _integral_data(integral: IntegralDesign) -> str:
+    """``INTEGRAL 1``: the integral gain K_ξ and the rows of the integrated encoders (``ctrl_fmu.c``)."""
+    rows = ", ".join(str(int(r)) for r in integral.rows)
+    return ("#define INTEGRAL 1\n" + _c_array("KI", np.atleast_2d(integral.Ki))
+            + f"static const int IROW[{len(integral.rows)}] = {{{rows}}};\n")
 
 
 def _rows(a: np.ndarray) -> np.ndarray:
@@ -251,7 +264,7 @@ def _model_description(d: ControlDesign, ident: str, guid: str, sources: Sequenc
 def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits: Sequence[float] | None = None,
                           identifier: str | None = None, reference: Reference | None = None, delay: int = 0,
                           schedule: Schedule | None = None, duration: float | None = None,
-                          prediction: str = "model") -> Path:
+                          prediction: str = "model", integral: IntegralDesign | None = None) -> Path:
     """Write the design's sampled LQG (:class:`controllers.multijoint.MimoLQGLaw`) as an FMI 2.0 CS FMU.
 
     ``limits``: the torque saturation per actuated joint (default: the design's torque limits).  The sensors
@@ -265,6 +278,9 @@ def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits
     ``prediction``: how the accelerometer's law predicts its measurements (:class:`MimoLQGLaw`): ``"model"``,
     the model's sensor outputs at the estimate, generated as C by CasADi (``ctrl_sensors.c``:
     :mod:`controllers.sensor_model`), or ``"linear"``, their linearisation along the reference as tables.
+    ``integral`` (:func:`controllers.integral.design_integral` of ``d``): the LQG with integral action on the
+    joint positions and its anti-windup (:class:`controllers.integral.IntegralLQGLaw`; with ``delay=1``
+    :class:`controllers.ssp.PredictiveIntegralLQGLaw`); not with a schedule or sensors read along the reference.
     """
     from flexlink.export.cbuild import compile_shared_library, fmi_headers_dir
 
@@ -285,6 +301,9 @@ def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits
         raise DesignError("a scheduled controller FMU needs the schedule of this design and the manoeuvre time")
     if delay not in (0, 1):
         raise DesignError(f"delay: 0 or 1 sample, got {delay}")
+    if integral is not None and (integral.design is not d or schedule is not None or reads_along(d)):
+        raise DesignError("integral action in the controller FMU: the integral design of this design, without a "
+                          "schedule, with the encoders and strain gauges")
     tables, along, law = None, "#define NALONG 0\n#define REF_INPUTS 1\n", None
     if reference is not None:
         if abs(reference.dt - d.dt) > 1e-12 * d.dt:
@@ -292,7 +311,7 @@ def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits
         law = along_law(d, reference, lim, schedule, prediction)
         tables = (reference.x, reference.u_ff, law.W if law.along is None else law.along.W)
         along = _along_data(law)
-    data = _data(d, lim, "{GUID}", tables, delay) + along
+    data = _data(d, lim, "{GUID}", tables, delay, integral) + along
     if schedule is not None and duration is not None:
         data += _schedule_data(schedule, duration)
     with tempfile.TemporaryDirectory(prefix="flexlink-ctrl-") as tmp:
