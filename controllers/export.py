@@ -189,6 +189,42 @@ def reference_tables(d: ControlDesign, reference: Reference, limits: Sequence[fl
     return reference.x.copy(), reference.u_ff.copy(), W.copy()
 
 
+def frozen_radius_along(d: ControlDesign, law: MimoLQGLaw) -> tuple[float, int]:
+    """The largest spectral radius of ``A_k − B_k K_d`` along the reference, and the sample where it is.
+
+    ``A_k``, ``B_k``: the plant sampled along the reference (the accelerometer law's tables,
+    :class:`controllers.multijoint.EstimatorAlong`); ``K_d`` the fixed design's gain.  Above 1, the fixed LQR
+    is unstable about the poses there (a frozen-pose figure: the arm's motion is not in it).
+    """
+    assert law.along is not None
+    rad = [float(np.max(np.abs(np.linalg.eigvals(A - B @ d.lqr.Kd)))) for A, B in zip(law.along.A, law.along.B,
+                                                                                          strict=True)]
+    k = int(np.argmax(rad))
+    return rad[k], k
+
+
+def check_delayed_along(d: ControlDesign, law: MimoLQGLaw, reference: Reference) -> None:
+    """Refuse the fixed accelerometer LQG for a loop one sample late where its LQR is unstable along the path.
+
+    Why (docs/control.md, "the fixed accelerometer LQG and the sample of delay"): the accelerometer's estimator
+    follows the state along the reference, so the delayed predictive loop behaves as the state feedback
+    ``A_k − B_k K_d`` there; where its spectral radius exceeds 1 (the two-link example's straight arm: 1.187)
+    the loop's alternating mode grows at that rate (measured 1.18 per sample) and the estimate diverges.
+    Undelayed, the same loop passes in the FMU (SS22's damping of the fast modes; with cvodes it diverges).
+    """
+    radius, k = frozen_radius_along(d, law)
+    if radius <= 1.0:
+        return
+    p = d.plant
+    rows = [p.states.index(f"{j}.theta") for j in d.actuated_joints]
+    angles = np.degrees(p.x0[rows] + np.asarray(reference.x[k])[rows])
+    pose = ", ".join(f"{j} {a:.3g}" for j, a in zip(d.actuated_joints, angles, strict=True))
+    raise DesignError(f"the fixed LQR is unstable along this path (spectral radius of the plant sampled along the "
+                      f"reference with its gain {radius:.4g} at t = {k * d.dt:.4g} s, {pose} deg), and with the SSP "
+                      "package's sample of delay the accelerometer LQG diverges there: schedule it (--schedule N) or "
+                      "use the strain gauges")
+
+
 def reads_along(d: ControlDesign) -> bool:
     """Whether the design's sensors are read along a reference: any but encoders and root strain gauges.
 
@@ -309,6 +345,8 @@ def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits
         if abs(reference.dt - d.dt) > 1e-12 * d.dt:
             raise DesignError(f"the reference samples at {reference.dt} s, the controller at {d.dt} s")
         law = along_law(d, reference, lim, schedule, prediction)
+        if delay == 1 and schedule is None and law.along is not None:
+            check_delayed_along(d, law, reference)
         tables = (reference.x, reference.u_ff, law.W if law.along is None else law.along.W)
         along = _along_data(law)
     data = _data(d, lim, "{GUID}", tables, delay, integral) + along
