@@ -15,6 +15,7 @@ import math
 from controllers.options import SENSORS
 from controllers.options import angles as _angles
 from controllers.options import finite as _finite
+from controllers.options import limits as _limits
 from flexlink.errors import FlexlinkError
 from flexlink.paths import SCENE_HELP, output_file, plot_file
 
@@ -74,15 +75,26 @@ def add_control_parsers(subparsers) -> None:
                    help="window after the manoeuvre for the residual vibration and final error (default 1.5)")
     p.add_argument("--controller", choices=("lqr", "pd"), default="lqr",
                    help="lqr: LQR + Kalman estimator with model feedforward; pd: joint PD baseline")
-    p.add_argument("--torque-limit", type=_angles, metavar="NM[,NM...]",
+    p.add_argument("--torque-limit", type=_limits, metavar="NM[,NM...]|JOINT=NM,...",
                    help="saturation and Bryson torque limit of every joint, or one per torque-driven joint "
-                        "comma-separated in scene order (default: 1.5 x the rigid quintic's peak torque of the "
-                        "first joint; with several joints 1.5 x the largest peak of the inverse-dynamics "
-                        "feedforward)")
-    p.add_argument("--root-moment", type=_finite, metavar="NM",
-                   help="Bryson limit of every link's root bending moment in the LQR weights (default: 10 %% of the "
-                        "torque limit of the joint carrying the link; the torque limit itself gives the two-link "
-                        "example >= 6 dB and >= 30 deg at each actuator, docs/control.md)")
+                        "comma-separated in scene order, or by joint name (default: 1.5 x the rigid quintic's peak "
+                        "torque of the first joint; with several joints 1.5 x the largest peak of the "
+                        "inverse-dynamics feedforward)")
+    p.add_argument("--joint-error", type=_limits, metavar="DEG[,DEG...]|JOINT=DEG,...",
+                   help="Bryson limit of each joint's angle error in the LQR weights: one for all, one per joint "
+                        "with an encoder in scene order, or by joint name (default 0.5 deg; smaller = heavier)")
+    p.add_argument("--tip-deflection", type=_limits, metavar="MM[,MM...]|LINK=MM,...",
+                   help="Bryson limit of each link's tip deflection (tip.v) in mm: one for all, one per flexible "
+                        "link in scene order, or by link name (default 5 mm)")
+    p.add_argument("--root-moment", type=_limits, metavar="NM[,NM...]|LINK=NM,...",
+                   help="Bryson limit of each link's root bending moment in the LQR weights: one for all, one per "
+                        "link, or by link name (default: 10 %% of the torque limit of the joint carrying the link; "
+                        "the torque limit itself gives the two-link example >= 6 dB and >= 30 deg at each "
+                        "actuator, docs/control.md)")
+    p.add_argument("--mode-limit", type=_limits, metavar="V|LINK=V,...|LINK.eta[K]=V,...",
+                   help="Bryson limit of modal coordinates (the FMU outputs <link>.eta[k]): one for every mode, all "
+                        "the modes of a link by its name, or one mode by its output name (default: none, the "
+                        "modes weighed through the tip deflection and root moment)")
     p.add_argument("--sample-time", type=_finite, default=1e-3, metavar="S", help="controller sample time (1 ms)")
     p.add_argument("--sensors", choices=SENSORS, default="strain",
                    help="Kalman sensors besides the joint encoders: the links' root strain gauges or the tip "
@@ -102,8 +114,9 @@ def add_control_parsers(subparsers) -> None:
                         "and where, are reported (with --design-only, without a run) (docs/control.md)")
     p.add_argument("--integral", type=_finite, metavar="TI",
                    help="with several torque-driven joints: integral action on the joint positions in the LQG, "
-                        "integral time TI s (Bryson weight 1/(0.5 deg x TI)^2 on each joint's error integral; "
-                        "strain gauges; not with --schedule or the exports) (docs/control.md)")
+                        "integral time TI s (Bryson weight 1/(joint-error limit x TI)^2 on each joint's error "
+                        "integral; strain gauges; also in --export-fmu and --export-ssp; not with --schedule) "
+                        "(docs/control.md)")
     p.add_argument("--export-fmu", type=output_file, metavar="CTRL.fmu",
                    help="also write the sampled LQG (Kalman current estimator + discrete LQR, saturation) as a "
                         "pure-C FMI 2.0 Co-Simulation FMU, its sample time the fixed communication step; with "
@@ -203,6 +216,7 @@ def cmd_control(args) -> int:
     Every check that needs no model runs first, so that bad input costs no build; a repeated command is
     answered from the design cache (:mod:`controllers.design_cache`) without the linearisation and design.
     """
+    from controllers.weights import check_names, overrides
     from flexlink.run.simulate import parse_assignments
     from flexlink.scene.loader import load_scene
 
@@ -213,6 +227,7 @@ def cmd_control(args) -> int:
 
         check_times(args.duration, args.settle, args.sample_time)       # before the model and the FMU are built
     scene = load_scene(args.scene)
+    check_names(scene, args)                    # a misspelt joint or link costs no model build
     key = _cache_key(args, scene)
     if key is not None:
         from controllers.design_cache import load
@@ -230,6 +245,7 @@ def cmd_control(args) -> int:
 
     model = build_model(scene)
     check_scene(model)
+    weights = overrides(model, args)
     plant = linear_plant(model, outputs=[f"{model.scene.joints[0].name}.theta"])
     targets = [math.radians(v) for v in args.target] if args.target is not None else None
     target = targets[0] if targets else None
@@ -239,7 +255,7 @@ def cmd_control(args) -> int:
     if limit is None:
         limit = _default_limits(plant, targets, args.duration, args.sample_time)
     try:
-        d = design(model, torque_limit=limit, dt=args.sample_time, sensors=args.sensors, root_moment=args.root_moment)
+        d = design(model, torque_limit=limit, dt=args.sample_time, sensors=args.sensors, limits=weights)
     except (ValueError, np.linalg.LinAlgError) as e:
         raise FlexlinkError(f"{args.scene}: the LQR/Kalman design failed ({' '.join(str(e).split())})") from None
     if args.schedule is not None and (len(d.actuated_joints) < 2 or targets is None or args.duration is None):
@@ -266,10 +282,6 @@ def _check_control_args(args) -> None:
     """Refuse contradictory or out-of-range options of ``flexlink control`` before the scene is read."""
     if not (args.sample_time > 0):
         raise FlexlinkError(f"--sample-time must be positive, got {args.sample_time}")
-    if args.root_moment is not None and not args.root_moment > 0:
-        raise FlexlinkError(f"--root-moment must be positive, got {args.root_moment}")
-    if args.torque_limit is not None and not all(v > 0 for v in args.torque_limit):
-        raise FlexlinkError(f"--torque-limit must be positive, got {','.join(f'{v:g}' for v in args.torque_limit)}")
     if args.schedule is not None and args.schedule < 2:
         raise FlexlinkError(f"--schedule: at least 2 design points along the path (start and target), got "
                             f"{args.schedule}")
@@ -277,9 +289,9 @@ def _check_control_args(args) -> None:
         raise FlexlinkError("--target and --duration are required for the closed-loop run (or give --design-only)")
     if args.integral is not None and not args.integral > 0:
         raise FlexlinkError(f"--integral: the integral time must be a positive number of seconds, got {args.integral}")
-    if args.integral is not None and (args.schedule is not None or args.export_fmu or args.export_ssp):
-        raise FlexlinkError("--integral: integral action is not yet in the scheduled LQG or the controller FMU; "
-                            "leave out --schedule, --export-fmu and --export-ssp")
+    if args.integral is not None and args.schedule is not None:
+        raise FlexlinkError("--integral: integral action is not yet in the scheduled LQG; leave out --schedule (or "
+                            "--integral)")
     if args.schedule is not None and (args.target is None or args.duration is None):
         raise FlexlinkError("--schedule: gain scheduling over the path needs the path: --target and --duration")
     if args.design_only and args.torque_limit is None and (args.target is None or args.duration is None):
@@ -312,6 +324,7 @@ def _run_single(args, d, plant, target: float, limit, run_params: dict, key: str
                        title=f"{model.scene.name}: {args.controller.upper()}, {args.target[0]:g} deg in "
                              f"{args.duration:g} s, torque limit {limit:g} N m")
     info = {"name": model.scene.name, "start_deg": math.degrees(float(plant.x0[0])), "limit": limit, "wn": wn,
+            "bryson_limits": d.lqr.limits,
             "zeta": zeta, "sensors": d.kalman.sensors if args.controller == "lqr" else d.law("pd").sensors}
     if args.controller == "pd":
         info.update(kp=d.joint_pd.kp, kd=d.joint_pd.kd, pd_zeta=d.joint_pd.zeta)
@@ -337,7 +350,9 @@ def _cache_key(args, scene) -> str | None:
         return None
     return cache_key(scene, {"target": args.target, "duration": args.duration, "settle": args.settle,
                              "controller": args.controller, "torque_limit": args.torque_limit,
-                             "root_moment": args.root_moment, "sample_time": args.sample_time,
+                             "root_moment": args.root_moment, "joint_error": args.joint_error,
+                             "tip_deflection": args.tip_deflection, "mode_limit": args.mode_limit,
+                             "sample_time": args.sample_time,
                              "sensors": args.sensors})
 
 
@@ -387,6 +402,7 @@ def _report_single(args, info: dict, m: dict, run_params: dict, rob: dict | None
     if args.json:
         m = dict(m)
         m.update({"sensors": info["sensors"], "rigid_pair_rad_s": info["wn"], "rigid_pair_zeta": info["zeta"],
+                  "bryson_limits": info.get("bryson_limits"),
                   "parameters": run_params, "robustness": rob})
         print(json.dumps(m))
         return
@@ -424,8 +440,12 @@ def _export(args, d, schedule=None) -> None:
         check_multijoint(d)
         ref = inverse_dynamics_reference(d.plant, plan(d.plant, [math.radians(v) for v in args.target]), d.dt,
                                          args.duration, args.settle)
-    path = export_controller_fmu(d, args.export_fmu, schedule=schedule, duration=args.duration, reference=ref)
+    integ = _integral_design(args, d)
+    path = export_controller_fmu(d, args.export_fmu, schedule=schedule, duration=args.duration, reference=ref,
+                                 integral=integ)
     what = "sampled LQG" if schedule is None else f"sampled LQG scheduled at {len(schedule.designs)} poses"
+    if integ is not None:
+        what += f" with integral action (integral time {args.integral:g} s)"
     plays = "" if ref is None else f", playing the manoeuvre ({args.duration + args.settle:g} s)"
     print(f"wrote {path}: {what} of {', '.join(d.actuated_joints)} at {d.dt:g} s{plays} (inputs: "
           f"{', '.join(d.kalman.sensors)}, x_ref, u_ff, w; outputs: {', '.join(d.lqr.inputs)})", file=sys.stderr)
@@ -452,10 +472,22 @@ def _export_ssp(args, d, targets, schedule=None) -> None:
     pl = plan(d.plant, targets)
     _check_times(args.duration, args.settle, d.dt)
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, args.duration, args.settle)
-    path = write_ssp(d, cached_fmu(args.scene), args.export_ssp, ref, schedule=schedule)
+    integ = _integral_design(args, d)
+    path = write_ssp(d, cached_fmu(args.scene), args.export_ssp, ref, schedule=schedule, integral=integ)
     what = "" if schedule is None else f" scheduled at {len(schedule.designs)} poses"
+    if integ is not None:
+        what += f" with integral action (integral time {args.integral:g} s)"
     print(f"wrote {path}: {d.plant.model.scene.name}'s FMU and its sampled LQG{what} ({', '.join(d.actuated_joints)}) "
           f"for {args.duration + args.settle:g} s at a {d.dt:g} s communication step", file=sys.stderr)
+
+
+def _integral_design(args, d):
+    """``--integral TI``'s augmented design (:func:`controllers.integral.design_integral`), None without it."""
+    if args.integral is None:
+        return None
+    from controllers.integral import design_integral
+
+    return design_integral(d, args.integral)
 
 
 def _torque_limits(plant, values):
@@ -466,8 +498,8 @@ def _torque_limits(plant, values):
     """
     from controllers.design import actuated_joints
 
-    if values is None or len(values) == 1:
-        return None if values is None else values[0]
+    if values is None or isinstance(values, dict) or len(values) == 1:
+        return values[0] if isinstance(values, list) else values
     joints = actuated_joints(plant)
     if len(values) != len(joints):
         raise FlexlinkError(f"--torque-limit: one limit for all joints or one per torque-driven joint "
@@ -532,6 +564,7 @@ def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int
         doc = {"joints": d.actuated_joints, "targets_deg": [math.degrees(t) for t in targets],
                "duration_s": args.duration, "settle_s": args.settle, "sample_time_s": d.dt,
                "sensors": d.kalman.sensors, "pd_gains": {"kp": kp.tolist(), "kd": kd.tolist()}, "robustness": rob,
+               "torque_limits_nm": d.lqr.torque_limits, "bryson_limits": d.lqr.limits,
                "integral_time_s": args.integral,
                "noise": {"sigma": d.kalman.noise, "seed": args.seed} if args.noise else None}
     if key is not None:
@@ -639,6 +672,7 @@ def _run_scheduled(args, d, targets, run_params, fmu) -> int:
         print(json.dumps({**{k: (r if isinstance(r, str) else r.metrics) for k, r in runs.items()},
                           "joints": d.actuated_joints, "targets_deg": [math.degrees(t) for t in targets],
                           "duration_s": args.duration, "settle_s": args.settle, "sample_time_s": d.dt,
+                          "torque_limits_nm": d.lqr.torque_limits, "bryson_limits": d.lqr.limits,
                           "schedule": {"points": args.schedule, "sigma": schedule.sigma.tolist(),
                                        "poses_deg": [{j: math.degrees(v) for j, v in p.items()}
                                                      for p in schedule.poses]},
@@ -758,6 +792,7 @@ def _report_design(args, d, targets=None) -> int:
         print(json.dumps({
             "actuated_joints": d.actuated_joints, "inputs": d.lqr.inputs, "states": d.plant.states,
             "sample_time_s": d.dt, "torque_limits_nm": d.lqr.torque_limits, "bryson_limits": d.lqr.limits,
+            "lqr_weights": {"Q": d.lqr.Q.tolist(), "R": d.lqr.R.tolist()},
             "sensors": d.kalman.sensors, "K": d.lqr.K.tolist(), "Kd": d.lqr.Kd.tolist(),
             "rigid_pair_rad_s": wn, "rigid_pair_zeta": zeta, "robustness": rob, "integral_time_s": args.integral,
             **({} if along is None else {"robustness_along_path": along})}))
@@ -766,6 +801,9 @@ def _report_design(args, d, targets=None) -> int:
     print(f"{model.scene.name}: LQR on {', '.join(d.actuated_joints)} ({d.plant.sys.nstates} states), sample time "
           f"{d.dt:g} s, torque limits " + ", ".join(f"{j} {v:g} N m" for j, v in d.lqr.torque_limits.items()))
     print(f"  Kalman sensors: {', '.join(d.kalman.sensors)}; slowest LQR pair {wn:.3g} rad/s (zeta {zeta:.2f})")
+    from controllers.weights import describe
+
+    print(f"  Bryson limits (Q = sum of C_z^T C_z / limit^2, R = diag(1/torque limit^2)): {describe(d.lqr.limits)}")
 
     def db(v):
         return "inf" if v is None else f"{v:.3g}"

@@ -43,6 +43,14 @@
  * manoeuvre), as controllers.schedule.ScheduledLQGLaw does.  The schedule is a known function of time: no
  * measured signal enters it, and the estimate is not reset when the matrices change.  With DELAY 1 the
  * torque output at t_k for t_k+1 takes the gain of t_k+1 (controllers.ssp.ScheduledPredictiveLQGLaw).
+ *
+ * Integral action on the joint positions (INTEGRAL 1, controllers/integral.py): KD is the augmented design's
+ * state gain K_x, and the torque has −KI xi added (u = sat(u0 + uff − KI xi − K e)), xi the integrals of the
+ * joints' encoder errors (the sensors IROW[j]: y − y0 − C xref, measured).  The estimator's prediction is told
+ * the torque applied (its deviation from u0 + uff, integral part included).  Anti-windup by conditional
+ * integration: xi += DT err only in a sample whose applied torque saturates nowhere — the torque just computed
+ * (DELAY 0, controllers.integral.IntegralLQGLaw), or with DELAY 1 the torque being applied over this sample,
+ * the next torque then taking the updated xi (controllers.ssp.PredictiveIntegralLQGLaw).
  */
 #include <math.h>
 #include <stdarg.h>
@@ -70,6 +78,9 @@
 #if SENSOR_MODEL
 #include "ctrl_sensors.h"
 #endif
+#ifndef INTEGRAL
+#define INTEGRAL 0
+#endif
 
 typedef struct {
     fmi2CallbackFunctions cb;
@@ -78,6 +89,7 @@ typedef struct {
     double z[NX], e[NX], u[NU];
     double ad[NX][NX], bd[NX][NU], cy[NY][NX], mk[NX][NY], kd[NU][NX];   /* the matrices of this sample */
     double uprev[NU];       /* deviation torque held while the measurement of this sample was taken */
+    double xi[NU];          /* INTEGRAL: the integrals of the joints' encoder errors (rad s) */
     double t;
     long k;                 /* samples taken since the start: the row of the built-in reference */
     enum { INSTANTIATED, INITIALISING, STEPPING, FAILED } state;   /* FMI 2.0 CS state machine (§4.2.4) */
@@ -187,13 +199,43 @@ static void regulate(Ctrl *c, const double *uff, const double *e) {
     }
 }
 
+/* The feedforward with the integral action added, uff − KI xi (uff itself without INTEGRAL). */
+static void with_integral(const Ctrl *c, const double *uff, double *out) {
+    for (int i = 0; i < NU; i++) {
+        double s = uff[i];
+#if INTEGRAL
+        for (int j = 0; j < NU; j++) s -= KI[i][j] * c->xi[j];
+#else
+        (void)c;
+#endif
+        out[i] = s;
+    }
+}
+
+#if INTEGRAL
+/* Conditional integration: xi += DT (y_e − y0_e − C_e xref) unless the torque applied over this sample
+ * saturates (anti-windup, header comment). */
+static void integrate(Ctrl *c, const double *xref, const double *applied) {
+    for (int i = 0; i < NU; i++) if (!(fabs(applied[i]) < LIM[i])) return;
+    double err[NU];
+    for (int j = 0; j < NU; j++) {
+        int r = IROW[j];
+        double s = c->in[r] - Y0[r];
+        for (int k = 0; k < NX; k++) s -= c->cy[r][k] * xref[k];
+        err[j] = s;
+    }
+    for (int j = 0; j < NU; j++) c->xi[j] += DT * err[j];
+}
+#endif
+
 /* One sample: the estimate e from the inputs, the next prior estimate z and the torque to output.  DELAY 0:
  * the torque of this sample (z predicted with it).  DELAY 1 (for an importer that applies it one sample
  * later): z predicted with the torque being applied now (the output held), the torque of the next sample
  * from z and the next row of the reference. */
 static int sample(Ctrl *c) {
-    double xref[NX], uff[NU], w[NX], innov[NY], z[NX], held[NU];
+    double xref[NX], uff[NU], w[NX], innov[NY], z[NX], held[NU], uffi[NU], xi[NU];
     memcpy(held, c->u, sizeof held);      /* the output kept if this sample fails */
+    memcpy(xi, c->xi, sizeof xi);
     if (NSCHED > 0 || c->k == 0) load(c, c->k);
     reference(c, c->k, xref, uff, w);
 #if NALONG > 0
@@ -212,7 +254,8 @@ static int sample(Ctrl *c) {
         c->e[i] = s;
     }
 #if DELAY == 0
-    regulate(c, uff, c->e);
+    with_integral(c, uff, uffi);
+    regulate(c, uffi, c->e);
 #endif
     for (int i = 0; i < NX; i++) {
         double s = -w[i];
@@ -222,16 +265,22 @@ static int sample(Ctrl *c) {
     }
     memcpy(c->z, z, sizeof z);
     for (int i = 0; i < NU; i++) c->uprev[i] = c->u[i] - U0[i];   /* held while the next sample is measured */
+#if INTEGRAL
+    integrate(c, xref, c->u);               /* DELAY 0: the torque just computed; DELAY 1: the one applied now */
+#endif
 #if DELAY == 1
     reference(c, c->k + 1, xref, uff, w);
     if (NSCHED > 0) load(c, c->k + 1);      /* the next sample's torque with the next sample's gain */
-    regulate(c, uff, c->z);
+    with_integral(c, uff, uffi);
+    regulate(c, uffi, c->z);
 #endif
-    for (int i = 0; i < NX; i++) {
-        if (!isfinite(c->z[i])) {
-            memcpy(c->u, held, sizeof held);
-            return 0;
-        }
+    int ok = 1;
+    for (int i = 0; i < NX; i++) ok = ok && isfinite(c->z[i]);
+    for (int i = 0; i < NU; i++) ok = ok && isfinite(c->xi[i]);
+    if (!ok) {
+        memcpy(c->u, held, sizeof held);
+        memcpy(c->xi, xi, sizeof xi);
+        return 0;
     }
     return 1;
 }
@@ -241,6 +290,7 @@ static void reset(Ctrl *c) {
     for (int i = 0; i < NY; i++) c->in[i] = Y0[i];
     memset(c->z, 0, sizeof c->z);
     memset(c->uprev, 0, sizeof c->uprev);  /* DELAY 0: u0 held while sample 0 is measured */
+    memset(c->xi, 0, sizeof c->xi);
     double xref[NX], uff[NU], w[NX];
     c->k = 0;
     load(c, 0);

@@ -46,6 +46,7 @@ import numpy as np
 from controllers.design import DesignError, torque_inputs
 
 if TYPE_CHECKING:
+    from controllers.integral import IntegralDesign
     from controllers.manoeuvre import ControlDesign
     from controllers.multijoint import MimoLQGLaw
     from controllers.schedule import Schedule
@@ -80,15 +81,19 @@ def _schedule_data(schedule: Schedule, duration: float) -> str:
 
 
 def _data(d: ControlDesign, limits: np.ndarray, guid: str,
-          tables: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, delay: int = 0) -> str:
+          tables: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, delay: int = 0,
+          integral: IntegralDesign | None = None) -> str:
     """The text of ``ctrl_data.h``: the design's numbers.
 
     ctrl_data.h: sizes, the estimator's and regulator's matrices, operating point, limits, sample time;
-    with ``tables`` (x_ref, u_ff, w per sample) the built-in reference; the delay it compensates.
+    with ``tables`` (x_ref, u_ff, w per sample) the built-in reference; the delay it compensates; with
+    ``integral`` the augmented design's state gain as ``KD``, its integral gain ``KI`` and the encoders'
+    rows ``IROW`` among the sensors (``INTEGRAL 1``).
     """
     p, kf = d.plant, d.kalman
     nx, ny, nu = p.sys.nstates, len(kf.sensors), len(d.lqr.inputs)
     y0 = p.y0[[p.output_row(s) for s in kf.sensors]]
+    kd = d.lqr.Kd if integral is None else integral.Kx
     ref = "#define NREF 0\n"
     if tables is not None:
         x, u, w = tables
@@ -98,8 +103,16 @@ def _data(d: ControlDesign, limits: np.ndarray, guid: str,
             f'#define NX {nx}\n#define NY {ny}\n#define NU {nu}\n#define DT {d.dt:.17g}\n#define GUID "{guid}"\n'
             f"#define DELAY {int(delay)}\n"
             + _c_array("AD", d.lqr.plant_d.A) + _c_array("BD", np.asarray(d.lqr.plant_d.B).reshape(nx, nu))
-            + _c_array("CY", kf.C) + _c_array("MK", kf.Md) + _c_array("KD", d.lqr.Kd)
-            + _c_array("Y0", y0) + _c_array("U0", p.u0[torque_inputs(p)]) + _c_array("LIM", limits) + ref)
+            + _c_array("CY", kf.C) + _c_array("MK", kf.Md) + _c_array("KD", kd)
+            + _c_array("Y0", y0) + _c_array("U0", p.u0[torque_inputs(p)]) + _c_array("LIM", limits) + ref
+            + ("" if integral is None else _integral_data(integral)))
+
+
+def _integral_data(integral: IntegralDesign) -> str:
+    """``INTEGRAL 1``: the integral gain K_ξ and the rows of the integrated encoders (``ctrl_fmu.c``)."""
+    rows = ", ".join(str(int(r)) for r in integral.rows)
+    return ("#define INTEGRAL 1\n" + _c_array("KI", np.atleast_2d(integral.Ki))
+            + f"static const int IROW[{len(integral.rows)}] = {{{rows}}};\n")
 
 
 def _rows(a: np.ndarray) -> np.ndarray:
@@ -174,6 +187,42 @@ def reference_tables(d: ControlDesign, reference: Reference, limits: Sequence[fl
     law = along_law(d, reference, limits, schedule)
     W = law.W if law.along is None else law.along.W
     return reference.x.copy(), reference.u_ff.copy(), W.copy()
+
+
+def frozen_radius_along(d: ControlDesign, law: MimoLQGLaw) -> tuple[float, int]:
+    """The largest spectral radius of ``A_k − B_k K_d`` along the reference, and the sample where it is.
+
+    ``A_k``, ``B_k``: the plant sampled along the reference (the accelerometer law's tables,
+    :class:`controllers.multijoint.EstimatorAlong`); ``K_d`` the fixed design's gain.  Above 1, the fixed LQR
+    is unstable about the poses there (a frozen-pose figure: the arm's motion is not in it).
+    """
+    assert law.along is not None
+    rad = [float(np.max(np.abs(np.linalg.eigvals(A - B @ d.lqr.Kd)))) for A, B in zip(law.along.A, law.along.B,
+                                                                                          strict=True)]
+    k = int(np.argmax(rad))
+    return rad[k], k
+
+
+def check_delayed_along(d: ControlDesign, law: MimoLQGLaw, reference: Reference) -> None:
+    """Refuse the fixed accelerometer LQG for a loop one sample late where its LQR is unstable along the path.
+
+    Why (docs/control.md, "the fixed accelerometer LQG and the sample of delay"): the accelerometer's estimator
+    follows the state along the reference, so the delayed predictive loop behaves as the state feedback
+    ``A_k − B_k K_d`` there; where its spectral radius exceeds 1 (the two-link example's straight arm: 1.187)
+    the loop's alternating mode grows at that rate (measured 1.18 per sample) and the estimate diverges.
+    Undelayed, the same loop passes in the FMU (SS22's damping of the fast modes; with cvodes it diverges).
+    """
+    radius, k = frozen_radius_along(d, law)
+    if radius <= 1.0:
+        return
+    p = d.plant
+    rows = [p.states.index(f"{j}.theta") for j in d.actuated_joints]
+    angles = np.degrees(p.x0[rows] + np.asarray(reference.x[k])[rows])
+    pose = ", ".join(f"{j} {a:.3g}" for j, a in zip(d.actuated_joints, angles, strict=True))
+    raise DesignError(f"the fixed LQR is unstable along this path (spectral radius of the plant sampled along the "
+                      f"reference with its gain {radius:.4g} at t = {k * d.dt:.4g} s, {pose} deg), and with the SSP "
+                      "package's sample of delay the accelerometer LQG diverges there: schedule it (--schedule N) or "
+                      "use the strain gauges")
 
 
 def reads_along(d: ControlDesign) -> bool:
@@ -251,7 +300,7 @@ def _model_description(d: ControlDesign, ident: str, guid: str, sources: Sequenc
 def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits: Sequence[float] | None = None,
                           identifier: str | None = None, reference: Reference | None = None, delay: int = 0,
                           schedule: Schedule | None = None, duration: float | None = None,
-                          prediction: str = "model") -> Path:
+                          prediction: str = "model", integral: IntegralDesign | None = None) -> Path:
     """Write the design's sampled LQG (:class:`controllers.multijoint.MimoLQGLaw`) as an FMI 2.0 CS FMU.
 
     ``limits``: the torque saturation per actuated joint (default: the design's torque limits).  The sensors
@@ -265,6 +314,9 @@ def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits
     ``prediction``: how the accelerometer's law predicts its measurements (:class:`MimoLQGLaw`): ``"model"``,
     the model's sensor outputs at the estimate, generated as C by CasADi (``ctrl_sensors.c``:
     :mod:`controllers.sensor_model`), or ``"linear"``, their linearisation along the reference as tables.
+    ``integral`` (:func:`controllers.integral.design_integral` of ``d``): the LQG with integral action on the
+    joint positions and its anti-windup (:class:`controllers.integral.IntegralLQGLaw`; with ``delay=1``
+    :class:`controllers.ssp.PredictiveIntegralLQGLaw`); not with a schedule or sensors read along the reference.
     """
     from flexlink.export.cbuild import compile_shared_library, fmi_headers_dir
 
@@ -285,14 +337,19 @@ def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits
         raise DesignError("a scheduled controller FMU needs the schedule of this design and the manoeuvre time")
     if delay not in (0, 1):
         raise DesignError(f"delay: 0 or 1 sample, got {delay}")
+    if integral is not None and (integral.design is not d or schedule is not None or reads_along(d)):
+        raise DesignError("integral action in the controller FMU: the integral design of this design, without a "
+                          "schedule, with the encoders and strain gauges")
     tables, along, law = None, "#define NALONG 0\n#define REF_INPUTS 1\n", None
     if reference is not None:
         if abs(reference.dt - d.dt) > 1e-12 * d.dt:
             raise DesignError(f"the reference samples at {reference.dt} s, the controller at {d.dt} s")
         law = along_law(d, reference, lim, schedule, prediction)
+        if delay == 1 and schedule is None and law.along is not None:
+            check_delayed_along(d, law, reference)
         tables = (reference.x, reference.u_ff, law.W if law.along is None else law.along.W)
         along = _along_data(law)
-    data = _data(d, lim, "{GUID}", tables, delay) + along
+    data = _data(d, lim, "{GUID}", tables, delay, integral) + along
     if schedule is not None and duration is not None:
         data += _schedule_data(schedule, duration)
     with tempfile.TemporaryDirectory(prefix="flexlink-ctrl-") as tmp:

@@ -29,7 +29,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from controllers.cosim import FmuLoop, LoopResult
-from controllers.design import KalmanDesign, LQRDesign, PDDesign, design_kalman, design_lqr, design_pd
+from controllers.design import (
+    KalmanDesign,
+    LQRDesign,
+    PDDesign,
+    default_limits,
+    design_kalman,
+    design_lqr,
+    design_pd,
+)
 from controllers.figures import ManoeuvreResult
 from controllers.laws import LQGLaw, PDLaw, SampledLaw
 from controllers.trajectory import Reference, min_jerk_reference, quintic_reference
@@ -147,7 +155,7 @@ def design(scene_or_model, *, torque_limit: float | Mapping[str, float], dt: flo
            tip_deflection: float | Mapping[str, float] = 5e-3,
            root_moment: float | Mapping[str, float] | None = None,
            torque_noise: float | None = None, elastic_noise: float | None = None, pd_zeta: float = 0.7,
-           parameters: Mapping[str, float] | None = None) -> ControlDesign:
+           parameters: Mapping[str, float] | None = None, limits: Mapping[str, float] | None = None) -> ControlDesign:
     """Linearise about the start pose and design LQR, Kalman estimator and PD baseline.
 
     The LQR and the Kalman estimator act on every torque-driven joint (their encoders and, with
@@ -174,11 +182,19 @@ def design(scene_or_model, *, torque_limit: float | Mapping[str, float], dt: flo
         Damping ratio of the PD's rigid-body pair (its frequency is the LQR's).
     parameters : dict, optional
         Design-point FMU parameters (default: the scene's values).
+    limits : dict, optional
+        More Bryson limits by FMU output name (SI), laid over those of ``hub_error``, ``tip_deflection`` and
+        ``root_moment``: a mode's ``<link>.eta[k]``, or one joint's or link's limit (what ``flexlink control``'s
+        ``--joint-error``, ``--mode-limit`` … give, :mod:`controllers.weights`).
     """
     plant = linear_plant(scene_or_model, parameters=parameters)    # all outputs: sensors, Bryson, records
     check_scene(plant.model)
-    lqr = design_lqr(plant, dt, torque_limit, hub_error=hub_error, tip_deflection=tip_deflection,
-                     root_moment=root_moment)
+    bryson = default_limits(plant, torque_limit, hub_error=hub_error, tip_deflection=tip_deflection,
+                            root_moment=root_moment)
+    for name in limits or {}:
+        if name not in plant.outputs:
+            raise FlexlinkError(f"Bryson limit on {name!r}: not an output of the model")
+    lqr = design_lqr(plant, dt, torque_limit, limits={**bryson, **(limits or {})})
     tn = 0.05 * max(lqr.torque_limits.values()) if torque_noise is None else torque_noise
     en = tn if elastic_noise is None else elastic_noise
     kalman = design_kalman(plant, dt, sensors, torque_noise=tn, elastic_noise=en)

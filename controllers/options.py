@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["SENSORS", "angles", "finite"]
+__all__ = ["SENSORS", "angles", "finite", "limits", "positive"]
 
 #: The Kalman sensors besides the joint encoders (``--sensors`` of ``flexlink control`` and ``sweep``).
 SENSORS = ("strain", "accelerometer")
@@ -30,3 +30,37 @@ def finite(text: str) -> float:
 def angles(text: str) -> list[float]:
     """``--target``: one angle in degrees, or one per torque-driven joint separated by commas."""
     return [finite(v) for v in text.split(",")]
+
+
+def positive(text: str) -> float:
+    """A finite number above zero: a limit of the LQR's weights or of a torque."""
+    v = finite(text)
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return v
+
+
+def limits(text: str) -> list[float] | dict[str, float]:
+    """A limit per joint, link or mode: ``V`` (every one), ``V,V,…`` (one each, in scene order) or ``NAME=V,…``.
+
+    Every value must be positive (a Bryson limit is the deviation that costs as much as the others' limits;
+    zero or less has no meaning).  Names are checked against the scene by :mod:`controllers.weights`, which
+    knows it; here only the syntax, so that a typo costs no model build.
+    """
+    items = [s.strip() for s in text.split(",")]
+    if not all(items):
+        raise argparse.ArgumentTypeError(f"expected V, V,V,... or NAME=V,..., got {text!r}")
+    named = ["=" in s for s in items]
+    if any(named) and not all(named):
+        raise argparse.ArgumentTypeError(f"give every value a name or none, got {text!r}")
+    if not any(named):
+        return [positive(s) for s in items]
+    out: dict[str, float] = {}
+    for s in items:
+        name, _, value = s.partition("=")
+        name = name.strip()
+        if not name or name in out:
+            what = f"a repeated name {name!r}" if name else "an empty name"
+            raise argparse.ArgumentTypeError(f"{what} in {text!r}")
+        out[name] = positive(value.strip())
+    return out

@@ -44,11 +44,13 @@ from controllers.design import DesignError
 from controllers.multijoint import MimoLQGLaw
 
 if TYPE_CHECKING:
+    from controllers.integral import IntegralDesign
     from controllers.manoeuvre import ControlDesign
     from controllers.schedule import Schedule
     from controllers.trajectory import Reference
 
-__all__ = ["JacobiDelay", "JacobiLoop", "PredictiveLQGLaw", "ScheduledPredictiveLQGLaw", "write_ssp"]
+__all__ = ["JacobiDelay", "JacobiLoop", "PredictiveIntegralLQGLaw", "PredictiveLQGLaw", "ScheduledPredictiveLQGLaw",
+           "write_ssp"]
 
 PLANT, CONTROLLER = "plant", "controller"
 
@@ -97,7 +99,8 @@ def system_structure(name: str, sensors: list[str], torques: list[str], dt: floa
 
 
 def write_ssp(d: ControlDesign, plant_fmu: str | os.PathLike[str], path: str | os.PathLike[str],
-              reference: Reference, limits: Sequence[float] | None = None, schedule: Schedule | None = None) -> Path:
+              reference: Reference, limits: Sequence[float] | None = None, schedule: Schedule | None = None,
+              integral: IntegralDesign | None = None) -> Path:
     """Write the SSP package of the plant FMU and the design's controller FMU playing ``reference``.
 
     The package is validated against the SSP 1.0 schema before it is written, so that a package on disk is
@@ -118,6 +121,9 @@ def write_ssp(d: ControlDesign, plant_fmu: str | os.PathLike[str], path: str | o
     schedule : controllers.schedule.Schedule, optional
         A gain schedule of ``d`` over the path: the controller interpolates its matrices along it
         (:class:`ScheduledPredictiveLQGLaw`).
+    integral : controllers.integral.IntegralDesign, optional
+        Integral action on the joint positions (:func:`controllers.integral.design_integral` of ``d``): the
+        controller is :class:`PredictiveIntegralLQGLaw`.
 
     Returns
     -------
@@ -136,7 +142,7 @@ def write_ssp(d: ControlDesign, plant_fmu: str | os.PathLike[str], path: str | o
         (root / "resources").mkdir()
         shutil.copy(plant_fmu, root / "resources" / f"{PLANT}.fmu")
         export_controller_fmu(d, root / "resources" / f"{CONTROLLER}.fmu", limits=limits, reference=reference,
-                              delay=1, schedule=schedule, duration=reference.duration)
+                              delay=1, schedule=schedule, duration=reference.duration, integral=integral)
         ssd = system_structure(d.plant.model.scene.name, list(d.kalman.sensors), list(d.lqr.inputs), d.dt,
                                float(reference.time[-1]))
         (root / "SystemStructure.ssd").write_text(ssd)
@@ -285,3 +291,46 @@ class ScheduledPredictiveLQGLaw(PredictiveLQGLaw):
     def matrices(self, k: int) -> tuple[np.ndarray, ...]:
         """The schedule's (M, C, K_d, A_d, B_d) at sample ``k`` (the last sample's after the reference)."""
         return self.scheduled.matrices(min(k, len(self.u_ff) - 1))
+
+
+class PredictiveIntegralLQGLaw(PredictiveLQGLaw):
+    """The predictive LQG with integral action on the joint positions, for a loop one sample late.
+
+    :class:`PredictiveLQGLaw` with the augmented design of :func:`controllers.integral.design_integral`
+    (``DELAY 1`` with ``INTEGRAL 1`` in ``ctrl_fmu.c``): at sample k the estimate is corrected with y_k and
+    predicted to k+1 with the torque v_k being applied; the joints' error integrals ξ take sample k's measured
+    encoder errors unless v_k saturates (the anti-windup of :class:`controllers.integral.IntegralLQGLaw`, on
+    the torque applied over the sample); the torque returned is sample k+1's, ``sat(u₀ + u_ff,k+1 − K_ξ ξ_k+1
+    − K_x ẑ_k+1)``.  Sensors linear in the state only (encoders, strain gauges).
+    """
+
+    def __init__(self, integral: IntegralDesign, limits: Sequence[float], reference: Reference):
+        self.Kx, self.Ki, self.rows = integral.Kx, integral.Ki, list(integral.rows)
+        super().__init__(integral.design, limits, reference, "linear")
+        if self.schedule is not None:
+            raise DesignError("integral action: the sensors read the torques (accelerometers); use the strain gauges")
+        self.Ce = self.C[self.rows]
+
+    def reset(self) -> None:
+        """As :meth:`PredictiveLQGLaw.reset`, the integrals at zero."""
+        self.xi = np.zeros(len(self.Ki))
+        super().reset()
+
+    def matrices(self, k: int) -> tuple[np.ndarray, ...]:
+        """(M, C, K_x, A_d, B_d): the LQG's, with the augmented design's state gain."""
+        M, C, _, Ad, Bd = super().matrices(k)
+        return M, C, self.Kx, Ad, Bd
+
+    def step(self, y: np.ndarray, x_ref: np.ndarray, u_ff: np.ndarray) -> np.ndarray:
+        """Sample k: correct, predict with the torque applied, integrate, return sample k+1's torque."""
+        M, C, _, Ad, Bd = self.matrices(self.k)
+        dx = self.dz + M @ (y - self.y0 - C @ (x_ref + self.dz))
+        self.dz = self.finite(Ad @ dx + Bd @ (self.v - self.u0 - u_ff) - self.W[min(self.k, len(self.W) - 1)])
+        self.u_prev = self.v - self.u0
+        if np.all(np.abs(self.v) < self.limits):        # conditional integration on the torque applied now
+            self.xi = self.xi + self.dt * (np.asarray(y)[self.rows] - self.y0[self.rows] - self.Ce @ x_ref)
+        self.k += 1
+        nxt = min(self.k, len(self.u_ff) - 1)
+        u = self.u0 + (self.u_ff[nxt] - self.Ki @ self.xi) - self.Kx @ self.dz
+        self.v = np.clip(u, -self.limits, self.limits)
+        return self.v.copy()

@@ -190,10 +190,14 @@ def test_cli_multijoint(tmp_path, capsys):
     for c in ("lqg", "pd"):
         assert {"settling_time_s", "residual_vibration_rms_m", "joints", "links"} <= set(doc[c])
     assert doc["robustness"]["lqg"]["stable"] and len(doc["robustness"]["pd"]["actuators"]) == 2
+    assert doc["torque_limits_nm"] == {"shoulder": 60.0, "elbow": 60.0}          # the weights the run used
+    assert doc["bryson_limits"]["elbow.theta"] == pytest.approx(math.radians(0.5), rel=1e-15)
     for bad, msg in ((["--target", "60"], "one angle per torque-driven joint"),
                      (["--target", "60,20", "--controller", "pd"], "--controller"),
-                     (["--target", "60,20", "--torque-limit", "60,20,5"], "one per torque-driven joint"),
-                     (["--target", "60,20", "--torque-limit", "60,-1"], "must be positive")):
+                     (["--target", "60,20", "--torque-limit", "60,20,5"], "one per torque-driven joint")):
         args = parser.parse_args(["control", str(SCENE), "--duration", "1.5", "--torque-limit", "60", *bad])
         with pytest.raises((FlexlinkError, DesignError), match=msg):
             args.func(args)
+    with pytest.raises(SystemExit):              # a non-positive limit: argparse's usage error (exit 2, one line)
+        parser.parse_args(["control", str(SCENE), "--target", "60,20", "--torque-limit", "60,-1"])
+    assert "--torque-limit: expected a positive number, got '-1'" in capsys.readouterr().err
