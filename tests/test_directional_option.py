@@ -136,12 +136,14 @@ def test_a_newton_matrix_by_columns_without_derivatives_is_made_of_differences()
     assert errors(_shoulder_push(differences, tolerance=1e-12)[0])[resolved].max() < error_differences / 20
 
 
-def test_without_derivatives_auto_builds_the_newton_matrix_by_differences():
-    """newton_matrix = "auto" keeps a dense symbolic matrix up to 12 coordinates only while the residual's
-    derivative is compiled anyway; without it the columns cost no code (docs/fmi.md)."""
-    lean = _generated(cached_fmu(_scene("rotating_link", directional_derivatives=False)))
-    assert "rotating_link_mass_matrix.c" in lean and "rotating_link_newton_matrix.c" not in lean
-    assert "rotating_link_newton_matrix.c" in _generated(cached_fmu(_scene("rotating_link")))
+def test_auto_builds_the_newton_matrix_by_differences_and_dense_only_when_asked():
+    """newton_matrix = "auto" assembles the matrix from the mass matrix and differences of the residual, with
+    or without the derivatives, at no code; "dense" generates the symbolic Jacobian (docs/fmi.md)."""
+    for fmu in (cached_fmu(_scene("rotating_link", directional_derivatives=False)),
+                cached_fmu(_scene("rotating_link"))):
+        generated = _generated(fmu)
+        assert "rotating_link_mass_matrix.c" in generated and "rotating_link_newton_matrix.c" not in generated
+    assert "rotating_link_newton_matrix.c" in _generated(cached_fmu(_scene("rotating_link", newton_matrix="dense")))
 
 
 def test_fmi3_declares_neither_derivative_kind():

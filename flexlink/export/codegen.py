@@ -44,16 +44,16 @@ from flexlink.scene.solver import SETTINGS
 # Above EXPAND_MAX_COORDINATES the matrix graph is kept (compact code, much slower per step).
 FULL_OPTIMISATION_MAX_OPERATIONS = 5_000
 EXPAND_MAX_COORDINATES = 160
-# [fmu] newton_matrix = "auto": up to this many coordinates the Newton matrix is one dense symbolic Jacobian
-# (cheapest to refresh); above, it is assembled in C column by column from M(q), the Hessian of T, and
-# forward differences of the residual (fmu_src/templates/newton_matrix_differences.c.in), so that the
-# generated code grows like the residual's, not n times it.  Measured on examples/fast_two_link.toml (26
-# coordinates, a whipping arm that refreshes the matrix every 4th step): 254k operations for the dense matrix
-# against 94k for the residual's derivative and M; 53 µs per SS22 step dense, 112 µs by columns of the
-# derivative (a Newton matrix cost 26 derivative calls, 300 µs; a difference column costs one residual,
-# about 2.3 times less); the mild examples refresh it a few times per run, where only the build counts
-# (docs/performance.md, benchmarks/scaling.py).
-NEWTON_DENSE_MAX_COORDINATES = 12
+# [fmu] newton_matrix = "auto" assembles the Newton matrix in C column by column from M(q), the Hessian of T,
+# and forward differences of the residual (fmu_src/templates/newton_matrix_differences.c.in) at every size: the
+# generated code grows like the residual's, not n times it.  "dense" (one symbolic Jacobian) is kept for a
+# scene that asks.  Measured 2026-11-27 (benchmarks/step_floor.py's driver, 5 runs alternating the two builds
+# of each scene in one run; the same Newton iterations and factorisations in both): two_link_payload 11.8k ->
+# 4.6k operations, 1.71 -> 1.72 us a step; steel_beam_gravity 47.7k -> 20.9k, 5.71 -> 4.68 us; the 3-link
+# chain 45.5k -> about 16k, 6.21 -> 6.18 us; rotating_link 6.7k -> 3.3k, 0.79 -> 0.84 us.  A matrix by
+# differences costs 1.4-3.3 times the dense one to evaluate, which SS22 refreshes rarely (simplified Newton:
+# 236 factorisations in 5000 steps on the chain).  Dense used to be the rule up to 12 coordinates while the
+# forward derivatives were generated code the dense Jacobian could share; with the complex step they are none.
 # The functions off the Co-Simulation step's iteration -- the mass matrix (at a Newton-matrix refresh, in the
 # guards' definiteness check once a link deflects past a quarter of its validity limit, in Model Exchange's
 # derivatives) and the forward derivatives of residual and outputs (directional derivatives, the Newton
@@ -154,29 +154,25 @@ def _template(name: str) -> Template:
 def dense_newton_matrix(model: SymbolicModel) -> bool:
     """Whether the Newton matrix is generated as one dense symbolic Jacobian (else assembled by columns).
 
-    The scene's [fmu] newton_matrix, or for "auto" up to NEWTON_DENSE_MAX_COORDINATES, unless the scene
-    leaves the directional derivatives out: its Newton matrix then comes by columns from differences of
-    the residual at no code at all (a three-link chain's generated step: 46k operations with the dense
-    matrix, 16k without, the same iterations and cost per step; docs/fmi.md).
+    Only where the scene asks for ``newton_matrix = "dense"``: "auto" assembles it by columns at no code
+    (a three-link chain's generated step: 46k operations with the dense matrix, 16k without, the same
+    iterations and cost per step; the figures in the comment on [fmu] newton_matrix = "auto" above).
     """
     form = model.scene.fmu.newton_matrix
     if form == "dense" and model.n_q > EXPAND_MAX_COORDINATES:
         raise BuildError(f'[fmu] newton_matrix = "dense": at most {EXPAND_MAX_COORDINATES} coordinates (this '
                          f'model has {model.n_q}; its dense Jacobian would be n times the residual\'s code); use '
                          '"auto" or "columns"')
-    if form != "auto":
-        return form == "dense"
-    return model.scene.fmu.directional_derivatives and \
-        model.n_q <= min(NEWTON_DENSE_MAX_COORDINATES, EXPAND_MAX_COORDINATES)
+    return form == "dense"
 
 
 def newton_matrix_template(model: SymbolicModel) -> str:
     """The C template of ``model_newton_matrix``.
 
-    A dense symbolic Jacobian; or column by column, from the mass matrix and forward differences of the
-    residual (``"auto"`` above NEWTON_DENSE_MAX_COORDINATES: a column costs one residual, the iteration
-    matrix's √ε error is far below what simplified Newton tolerates), or, where the scene asks for
-    ``"columns"`` and the directional derivatives are compiled, from the exact forward derivative.
+    A dense symbolic Jacobian (``"dense"``); or column by column, from the mass matrix and forward
+    differences of the residual (``"auto"``: a column costs one residual, the iteration matrix's √ε error is
+    far below what simplified Newton tolerates), or, where the scene asks for ``"columns"`` and the
+    directional derivatives are compiled, from exact directional derivatives.
     """
     if dense_newton_matrix(model):
         return "newton_matrix.c.in"

@@ -19,30 +19,27 @@ panels.  A shell link's reduction (reduction.fixed_interface_modes) makes its st
 Build time and code size are a rough model, fitted to builds at the default optimisation
 (``FLEXLINK_OPTIMISE`` unset, this machine, 2026-11-27: one ``build_fmu(scene, dir)`` per scene, wall time; the
 operations and C bytes are its BuildReport's; the directional derivatives by the complex step, which adds no
-code):
+code, and the Newton matrix by differences of the residual, "auto"'s form at every size):
 
     scene                  n_q  operations  C [MB]  build [s]
-    rotating_link            4       6 651    0.18       3.7
-    two_link_payload         6      11 801    0.29       8.7
-    steel_beam_gravity      10      47 653    1.03      11.6
-    planar_chain_5          20      31 218    0.70      14.8
+    rotating_link            4       3 289    0.11       5.5
+    two_link_payload         6       4 624    0.14       7.2
+    steel_beam_gravity      10      20 867    0.50       7.4
+    planar_chain_5          20      31 218    0.70      18.9
 
-operations ≈ OPERATIONS_PER_TERM · Σ_links (1 + n_i)^LINK_EXPONENT · (1 + n_q / DENSE_NEWTON_SCALE with a dense
-Newton matrix, n_q ≤ 12) (a link's energy gathers products of its own coordinates; a dense Newton matrix is n_q
-derivatives of the residual), code ≈ BYTES_PER_OPERATION · operations, build ≈ SECONDS_PER_OPERATION ·
-operations + 1 s.  Fit: the exponent (1.0 … 2.0) and the dense scale (2, 4, 8, 16) that minimise the worst
-log-error of the operations on these four, the factor their geometric mean; the exponent 1.4 and scale 16 of
-the earlier fit are kept (worst error 17 %; the best, 13 %, at 1.6 overestimates the examples outside the fit
-more).  Bytes and seconds per
-operation are the means of the four (21.7 … 27.4 B, 2.2 … 6.5 · 10⁻⁴ s).
+operations ≈ OPERATIONS_PER_TERM · Σ_links (1 + n_i)^LINK_EXPONENT · (1 + n_q / DENSE_NEWTON_SCALE where a
+scene asks for a dense Newton matrix) (a link's energy gathers products of its own coordinates; a dense Newton
+matrix is n_q derivatives of the residual: the scale is from the earlier fit, when "auto" was dense up to 12
+coordinates), code ≈ BYTES_PER_OPERATION · operations, build ≈ SECONDS_PER_OPERATION · operations + 1 s.  Fit:
+the exponent (1.0 … 2.0) that minimises the worst log-error of the operations on these four (38 %), the factor
+their geometric mean; bytes and seconds per operation are the means of the four (22.6 … 34.3 B, 3.1 … 13.8 ·
+10⁻⁴ s: the machine was loaded, and the small builds are mostly the generic C's compile).
 
 On the six other examples timed the same way (elastic_joint, plate_raise, six_axis_arm, steel_beam_two_links,
 spatial_cantilever, fast_two_link) it lands within a factor of 3 of the measured operations, code and time
-(tests/test_budget.py holds them; worst: spatial_cantilever's one link of 30 coordinates 2.1x over), except
-plate_raise, 3.6x over: the model is fitted on second-order kinematics, whose foreshortening terms a
-first-order link has none of (rotating_link with 4 modes: 777 operations first-order, 15 408 second-order), so
-it overestimates first-order links, the safe side of a budget.  Treat it as an order of magnitude; the timings
-were taken on 2 cores shared with other sessions, so they are inflated.
+(tests/test_budget.py holds them; worst: plate_raise's operations 2.1x over: the model is fitted on
+second-order kinematics, whose foreshortening terms its first-order shell has none of).  Treat it as an order of
+magnitude; the timings were taken on 2 cores shared with other sessions, so they are inflated.
 """
 
 from __future__ import annotations
@@ -86,12 +83,11 @@ ALLOW_LARGE_ENV = "FLEXLINK_ALLOW_LARGE"
 # The rough cost model (module docstring): operations = OPERATIONS_PER_TERM · Σ (1 + n_i)^LINK_EXPONENT · form.
 # The directional derivatives add no code (the complex step on the residual and outputs,
 # flexlink.export.derivatives): [fmu] directional_derivatives = false changes only the Newton matrix's form.
-OPERATIONS_PER_TERM = 896.0
-LINK_EXPONENT = 1.4
+OPERATIONS_PER_TERM = 855.0
+LINK_EXPONENT = 1.2
 DENSE_NEWTON_SCALE = 16.0              # a dense Newton matrix multiplies the code by 1 + n_q / 16
-BYTES_PER_OPERATION = 24.0
-SECONDS_PER_OPERATION = 4.3e-4
-NEWTON_DENSE_MAX_COORDINATES = 12      # flexlink.export.codegen's: up to it the Newton matrix is dense
+BYTES_PER_OPERATION = 27.7
+SECONDS_PER_OPERATION = 9.0e-4
 
 
 @dataclass(frozen=True)
@@ -220,9 +216,7 @@ def estimate(scene: Scene) -> SceneCost:
     joints = sum(1 + j.is_elastic - (j.drive == "position") for j in scene.joints)
     n_q = joints + sum(c.coordinates for c in links)
     terms = sum((1 + c.coordinates) ** LINK_EXPONENT for c in links)
-    lean = not scene.fmu.directional_derivatives
-    dense = scene.fmu.newton_matrix == "dense" or (n_q <= NEWTON_DENSE_MAX_COORDINATES and not lean
-                                                    and scene.fmu.newton_matrix == "auto")
+    dense = scene.fmu.newton_matrix == "dense"      # "auto" assembles it by columns (flexlink.export.codegen)
     operations = int(OPERATIONS_PER_TERM * terms * ((1 + n_q / DENSE_NEWTON_SCALE) if dense else 1.0))
     cost = SceneCost(scene.path or scene.name, links, joints, operations, int(BYTES_PER_OPERATION * operations),
                      1.0 + SECONDS_PER_OPERATION * operations)

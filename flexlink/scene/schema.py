@@ -566,8 +566,8 @@ KEYS: tuple[Key, ...] = (
        description="the SS22 Newton matrix in the generated C: one dense symbolic Jacobian (fastest to refresh, "
                    "code n times the residual's), or by columns from the mass matrix and differences of the "
                    "residual (no code); \"columns\" takes exact columns from the directional derivatives "
-                   "(the complex step, a few residuals a column) where they are compiled; auto: dense up to "
-                   "12 coordinates when the derivatives are compiled, differences above"),
+                   "(the complex step, a few residuals a column) where they are compiled; auto: differences "
+                   "(the same steps as dense at a third to a half of the code)"),
     _K("fmu", "directional_derivatives", "boolean", "", True,
        description="provide fmi2GetDirectionalDerivative: the forward derivatives of the residual and the "
                    "outputs by the complex step on their generated code (no derivative code is generated; "
