@@ -9,7 +9,7 @@
 * the SSP package with integral action run by libcosim (its own SSP parser and Jacobi master) equals, to 1e-9,
   the plant FMU stepped by fmpy with the Python predictive law (``controllers.ssp.PredictiveIntegralLQGLaw``)
   applied one sample late, as that master applies it;
-* ``flexlink control --integral`` writes both, and still refuses ``--schedule``.
+* ``flexlink control --integral`` writes both, and with ``--schedule`` still refuses to (not built yet).
 """
 
 from __future__ import annotations
@@ -152,4 +152,4 @@ def test_cli_writes_both_and_refuses_a_schedule(tmp_path, capsys):
     assert validate_fmu(str(fmu)) == []
     assert main([*base, "--schedule", "3", "--export-fmu", str(fmu)]) == 2
     err = capsys.readouterr().err
-    assert "not yet in the scheduled LQG" in err and err.count("\n") == 1
+    assert "controller FMU and SSP package are not built yet" in err and err.count("\n") == 1
