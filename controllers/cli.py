@@ -116,7 +116,8 @@ def add_control_parsers(subparsers) -> None:
                    help="with several torque-driven joints: integral action on the joint positions in the LQG, "
                         "integral time TI s (Bryson weight 1/(joint-error limit x TI)^2 on each joint's error "
                         "integral; strain gauges; also in --export-fmu and --export-ssp; with --schedule in the "
-                        "scheduled and the fixed LQG, designed at every pose, not yet exported) (docs/control.md)")
+                        "scheduled and the fixed LQG, designed at every pose; exported by --export-fmu, not yet by "
+                        "--export-ssp) (docs/control.md)")
     p.add_argument("--export-fmu", type=output_file, metavar="CTRL.fmu",
                    help="also write the sampled LQG (Kalman current estimator + discrete LQR, saturation) as a "
                         "pure-C FMI 2.0 Co-Simulation FMU, its sample time the fixed communication step; with "
@@ -289,10 +290,10 @@ def _check_control_args(args) -> None:
         raise FlexlinkError("--target and --duration are required for the closed-loop run (or give --design-only)")
     if args.integral is not None and not args.integral > 0:
         raise FlexlinkError(f"--integral: the integral time must be a positive number of seconds, got {args.integral}")
-    if args.integral is not None and args.schedule is not None and (args.export_fmu or args.export_ssp):
-        raise FlexlinkError("--integral with --schedule: the scheduled LQG with integral action runs in Python only, "
-                            "its controller FMU and SSP package are not built yet; leave out --export-fmu/--export-ssp "
-                            "(or --schedule)")
+    if args.integral is not None and args.schedule is not None and args.export_ssp:
+        raise FlexlinkError("--integral with --schedule: the SSP package of the scheduled LQG with integral action is "
+                            "not built yet (its controller one sample late); leave out --export-ssp (--export-fmu "
+                            "writes its controller FMU)")
     if args.schedule is not None and (args.target is None or args.duration is None):
         raise FlexlinkError("--schedule: gain scheduling over the path needs the path: --target and --duration")
     if args.design_only and args.torque_limit is None and (args.target is None or args.duration is None):
@@ -441,7 +442,7 @@ def _export(args, d, schedule=None) -> None:
         check_multijoint(d)
         ref = inverse_dynamics_reference(d.plant, plan(d.plant, [math.radians(v) for v in args.target]), d.dt,
                                          args.duration, args.settle)
-    integ = _integral_design(args, d)
+    integ = _integral_design(args, d) if schedule is None else _scheduled_integral(args, schedule)
     path = export_controller_fmu(d, args.export_fmu, schedule=schedule, duration=args.duration, reference=ref,
                                  integral=integ)
     what = "sampled LQG" if schedule is None else f"sampled LQG scheduled at {len(schedule.designs)} poses"
