@@ -115,8 +115,9 @@ def add_control_parsers(subparsers) -> None:
     p.add_argument("--integral", type=_finite, metavar="TI",
                    help="with several torque-driven joints: integral action on the joint positions in the LQG, "
                         "integral time TI s (Bryson weight 1/(joint-error limit x TI)^2 on each joint's error "
-                        "integral; strain gauges; also in --export-fmu and --export-ssp; not with --schedule) "
-                        "(docs/control.md)")
+                        "integral; strain gauges; also in --export-fmu and --export-ssp; with --schedule in the "
+                        "scheduled and the fixed LQG, designed at every pose; exported by --export-fmu, not yet by "
+                        "--export-ssp) (docs/control.md)")
     p.add_argument("--export-fmu", type=output_file, metavar="CTRL.fmu",
                    help="also write the sampled LQG (Kalman current estimator + discrete LQR, saturation) as a "
                         "pure-C FMI 2.0 Co-Simulation FMU, its sample time the fixed communication step; with "
@@ -289,9 +290,10 @@ def _check_control_args(args) -> None:
         raise FlexlinkError("--target and --duration are required for the closed-loop run (or give --design-only)")
     if args.integral is not None and not args.integral > 0:
         raise FlexlinkError(f"--integral: the integral time must be a positive number of seconds, got {args.integral}")
-    if args.integral is not None and args.schedule is not None:
-        raise FlexlinkError("--integral: integral action is not yet in the scheduled LQG; leave out --schedule (or "
-                            "--integral)")
+    if args.integral is not None and args.schedule is not None and args.export_ssp:
+        raise FlexlinkError("--integral with --schedule: the SSP package of the scheduled LQG with integral action is "
+                            "not built yet (its controller one sample late); leave out --export-ssp (--export-fmu "
+                            "writes its controller FMU)")
     if args.schedule is not None and (args.target is None or args.duration is None):
         raise FlexlinkError("--schedule: gain scheduling over the path needs the path: --target and --duration")
     if args.design_only and args.torque_limit is None and (args.target is None or args.duration is None):
@@ -440,7 +442,7 @@ def _export(args, d, schedule=None) -> None:
         check_multijoint(d)
         ref = inverse_dynamics_reference(d.plant, plan(d.plant, [math.radians(v) for v in args.target]), d.dt,
                                          args.duration, args.settle)
-    integ = _integral_design(args, d)
+    integ = _integral_design(args, d) if schedule is None else _scheduled_integral(args, schedule)
     path = export_controller_fmu(d, args.export_fmu, schedule=schedule, duration=args.duration, reference=ref,
                                  integral=integ)
     what = "sampled LQG" if schedule is None else f"sampled LQG scheduled at {len(schedule.designs)} poses"
@@ -652,11 +654,12 @@ def _run_scheduled(args, d, targets, run_params, fmu) -> int:
     from controllers.schedule import compare_schedule
 
     pl, schedule = _scheduled_design(args, d, targets)
+    integ = _scheduled_integral(args, schedule)
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, args.duration, args.settle)
     noise = {"noise": d.kalman.noise, "seed": args.seed} if args.noise else {}    # both laws read the design's sensors
     with _loop(fmu, run_params) as loop:
-        runs = compare_schedule(d, schedule, loop, pl, ref, parameters=run_params, **noise)
-    margins = _path_margins(d, schedule, pl, args.schedule)
+        runs = compare_schedule(d, schedule, loop, pl, ref, integral=integ, parameters=run_params, **noise)
+    margins = _path_margins(d, schedule, pl, args.schedule, integ)
     radius = [{"sigma": p["sigma"], "pose_deg": p["pose_deg"], "fixed": f["spectral_radius"],
                "scheduled": p["spectral_radius"]}
               for p, f in zip(margins["scheduled"]["points"], margins["fixed"]["points"], strict=True)]
@@ -677,7 +680,7 @@ def _run_scheduled(args, d, targets, run_params, fmu) -> int:
                                        "poses_deg": [{j: math.degrees(v) for j, v in p.items()}
                                                      for p in schedule.poses]},
                           "frozen_spectral_radius": radius, "robustness_along_path": margins,
-                          "parameters": run_params,
+                          "integral_time_s": args.integral, "parameters": run_params,
                           "noise": {"sigma": noise["noise"], "seed": args.seed} if noise else None}))
         return 0
     print(f"{d.plant.model.scene.name}: rest-to-rest {move} in {args.duration:g} s (+ {args.settle:g} s settle), "
@@ -685,6 +688,9 @@ def _run_scheduled(args, d, targets, run_params, fmu) -> int:
     print(f"  scheduled LQG: designed at {args.schedule} poses along the path ("
           + "; ".join(", ".join(f"{v:.4g}" for v in np.degrees(list(p.values()))) for p in schedule.poses)
           + " deg), interpolated by the path parameter; fixed LQG: designed at the start pose")
+    if integ is not None:
+        print(f"  both with integral action on the joint positions, integral time {args.integral:g} s (the "
+              "augmented gains designed at every pose of the schedule)")
     print("  frozen-pose spectral radius (sampled loop, < 1 holds the pose), fixed / scheduled: "
           + ", ".join(f"{r['fixed']:.4f}/{r['scheduled']:.4f}" for r in radius))
     print("  " + path_margins_text(margins).replace("\n", "\n  "))
@@ -847,7 +853,16 @@ def _schedule_margins(args, d, targets) -> dict:
 
     check_multijoint(d)
     pl, schedule = _scheduled_design(args, d, targets)
-    return _path_margins(d, schedule, pl, args.schedule)
+    return _path_margins(d, schedule, pl, args.schedule, _scheduled_integral(args, schedule))
+
+
+def _scheduled_integral(args, schedule):
+    """``--integral TI`` with ``--schedule N``: the augmented design at every design point, None without it."""
+    if args.integral is None:
+        return None
+    from controllers.integral import design_scheduled_integral
+
+    return design_scheduled_integral(schedule, args.integral)
 
 
 def _scheduled_design(args, d, targets):
@@ -864,10 +879,13 @@ def _scheduled_design(args, d, targets):
     return pl, schedule
 
 
-def _path_margins(d, schedule, pl, points: int) -> dict:
-    """Both laws' margins frozen at the ``points`` design points and three poses between each two."""
+def _path_margins(d, schedule, pl, points: int, integral=None) -> dict:
+    """Both laws' margins frozen at the ``points`` design points and three poses between each two.
+
+    With ``integral`` (:func:`_scheduled_integral`) those of both laws with integral action.
+    """
     import numpy as np
 
     from controllers.schedule import along_path
 
-    return along_path(d, schedule, pl, np.linspace(0.0, 1.0, 4 * points - 3).tolist())
+    return along_path(d, schedule, pl, np.linspace(0.0, 1.0, 4 * points - 3).tolist(), integral=integral)

@@ -50,7 +50,9 @@
  * the torque applied (its deviation from u0 + uff, integral part included).  Anti-windup by conditional
  * integration: xi += DT err only in a sample whose applied torque saturates nowhere — the torque just computed
  * (DELAY 0, controllers.integral.IntegralLQGLaw), or with DELAY 1 the torque being applied over this sample,
- * the next torque then taking the updated xi (controllers.ssp.PredictiveIntegralLQGLaw).
+ * the next torque then taking the updated xi (controllers.ssp.PredictiveIntegralLQGLaw).  With a schedule
+ * (DELAY 0 only) SKD holds each design point's K_x and SKI its K_xi, interpolated with the other matrices
+ * (controllers.integral.ScheduledIntegralLQGLaw).
  */
 #include <math.h>
 #include <stdarg.h>
@@ -90,6 +92,7 @@ typedef struct {
     double ad[NX][NX], bd[NX][NU], cy[NY][NX], mk[NX][NY], kd[NU][NX];   /* the matrices of this sample */
     double uprev[NU];       /* deviation torque held while the measurement of this sample was taken */
     double xi[NU];          /* INTEGRAL: the integrals of the joints' encoder errors (rad s) */
+    double ki[NU][NU];      /* INTEGRAL: the integral gain of this sample (KI, or the schedule's SKI) */
     double t;
     long k;                 /* samples taken since the start: the row of the built-in reference */
     enum { INSTANTIATED, INITIALISING, STEPPING, FAILED } state;   /* FMI 2.0 CS state machine (§4.2.4) */
@@ -152,6 +155,9 @@ static void load(Ctrl *c, long k) {
     blend(&c->cy[0][0], SCY + i * NY * NX, SCY + (i + 1) * NY * NX, lam, NY * NX);
     blend(&c->mk[0][0], SMK + i * NX * NY, SMK + (i + 1) * NX * NY, lam, NX * NY);
     blend(&c->kd[0][0], SKD + i * NU * NX, SKD + (i + 1) * NU * NX, lam, NU * NX);
+#if INTEGRAL
+    blend(&c->ki[0][0], SKI + i * NU * NU, SKI + (i + 1) * NU * NU, lam, NU * NU);
+#endif
 #else
     (void)k;
     memcpy(c->ad, AD, sizeof c->ad);
@@ -159,6 +165,9 @@ static void load(Ctrl *c, long k) {
     memcpy(c->cy, CY, sizeof c->cy);
     memcpy(c->mk, MK, sizeof c->mk);
     memcpy(c->kd, KD, sizeof c->kd);
+#if INTEGRAL
+    memcpy(c->ki, KI, sizeof c->ki);
+#endif
 #endif
 }
 
@@ -204,7 +213,7 @@ static void with_integral(const Ctrl *c, const double *uff, double *out) {
     for (int i = 0; i < NU; i++) {
         double s = uff[i];
 #if INTEGRAL
-        for (int j = 0; j < NU; j++) s -= KI[i][j] * c->xi[j];
+        for (int j = 0; j < NU; j++) s -= c->ki[i][j] * c->xi[j];
 #else
         (void)c;
 #endif

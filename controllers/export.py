@@ -46,7 +46,7 @@ import numpy as np
 from controllers.design import DesignError, torque_inputs
 
 if TYPE_CHECKING:
-    from controllers.integral import IntegralDesign
+    from controllers.integral import IntegralDesign, ScheduledIntegral
     from controllers.manoeuvre import ControlDesign
     from controllers.multijoint import MimoLQGLaw
     from controllers.schedule import Schedule
@@ -65,17 +65,19 @@ def _c_array(name: str, a: np.ndarray) -> str:
     return f"static const double {name}[{a.shape[0]}][{a.shape[1]}] = {{\n    {rows}}};\n"
 
 
-def _schedule_data(schedule: Schedule, duration: float) -> str:
+def _schedule_data(schedule: Schedule, duration: float, integral: ScheduledIntegral | None = None) -> str:
     """The design points of a gain schedule as C arrays.
 
     Of a ``controllers.schedule.Schedule``: the path parameters and (M, C, K_d, A_d, B_d), each flattened
-    row-major; the manoeuvre time that maps t to the path parameter.
+    row-major; the manoeuvre time that maps t to the path parameter.  With ``integral`` (its
+    :class:`controllers.integral.ScheduledIntegral`) K_d is each point's K_x and ``SKI`` holds its K_ξ.
     """
     from controllers.schedule import _matrices
 
-    mats = [_matrices(d) for d in schedule.designs]
+    mats = [_matrices(d) for d in schedule.designs] if integral is None else integral.tables
+    names = ("SMK", "SCY", "SKD", "SAD", "SBD") + (() if integral is None else ("SKI",))
     out = f"#define NSCHED {len(mats)}\n#define TMOVE {float(duration):.17g}\n" + _c_array("SSIG", schedule.sigma)
-    for k, name in enumerate(("SMK", "SCY", "SKD", "SAD", "SBD")):
+    for k, name in enumerate(names):
         out += _c_array(name, np.concatenate([np.asarray(m[k], dtype=float).ravel() for m in mats]))
     return out
 
@@ -297,10 +299,25 @@ def _model_description(d: ControlDesign, ident: str, guid: str, sources: Sequenc
 """
 
 
+def _check_integral(d, integral, schedule, scheduled, delay: int) -> None:
+    """Refuse an integral design that is not this design's (or its schedule's), or that the C cannot run."""
+    if integral is None:
+        return
+    if reads_along(d):
+        raise DesignError("integral action in the controller FMU: with the encoders and strain gauges only")
+    if scheduled is None and (integral.design is not d or schedule is not None):
+        raise DesignError("integral action in the controller FMU: the integral design of this design (with a "
+                          "schedule: its design_scheduled_integral)")
+    if scheduled is not None and (scheduled.schedule is not schedule or delay != 0):
+        raise DesignError("scheduled integral action in the controller FMU: the schedule's own integral design, "
+                          "without the SSP package's sample of delay (not built yet)")
+
+
 def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits: Sequence[float] | None = None,
                           identifier: str | None = None, reference: Reference | None = None, delay: int = 0,
                           schedule: Schedule | None = None, duration: float | None = None,
-                          prediction: str = "model", integral: IntegralDesign | None = None) -> Path:
+                          prediction: str = "model",
+                          integral: IntegralDesign | ScheduledIntegral | None = None) -> Path:
     """Write the design's sampled LQG (:class:`controllers.multijoint.MimoLQGLaw`) as an FMI 2.0 CS FMU.
 
     ``limits``: the torque saturation per actuated joint (default: the design's torque limits).  The sensors
@@ -316,7 +333,9 @@ def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits
     :mod:`controllers.sensor_model`), or ``"linear"``, their linearisation along the reference as tables.
     ``integral`` (:func:`controllers.integral.design_integral` of ``d``): the LQG with integral action on the
     joint positions and its anti-windup (:class:`controllers.integral.IntegralLQGLaw`; with ``delay=1``
-    :class:`controllers.ssp.PredictiveIntegralLQGLaw`); not with a schedule or sensors read along the reference.
+    :class:`controllers.ssp.PredictiveIntegralLQGLaw`); with a schedule its
+    :class:`controllers.integral.ScheduledIntegral` (:class:`controllers.integral.ScheduledIntegralLQGLaw`,
+    without delay); not with sensors read along the reference.
     """
     from flexlink.export.cbuild import compile_shared_library, fmi_headers_dir
 
@@ -337,9 +356,12 @@ def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits
         raise DesignError("a scheduled controller FMU needs the schedule of this design and the manoeuvre time")
     if delay not in (0, 1):
         raise DesignError(f"delay: 0 or 1 sample, got {delay}")
-    if integral is not None and (integral.design is not d or schedule is not None or reads_along(d)):
-        raise DesignError("integral action in the controller FMU: the integral design of this design, without a "
-                          "schedule, with the encoders and strain gauges")
+    from controllers.integral import IntegralDesign, ScheduledIntegral
+
+    scheduled_integral = integral if isinstance(integral, ScheduledIntegral) else None
+    _check_integral(d, integral, schedule, scheduled_integral, delay)
+    start_integral = integral if isinstance(integral, IntegralDesign) else (
+        None if scheduled_integral is None else scheduled_integral.designs[0])
     tables, along, law = None, "#define NALONG 0\n#define REF_INPUTS 1\n", None
     if reference is not None:
         if abs(reference.dt - d.dt) > 1e-12 * d.dt:
@@ -349,9 +371,9 @@ def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits
             check_delayed_along(d, law, reference)
         tables = (reference.x, reference.u_ff, law.W if law.along is None else law.along.W)
         along = _along_data(law)
-    data = _data(d, lim, "{GUID}", tables, delay, integral) + along
+    data = _data(d, lim, "{GUID}", tables, delay, start_integral) + along
     if schedule is not None and duration is not None:
-        data += _schedule_data(schedule, duration)
+        data += _schedule_data(schedule, duration, scheduled_integral)
     with tempfile.TemporaryDirectory(prefix="flexlink-ctrl-") as tmp:
         root = Path(tmp)
         src = root / "sources"

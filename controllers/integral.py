@@ -18,6 +18,13 @@ each actuated joint's encoder error, fed back as well, drives that error to zero
   integrators (:func:`controllers.robustness.loop_at_a_time`), as ``flexlink control --design-only`` gives
   those of the LQG.
 
+* **Scheduled** (:func:`design_scheduled_integral`, :class:`ScheduledIntegralLQGLaw`): with gain scheduling
+  over the path (:mod:`controllers.schedule`) the same augmentation at every design point of the schedule,
+  each on its own sampled plant and Kalman design, and the augmented gains ``K_x``, ``K_ξ`` interpolated in
+  the path parameter σ with the other matrices (:func:`controllers.schedule.interpolate`).  ξ is the
+  integral of the joints' encoder errors, the same coordinates at every pose: switching gains moves no
+  integrator state.  Anti-windup as above.
+
 Sensors linear in the state only (encoders, strain gauges): the accelerometer LQG's estimator follows the
 reference (:mod:`controllers.multijoint`), to which this law does not extend yet.
 """
@@ -33,11 +40,13 @@ import numpy as np
 
 from controllers import riccati
 from controllers.design import DesignError, torque_inputs
-from controllers.multijoint import MimoLQGLaw
+from controllers.multijoint import MimoLQGLaw, reference_step
 from controllers.robustness import loop_at_a_time, lqg_plant
+from controllers.schedule import Schedule, interpolate, path_fraction
 from controllers.trajectory import Reference
 
-__all__ = ["IntegralDesign", "IntegralLQGLaw", "design_integral", "integral_compensator", "integral_robustness"]
+__all__ = ["IntegralDesign", "IntegralLQGLaw", "ScheduledIntegral", "ScheduledIntegralLQGLaw", "design_integral",
+           "design_scheduled_integral", "integral_compensator", "integral_robustness", "sampled_integral_compensator"]
 
 
 @dataclass
@@ -127,6 +136,10 @@ class IntegralLQGLaw(MimoLQGLaw):
         M, C, _, Ad, Bd = super().matrices(k)
         return M, C, self.Kx, Ad, Bd
 
+    def integral_gain(self, k: int) -> np.ndarray:
+        """K_ξ that sample ``k`` uses: the one design's (the scheduled law overrides this)."""
+        return self.Ki
+
     def step(self, y, x_ref, u_ff) -> np.ndarray:
         """One sample: the LQG with ``−K_ξ ξ`` added to the feedforward, the estimator told the torque applied.
 
@@ -134,7 +147,7 @@ class IntegralLQGLaw(MimoLQGLaw):
         C_e x_ref``; it is not integrated in a sample whose torque saturates (conditional anti-windup).
         """
         k = self.k
-        v = -self.Ki @ self.xi
+        v = -self.integral_gain(k) @ self.xi
         u = super().step(y, x_ref, u_ff + v)
         self.dz = self.dz + self.matrices(k)[4] @ v          # the prediction saw v as feedforward: it was torque
         if np.all(np.abs(u) < self.limits):
@@ -144,24 +157,97 @@ class IntegralLQGLaw(MimoLQGLaw):
 
 
 def integral_compensator(integral: IntegralDesign) -> ct.StateSpace:
-    """The law of :class:`IntegralLQGLaw` as a state space from the sensors' to the torques' deviations.
+    """The law of :class:`IntegralLQGLaw` as a state space from the sensors' to the torques' deviations."""
+    return sampled_integral_compensator(_table(integral), integral.rows, integral.design.dt)
+
+
+def sampled_integral_compensator(matrices: tuple[np.ndarray, ...], rows: Sequence[int], dt: float) -> ct.StateSpace:
+    """The LQG with integral action of ``matrices`` = (M, C, K_x, A_d, B_d, K_ξ) as a state space, sensors → torques.
 
     State (z, ξ): ``x̂ = (I − M C) z + M y``, ``u = −K_x x̂ − K_ξ ξ``, ``z⁺ = A_d x̂ + B_d u``,
-    ``ξ⁺ = ξ + dt S_e y`` (``S_e`` selects the encoders).
+    ``ξ⁺ = ξ + dt S_e y`` (``S_e`` selects the encoders, ``rows`` of the sensors).  Deviations throughout.
     """
-    d = integral.design
-    Ad, Bd = np.asarray(d.lqr.plant_d.A), np.asarray(d.lqr.plant_d.B)
-    M, C = np.asarray(d.kalman.Md), np.asarray(d.kalman.C)
-    Kx, Ki = integral.Kx, integral.Ki
+    M, C, Kx, Ad, Bd, Ki = (np.asarray(a) for a in matrices)
     n, m = Bd.shape
     F = np.eye(n) - M @ C
-    Se = np.eye(C.shape[0])[integral.rows]
+    Se = np.eye(C.shape[0])[list(rows)]
     A = np.block([[(Ad - Bd @ Kx) @ F, -Bd @ Ki], [np.zeros((m, n)), np.eye(m)]])
-    B = np.vstack([(Ad - Bd @ Kx) @ M, d.dt * Se])
-    return ct.ss(A, B, np.hstack([-Kx @ F, -Ki]), -Kx @ M, d.dt)
+    B = np.vstack([(Ad - Bd @ Kx) @ M, dt * Se])
+    return ct.ss(A, B, np.hstack([-Kx @ F, -Ki]), -Kx @ M, dt)
+
+
+def _table(integral: IntegralDesign) -> tuple[np.ndarray, ...]:
+    """(M, C, K_x, A_d, B_d, K_ξ) of an augmented design: what its law uses."""
+    d = integral.design
+    return (np.asarray(d.kalman.Md), np.asarray(d.kalman.C), integral.Kx, np.asarray(d.lqr.plant_d.A),
+            np.asarray(d.lqr.plant_d.B), integral.Ki)
 
 
 def integral_robustness(integral: IntegralDesign, n_points: int = 4000) -> dict[str, Any]:
     """Margins of the sampled loop with integral action (:func:`controllers.robustness.loop_at_a_time`)."""
     d = integral.design
     return loop_at_a_time(lqg_plant(d.lqr, d.kalman), integral_compensator(integral), d.lqr.inputs, n_points)
+
+
+@dataclass
+class ScheduledIntegral:
+    """Integral action in a gain schedule: the augmented design at each of its design points (module docstring).
+
+    ``schedule`` (:class:`controllers.schedule.Schedule`), ``designs`` the :class:`IntegralDesign` of each of
+    its points, in order; ``designs[0]`` is the start design's.
+    """
+
+    schedule: Schedule
+    designs: list[IntegralDesign]
+
+    @property
+    def tables(self) -> list[tuple[np.ndarray, ...]]:
+        """(M, C, K_x, A_d, B_d, K_ξ) at each design point."""
+        return [_table(i) for i in self.designs]
+
+    def matrices(self, s: float) -> tuple[np.ndarray, ...]:
+        """(M, C, K_x, A_d, B_d, K_ξ) at path parameter ``s``, linear between neighbouring design points."""
+        return interpolate(self.schedule.sigma, self.tables, s)
+
+
+def design_scheduled_integral(schedule: Schedule,
+                              integral_time: float | Mapping[str, float] = 0.5) -> ScheduledIntegral:
+    """:func:`design_integral` at every design point of ``schedule`` (the same T_i, Bryson limits and weights).
+
+    Raises
+    ------
+    DesignError
+        As :func:`design_integral`, naming the design point (σ) whose augmented design fails.
+    """
+    designs = []
+    for s, d in zip(schedule.sigma, schedule.designs, strict=True):
+        try:
+            designs.append(design_integral(d, integral_time))
+        except DesignError as e:
+            raise DesignError(f"{e} (the schedule's design point at path parameter {s:g})") from None
+    return ScheduledIntegral(schedule, designs)
+
+
+class ScheduledIntegralLQGLaw(IntegralLQGLaw):
+    """The scheduled LQG (:class:`controllers.schedule.ScheduledLQGLaw`) with integral action on the joints.
+
+    Its operating point, reference and feedforward are the start design's, as the scheduled law's; at sample
+    k every matrix, K_x and K_ξ included, is the schedule's at the reference's path parameter σ(t_k).
+    """
+
+    kind = "scheduled"
+
+    def __init__(self, integral: ScheduledIntegral, limits: Sequence[float], reference: Reference):
+        super().__init__(integral.designs[0], limits, reference)
+        tables = integral.tables
+        self._at = [interpolate(integral.schedule.sigma, tables, float(s)) for s in path_fraction(reference)]
+        _, _, _, Ad, Bd, _ = self._at[-1]              # after the manoeuvre: the target's design
+        self.W = reference_step(reference, Ad, Bd)
+
+    def matrices(self, k: int) -> tuple[np.ndarray, ...]:
+        """(M, C, K_x, A_d, B_d) at sample ``k``, interpolated once per sample at construction."""
+        return self._at[k][:5]
+
+    def integral_gain(self, k: int) -> np.ndarray:
+        """K_ξ at sample ``k``, interpolated with the other matrices."""
+        return self._at[k][5]

@@ -43,8 +43,8 @@ from controllers.robustness import compensator, loop_at_a_time, lqg_plant, robus
 from controllers.trajectory import Reference
 from flexlink.run.linearize import linear_plant
 
-__all__ = ["Schedule", "ScheduledLQGLaw", "along_path", "design_schedule", "frozen_radius", "model_at_pose",
-           "path_fraction", "redesign", "worst_along_path"]
+__all__ = ["Schedule", "ScheduledLQGLaw", "along_path", "design_schedule", "frozen_radius", "interpolate",
+           "model_at_pose", "path_fraction", "redesign", "worst_along_path"]
 
 
 def model_at_pose(model, pose: Mapping[str, float]):
@@ -96,10 +96,18 @@ class Schedule:
 
     def matrices(self, s: float) -> tuple[np.ndarray, ...]:
         """(M, C, K_d, A_d, B_d) at path parameter ``s``: linear between the neighbouring design points."""
-        i = int(np.clip(np.searchsorted(self.sigma, s, side="right") - 1, 0, len(self.sigma) - 2))
-        lam = float(np.clip((s - self.sigma[i]) / (self.sigma[i + 1] - self.sigma[i]), 0.0, 1.0))
-        return tuple((1 - lam) * a + lam * b for a, b in zip(_matrices(self.designs[i]),
-                                                             _matrices(self.designs[i + 1]), strict=True))
+        return interpolate(self.sigma, [_matrices(d) for d in self.designs], s)
+
+
+def interpolate(sigma: np.ndarray, tables: Sequence[tuple[np.ndarray, ...]], s: float) -> tuple[np.ndarray, ...]:
+    """The matrices of ``tables`` (one tuple per design point at ``sigma``) at ``s``: linear between neighbours.
+
+    The schedule's rule (module docstring), shared by the scheduled laws with and without integral action.
+    """
+    i = int(np.clip(np.searchsorted(sigma, s, side="right") - 1, 0, len(sigma) - 2))
+    lam = float(np.clip((s - sigma[i]) / (sigma[i + 1] - sigma[i]), 0.0, 1.0))
+    return tuple((1 - lam) * np.asarray(a) + lam * np.asarray(b)
+                 for a, b in zip(tables[i], tables[i + 1], strict=True))
 
 
 def _matrices(d) -> tuple[np.ndarray, ...]:
@@ -170,21 +178,31 @@ def frozen_radius(law_matrices: tuple[np.ndarray, ...], plant_design) -> float:
     return float(np.max(np.abs(cl.poles())))
 
 
-def compare_schedule(d, schedule: Schedule, loop, pl: Plan, ref: Reference, **kw) -> dict:
+def compare_schedule(d, schedule: Schedule, loop, pl: Plan, ref: Reference, integral=None, **kw) -> dict:
     """The scheduled LQG and the fixed one (``d``), each through the FMU, on the same manoeuvre.
 
     The same reference, feedforward and torque limits (:func:`controllers.multijoint.run`; ``kw`` its
-    keywords).  The fixed run comes last: where it leaves the beam model's validity (the FMU refuses the
-    step) its entry is the message instead of a result.  Returns ``{"scheduled": result, "fixed": result or
-    str}``.
+    keywords).  With ``integral`` (a :class:`controllers.integral.ScheduledIntegral` of ``schedule``) both
+    laws have integral action: the scheduled one :class:`controllers.integral.ScheduledIntegralLQGLaw`, the
+    fixed one :class:`controllers.integral.IntegralLQGLaw` of the start design.  The fixed run comes last:
+    where it leaves the beam model's validity (the FMU refuses the step) its entry is the message instead of
+    a result.  Returns ``{"scheduled": result, "fixed": result or str}``.
     """
     from controllers.cosim import FmuLoopError
     from controllers.multijoint import run
 
     limits = [d.lqr.torque_limits[j] for j in pl.joints]
-    out = {"scheduled": run(d, loop, pl, ref, ScheduledLQGLaw(schedule, limits, ref), **kw)}
+    scheduled: MimoLQGLaw
+    if integral is None:
+        scheduled, fixed = ScheduledLQGLaw(schedule, limits, ref), MimoLQGLaw(d, limits, ref)
+    else:
+        from controllers.integral import IntegralLQGLaw, ScheduledIntegralLQGLaw
+
+        scheduled = ScheduledIntegralLQGLaw(integral, limits, ref)
+        fixed = IntegralLQGLaw(integral.designs[0], limits, ref)
+    out = {"scheduled": run(d, loop, pl, ref, scheduled, **kw)}
     try:
-        out["fixed"] = run(d, loop, pl, ref, MimoLQGLaw(d, limits, ref), **kw)
+        out["fixed"] = run(d, loop, pl, ref, fixed, **kw)
     except FmuLoopError as e:
         if "validity" not in str(e):
             raise
@@ -198,7 +216,8 @@ _WORST = {"gain_margin_db": min, "gain_reduction_margin_db": max, "phase_margin_
           "peak_sensitivity": max}
 
 
-def along_path(d, schedule, pl, samples: Sequence[float], n_points: int = 4000) -> dict[str, dict[str, Any]]:
+def along_path(d, schedule, pl, samples: Sequence[float], n_points: int = 4000,
+               integral=None) -> dict[str, dict[str, Any]]:
     """The sampled LQG's margins along a planned path, for the scheduled law and the fixed one.
 
     At each path parameter σ in ``samples`` the arm is linearised at rest at that pose (the schedule's
@@ -210,6 +229,10 @@ def along_path(d, schedule, pl, samples: Sequence[float], n_points: int = 4000) 
     spectral radius; the worst of each over the samples, and where, is :func:`worst_along_path`.  Frozen
     poses: the moving arm's velocity terms are not in these loops (as in the schedule's design).
 
+    With ``integral`` (a :class:`controllers.integral.ScheduledIntegral` of ``schedule``) both laws carry
+    integral action (:func:`controllers.integral.sampled_integral_compensator`): the scheduled one with the
+    augmented gains interpolated at σ, the fixed one with the start design's.
+
     With sensors that read the torques (accelerometers) the run's estimator is the time-varying Kalman filter
     along the reference (:func:`controllers.multijoint.estimator_along`), not these frozen-pose designs: each
     law's entry then says so in ``note``.
@@ -217,7 +240,6 @@ def along_path(d, schedule, pl, samples: Sequence[float], n_points: int = 4000) 
     Returns ``{"scheduled": {"points": [...], "worst": {...}, "note": str | None}, "fixed": {...}}``, JSON-ready
     values (:func:`controllers.robustness.robustness_figures` per point, the poles left out).
     """
-    fixed = _matrices(d)
     out: dict[str, list] = {"scheduled": [], "fixed": []}
     for s in samples:
         pose = _pose(pl, float(s))
@@ -225,8 +247,8 @@ def along_path(d, schedule, pl, samples: Sequence[float], n_points: int = 4000) 
         P = lqg_plant(here.lqr, here.kalman)
         D = here.kalman.D[:, torque_inputs(here.lqr.plant)]
         where = {"sigma": float(s), "pose_deg": {j: math.degrees(v) for j, v in pose.items()}}
-        for name, (M, C, K, Ad, Bd) in (("scheduled", schedule.matrices(float(s))), ("fixed", fixed)):
-            loop = loop_at_a_time(P, compensator(Ad, Bd, K, M, C, D, d.dt), d.lqr.inputs, n_points)
+        for name, Kc in _frozen_compensators(d, schedule, integral, float(s), D):
+            loop = loop_at_a_time(P, Kc, d.lqr.inputs, n_points)
             fig = robustness_figures({"loop": loop})["loop"]
             del fig["closed_loop_poles"]
             out[name].append({**where, "spectral_radius": float(np.max(np.abs(loop["closed_loop_poles"]))), **fig})
@@ -235,6 +257,18 @@ def along_path(d, schedule, pl, samples: Sequence[float], n_points: int = 4000) 
         note = ("the sensors read the torques (accelerometers): the run's estimator follows the reference, and "
                 "these loops, with the designs' stationary estimators, are not the run's")
     return {name: {"points": pts, "worst": worst_along_path(pts), "note": note} for name, pts in out.items()}
+
+
+def _frozen_compensators(d, schedule, integral, s: float, D) -> list[tuple[str, ct.StateSpace]]:
+    """The scheduled and the fixed law frozen at path parameter ``s``, as compensators (:func:`along_path`)."""
+    if integral is None:
+        return [(name, compensator(Ad, Bd, K, M, C, D, d.dt))
+                for name, (M, C, K, Ad, Bd) in (("scheduled", schedule.matrices(s)), ("fixed", _matrices(d)))]
+    from controllers.integral import sampled_integral_compensator
+
+    rows, fixed = integral.designs[0].rows, integral.designs[0]
+    return [("scheduled", sampled_integral_compensator(integral.matrices(s), rows, d.dt)),
+            ("fixed", sampled_integral_compensator(integral.tables[0], fixed.rows, d.dt))]
 
 
 def worst_along_path(points: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
