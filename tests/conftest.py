@@ -3,6 +3,7 @@ bracketer for the transcendental frequency equations that the tests solve themse
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 from pathlib import Path
@@ -106,3 +107,47 @@ def assert_margins_are_python_controls(actuators, T, dt: float, where: str = "")
               f"phase margin {fig['phase_margin_deg']:.3f}°")
         assert fig["gain_margin_db"] == pytest.approx(gm, abs=2e-3)
         assert abs(fig["phase_margin_deg"]) == pytest.approx(pm, abs=2e-2)
+
+
+class BiasedLaw:
+    """A controller law's torques plus a constant torque ``bias`` the model lacks (the disturbance that integral
+    action must reject), with the law's interface (kind, limits, sample time, sensors, inputs)."""
+
+    def __init__(self, law, bias):
+        self.law, self.bias, self.kind, self.limits = law, np.asarray(bias), law.kind, getattr(law, "limits", None)
+        self.dt, self.sensors, self.inputs = law.dt, law.sensors, law.inputs
+
+    def reset(self):
+        self.law.reset()
+
+    def step(self, y, x_ref, u_ff):
+        return self.law.step(y, x_ref, u_ff) + self.bias
+
+
+def assert_runs_equal(a, b, rel: float = 1e-9) -> dict:
+    """Two closed-loop runs' series equal to ``rel`` of each series' scale (at least 1); the largest differences."""
+    worst = {}
+    for name, x in a.series.items():
+        scale = max(1.0, float(np.max(np.abs(x))))
+        worst[name] = float(np.max(np.abs(b[name] - x)))
+        assert worst[name] <= rel * scale, name
+    return worst
+
+
+def two_link_plant_at(angles: tuple):
+    """examples/two_link_payload.toml with its joints' initial_angle at ``angles`` (shoulder, elbow), built and
+    linearised afresh (cached: the schedule tests ask for the same poses)."""
+    return _two_link_plant(tuple(round(float(a), 12) for a in angles))
+
+
+@functools.cache
+def _two_link_plant(angles: tuple):
+    import tomllib
+
+    from flexlink.mechanics.model import build_model
+    from flexlink.run.linearize import linear_plant
+
+    data = tomllib.loads((EXAMPLES / "two_link_payload.toml").read_text())
+    for j, a in zip(data["joint"], angles, strict=True):
+        j["initial_angle"] = a
+    return linear_plant(build_model(parse_scene(data)))

@@ -20,7 +20,7 @@ import math
 import control as ct
 import numpy as np
 import pytest
-from conftest import EXAMPLES, assert_margins_are_python_controls
+from conftest import EXAMPLES, BiasedLaw, assert_margins_are_python_controls
 
 from controllers.cosim import FmuLoop
 from controllers.design import DesignError
@@ -83,18 +83,8 @@ def test_margins_against_python_control(rig):
     assert_margins_are_python_controls(rob["actuators"], T, DT)
 
 
-class Biased:
-    """The law's torques plus a constant torque the model lacks."""
-
-    def __init__(self, law):
-        self.law, self.kind = law, law.kind
-        self.dt, self.sensors, self.inputs = law.dt, law.sensors, law.inputs
-
-    def reset(self):
-        self.law.reset()
-
-    def step(self, y, x_ref, u_ff):
-        return self.law.step(y, x_ref, u_ff) + BIAS
+def Biased(law):
+    return BiasedLaw(law, BIAS)
 
 
 def test_constant_disturbance_through_the_fmu(rig, example_fmu):

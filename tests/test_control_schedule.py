@@ -13,22 +13,19 @@ elbow −20° → 90° in 1.5 s, the LQG designed at three poses along the path.
 
 from __future__ import annotations
 
-import functools
 import math
-import tomllib
 
 import control as ct
 import numpy as np
 import pytest
-from conftest import EXAMPLES
+from conftest import EXAMPLES, two_link_plant_at
 
 from controllers.cosim import FmuLoop
 from controllers.manoeuvre import design
 from controllers.multijoint import inverse_dynamics_reference, plan
 from controllers.schedule import compare_schedule, design_schedule
 from flexlink.mechanics.model import build_model
-from flexlink.run.linearize import linear_plant
-from flexlink.scene.loader import load_scene, parse_scene
+from flexlink.scene.loader import load_scene
 
 SCENE = EXAMPLES / "two_link_payload.toml"
 TARGETS = [math.radians(60.0), math.radians(90.0)]
@@ -44,15 +41,7 @@ def sched():
 
 def built_at(pose: dict):
     """The example's scene with its joints' initial_angle at ``pose``, built and linearised afresh."""
-    return _built(tuple(round(float(pose[j]), 12) for j in ("shoulder", "elbow")))
-
-
-@functools.cache
-def _built(angles: tuple):
-    data = tomllib.loads(SCENE.read_text())
-    for j, a in zip(data["joint"], angles, strict=True):
-        j["initial_angle"] = a
-    return linear_plant(build_model(parse_scene(data)))
+    return two_link_plant_at(tuple(pose[j] for j in ("shoulder", "elbow")))
 
 
 def torques(p):

@@ -21,6 +21,7 @@ import json
 
 import numpy as np
 import pytest
+from conftest import assert_runs_equal
 from fmpy.ssp.ssd import read_ssd
 from fmpy.validation import validate_fmu
 from test_control_schedule import DURATION, LIMIT, POINTS, SCENE, TARGETS
@@ -62,11 +63,7 @@ def test_fmu_closed_loop_equals_the_python_scheduled_loop(scheduled, example_fmu
             fixed = loop.run(MimoLQGLaw(d, limits, ref), ref)
     finally:
         ctrl.close()
-    worst = {}
-    for name, x in a.series.items():
-        scale = max(1.0, float(np.max(np.abs(x))))
-        worst[name] = float(np.max(np.abs(b[name] - x)))
-        assert worst[name] <= 1e-9 * scale, name
+    worst = assert_runs_equal(a, b)
     print(f"\nlargest difference FMU - Python: {worst}")
     # the schedule is exercised: the fixed design's loop differs by far more than that
     assert np.max(np.abs(fixed["elbow.tau"] - a["elbow.tau"])) > 1.0

@@ -18,15 +18,13 @@ shoulder 0 → 60°, elbow −20° → 90° in 1.5 s, the LQG scheduled at three
 
 from __future__ import annotations
 
-import functools
 import json
 import math
-import tomllib
 
 import control as ct
 import numpy as np
 import pytest
-from conftest import EXAMPLES, assert_margins_are_python_controls
+from conftest import EXAMPLES, BiasedLaw, assert_margins_are_python_controls, assert_runs_equal, two_link_plant_at
 
 from controllers.cosim import FmuLoop
 from controllers.integral import ScheduledIntegralLQGLaw, design_scheduled_integral, sampled_integral_compensator
@@ -34,8 +32,7 @@ from controllers.manoeuvre import design
 from controllers.multijoint import inverse_dynamics_reference, plan, run
 from controllers.schedule import ScheduledLQGLaw, along_path, design_schedule, path_fraction
 from flexlink.mechanics.model import build_model
-from flexlink.run.linearize import linear_plant
-from flexlink.scene.loader import load_scene, parse_scene
+from flexlink.scene.loader import load_scene
 
 SCENE = EXAMPLES / "two_link_payload.toml"
 TARGETS = [math.radians(60.0), math.radians(90.0)]
@@ -53,17 +50,9 @@ def sched():
     return d, pl, s, design_scheduled_integral(s, TI)
 
 
-@functools.cache
-def _built(angles: tuple):
-    data = tomllib.loads(SCENE.read_text())
-    for j, a in zip(data["joint"], angles, strict=True):
-        j["initial_angle"] = a
-    return linear_plant(build_model(parse_scene(data)))
-
-
 def built_at(pose: dict):
     """The example's scene with its joints' initial_angle at ``pose``, built and linearised afresh."""
-    return _built(tuple(round(float(pose[j]), 12) for j in JOINTS))
+    return two_link_plant_at(tuple(pose[j] for j in JOINTS))
 
 
 def sampled(p):
@@ -116,18 +105,8 @@ def test_augmented_gains_at_each_point_are_python_controls_dlqr(sched):
     np.testing.assert_allclose(law.integral_gain(k), K[:, n:], atol=1e-6 * scale)
 
 
-class Biased:
-    """The law's torques plus a constant torque the model lacks."""
-
-    def __init__(self, law):
-        self.law, self.kind, self.limits = law, law.kind, getattr(law, "limits", None)
-        self.dt, self.sensors, self.inputs = law.dt, law.sensors, law.inputs
-
-    def reset(self):
-        self.law.reset()
-
-    def step(self, y, x_ref, u_ff):
-        return self.law.step(y, x_ref, u_ff) + BIAS
+def Biased(law):
+    return BiasedLaw(law, BIAS)
 
 
 def test_constant_disturbance_through_the_fmu(sched, example_fmu):
@@ -227,11 +206,7 @@ def test_controller_fmu_equals_the_python_scheduled_integral_law(sched, example_
     finally:
         ctrl.close()
     assert np.max(np.abs(law.xi)) > 1e-4
-    worst = {}
-    for name, x in a.series.items():
-        scale = max(1.0, float(np.max(np.abs(x))))
-        worst[name] = float(np.max(np.abs(b[name] - x)))
-        assert worst[name] <= 1e-9 * scale, name
+    worst = assert_runs_equal(a, b)
     print(f"\nlargest difference FMU - Python: {worst}")
 
 
