@@ -23,6 +23,7 @@ import numpy as np
 from flexlink.errors import FlexlinkError
 from flexlink.mechanics.kinematics import (
     LinkDeformation,
+    RateGram,
     TipKinematics,
     beam_invariants,
     body_invariants,
@@ -169,6 +170,8 @@ class ChainAssembly:
     bodies: list[dict] = field(default_factory=list)   # per body: mass, ∫ρr, ∫ρṙ, ∫ρ r×ṙ (world)
     joint_frames: list[tuple] = field(default_factory=list)   # per joint: origin, rotation (world)
     frames: list[Frame] = field(default_factory=list)
+    # per second-order link on the point sums: its density, its Σ w u̇² and the coordinates of the rates in it
+    rate_grams: list[tuple[ca.MX, RateGram, list[int]]] = field(default_factory=list)
     # the walk's cursor (add_energies): the current joint's or tip's origin, and the last link's tip rotation
     origin: ca.MX | ca.DM = field(init=False, repr=False, compare=False)
     Rdef: ca.MX | ca.DM = field(init=False, repr=False, compare=False)
@@ -447,8 +450,11 @@ class ChainAssembly:
             m_unit = part.body.volume           # mass per unit of the density parameter
         elif part.bending is not None:
             rule = part.bending.points if part.second_order else None
-            inv = beam_invariants(part.bending.integrals, link.length, self.deformation(part, qa, va), rule)
+            inv = beam_invariants(part.bending.integrals, link.length, self.deformation(part, qa, va), rule,
+                                  gram=True)
             m_unit = link.length
+            if inv.rate_gram is not None:       # ½ρ Σ w u̇²: added to T by add_energies, kept apart for M
+                self.rate_grams.append((rho, inv.rate_gram, [k for f in inv.rate_gram.rates for k in part.fields[f]]))
         else:                                   # torsion only: the link's axis stays straight
             L = link.length
             J = ca.diag(ca.vertcat(0, L**3 / 3, L**3 / 3))
@@ -577,6 +583,11 @@ class ChainAssembly:
             # T at η = 0 for the linear links, the rates kept (seed 000 eq. 3.7)
             mask = ca.DM([0.0 if k in linear else 1.0 for k in range(len(self.coordinates))])
             T = ca.Function("T", [qa, va, self.p], [T])(qa * mask, va, self.p)
+        # T without the foreshortening rates' Σ w u̇² (whose Hessian the mass matrix forms as a Gram product), then
+        # the whole T; a linear link has none, so the mask above does not touch them
+        self.T_without_grams = T
+        for rho, gram, _ in self.rate_grams:
+            T = T + 0.5 * rho * gram.energy
         self.T, self.Vg = T, Vg
 
     def tool_frame(self, last: Frame) -> Frame:
@@ -684,15 +695,29 @@ class ChainAssembly:
         self.residual = ca.Function("residual", [self.q, self.v, self.a, self.u, self.p], [r_full[self.free]],
                                     ["q", "v", "a", "u", "p"], ["r"])
 
+    def mass_matrix_all(self) -> ca.MX:
+        """∂²T/∂q̇² of every coordinate, an expression in qa, u, p (T is quadratic in q̇: no q̇ left in it).
+
+        CasADi's Hessian of T less the foreshortening rates' Σ w u̇², plus their Gram forms ρ Aᵀ W A placed on
+        their links' rate coordinates (:class:`~flexlink.mechanics.kinematics.RateGram`): the same matrix in
+        a quarter of the operations on point sums (tests/test_mass_matrix_gram.py).
+        """
+        H = ca.hessian(self.T_without_grams, self.va)[0]
+        H = ca.substitute(H, self.va, ca.DM.zeros(self.va.numel()))
+        n = len(self.coordinates)
+        for rho, gram, rates in self.rate_grams:
+            place = ca.DM(ca.Sparsity.triplet(n, len(rates), rates, list(range(len(rates)))), 1.0)
+            H = H + ca.mtimes(place, ca.mtimes(0.5 * rho * gram.hessian(), place.T))
+        return H
+
     def free_mass_matrix(self) -> ca.Function:
-        """M(q, u, p) = ∂r/∂a of the free coordinates, as the Hessian ∂²T/∂q̇².
+        """M(q, u, p) = ∂r/∂a of the free coordinates, as the Hessian ∂²T/∂q̇² (:meth:`mass_matrix_all`).
 
         r is M a + h and only T holds q̇ quadratically; the Hessian's scalar code grows with the chain like
         the residual's, where a Jacobian of the residual repeats the whole residual's derivative for every
         column.
         """
-        H = ca.hessian(self.T, self.va)[0]
-        H = ca.substitute(H, self.va, ca.DM.zeros(self.va.numel()))     # T is quadratic in q̇: H has none
+        H = self.mass_matrix_all()
         inner = ca.Function("mass_matrix_all", [self.qa, self.u, self.p], [H])
         value = inner(self.qa_e, self.u, self.p)[self.free, self.free]
         return ca.Function("mass_matrix", [self.q, self.u, self.p], [ca.densify(value)], ["q", "u", "p"], ["M"])
