@@ -1,12 +1,15 @@
 """SS22 of a git revision against the working tree's, timed in the same run (before/after of an integrator change).
 
     python benchmarks/ss22_ab.py REV [SCENE.toml ...] [--rounds N] [--repeats N] [--tolerance TOL]
+                                 [--order 4 --omega-step W]
 
 For each scene (default: the four examples of ``benchmarks/newton_tolerance.py`` that iterate), the FMU's
 sources (``sources/``, the generated model and the generic ``fmu_src``) are compiled twice with
-``benchmarks/step_floor.c``: as they are, and with ``fmu_src/ss22.c``, ``ss22.h`` and ``fmu_state.c`` taken from
-git revision REV.  Both run the scene's bench manoeuvre (``flexlink.tools.bench.default_case``, 2 s) at the
-scene's step, alternately for ``--rounds`` rounds of ``--repeats`` runs each, so that the machine's load
+``benchmarks/step_floor.c``: as they are, and with ``fmu_src/ss22.c``, ``ss22.h``, ``fmu_state.c`` and
+``cs_step.c`` taken from git revision REV.  Both run the scene's bench manoeuvre
+(``flexlink.tools.bench.default_case``, 2 s) at the scene's step (with ``--order 4``: the order-4 option at the
+step where ω_max Δt = ``--omega-step``, ω_max the highest natural frequency at the start), alternately for
+``--rounds`` rounds of ``--repeats`` runs each, so that the machine's load
 falls on both alike; the report gives the median CPU µs per SS22 step of each, their ratio and the counters
 (Newton iterations and factorisations per step: counts, the same in every run).
 """
@@ -15,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import shutil
 import statistics
 import subprocess
@@ -29,7 +33,7 @@ sys.path.insert(0, str(HERE))
 
 import step_floor  # noqa: E402
 
-SWAPPED = ("ss22.c", "ss22.h", "fmu_state.c")
+SWAPPED = ("ss22.c", "ss22.h", "fmu_state.c", "cs_step.c")
 DEFAULT = ["fast_two_link.toml", "planar_chain_5.toml", "six_axis_arm.toml", "rotating_link.toml"]
 
 
@@ -46,9 +50,11 @@ def fmu_with_sources_of(fmu: Path, rev: str, out: Path) -> Path:
     return out
 
 
-def compare(scene_path: Path, rev: str, rounds: int, repeats: int, tolerance: float | None) -> dict:
+def compare(scene_path: Path, rev: str, rounds: int, repeats: int, tolerance: float | None,
+            order: int = 2, omega_step: float = 0.299) -> dict:
     """Median µs per SS22 step and counters per step of REV's integrator and the working tree's."""
     from flexlink.export.cache import cached_fmu
+    from flexlink.mechanics.analysis import natural_frequencies
     from flexlink.mechanics.model import build_model
     from flexlink.scene.loader import load_scene
     from flexlink.tools.bench import default_case
@@ -58,6 +64,9 @@ def compare(scene_path: Path, rev: str, rounds: int, repeats: int, tolerance: fl
     case = default_case(model, stop=2.0)
     fmu = Path(cached_fmu(scene, model=model))
     start = {"solver.step": scene.fmu.solver.step}
+    if order == 4:
+        omega_max = 2 * math.pi * max(natural_frequencies(model).frequencies_hz)   # as chain_speed.py
+        start = {"solver.step": omega_step / omega_max, "solver.order": 4}
     if tolerance is not None:
         start["solver.tolerance"] = tolerance
     with tempfile.TemporaryDirectory() as tmp:
@@ -93,13 +102,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--tolerance", type=float, help="solver.tolerance (default: the scene's)")
+    parser.add_argument("--order", type=int, choices=(2, 4), default=2)
+    parser.add_argument("--omega-step", type=float, default=0.299,
+                        help="with --order 4: ω_max Δt of the step (the FMU refuses above 0.3)")
     args = parser.parse_args(argv)
     scenes = [Path(s) for s in args.scenes] or [ROOT / "examples" / s for s in DEFAULT]
     print(f"| scene | µs/step {args.rev} | µs/step now | {args.rev} / now | iterations/step {args.rev} → now | "
           "LU/step → now | residual, Newton matrix, LU, solve µs |")
     print("| --- | --- | --- | --- | --- | --- | --- |")
     for scene in scenes:
-        r = compare(scene, args.rev, args.rounds, args.repeats, args.tolerance)
+        r = compare(scene, args.rev, args.rounds, args.repeats, args.tolerance, args.order, args.omega_step)
         a, b = r["counts"][args.rev], r["counts"]["now"]
         us = r["us_per_step"]
         print(f"| {r['scene']} | {us[args.rev]:.2f} | {us['now']:.2f} | {r['ratio']:.2f} | "

@@ -13,11 +13,13 @@
 
 /* ====================================================================== doStep */
 
-static SS22Status ss22_from(Instance *inst, double t0, double t1) {
+/* One SS22 step [t0, t1]; its Newton iteration starts from start, or from SS22's predictor if NULL. */
+static SS22Status ss22_from(Instance *inst, double t0, double t1, const double *start) {
     FmuData *d = &inst->d;
     fmu_model_inputs(d, t0, inst->u0);
     fmu_model_inputs(d, t1, inst->u1);
-    return ss22_step(&d->ss22, t1 - t0, d->q, d->v, d->alpha, inst->u0, inst->u1, d->p, &inst->work);
+    return ss22_step_from(&d->ss22, t1 - t0, d->q, d->v, d->alpha, start, inst->u0, inst->u1, d->p,
+                          &inst->work);
 }
 
 /* One internal step [t0, t1]; if SS22 fails, again as 2, 4, ... SUBSTEP_MAX sub-steps. */
@@ -25,21 +27,29 @@ static SS22Status ss22_from(Instance *inst, double t0, double t1) {
  * two of Δt/2 combine into q = q_half + (q_half − q_full)/3, fourth-order accurate (Richardson). */
 static SS22Status richardson_step(Instance *inst, double t0, double t1) {
     FmuData *d = &inst->d;
-    double q0[N_Q], v0[N_Q], a0[N_Q], q1[N_Q], v1[N_Q];
+    double q0[N_Q], v0[N_Q], a0[N_Q], q1[N_Q], v1[N_Q], a1[N_Q], start[N_Q];
     SS22Status status;
     memcpy(q0, d->q, sizeof(q0));
     memcpy(v0, d->v, sizeof(v0));
     memcpy(a0, d->alpha, sizeof(a0));
-    status = ss22_from(inst, t0, t1);
+    status = ss22_from(inst, t0, t1, NULL);
     if (status == SS22_OK) {
         memcpy(q1, d->q, sizeof(q1));
         memcpy(v1, d->v, sizeof(v1));
+        memcpy(a1, d->alpha, sizeof(a1));
         memcpy(d->q, q0, sizeof(q0));
         memcpy(d->v, v0, sizeof(v0));
         memcpy(d->alpha, a0, sizeof(a0));
+        /* the half steps' Newton starts from the full step's acceleration a1 (the mean over [t0, t1]): the
+         * first half's on the line from a0 (the last half step's, centred at t0 - dt/4) to a1 (at t0 + dt/2),
+         * the second half's so that the two halves average to a1 (docs/integrator.md) */
+        for (int i = 0; i < N_Q; i++) start[i] = a0[i] + (2.0 / 3.0) * (a1[i] - a0[i]);
         const double tm = t0 + 0.5 * (t1 - t0);
-        status = ss22_from(inst, t0, tm);
-        if (status == SS22_OK) status = ss22_from(inst, tm, t1);
+        status = ss22_from(inst, t0, tm, start);
+        if (status == SS22_OK) {
+            for (int i = 0; i < N_Q; i++) start[i] = 2.0 * a1[i] - d->alpha[i];
+            status = ss22_from(inst, tm, t1, start);
+        }
     }
     if (status != SS22_OK) {
         memcpy(d->q, q0, sizeof(q0));
@@ -55,7 +65,7 @@ static SS22Status richardson_step(Instance *inst, double t0, double t1) {
 }
 
 static SS22Status one_step(Instance *inst, double t0, double t1) {
-    return inst->d.solver[SOLVER_ORDER] == 4 ? richardson_step(inst, t0, t1) : ss22_from(inst, t0, t1);
+    return inst->d.solver[SOLVER_ORDER] == 4 ? richardson_step(inst, t0, t1) : ss22_from(inst, t0, t1, NULL);
 }
 
 static SS22Status internal_step(Instance *inst, double t0, double t1) {

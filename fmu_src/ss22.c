@@ -144,6 +144,11 @@ static double record_rate(SS22Factor *f, double rate, int raise_only) {
 
 SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
                      const double *u0, const double *u1, const double *p, ModelWork *work) {
+    return ss22_step_from(s, dt, q, v, alpha, NULL, u0, u1, p, work);
+}
+
+SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alpha, const double *start,
+                          const double *u0, const double *u1, const double *p, ModelWork *work) {
     double a[N_Q];
     SS22Factor *f = NULL;
     SS22Status st;
@@ -153,6 +158,7 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
     ss22_weighted_inputs(s, dt, u0, u1, s->u_bar);
     memcpy(a, alpha, sizeof(a));
 #if MODEL_LINEAR_IN_STATE
+    (void)start;
     /* r is affine in (q, v, a): r(alpha) = r(0) + J alpha, one solve, no iteration. */
     memset(a, 0, sizeof(a));
     weighted_state(s, dt, q, v, a);
@@ -166,7 +172,8 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
     {
         double delta[N_Q];
         const uint64_t used = s->factorisations;
-        predicted = predict(s, dt, alpha, a);
+        if (start != NULL) { memcpy(a, start, sizeof(a)); predicted = 1; }
+        else predicted = predict(s, dt, alpha, a);
         int converged = 0;
         int fresh = -1;          /* increments made with a matrix evaluated in this step; -1: an older one */
         double previous = INFINITY;
@@ -201,11 +208,14 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
                 converged = 1;
                 break;
             }
-            if (it == 0 && fresh < 0 && f->rate >= 0.0 && f->estimated < SS22_RATE_MEASURE_EVERY) {
+            if (it <= 1 && fresh < 0 && f->rate >= 0.0 && f->estimated < SS22_RATE_MEASURE_EVERY) {
                 /* an earlier step's matrix and its last measured rate: what is left is about
-                 * rate/(1-rate) times this increment (ss22.h, SS22_RATE_MEASURE_EVERY) */
-                const double aged = pow(fmax(f->rate, SS22_RATE_FLOOR), 0.8);
+                 * rate/(1-rate) times this increment, the first or the second (ss22.h,
+                 * SS22_RATE_MEASURE_EVERY); the second's ratio to the first still raises the kept rate */
+                const double seen = it == 1 ? fmax(f->rate, err / previous) : f->rate;
+                const double aged = pow(fmax(seen, SS22_RATE_FLOOR), 0.8);
                 if (aged < 0.5 && aged / (1.0 - aged) * err <= s->tolerance) {
+                    f->rate = seen;
                     f->estimated++;
                     converged = 1;
                     break;

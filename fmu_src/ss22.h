@@ -22,7 +22,8 @@
 /* A step whose first increment, times rate/(1 - rate) for the rate its matrix last showed over two increments
  * in an earlier step (at least SS22_RATE_FLOOR, then raised once to the power 0.8: Radau5 raises its
  * contraction factor so at every step, Hairer & Wanner, Solving ODEs II, IV.8; here the rate is measured again
- * instead), is below the tolerance is accepted after one iteration.  The floor keeps a rate measured where the increments had already reached rounding, or after an
+ * instead), is below the tolerance is accepted after one iteration; so is, after two, a step whose second increment times
+that rate (raised to its ratio to the first increment, if larger) is.  The floor keeps a rate measured where the increments had already reached rounding, or after an
  * input jump, from accepting a large first increment (an independent review built a stiff model with an input
  * jump where a measured rate of 5e-9 accepted a step 1290 tolerances off).  Every SS22_RATE_MEASURE_EVERY-th
  * such step iterates once more and measures the rate again. */
@@ -102,6 +103,12 @@ void ss22_weighted_inputs(const SS22 *s, double dt, const double *u0, const doub
  * out, the solution.  On anything but SS22_OK, q and v are left untouched. */
 SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
                      const double *u0, const double *u1, const double *p, ModelWork *work);
+
+/* ss22_step with the Newton iteration started from start instead of the predictor (the order-4 option's
+ * half steps, which know the full step's acceleration: cs_step.c); alpha is the last step's acceleration, as
+ * for ss22_step, and the predictor's line continues through it. */
+SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alpha, const double *start,
+                          const double *u0, const double *u1, const double *p, ModelWork *work);
 
 const char *ss22_status_message(SS22Status status);
 
