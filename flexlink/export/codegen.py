@@ -65,6 +65,11 @@ EXPAND_MAX_COORDINATES = 160
 # guards evaluate that mass matrix every communication step (docs/performance.md).  Every example's functions
 # stay under it (the largest, examples/fast_two_link.toml's residual derivative, 46k): their code is unchanged.
 REFRESH_EXPAND_MAX_OPERATIONS = 60_000
+# The complex-step twin of a generated unit (the directional derivatives, off the step) above this many
+# operations is compiled at -O0: complex straight-line code takes gcc about 4 times the real unit's time at -Og
+# (the 32-mode second-order link's residual, 36 600 operations: 8.9 s real, 36 s complex at -Og, 5.5 s at -O0,
+# measured 2026-11-27), which made that link's build 49 s.  Below it the twin takes its unit's level.
+COMPLEX_STEP_OPTIMISE_MAX_OPERATIONS = 20_000
 # The forward derivatives by the complex step wherever it applies (flexlink.export.derivatives); False keeps
 # CasADi's forward functions for every model, as a model with a non-analytic operation does (the tests build
 # both forms and compare them).
@@ -400,8 +405,12 @@ def _write_complex_unit(generated: _Generated, model: SymbolicModel, directory: 
     f = generated.function
     unit = f.name()
     path = directory / f"{unit}_complex.c"
+    optimise = ""
+    if generated.operations > COMPLEX_STEP_OPTIMISE_MAX_OPERATIONS and not os.environ.get(OPTIMISE_ENV, "").strip():
+        optimise = ('#if defined(__GNUC__) && !defined(__clang__)   /* a large complex unit: -O0 (codegen.py) */\n'
+                    '#pragma GCC optimize ("O0")\n#define FLEXLINK_UNIT_LEVEL_SET 1\n#endif\n')
     path.write_text(_template("complex_unit.c.in").substitute(
-        unit=unit, scene=model.scene.name, wrapper=wrapper, indent=" " * (4 + len(wrapper)),
+        unit=unit, scene=model.scene.name, wrapper=wrapper, indent=" " * (4 + len(wrapper)), optimise=optimise,
         sz_arg=max(int(f.sz_arg()), 5), sz_res=max(int(f.sz_res()), 1), sz_iw=max(int(f.sz_iw()), 1),
         sz_w=max(int(f.sz_w()), 1)))
     return path
