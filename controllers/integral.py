@@ -209,6 +209,19 @@ class ScheduledIntegral:
         """(M, C, K_x, A_d, B_d, K_ξ) at path parameter ``s``, linear between neighbouring design points."""
         return interpolate(self.schedule.sigma, self.tables, s)
 
+    def laws(self, limits, ref) -> tuple[MimoLQGLaw, MimoLQGLaw]:
+        """The scheduled law and the fixed one of the start design, both with integral action.
+
+        For :func:`controllers.schedule.compare_schedule`, which cannot import this module (it imports that one).
+        """
+        return (ScheduledIntegralLQGLaw(self, limits, ref), IntegralLQGLaw(self.designs[0], limits, ref))
+
+    def frozen_compensators(self, s: float, dt: float) -> list[tuple[str, Any]]:
+        """The scheduled and the fixed loop's compensators frozen at ``s`` (:func:`controllers.schedule.along_path`)."""
+        fixed = self.designs[0]
+        return [("scheduled", sampled_integral_compensator(self.matrices(s), fixed.rows, dt)),
+                ("fixed", sampled_integral_compensator(self.tables[0], fixed.rows, dt))]
+
 
 def design_scheduled_integral(schedule: Schedule,
                               integral_time: float | Mapping[str, float] = 0.5) -> ScheduledIntegral:

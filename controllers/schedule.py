@@ -196,10 +196,7 @@ def compare_schedule(d, schedule: Schedule, loop, pl: Plan, ref: Reference, inte
     if integral is None:
         scheduled, fixed = ScheduledLQGLaw(schedule, limits, ref), MimoLQGLaw(d, limits, ref)
     else:
-        from controllers.integral import IntegralLQGLaw, ScheduledIntegralLQGLaw
-
-        scheduled = ScheduledIntegralLQGLaw(integral, limits, ref)
-        fixed = IntegralLQGLaw(integral.designs[0], limits, ref)
+        scheduled, fixed = integral.laws(limits, ref)
     out = {"scheduled": run(d, loop, pl, ref, scheduled, **kw)}
     try:
         out["fixed"] = run(d, loop, pl, ref, fixed, **kw)
@@ -264,11 +261,7 @@ def _frozen_compensators(d, schedule, integral, s: float, D) -> list[tuple[str, 
     if integral is None:
         return [(name, compensator(Ad, Bd, K, M, C, D, d.dt))
                 for name, (M, C, K, Ad, Bd) in (("scheduled", schedule.matrices(s)), ("fixed", _matrices(d)))]
-    from controllers.integral import sampled_integral_compensator
-
-    rows, fixed = integral.designs[0].rows, integral.designs[0]
-    return [("scheduled", sampled_integral_compensator(integral.matrices(s), rows, d.dt)),
-            ("fixed", sampled_integral_compensator(integral.tables[0], fixed.rows, d.dt))]
+    return integral.frozen_compensators(s, d.dt)
 
 
 def worst_along_path(points: Sequence[Mapping[str, Any]]) -> dict[str, Any]:

@@ -40,9 +40,10 @@ static void perturb(double _Complex *xc, const double *x, const double *d, int n
     for (int i = 0; i < n; i++) xc[i] = x[i] + (d ? CS_STEP * (d[i] / scale) : 0.0) * I;
 }
 
-/* Im(fc) / CS_STEP times the seed's scale: the derivative in the unscaled direction. */
-static void tangent(double *out, const double _Complex *fc, int n, double factor) {
-    for (int i = 0; i < n; i++) out[i] = cimag(fc[i]) * factor;
+/* Im(fc) / CS_STEP times the seed's scale: the derivative in the unscaled direction (divided first, so that a
+ * seed above 1e208 does not overflow the factor). */
+static void tangent(double *out, const double _Complex *fc, int n, double scale) {
+    for (int i = 0; i < n; i++) out[i] = (cimag(fc[i]) / CS_STEP) * scale;
 }
 
 int model_complex_forward(const double *q, const double *v, const double *a, const double *u, const double *p,
@@ -62,7 +63,6 @@ int model_complex_forward(const double *q, const double *v, const double *a, con
         if (dy && N_Y > 0) memset(dy, 0, sizeof(double) * N_Y);
         return 0;
     }
-    const double factor = scale / CS_STEP;
     perturb(qc, q, dq, N_Q, scale);
     perturb(vc, v, dv, N_Q, scale);
     perturb(ac, a, da, N_Q, scale);
@@ -70,11 +70,11 @@ int model_complex_forward(const double *q, const double *v, const double *a, con
     perturb(pc, p, dp, N_P, scale);
     if (dr) {
         if (model_residual_complex(qc, vc, ac, uc, pc, rc)) return 1;
-        tangent(dr, rc, N_Q, factor);
+        tangent(dr, rc, N_Q, scale);
     }
     if (dy && N_Y > 0) {
         if (model_outputs_complex(qc, vc, ac, uc, pc, yc)) return 1;
-        tangent(dy, yc, N_Y, factor);
+        tangent(dy, yc, N_Y, scale);
     }
     return 0;
 }

@@ -143,12 +143,14 @@ int model_outputs_acceleration_forward(const double *q, const double *v, const d
  * themselves, evaluated in complex arithmetic at x + i h dx (the complex step, complex_step.c), instead of
  * generated derivative code.  The two functions below are the same generated code compiled with
  * casadi_real = double _Complex (one small unit each, which includes the real unit).  A C compiler without
- * C99 complex arithmetic (MSVC's C compiler) leaves them out: model_forward then fails, and
- * fmi2GetDirectionalDerivative with it, with its message; every other function is unaffected. */
+ * C99 complex arithmetic (any with _MSC_VER: MSVC, clang-cl, whose Windows complex.h has no complex
+ * operators) leaves them out: model_forward then fails, and fmi2GetDirectionalDerivative answers fmi2Error
+ * with the reason, as does a step whose Newton matrix is by exact columns ([fmu] newton_matrix = "columns");
+ * the default Newton matrix needs no derivative. */
 #ifndef MODEL_COMPLEX_STEP
 #define MODEL_COMPLEX_STEP 0
 #endif
-#if MODEL_COMPLEX_STEP && !defined(__STDC_NO_COMPLEX__) && !(defined(_MSC_VER) && !defined(__clang__))
+#if MODEL_COMPLEX_STEP && !defined(__STDC_NO_COMPLEX__) && !defined(_MSC_VER)
 #define MODEL_HAS_COMPLEX 1   /* double _Complex is a keyword type: no complex.h (and its I) here */
 int model_residual_complex(const double _Complex *q, const double _Complex *v, const double _Complex *a,
                            const double _Complex *u, const double _Complex *p, double _Complex *r);

@@ -4,7 +4,7 @@
   point sums they are built from (`flexlink.mechanics.kinematics.ForeshorteningTensors`).
 * The residual's expression grows like the number of links (its fitted exponent), not its square.
 * The forms of the Newton matrix in the generated C — one dense Jacobian, or columns of the residual's
-  forward derivative with M from the Hessian of T — give the same FMU; above 12 coordinates "auto" takes M
+  forward derivative with M from the Hessian of T — give the same FMU; "auto" takes M
   and differences of the residual.
 * Residual and outputs share one forward derivative, smaller than the two apart.
 """

@@ -69,7 +69,7 @@ REFRESH_EXPAND_MAX_OPERATIONS = 60_000
 # operations -- a unit compiled at -Og -- is compiled at -O0: complex straight-line code takes gcc about 4 times
 # the real unit's time at -Og (the 32-mode second-order link's residual, 36 600 operations: 8.9 s real, 36 s
 # complex at -Og, 5.5 s at -O0, measured 2026-11-27), which made that link's build 49 s and the five-link
-# chain's 11 s (against 18 s and about 6 s with -O0 twins).  Small twins take their unit's -O2.
+# chain's 11 s (16 s and 6.3 s with -O0 twins, benchmarks/scaling.py --table-only).  Small twins take their unit's -O2.
 COMPLEX_STEP_OPTIMISE_MAX_OPERATIONS = FULL_OPTIMISATION_MAX_OPERATIONS
 # The forward derivatives by the complex step wherever it applies (flexlink.export.derivatives); False keeps
 # CasADi's forward functions for every model, as a model with a non-analytic operation does (the tests build

@@ -4,7 +4,7 @@ The forward derivatives behind ``fmi2GetDirectionalDerivative`` come from the ge
 outputs themselves by the complex step (``fmu_src/complex_step.c``) wherever they are scalar code of
 real-analytic operations (:func:`complex_step_applies`: every model flexlink builds today), else from
 CasADi's forward mode (:func:`forward_functions`).  The complex step adds no derivative code to the FMU:
-on the six-axis arm, CasADi's forward functions were 34 400 of 61 100 generated operations.  The
+on the six-axis arm, CasADi's forward functions were 34 900 of 61 100 generated operations.  The
 structural dependencies of ``<ModelStructure>`` come from CasADi's Jacobian sparsity (docs/fmi.md).
 
 The FMU's continuous state is x = (q, v) (free coordinates and their rates); the derivatives are

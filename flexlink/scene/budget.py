@@ -82,7 +82,8 @@ ALLOW_LARGE_ENV = "FLEXLINK_ALLOW_LARGE"
 
 # The rough cost model (module docstring): operations = OPERATIONS_PER_TERM · Σ (1 + n_i)^LINK_EXPONENT · form.
 # The directional derivatives add no code (the complex step on the residual and outputs,
-# flexlink.export.derivatives): [fmu] directional_derivatives = false changes only the Newton matrix's form.
+# flexlink.export.derivatives), so [fmu] directional_derivatives does not enter it (a model past 160
+# coordinates keeps CasADi's forward functions; such scenes are past MAX_COORDINATES anyway).
 OPERATIONS_PER_TERM = 855.0
 LINK_EXPONENT = 1.2
 DENSE_NEWTON_SCALE = 16.0              # a dense Newton matrix multiplies the code by 1 + n_q / 16

@@ -131,7 +131,7 @@ def format_explanation(info: dict) -> str:
         lines.append(f"  generated from CasADi's matrix graph (loops over constant arrays; {why}): "
                      + ", ".join(info["matrix_graph"]))
     lines.append(f"  a Co-Simulation step evaluates {step} of them (residual, Newton matrix or mass matrix and the "
-                 "forward derivative where [fmu] newton_matrix = \"columns\" asks for it, validity, outputs)")
+                 "directional derivatives where [fmu] newton_matrix = \"columns\" asks for them, validity, outputs)")
     lines.append("  " + _derivatives_line(info.get("directional_derivatives", "forward mode")))
     freqs = info["frequencies_hz"]
     lines.append("natural frequencies (Hz): " + ", ".join(f"{f:.4g}" for f in freqs[:12])
