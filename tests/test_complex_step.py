@@ -47,8 +47,29 @@ def _units(fmu: Path) -> set[str]:
         return {Path(n).name for n in z.namelist() if n.startswith("sources/") and n.endswith(".c")}
 
 
-def _jacobian_at(fmu: Path, offsets: np.ndarray) -> np.ndarray:
-    """∂(ẋ, y)/∂(x, u) by fmi2GetDirectionalDerivative (Model Exchange) at the start state plus ``offsets``."""
+def _parameters_moved(fmu: Path, rng: np.random.Generator) -> dict[int, float]:
+    """Every real model parameter (the solver's settings left out), moved 5-15 % from its start (value
+    reference → value).
+
+    The complex twins read the parameters through their own argument: a twin that saw the start values, or
+    none, would still agree with forward mode at the start values, not here.
+    """
+    md = read_model_description(str(fmu))
+    moved, factors = {}, {}
+    for v in md.modelVariables:
+        if (v.causality == "parameter" and v.type == "Real" and not v.name.startswith("solver.")
+                and v.start not in (None, "") and float(v.start) != 0):
+            # one factor for a body's whole inertia tensor, which keeps its triangle inequalities
+            group = v.name.rsplit(".", 1)[0] if ".inertia" in v.name else v.name
+            if group not in factors:
+                factors[group] = 1 + rng.choice([-1, 1]) * rng.uniform(0.05, 0.15)
+            moved[v.valueReference] = float(v.start) * factors[group]
+    return moved
+
+
+def _jacobian_at(fmu: Path, offsets: np.ndarray, parameters: dict[int, float]) -> np.ndarray:
+    """∂(ẋ, y)/∂(x, u) by fmi2GetDirectionalDerivative (Model Exchange) at the start state plus ``offsets``,
+    with ``parameters`` (value reference → value) set before initialisation."""
     md = read_model_description(str(fmu))
     unzipped = extract(str(fmu))
     inst = FMU2Model(guid=md.guid, unzipDirectory=unzipped, modelIdentifier=md.modelExchange.modelIdentifier,
@@ -56,6 +77,8 @@ def _jacobian_at(fmu: Path, offsets: np.ndarray) -> np.ndarray:
     inst.instantiate()
     try:
         inst.setupExperiment(startTime=0.0)
+        if parameters:
+            inst.setReal(list(parameters), list(parameters.values()))
         inst.enterInitializationMode()
         inst.exitInitializationMode()
         inst.enterContinuousTimeMode()
@@ -84,9 +107,13 @@ def test_complex_step_equals_casadi_forward_mode(example_fmu, forward_mode_fmus,
     assert {f"{name}_residual_complex.c", f"{name}_outputs_complex.c"} <= _units(by_complex_step)
     n = len(read_model_description(str(by_complex_step)).derivatives)
     rng = np.random.default_rng(7)
+    parameters = _parameters_moved(by_complex_step, rng)
+    assert parameters == _parameters_moved(by_forward_mode, np.random.default_rng(7))   # the same variables
+    assert len(parameters) >= 3
     for _ in range(2):
         offsets = 1e-3 * rng.standard_normal(n)     # joint angles, deflections and rates away from rest
-        J_cs, J_fm = _jacobian_at(by_complex_step, offsets), _jacobian_at(by_forward_mode, offsets)
+        J_cs = _jacobian_at(by_complex_step, offsets, parameters)
+        J_fm = _jacobian_at(by_forward_mode, offsets, parameters)
         for block in (slice(0, n), slice(n, None)):     # state derivatives, then outputs (other units)
             a, b = J_cs[block], J_fm[block]
             top = np.abs(b).max()
