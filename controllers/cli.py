@@ -780,6 +780,13 @@ def _robustness_json(d, controller: str, integ=None) -> dict:
     return robustness_figures(rob)
 
 
+def _lead(a: dict) -> str:
+    """`` (lead)`` after a phase margin that a phase lead uses up (a loop with open-loop unstable poles)."""
+    if a.get("phase_margin_sense") != "lead":
+        return ""
+    return f" (lead; {a.get('open_loop_unstable_poles')} open-loop unstable poles)"
+
+
 def _report_design(args, d, targets=None) -> int:
     """``flexlink control --design-only``: gains' shapes, weights, margins, closed-loop poles.
 
@@ -825,7 +832,7 @@ def _report_design(args, d, targets=None) -> int:
         for a in r["actuators"]:
             gr = "-inf" if a["gain_reduction_margin_db"] is None else f"{a['gain_reduction_margin_db']:.3g}"
             print(f"    {a['input']:<16} gain margin {db(a['gain_margin_db'])} dB (down {gr} dB), phase margin "
-                  f"{db(a['phase_margin_deg'])} deg at {db(a['gain_crossover_hz'])} Hz, peak sensitivity "
+                  f"{db(a['phase_margin_deg'])} deg{_lead(a)} at {db(a['gain_crossover_hz'])} Hz, peak sensitivity "
                   f"{db(a['peak_sensitivity'])}; disk margin {db(a['disk_margin'])}: ±{db(a['disk_gain_margin_db'])}"
                   f" dB with ±{db(a['disk_phase_margin_deg'])} deg at {db(a['disk_margin_hz'])} Hz")
         ml = r["multiloop"]

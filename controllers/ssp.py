@@ -41,7 +41,7 @@ import numpy as np
 
 from controllers.cosim import FmuLoop, LoopResult
 from controllers.design import DesignError
-from controllers.multijoint import MimoLQGLaw
+from controllers.multijoint import MimoLQGLaw, checked_step
 
 if TYPE_CHECKING:
     from controllers.integral import IntegralDesign
@@ -248,6 +248,7 @@ class PredictiveLQGLaw(MimoLQGLaw):
         self.v = self.initial()
         self.u_prev = self.v - self.u0
 
+    @checked_step
     def step(self, y: np.ndarray, x_ref: np.ndarray, u_ff: np.ndarray) -> np.ndarray:
         """Sample k: correct and predict with sample k's matrices, return sample k+1's torque (its gain).
 
@@ -321,6 +322,7 @@ class PredictiveIntegralLQGLaw(PredictiveLQGLaw):
         M, C, _, Ad, Bd = super().matrices(k)
         return M, C, self.Kx, Ad, Bd
 
+    @checked_step
     def step(self, y: np.ndarray, x_ref: np.ndarray, u_ff: np.ndarray) -> np.ndarray:
         """Sample k: correct, predict with the torque applied, integrate, return sample k+1's torque."""
         M, C, _, Ad, Bd = self.matrices(self.k)
