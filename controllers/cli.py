@@ -12,10 +12,9 @@ from __future__ import annotations
 import json
 import math
 
-from controllers.options import SENSORS
+from controllers.options import SENSORS, add_weight_options
 from controllers.options import angles as _angles
 from controllers.options import finite as _finite
-from controllers.options import limits as _limits
 from flexlink.errors import FlexlinkError
 from flexlink.paths import SCENE_HELP, output_file, plot_file
 
@@ -75,26 +74,10 @@ def add_control_parsers(subparsers) -> None:
                    help="window after the manoeuvre for the residual vibration and final error (default 1.5)")
     p.add_argument("--controller", choices=("lqr", "pd"), default="lqr",
                    help="lqr: LQR + Kalman estimator with model feedforward; pd: joint PD baseline")
-    p.add_argument("--torque-limit", type=_limits, metavar="NM[,NM...]|JOINT=NM,...",
-                   help="saturation and Bryson torque limit of every joint, or one per torque-driven joint "
-                        "comma-separated in scene order, or by joint name (default: 1.5 x the rigid quintic's peak "
-                        "torque of the first joint; with several joints 1.5 x the largest peak of the "
-                        "inverse-dynamics feedforward)")
-    p.add_argument("--joint-error", type=_limits, metavar="DEG[,DEG...]|JOINT=DEG,...",
-                   help="Bryson limit of each joint's angle error in the LQR weights: one for all, one per joint "
-                        "with an encoder in scene order, or by joint name (default 0.5 deg; smaller = heavier)")
-    p.add_argument("--tip-deflection", type=_limits, metavar="MM[,MM...]|LINK=MM,...",
-                   help="Bryson limit of each link's tip deflection (tip.v) in mm: one for all, one per flexible "
-                        "link in scene order, or by link name (default 5 mm)")
-    p.add_argument("--root-moment", type=_limits, metavar="NM[,NM...]|LINK=NM,...",
-                   help="Bryson limit of each link's root bending moment in the LQR weights: one for all, one per "
-                        "link, or by link name (default: 10 %% of the torque limit of the joint carrying the link; "
-                        "the torque limit itself gives the two-link example >= 6 dB and >= 30 deg at each "
-                        "actuator, docs/control.md)")
-    p.add_argument("--mode-limit", type=_limits, metavar="V|LINK=V,...|LINK.eta[K]=V,...",
-                   help="Bryson limit of modal coordinates (the FMU outputs <link>.eta[k]): one for every mode, all "
-                        "the modes of a link by its name, or one mode by its output name (default: none, the "
-                        "modes weighed through the tip deflection and root moment)")
+    add_weight_options(p, "saturation and Bryson torque limit of every joint, or one per torque-driven joint "
+                          "comma-separated in scene order, or by joint name (default: 1.5 x the rigid quintic's peak "
+                          "torque of the first joint; with several joints 1.5 x the largest peak of the "
+                          "inverse-dynamics feedforward)")
     p.add_argument("--sample-time", type=_finite, default=1e-3, metavar="S", help="controller sample time (1 ms)")
     p.add_argument("--sensors", choices=SENSORS, default="strain",
                    help="Kalman sensors besides the joint encoders: the links' root strain gauges or the tip "
@@ -217,7 +200,7 @@ def cmd_control(args) -> int:
     Every check that needs no model runs first, so that bad input costs no build; a repeated command is
     answered from the design cache (:mod:`controllers.design_cache`) without the linearisation and design.
     """
-    from controllers.weights import check_names, overrides
+    from controllers.weights import check_names, overrides, torque_limits
     from flexlink.run.simulate import parse_assignments
     from flexlink.scene.loader import load_scene
 
@@ -252,7 +235,7 @@ def cmd_control(args) -> int:
     target = targets[0] if targets else None
     if args.duration is not None and not args.duration > 0:
         raise FlexlinkError(f"--duration must be a positive number of seconds, got {args.duration}")
-    limit = _torque_limits(plant, args.torque_limit)
+    limit = torque_limits(plant, args.torque_limit)
     if limit is None:
         limit = _default_limits(plant, targets, args.duration, args.sample_time)
     try:
@@ -490,23 +473,6 @@ def _integral_design(args, d):
     from controllers.integral import design_integral
 
     return design_integral(d, args.integral)
-
-
-def _torque_limits(plant, values):
-    """``--torque-limit`` as the design takes it: one number, or a mapping joint → limit.
-
-    One value is every joint's limit; several are one per torque-driven joint, in order.  None when not given
-    (the design then derives a limit from the manoeuvre).
-    """
-    from controllers.design import actuated_joints
-
-    if values is None or isinstance(values, dict) or len(values) == 1:
-        return values[0] if isinstance(values, list) else values
-    joints = actuated_joints(plant)
-    if len(values) != len(joints):
-        raise FlexlinkError(f"--torque-limit: one limit for all joints or one per torque-driven joint "
-                            f"({', '.join(joints)}), got {len(values)}")
-    return dict(zip(joints, values, strict=True))
 
 
 def _default_limits(plant, targets, duration, dt):
