@@ -273,10 +273,6 @@ def _check_control_args(args) -> None:
         raise FlexlinkError("--target and --duration are required for the closed-loop run (or give --design-only)")
     if args.integral is not None and not args.integral > 0:
         raise FlexlinkError(f"--integral: the integral time must be a positive number of seconds, got {args.integral}")
-    if args.integral is not None and args.schedule is not None and args.export_ssp:
-        raise FlexlinkError("--integral with --schedule: the SSP package of the scheduled LQG with integral action is "
-                            "not built yet (its controller one sample late); leave out --export-ssp (--export-fmu "
-                            "writes its controller FMU)")
     if args.schedule is not None and (args.target is None or args.duration is None):
         raise FlexlinkError("--schedule: gain scheduling over the path needs the path: --target and --duration")
     if args.design_only and args.torque_limit is None and (args.target is None or args.duration is None):
@@ -457,7 +453,7 @@ def _export_ssp(args, d, targets, schedule=None) -> None:
     pl = plan(d.plant, targets)
     _check_times(args.duration, args.settle, d.dt)
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, args.duration, args.settle)
-    integ = _integral_design(args, d)
+    integ = _integral_design(args, d) if schedule is None else _scheduled_integral(args, schedule)
     path = write_ssp(d, cached_fmu(args.scene), args.export_ssp, ref, schedule=schedule, integral=integ)
     what = "" if schedule is None else f" scheduled at {len(schedule.designs)} poses"
     if integ is not None:

@@ -13,8 +13,10 @@ shoulder 0 → 60°, elbow −20° → 90° in 1.5 s, the LQG scheduled at three
 * the frozen-pose margins along the path of the integral loops against python-control's, a stable loop whose
   phase margin python-control gives as −19.56° (a lead destabilises it) among them;
 * the controller FMU of the scheduled integral law equals the Python law in closed loop with the plant FMU;
-* ``flexlink control --integral TI --schedule N``: the run and ``--design-only``, ``--json``, ``--export-fmu``
-  (``--export-ssp`` refused).
+* the SSP package of the scheduled integral law run by libcosim equals the plant FMU with the Python law one
+  sample late (``ScheduledPredictiveIntegralLQGLaw``);
+* ``flexlink control --integral TI --schedule N``: the run and ``--design-only``, ``--json``, ``--export-fmu``,
+  ``--export-ssp``.
 """
 
 from __future__ import annotations
@@ -26,14 +28,17 @@ import control as ct
 import numpy as np
 import pytest
 from conftest import EXAMPLES, BiasedLaw, assert_runs_equal, two_link_plant_at
+from fmpy.ssp.ssd import read_ssd
 
 from controllers.cosim import FmuLoop
 from controllers.integral import ScheduledIntegralLQGLaw, design_scheduled_integral, sampled_integral_compensator
 from controllers.manoeuvre import design
 from controllers.multijoint import inverse_dynamics_reference, plan, run
 from controllers.schedule import ScheduledLQGLaw, along_path, design_schedule, path_fraction
+from controllers.ssp import CONTROLLER, PLANT, JacobiDelay, ScheduledPredictiveIntegralLQGLaw, write_ssp
 from flexlink.mechanics.model import build_model
 from flexlink.scene.loader import load_scene
+from flexlink.tools.importers import libcosim_available, run_libcosim_ssp
 
 SCENE = EXAMPLES / "two_link_payload.toml"
 TARGETS = [math.radians(60.0), math.radians(90.0)]
@@ -297,13 +302,46 @@ def test_controller_fmu_equals_the_python_scheduled_integral_law(sched, example_
     print(f"\nlargest difference FMU - Python: {worst}")
 
 
-def test_cli_exports_the_fmu_and_refuses_the_ssp(tmp_path, capsys):
+@pytest.mark.skipif(not libcosim_available(), reason="libcosimpy is not installed")
+def test_libcosim_runs_the_scheduled_integral_package_as_the_python_law(sched, example_fmu, tmp_path):
+    """The SSP package of the scheduled integral law (its controller FMU ``DELAY 1`` with ``INTEGRAL 1`` and
+    ``NSCHED 3``: the next sample's K_x and K_ξ for the torque it outputs) run by libcosim (its own SSP parser
+    and Jacobi master) equals, to 1e-9 of every series' scale, the plant FMU stepped by fmpy with the Python
+    law one sample late (``JacobiDelay(ScheduledPredictiveIntegralLQGLaw)``); the integrators act (ξ ≠ 0)."""
+    d, pl, s, si = sched
+    plant = example_fmu("two_link_payload")
+    ref = inverse_dynamics_reference(d.plant, pl, DT, DURATION, 0.3)
+    path = write_ssp(d, plant, tmp_path / "system.ssp", ref, schedule=s, integral=si)
+    sensors = list(d.kalman.sensors)
+    record = ["upper.tip.v", "fore.tip.v"]
+    run_ = run_libcosim_ssp(path, len(ref.time) - 1, {PLANT: sensors + record, CONTROLLER: list(d.lqr.inputs)})
+    assert run_.ok, run_.why + run_.log[-2000:]
+    law = ScheduledPredictiveIntegralLQGLaw(si, [LIMIT, LIMIT], ref)
+    with FmuLoop(plant, record=record) as loop:
+        py = loop.run(JacobiDelay(law, law.initial()), ref)
+    assert np.max(np.abs(law.xi)) > 1e-5
+    for name in sensors + record:
+        x = np.asarray(run_.values[f"{PLANT}:{name}"])          # after step k: t_1 … t_n
+        scale = max(1.0, float(np.max(np.abs(py[name]))))
+        print(f"\n  libcosim: {name} differs by {np.max(np.abs(x - py[name][1:])):.2g} (scale {scale:.3g})")
+        assert np.max(np.abs(x - py[name][1:])) <= 1e-9 * scale, name
+    for u in d.lqr.inputs:                                     # output after step k: applied over [t_k, t_k+1]
+        x = np.asarray(run_.values[f"{CONTROLLER}:{u}"])
+        print(f"  libcosim: {u} differs by {np.max(np.abs(x[:-1] - py[u][1:-1])):.2g} N m")
+        assert np.max(np.abs(x[:-1] - py[u][1:-1])) <= 1e-9 * LIMIT, u
+    errors = np.degrees([py[f"{j}.theta"][-1] - t for j, t in zip(JOINTS, TARGETS, strict=True)])
+    print(f"  final joint errors {errors} deg")
+    assert np.all(np.abs(errors) < 0.1)
+
+
+def test_cli_exports_the_fmu_and_the_ssp(tmp_path, capsys):
     from flexlink.cli import main
 
     base = ["control", str(SCENE), "--design-only", "--torque-limit", "60", "--target", "60,90", "--duration", "1.5",
             "--integral", "0.5", "--schedule", "3"]
     assert main([*base, "--export-fmu", str(tmp_path / "c.fmu")]) == 0
     assert "scheduled at 3 poses with integral action" in capsys.readouterr().err
-    assert main([*base, "--export-ssp", str(tmp_path / "s.ssp")]) == 2
+    assert main([*base, "--export-ssp", str(tmp_path / "s.ssp")]) == 0
     err = capsys.readouterr().err
-    assert "SSP package of the scheduled LQG with integral action is not built yet" in err and err.count("\n") == 1
+    assert "scheduled at 3 poses with integral action (integral time 0.5 s)" in err
+    read_ssd(str(tmp_path / "s.ssp"), validate=True)
