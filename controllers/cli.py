@@ -99,7 +99,7 @@ def add_control_parsers(subparsers) -> None:
                    help="with several torque-driven joints: integral action on the joint positions in the LQG, "
                         "integral time TI s (Bryson weight 1/(joint-error limit x TI)^2 on each joint's error "
                         "integral; strain gauges; also in --export-fmu and --export-ssp; with --schedule in the "
-                        "scheduled and the fixed LQG, designed at every pose; exported by --export-fmu, not yet by "
+                        "scheduled and the fixed LQG, designed at every pose; exported by --export-fmu and "
                         "--export-ssp) (docs/control.md)")
     p.add_argument("--export-fmu", type=output_file, metavar="CTRL.fmu",
                    help="also write the sampled LQG (Kalman current estimator + discrete LQR, saturation) as a "

@@ -50,7 +50,7 @@ def _roots(f: Callable[[float], float], w: np.ndarray, values: np.ndarray,
         x = float(brentq(f, w[i], w[i + 1], xtol=1e-13 * w[i], rtol=4 * np.finfo(float).eps))
         if is_root(x):
             out.append(x)
-    out.extend(float(w[i]) for i in np.flatnonzero(values == 0.0))
+    out.extend(float(w[i]) for i in np.flatnonzero(values == 0.0) if is_root(float(w[i])))
     return sorted(out)
 
 
