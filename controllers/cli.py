@@ -12,10 +12,9 @@ from __future__ import annotations
 import json
 import math
 
-from controllers.options import SENSORS
+from controllers.options import SENSORS, add_weight_options
 from controllers.options import angles as _angles
 from controllers.options import finite as _finite
-from controllers.options import limits as _limits
 from flexlink.errors import FlexlinkError
 from flexlink.paths import SCENE_HELP, output_file, plot_file
 
@@ -75,26 +74,10 @@ def add_control_parsers(subparsers) -> None:
                    help="window after the manoeuvre for the residual vibration and final error (default 1.5)")
     p.add_argument("--controller", choices=("lqr", "pd"), default="lqr",
                    help="lqr: LQR + Kalman estimator with model feedforward; pd: joint PD baseline")
-    p.add_argument("--torque-limit", type=_limits, metavar="NM[,NM...]|JOINT=NM,...",
-                   help="saturation and Bryson torque limit of every joint, or one per torque-driven joint "
-                        "comma-separated in scene order, or by joint name (default: 1.5 x the rigid quintic's peak "
-                        "torque of the first joint; with several joints 1.5 x the largest peak of the "
-                        "inverse-dynamics feedforward)")
-    p.add_argument("--joint-error", type=_limits, metavar="DEG[,DEG...]|JOINT=DEG,...",
-                   help="Bryson limit of each joint's angle error in the LQR weights: one for all, one per joint "
-                        "with an encoder in scene order, or by joint name (default 0.5 deg; smaller = heavier)")
-    p.add_argument("--tip-deflection", type=_limits, metavar="MM[,MM...]|LINK=MM,...",
-                   help="Bryson limit of each link's tip deflection (tip.v) in mm: one for all, one per flexible "
-                        "link in scene order, or by link name (default 5 mm)")
-    p.add_argument("--root-moment", type=_limits, metavar="NM[,NM...]|LINK=NM,...",
-                   help="Bryson limit of each link's root bending moment in the LQR weights: one for all, one per "
-                        "link, or by link name (default: 10 %% of the torque limit of the joint carrying the link; "
-                        "the torque limit itself gives the two-link example >= 6 dB and >= 30 deg at each "
-                        "actuator, docs/control.md)")
-    p.add_argument("--mode-limit", type=_limits, metavar="V|LINK=V,...|LINK.eta[K]=V,...",
-                   help="Bryson limit of modal coordinates (the FMU outputs <link>.eta[k]): one for every mode, all "
-                        "the modes of a link by its name, or one mode by its output name (default: none, the "
-                        "modes weighed through the tip deflection and root moment)")
+    add_weight_options(p, "saturation and Bryson torque limit of every joint, or one per torque-driven joint "
+                          "comma-separated in scene order, or by joint name (default: 1.5 x the rigid quintic's peak "
+                          "torque of the first joint; with several joints 1.5 x the largest peak of the "
+                          "inverse-dynamics feedforward)")
     p.add_argument("--sample-time", type=_finite, default=1e-3, metavar="S", help="controller sample time (1 ms)")
     p.add_argument("--sensors", choices=SENSORS, default="strain",
                    help="Kalman sensors besides the joint encoders: the links' root strain gauges or the tip "
@@ -116,7 +99,7 @@ def add_control_parsers(subparsers) -> None:
                    help="with several torque-driven joints: integral action on the joint positions in the LQG, "
                         "integral time TI s (Bryson weight 1/(joint-error limit x TI)^2 on each joint's error "
                         "integral; strain gauges; also in --export-fmu and --export-ssp; with --schedule in the "
-                        "scheduled and the fixed LQG, designed at every pose; exported by --export-fmu, not yet by "
+                        "scheduled and the fixed LQG, designed at every pose; exported by --export-fmu and "
                         "--export-ssp) (docs/control.md)")
     p.add_argument("--export-fmu", type=output_file, metavar="CTRL.fmu",
                    help="also write the sampled LQG (Kalman current estimator + discrete LQR, saturation) as a "
@@ -217,7 +200,7 @@ def cmd_control(args) -> int:
     Every check that needs no model runs first, so that bad input costs no build; a repeated command is
     answered from the design cache (:mod:`controllers.design_cache`) without the linearisation and design.
     """
-    from controllers.weights import check_names, overrides
+    from controllers.weights import check_names, overrides, torque_limits
     from flexlink.run.simulate import parse_assignments
     from flexlink.scene.loader import load_scene
 
@@ -252,7 +235,7 @@ def cmd_control(args) -> int:
     target = targets[0] if targets else None
     if args.duration is not None and not args.duration > 0:
         raise FlexlinkError(f"--duration must be a positive number of seconds, got {args.duration}")
-    limit = _torque_limits(plant, args.torque_limit)
+    limit = torque_limits(plant, args.torque_limit)
     if limit is None:
         limit = _default_limits(plant, targets, args.duration, args.sample_time)
     try:
@@ -290,10 +273,6 @@ def _check_control_args(args) -> None:
         raise FlexlinkError("--target and --duration are required for the closed-loop run (or give --design-only)")
     if args.integral is not None and not args.integral > 0:
         raise FlexlinkError(f"--integral: the integral time must be a positive number of seconds, got {args.integral}")
-    if args.integral is not None and args.schedule is not None and args.export_ssp:
-        raise FlexlinkError("--integral with --schedule: the SSP package of the scheduled LQG with integral action is "
-                            "not built yet (its controller one sample late); leave out --export-ssp (--export-fmu "
-                            "writes its controller FMU)")
     if args.schedule is not None and (args.target is None or args.duration is None):
         raise FlexlinkError("--schedule: gain scheduling over the path needs the path: --target and --duration")
     if args.design_only and args.torque_limit is None and (args.target is None or args.duration is None):
@@ -474,7 +453,7 @@ def _export_ssp(args, d, targets, schedule=None) -> None:
     pl = plan(d.plant, targets)
     _check_times(args.duration, args.settle, d.dt)
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, args.duration, args.settle)
-    integ = _integral_design(args, d)
+    integ = _integral_design(args, d) if schedule is None else _scheduled_integral(args, schedule)
     path = write_ssp(d, cached_fmu(args.scene), args.export_ssp, ref, schedule=schedule, integral=integ)
     what = "" if schedule is None else f" scheduled at {len(schedule.designs)} poses"
     if integ is not None:
@@ -490,23 +469,6 @@ def _integral_design(args, d):
     from controllers.integral import design_integral
 
     return design_integral(d, args.integral)
-
-
-def _torque_limits(plant, values):
-    """``--torque-limit`` as the design takes it: one number, or a mapping joint → limit.
-
-    One value is every joint's limit; several are one per torque-driven joint, in order.  None when not given
-    (the design then derives a limit from the manoeuvre).
-    """
-    from controllers.design import actuated_joints
-
-    if values is None or isinstance(values, dict) or len(values) == 1:
-        return values[0] if isinstance(values, list) else values
-    joints = actuated_joints(plant)
-    if len(values) != len(joints):
-        raise FlexlinkError(f"--torque-limit: one limit for all joints or one per torque-driven joint "
-                            f"({', '.join(joints)}), got {len(values)}")
-    return dict(zip(joints, values, strict=True))
 
 
 def _default_limits(plant, targets, duration, dt):
@@ -780,6 +742,13 @@ def _robustness_json(d, controller: str, integ=None) -> dict:
     return robustness_figures(rob)
 
 
+def _lead(a: dict) -> str:
+    """`` (lead)`` after a phase margin that a phase lead uses up (a loop with open-loop unstable poles)."""
+    if a.get("phase_margin_sense") != "lead":
+        return ""
+    return f" (lead; {a.get('open_loop_unstable_poles')} open-loop unstable poles)"
+
+
 def _report_design(args, d, targets=None) -> int:
     """``flexlink control --design-only``: gains' shapes, weights, margins, closed-loop poles.
 
@@ -825,7 +794,7 @@ def _report_design(args, d, targets=None) -> int:
         for a in r["actuators"]:
             gr = "-inf" if a["gain_reduction_margin_db"] is None else f"{a['gain_reduction_margin_db']:.3g}"
             print(f"    {a['input']:<16} gain margin {db(a['gain_margin_db'])} dB (down {gr} dB), phase margin "
-                  f"{db(a['phase_margin_deg'])} deg at {db(a['gain_crossover_hz'])} Hz, peak sensitivity "
+                  f"{db(a['phase_margin_deg'])} deg{_lead(a)} at {db(a['gain_crossover_hz'])} Hz, peak sensitivity "
                   f"{db(a['peak_sensitivity'])}; disk margin {db(a['disk_margin'])}: ±{db(a['disk_gain_margin_db'])}"
                   f" dB with ±{db(a['disk_phase_margin_deg'])} deg at {db(a['disk_margin_hz'])} Hz")
         ml = r["multiloop"]

@@ -100,31 +100,26 @@ def margins(plant: LinearPlant, law: SampledLaw, n_points: int = 20000) -> dict:
 
     Returns a dict: ``gain_margin_db`` (smallest gain increase that destabilises, dB, ``inf`` if none),
     ``gain_reduction_margin_db`` (largest gain decrease tolerated, negative dB, ``-inf`` if none — with a
-    rigid-body joint the loop is conditionally stable), ``phase_margin_deg`` (smallest over all gain
-    crossovers), the crossover frequencies in Hz, ``stability_margin`` (min |1 + L|, the distance of the
-    Nyquist curve to −1) and ``stable`` (closed-loop poles inside the unit circle, python-control).
+    rigid-body joint the loop is conditionally stable), ``phase_margin_deg`` (the smallest phase change that
+    destabilises) and ``phase_margin_sense``, the crossover frequencies in Hz and every crossover
+    (:func:`controllers.crossovers.loop_margins`, each refined on the loop's exact response),
+    ``stability_margin`` (min |1 + L|, the distance of the Nyquist curve to −1) and ``stable`` (closed-loop
+    poles inside the unit circle, python-control).
     """
+    from controllers.crossovers import loop_margins, unstable_poles
+    from controllers.robustness import response
+
     L = loop_transfer(plant, law)
     w = np.logspace(-3, np.log10(np.pi / law.dt), n_points)[:-1]
-    Lw = np.asarray(L.frequency_response(w).complex).ravel()
-    mag = np.abs(Lw)
-    # gain crossovers: |L| = 1
-    pms, wgcs = [], []
-    for i in np.flatnonzero(np.diff(np.sign(np.log(mag))) != 0):
-        f = np.log(mag[i]) / (np.log(mag[i]) - np.log(mag[i + 1]))
-        z = Lw[i] + f * (Lw[i + 1] - Lw[i])
-        pms.append(np.degrees(np.angle(-z)))        # angle of L from −1
-        wgcs.append(w[i] + f * (w[i + 1] - w[i]))
-    # phase crossovers: L on the negative real axis
-    gms, wpcs = [], []
-    for i in np.flatnonzero((np.diff(np.sign(Lw.imag)) != 0) & (Lw.real[:-1] < 0)):
-        f = Lw.imag[i] / (Lw.imag[i] - Lw.imag[i + 1])
-        re = Lw.real[i] + f * (Lw.real[i + 1] - Lw.real[i])
-        gms.append(1.0 / abs(re))
-        wpcs.append(w[i] + f * (w[i + 1] - w[i]))
+
+    def evaluate(x: np.ndarray) -> np.ndarray:
+        return response(L, x)[:, 0, 0]
+
+    Lw = evaluate(w)
+    m = loop_margins(Lw, w, evaluate, open_loop_unstable=unstable_poles(L.poles(), law.dt))
+    peak = m.pop("peak_sensitivity")
     cl = closed_loop(plant, law, [law.sensors[0]])
-    return {**margin_entries(gms, np.abs(np.array(pms)), wpcs, wgcs),
-            "stability_margin": float(np.min(np.abs(1 + Lw))),
+    return {**m, "stability_margin": 1.0 / peak,
             "stable": bool(np.all(np.abs(cl.poles()) < 1.0))}
 
 

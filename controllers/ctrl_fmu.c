@@ -51,7 +51,7 @@
  * integration: xi += DT err only in a sample whose applied torque saturates nowhere — the torque just computed
  * (DELAY 0, controllers.integral.IntegralLQGLaw), or with DELAY 1 the torque being applied over this sample,
  * the next torque then taking the updated xi (controllers.ssp.PredictiveIntegralLQGLaw).  With a schedule
- * (DELAY 0 only) SKD holds each design point's K_x and SKI its K_xi, interpolated with the other matrices
+ * SKD holds each design point's K_x and SKI its K_xi, interpolated with the other matrices
  * (controllers.integral.ScheduledIntegralLQGLaw).
  */
 #include <math.h>

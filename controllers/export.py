@@ -299,7 +299,7 @@ def _model_description(d: ControlDesign, ident: str, guid: str, sources: Sequenc
 """
 
 
-def _check_integral(d, integral, schedule, scheduled, delay: int) -> None:
+def _check_integral(d, integral, schedule, scheduled) -> None:
     """Refuse an integral design that is not this design's (or its schedule's), or that the C cannot run."""
     if integral is None:
         return
@@ -308,9 +308,8 @@ def _check_integral(d, integral, schedule, scheduled, delay: int) -> None:
     if scheduled is None and (integral.design is not d or schedule is not None):
         raise DesignError("integral action in the controller FMU: the integral design of this design (with a "
                           "schedule: its design_scheduled_integral)")
-    if scheduled is not None and (scheduled.schedule is not schedule or delay != 0):
-        raise DesignError("scheduled integral action in the controller FMU: the schedule's own integral design, "
-                          "without the SSP package's sample of delay (not built yet)")
+    if scheduled is not None and scheduled.schedule is not schedule:
+        raise DesignError("scheduled integral action in the controller FMU: the schedule's own integral design")
 
 
 def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits: Sequence[float] | None = None,
@@ -334,8 +333,9 @@ def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits
     ``integral`` (:func:`controllers.integral.design_integral` of ``d``): the LQG with integral action on the
     joint positions and its anti-windup (:class:`controllers.integral.IntegralLQGLaw`; with ``delay=1``
     :class:`controllers.ssp.PredictiveIntegralLQGLaw`); with a schedule its
-    :class:`controllers.integral.ScheduledIntegral` (:class:`controllers.integral.ScheduledIntegralLQGLaw`,
-    without delay); not with sensors read along the reference.
+    :class:`controllers.integral.ScheduledIntegral` (:class:`controllers.integral.ScheduledIntegralLQGLaw`;
+    with ``delay=1`` :class:`controllers.ssp.ScheduledPredictiveIntegralLQGLaw`); not with sensors read along
+    the reference.
     """
     from flexlink.export.cbuild import compile_shared_library, fmi_headers_dir
 
@@ -359,7 +359,7 @@ def export_controller_fmu(d: ControlDesign, path: str | os.PathLike[str], limits
     from controllers.integral import IntegralDesign, ScheduledIntegral
 
     scheduled_integral = integral if isinstance(integral, ScheduledIntegral) else None
-    _check_integral(d, integral, schedule, scheduled_integral, delay)
+    _check_integral(d, integral, schedule, scheduled_integral)
     start_integral = integral if isinstance(integral, IntegralDesign) else (
         None if scheduled_integral is None else scheduled_integral.designs[0])
     tables, along, law = None, "#define NALONG 0\n#define REF_INPUTS 1\n", None

@@ -40,7 +40,7 @@ import numpy as np
 
 from controllers import riccati
 from controllers.design import DesignError, torque_inputs
-from controllers.multijoint import MimoLQGLaw, reference_step
+from controllers.multijoint import MimoLQGLaw, checked_step, reference_step
 from controllers.robustness import loop_at_a_time, lqg_plant
 from controllers.schedule import Schedule, interpolate, path_fraction
 from controllers.trajectory import Reference
@@ -140,6 +140,7 @@ class IntegralLQGLaw(MimoLQGLaw):
         """K_ξ that sample ``k`` uses: the one design's (the scheduled law overrides this)."""
         return self.Ki
 
+    @checked_step
     def step(self, y, x_ref, u_ff) -> np.ndarray:
         """One sample: the LQG with ``−K_ξ ξ`` added to the feedforward, the estimator told the torque applied.
 

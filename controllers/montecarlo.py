@@ -62,7 +62,7 @@ def settings(sc, controller: str, target_deg, duration: float, settle: float, sa
     if controller not in ("lqr", "pd"):
         raise FlexlinkError(f"--controller: expected lqr (the MIMO LQG) or pd (the joint PD), got {controller!r}")
     _check_times(duration, settle, sample_time)
-    if torque_limit is not None and not (math.isfinite(torque_limit) and torque_limit > 0):
+    if isinstance(torque_limit, float | int) and not (math.isfinite(torque_limit) and torque_limit > 0):
         raise FlexlinkError(f"--torque-limit must be positive, got {torque_limit}")
     return {"multijoint": True, "controller": controller, "targets": [math.radians(v) for v in targets],
             "target_deg": targets, "duration": float(duration), "torque_limit": torque_limit, "sensors": sensors,
@@ -73,16 +73,21 @@ def settings(sc, controller: str, target_deg, duration: float, settle: float, sa
 def design(model, s: dict, sample_time: float):
     """The nominal design, checked for the multi-joint run: every case runs this one law.
 
-    Its torque limit is ``--torque-limit`` or the multi-joint default of ``flexlink control``.
+    Its torque limit is ``--torque-limit`` (one for all, one per joint or by name) or the multi-joint default
+    of ``flexlink control``; its Bryson limits those of the weight options (``s["weights"]``,
+    :func:`controllers.weights.bryson_limits`) over the defaults.
     """
     from controllers.manoeuvre import design as lqg_design
     from controllers.multijoint import check_multijoint, default_torque_limit, plan
+    from controllers.weights import bryson_limits, torque_limits
     from flexlink.run.linearize import linear_plant
 
-    limit = s["torque_limit"]
+    plant = linear_plant(model)
+    limit = torque_limits(plant, s["torque_limit"])
     if limit is None:
-        limit = default_torque_limit(linear_plant(model), s["targets"], s["duration"], sample_time)
-    d = lqg_design(model, torque_limit=limit, dt=sample_time, sensors=s["sensors"])
+        limit = default_torque_limit(plant, s["targets"], s["duration"], sample_time)
+    d = lqg_design(model, torque_limit=limit, dt=sample_time, sensors=s["sensors"],
+                   limits=bryson_limits(model, s.get("weights")))
     check_multijoint(d)
     plan(d.plant, s["targets"])
     return d

@@ -33,8 +33,9 @@ Both laws see deviations from that reference:
 
 from __future__ import annotations
 
+import functools
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import casadi as ca
@@ -44,8 +45,8 @@ from controllers.cosim import FmuLoop
 from controllers.trajectory import Reference, quintic
 from flexlink.errors import FlexlinkError
 
-__all__ = ["ACCELEROMETER", "PREDICTIONS", "EstimatorAlong", "JointPDLaw", "MimoLQGLaw", "compare", "compare_laws",
-           "default_torque_limit", "estimator_along", "inverse_dynamics_reference", "joint_pd_gains",
+__all__ = ["ACCELEROMETER", "PREDICTIONS", "EstimatorAlong", "JointPDLaw", "MimoLQGLaw", "checked_step", "compare",
+           "compare_laws", "default_torque_limit", "estimator_along", "inverse_dynamics_reference", "joint_pd_gains",
            "kalman_gains_along", "plan", "run", "sensor_noise"]
 
 
@@ -237,6 +238,24 @@ def default_torque_limit(plant, targets: Sequence[float], duration: float, dt: f
     return max(math.ceil(2.0 * factor * peak) / 2.0, 0.5)
 
 
+def checked_step(step: Callable[..., np.ndarray]) -> Callable[..., np.ndarray]:
+    """A law's ``step`` that stops at the first overflow, before any torque is computed from an infinity.
+
+    A finite but absurd measurement (1e308 from a broken sensor) gives a finite estimate whose gain product
+    overflows: the torque would be clipped from ±inf to a limit and the next estimate be inf.  Under
+    ``np.errstate(over="raise", invalid="raise")`` the overflowing operation itself raises, and the sample is the
+    law's :meth:`MimoLQGLaw.diverged` error; no infinity is computed with.
+    """
+    @functools.wraps(step)
+    def checked(self, y, x_ref, u_ff) -> np.ndarray:
+        with np.errstate(over="raise", invalid="raise"):
+            try:
+                return step(self, y, x_ref, u_ff)
+            except FloatingPointError:
+                raise self.diverged() from None
+    return checked
+
+
 class MimoLQGLaw:
     """The discrete LQR on the Kalman estimate of the deviation from the reference (module docstring).
 
@@ -298,13 +317,18 @@ class MimoLQGLaw:
             return sc.y_ref[k] + sc.C[k] @ self.dz + sc.D[k] @ (self.u_prev - sc.u_ff_prev[k])
         return self.y0 + C @ (x_ref + self.dz) + self.D @ self.u_prev
 
+    def diverged(self) -> FlexlinkError:
+        """The error of a sample whose estimate is not finite or would overflow (the controller FMU refuses too)."""
+        return FlexlinkError(f"the LQG's estimate is not finite at sample {self.k} (t = {self.k * self.dt:.6g} s): "
+                             "it diverged")
+
     def finite(self, dx: np.ndarray) -> np.ndarray:
-        """``dx``, or a FlexlinkError when the estimate is not finite (diverged: the controller FMU refuses too)."""
+        """``dx``, or :meth:`diverged` when the estimate is not finite (a NaN measurement)."""
         if not np.all(np.isfinite(dx)):
-            raise FlexlinkError(f"the LQG's estimate is not finite at sample {self.k} (t = {self.k * self.dt:.6g} s): "
-                                "it diverged")
+            raise self.diverged()
         return dx
 
+    @checked_step
     def step(self, y, x_ref, u_ff) -> np.ndarray:
         """One sample: correct the estimate with ``y``, the saturated torques, then predict the next sample."""
         M, C, K, Ad, Bd = self.matrices(self.k)

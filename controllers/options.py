@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["SENSORS", "angles", "finite", "limits", "positive"]
+__all__ = ["SENSORS", "add_weight_options", "angles", "finite", "limits", "positive"]
 
 #: The Kalman sensors besides the joint encoders (``--sensors`` of ``flexlink control`` and ``sweep``).
 SENSORS = ("strain", "accelerometer")
@@ -64,3 +64,28 @@ def limits(text: str) -> list[float] | dict[str, float]:
             raise argparse.ArgumentTypeError(f"{what} in {text!r}")
         out[name] = positive(value.strip())
     return out
+
+
+def add_weight_options(p: argparse.ArgumentParser, torque_help: str) -> None:
+    """The LQR's limits, registered alike on ``flexlink control`` and ``flexlink sweep``.
+
+    ``--torque-limit`` (its help, ``torque_help``, says the command's default), ``--joint-error``,
+    ``--tip-deflection``, ``--root-moment`` and ``--mode-limit``: one value for all, one per item in scene order,
+    or by name (:func:`limits`; names checked by :mod:`controllers.weights`).
+    """
+    p.add_argument("--torque-limit", type=limits, metavar="NM[,NM...]|JOINT=NM,...", help=torque_help)
+    p.add_argument("--joint-error", type=limits, metavar="DEG[,DEG...]|JOINT=DEG,...",
+                   help="Bryson limit of each joint's angle error in the LQR weights: one for all, one per joint "
+                        "with an encoder in scene order, or by joint name (default 0.5 deg; smaller = heavier)")
+    p.add_argument("--tip-deflection", type=limits, metavar="MM[,MM...]|LINK=MM,...",
+                   help="Bryson limit of each link's tip deflection (tip.v) in mm: one for all, one per flexible "
+                        "link in scene order, or by link name (default 5 mm)")
+    p.add_argument("--root-moment", type=limits, metavar="NM[,NM...]|LINK=NM,...",
+                   help="Bryson limit of each link's root bending moment in the LQR weights: one for all, one per "
+                        "link, or by link name (default: 10 %% of the torque limit of the joint carrying the link; "
+                        "the torque limit itself gives the two-link example >= 6 dB and >= 30 deg at each "
+                        "actuator, docs/control.md)")
+    p.add_argument("--mode-limit", type=limits, metavar="V|LINK=V,...|LINK.eta[K]=V,...",
+                   help="Bryson limit of modal coordinates (the FMU outputs <link>.eta[k]): one for every mode, all "
+                        "the modes of a link by its name, or one mode by its output name (default: none, the "
+                        "modes weighed through the tip deflection and root moment)")

@@ -207,8 +207,9 @@ def margins_text(rob: dict) -> str:
     lines = [f"sampled LQG, loop at a time: {'stable' if rob['stable'] else 'UNSTABLE'}, peak sensitivity "
              f"{f(rob['peak_sensitivity'], '')} (all loops)"]
     for a in rob["actuators"]:
+        lead = " lead" if a.get("phase_margin_sense") == "lead" else ""
         lines.append(f"{a['input']:<16} gain margin {f(a['gain_margin_db'], ' dB'):>9}, phase margin "
-                     f"{f(a['phase_margin_deg'], '°'):>6}; disk margin {f(a['disk_margin'], ''):>6}: "
+                     f"{f(a['phase_margin_deg'], '°'):>6}{lead}; disk margin {f(a['disk_margin'], ''):>6}: "
                      f"±{f(a['disk_gain_margin_db'], ' dB')} with ±{f(a['disk_phase_margin_deg'], '°')}")
     if "multiloop" in rob:                 # controllers.diskmargin: every actuator at once
         ml = rob["multiloop"]

@@ -14,16 +14,19 @@ Two loops are examined, each ``u = K_c(y)`` around the plant with the joint torq
 **Loop at a time.** At actuator i the loop is broken with the others closed: with ``T = K_c P`` (torques
 in → torques asked for), closing the other channels gives ``T_cl = T (I − E_o T)⁻¹`` (``control.feedback``,
 positive sign, ``E_o`` the selector of the other channels) and ``L_i = −T_cl[i, i]`` in the
-negative-feedback convention of ``control.stability_margins``, which gives the margins from the frequency
-response on a dense grid (``control.frd``, interpolated: its polynomial method loses the digits on these
-high-order loops).  The peak sensitivity is that of the loop at each actuator, ``1/min|1 + L_i|``, and of
-all loops together at the plant input, ``max_ω σ̄((I − T)⁻¹)``.  The balanced disk margin at each actuator
-is ``control.disk_margins`` of the same broken loop (:func:`disk_margins`, skew :data:`DISK_SKEW`).
+negative-feedback convention of ``control.stability_margins``, whose bracketing of the crossovers on a dense
+grid :func:`controllers.crossovers.loop_margins` follows, each crossover then refined on the loop's exact
+response (python-control refines on the grid's spline, which missed a sharp phase crossover by 0.013 dB; its
+polynomial method loses the digits on these high-order loops).  The phase margin is the smallest phase change,
+lag or lead, that destabilises, with its sense and the loop's open-loop unstable poles that make a lead
+possible (:mod:`controllers.crossovers`).  The peak sensitivity is that of the loop at each actuator,
+``1/min|1 + L_i|``, and of all loops together at the plant input, ``max_ω σ̄((I − T)⁻¹)``.  The balanced disk
+margin at each actuator is ``control.disk_margins`` of the same broken loop (:func:`disk_margins`, skew
+:data:`DISK_SKEW`).
 
 **Speed.** T's response is computed once per loop (:func:`response`) and each broken loop's follows by the
 algebra of ``control.feedback`` at each frequency, where evaluating each broken loop's state space took
-most of the six-axis arm's 16 s of margins; ``control.stability_margins`` evaluates its interpolated FRD in
-one ``splev`` call (:func:`splev_at_once`).  The figures are python-control's own (``benchmarks/margins.py``).
+most of the six-axis arm's 16 s of margins.  The figures are python-control's own (``benchmarks/margins.py``).
 """
 
 from __future__ import annotations
@@ -38,13 +41,13 @@ import control as ct
 import numpy as np
 from numpy.typing import ArrayLike
 
-from controllers.closedloop import margin_entries
+from controllers.crossovers import loop_margins, unstable_poles
 from controllers.design import KalmanDesign, LQRDesign, torque_inputs
 from controllers.diskmargin import MultiLoopMargin, multiloop_disk_margin
 
-__all__ = ["DISK_SKEW", "compensator", "delayed_plant", "delayed_robustness", "disk_margins",
+__all__ = ["DISK_SKEW", "broken_loop_system", "compensator", "delayed_plant", "delayed_robustness", "disk_margins",
            "loop_at_a_time", "lqg_compensator", "lqg_plant", "lu_evaluation", "predictive_compensator", "response",
-           "robustness", "robustness_figures", "splev_at_once"]
+           "robustness", "robustness_figures"]
 
 
 def lqg_plant(lqr: LQRDesign, kalman: KalmanDesign) -> ct.StateSpace:
@@ -120,45 +123,6 @@ def response(sys: ct.StateSpace, w: np.ndarray, chunk: int = 256) -> np.ndarray:
     return out
 
 
-#: python-control's own evaluation of an FRD, which :func:`splev_at_once` puts back.
-_FRD_EVAL = ct.FrequencyResponseData.eval
-
-
-def _eval_at_once(self: ct.FrequencyResponseData, omega: ArrayLike, squeeze: bool | None = None) -> Any:
-    """``FrequencyResponseData.eval`` with one ``splev`` call.
-
-    ``FrequencyResponseData.eval`` of an interpolating FRD with one ``splev`` call over all the
-    frequencies (python-control calls it once per frequency); the same values, bit for bit.
-    """
-    if self._ifunc is None or np.size(omega) == 0:          # splev refuses no frequency
-        return _FRD_EVAL(self, omega, squeeze=squeeze)
-    from control.lti import _process_frequency_response
-    from scipy.interpolate import splev
-
-    w = np.array(omega, ndmin=1, dtype=float)
-    out = np.empty((self.noutputs, self.ninputs, len(w)), dtype=complex)
-    for i in range(self.noutputs):
-        for j in range(self.ninputs):
-            re, im = splev(w, self._ifunc[i, j], der=0)
-            out[i, j] = np.asarray(re) + 1j * np.asarray(im)
-    return _process_frequency_response(self, omega, out, squeeze=squeeze)
-
-
-@contextmanager
-def splev_at_once() -> Iterator[None]:
-    """Inside: interpolating FRDs evaluate all their frequencies in one ``splev`` call.
-
-    Most of the time of
-    ``control.stability_margins`` on a 4000-point grid went to python-control's loop over the frequencies
-    (it copies the FRD it is given, so a subclass would not reach it); the margins are unchanged.
-    """
-    ct.FrequencyResponseData.eval = _eval_at_once
-    try:
-        yield
-    finally:
-        ct.FrequencyResponseData.eval = _FRD_EVAL
-
-
 def _no_laub(self: ct.StateSpace, x: Any) -> NoReturn:
     raise NotImplementedError("python-control's LU evaluation (controllers.robustness.lu_evaluation)")
 
@@ -186,11 +150,21 @@ def lu_evaluation() -> Iterator[None]:
 DISK_SKEW = 0.0
 
 
-def disk_margins(T: ct.StateSpace, Tw: np.ndarray, w: np.ndarray, i: int) -> dict[str, float]:
+def broken_loop_system(T: ct.StateSpace, i: int) -> ct.StateSpace:
+    """The loop broken at actuator i with the others closed, ``L_i = −T_cl[i, i]``, as a state space.
+
+    ``control.feedback(T, E_o, sign=1)`` (``E_o`` the selector of the other channels), negative-feedback
+    convention of ``control.stability_margins``; its poles are those of the loop with channel i open.
+    """
+    m = T.ninputs
+    return -(ct.feedback(T, np.diag([0.0 if j == i else 1.0 for j in range(m)]), sign=1) if m > 1 else T)[i, i]
+
+
+def disk_margins(L: ct.StateSpace, Tw: np.ndarray, w: np.ndarray, i: int) -> dict[str, float]:
     """The balanced disk margin of the loop broken at actuator i (python-control).
 
-    ``control.disk_margins(L_i, ·, skew=0)`` of the loop broken at actuator i (the others closed), its
-    worst case over the grid w (Tw: T's response on it).
+    ``control.disk_margins(L_i, ·, skew=0)`` of the loop broken at actuator i (the others closed; L, from
+    :func:`broken_loop_system`), its worst case over the grid w (Tw: T's response on it).
 
     The balanced margin α tolerates every factor f at that input inside the disk α draws: gains within
     ±``disk_gain_margin_db`` together with phases within ±``disk_phase_margin_deg``.  python-control
@@ -199,8 +173,6 @@ def disk_margins(T: ct.StateSpace, Tw: np.ndarray, w: np.ndarray, i: int) -> dic
     1/|S_i − ½| from the response already computed (the same quantity: python-control's figures, one
     LU evaluation a frequency, :func:`lu_evaluation`).
     """
-    m = T.ninputs
-    L = -(ct.feedback(T, np.diag([0.0 if j == i else 1.0 for j in range(m)]), sign=1) if m > 1 else T)[i, i]
     Sw = 1.0 / (1.0 - broken_loop(Tw, i)[:, 0, 0])
     k = int(np.argmin(1.0 / np.abs(Sw - 0.5)))
     near = np.arange(max(k - 2, 0), min(k + 3, len(w)))
@@ -235,8 +207,10 @@ def loop_at_a_time(P: ct.StateSpace, Kc: ct.StateSpace | ArrayLike, names: Seque
     dict
         ``actuators``: per actuator ``input``, ``gain_margin_db`` (smallest gain increase that destabilises,
         ``inf`` if none), ``gain_reduction_margin_db`` (largest decrease tolerated, ``-inf`` if none),
-        ``phase_margin_deg`` (smallest over the gain crossovers), ``gain_crossover_hz``,
-        ``phase_crossover_hz``, ``peak_sensitivity`` (``1/min|1 + L_i|``), the balanced disk margin
+        ``phase_margin_deg`` (the smallest phase change that destabilises, ≥ 0), ``phase_margin_sense``
+        (``"lag"`` or ``"lead"``), ``gain_crossover_hz``, ``phase_crossover_hz``, ``peak_sensitivity``
+        (``1/min|1 + L_i|``), ``open_loop_unstable_poles`` (of L_i), ``gain_crossovers`` and
+        ``phase_crossovers`` (every crossover; :func:`controllers.crossovers.loop_margins`), the balanced disk margin
         ``disk_margin``, ``disk_gain_margin_db``, ``disk_phase_margin_deg``, ``disk_margin_hz``
         (:func:`disk_margins`); ``peak_sensitivity`` (all loops, at the plant input), ``disk_skew`` (0),
         ``multiloop``: the simultaneous disk margin at all actuators (0 for an unstable loop)
@@ -254,9 +228,15 @@ def loop_at_a_time(P: ct.StateSpace, Kc: ct.StateSpace | ArrayLike, names: Seque
     D = np.asarray(T.D, dtype=float)
     out = []
     for i in range(m):
+        L = broken_loop_system(T, i)
         Lw, LD = -broken_loop(Tw, i)[:, 0, 0], -broken_loop(D[None], i)[0, 0, 0]
-        out.append({"input": names[i], **siso_margins(Lw, w, T.dt, LD if T.isctime() else None),
-                    **disk_margins(T, Tw, w, i)})
+
+        def evaluate(x: np.ndarray, i: int = i) -> np.ndarray:
+            return -broken_loop(response(T, x), i)[:, 0, 0]
+
+        out.append({"input": names[i], **loop_margins(Lw, w, evaluate, LD if T.isctime() else None,
+                                                      unstable_poles(L.poles(), T.dt)),
+                    **disk_margins(L, Tw, w, i)})
     cl = ct.feedback(T, np.eye(m), sign=1)
     poles = cl.poles()
     stable = bool(np.all(np.abs(poles) < 1.0)) if T.isdtime() else bool(np.all(poles.real < 0))
@@ -286,29 +266,6 @@ def broken_loop(Tw: np.ndarray, i: int) -> np.ndarray:
     Mt = np.swapaxes(np.eye(m)[None] - E @ Tw, -1, -2)
     row = np.linalg.solve(Mt, Tw[:, i, :, None])
     return row[:, i:i + 1, :]
-
-
-def siso_margins(Lw: np.ndarray, w: np.ndarray, dt: float | bool = 0,
-                 L_inf: float | None = None) -> dict[str, float]:
-    """The classical margins of a loop from its frequency response (python-control).
-
-    ``control.stability_margins`` (all crossovers) of the loop's frequency response Lw on the grid w (an
-    interpolating ``control.frd``), split into the gain increase and decrease margins; ``L_inf`` is the
-    continuous loop's feedthrough, ``L(j∞)``.
-    """
-    frd = ct.frd(np.asarray(Lw, dtype=complex).reshape(1, 1, -1), w, dt, smooth=True)
-    with warnings.catch_warnings(), splev_at_once():
-        warnings.simplefilter("ignore")
-        gm, pm, sm, wpc, wgc, wms = ct.stability_margins(frd, returnall=True)
-    sm = np.asarray(sm, dtype=float)
-    # the distance to −1 on the grid itself as well (stability_margins keeps the local minima inside it)
-    d_min = float(np.min(np.abs(1 + frd.frdata.ravel())))
-    if len(sm):
-        d_min = min(d_min, float(np.min(sm)))
-    if L_inf is not None:                 # the grid's end: |1 + L(j∞)| = |1 + D|
-        d_min = min(d_min, float(abs(1 + L_inf)))
-    return {**margin_entries(gm, pm, np.asarray(wpc, dtype=float), np.asarray(wgc, dtype=float)),
-            "peak_sensitivity": 1.0 / d_min if d_min > 0 else float("inf")}
 
 
 def robustness(lqr: LQRDesign, kalman: KalmanDesign | None = None, n_points: int = 4000) -> dict[str, dict[str, Any]]:
@@ -381,7 +338,7 @@ def robustness_figures(rob: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[s
     out = {}
     for loop, r in rob.items():
         out[loop] = {
-            "actuators": [{k: (v if isinstance(v, str) else num(v)) for k, v in a.items()} for a in r["actuators"]],
+            "actuators": [{k: (num(v) if isinstance(v, float) else v) for k, v in a.items()} for a in r["actuators"]],
             "peak_sensitivity": num(r["peak_sensitivity"]),
             "stable": r["stable"],
             "sample_time_s": r["dt"] or None,

@@ -41,16 +41,16 @@ import numpy as np
 
 from controllers.cosim import FmuLoop, LoopResult
 from controllers.design import DesignError
-from controllers.multijoint import MimoLQGLaw
+from controllers.multijoint import MimoLQGLaw, checked_step
 
 if TYPE_CHECKING:
-    from controllers.integral import IntegralDesign
+    from controllers.integral import IntegralDesign, ScheduledIntegral
     from controllers.manoeuvre import ControlDesign
     from controllers.schedule import Schedule
     from controllers.trajectory import Reference
 
-__all__ = ["JacobiDelay", "JacobiLoop", "PredictiveIntegralLQGLaw", "PredictiveLQGLaw", "ScheduledPredictiveLQGLaw",
-           "write_ssp"]
+__all__ = ["JacobiDelay", "JacobiLoop", "PredictiveIntegralLQGLaw", "PredictiveLQGLaw",
+           "ScheduledPredictiveIntegralLQGLaw", "ScheduledPredictiveLQGLaw", "write_ssp"]
 
 PLANT, CONTROLLER = "plant", "controller"
 
@@ -100,7 +100,7 @@ def system_structure(name: str, sensors: list[str], torques: list[str], dt: floa
 
 def write_ssp(d: ControlDesign, plant_fmu: str | os.PathLike[str], path: str | os.PathLike[str],
               reference: Reference, limits: Sequence[float] | None = None, schedule: Schedule | None = None,
-              integral: IntegralDesign | None = None) -> Path:
+              integral: IntegralDesign | ScheduledIntegral | None = None) -> Path:
     """Write the SSP package of the plant FMU and the design's controller FMU playing ``reference``.
 
     The package is validated against the SSP 1.0 schema before it is written, so that a package on disk is
@@ -121,9 +121,10 @@ def write_ssp(d: ControlDesign, plant_fmu: str | os.PathLike[str], path: str | o
     schedule : controllers.schedule.Schedule, optional
         A gain schedule of ``d`` over the path: the controller interpolates its matrices along it
         (:class:`ScheduledPredictiveLQGLaw`).
-    integral : controllers.integral.IntegralDesign, optional
+    integral : controllers.integral.IntegralDesign or controllers.integral.ScheduledIntegral, optional
         Integral action on the joint positions (:func:`controllers.integral.design_integral` of ``d``): the
-        controller is :class:`PredictiveIntegralLQGLaw`.
+        controller is :class:`PredictiveIntegralLQGLaw`; with ``schedule``, its
+        :func:`controllers.integral.design_scheduled_integral`: :class:`ScheduledPredictiveIntegralLQGLaw`.
 
     Returns
     -------
@@ -248,6 +249,7 @@ class PredictiveLQGLaw(MimoLQGLaw):
         self.v = self.initial()
         self.u_prev = self.v - self.u0
 
+    @checked_step
     def step(self, y: np.ndarray, x_ref: np.ndarray, u_ff: np.ndarray) -> np.ndarray:
         """Sample k: correct and predict with sample k's matrices, return sample k+1's torque (its gain).
 
@@ -321,6 +323,11 @@ class PredictiveIntegralLQGLaw(PredictiveLQGLaw):
         M, C, _, Ad, Bd = super().matrices(k)
         return M, C, self.Kx, Ad, Bd
 
+    def integral_gain(self, k: int) -> np.ndarray:
+        """K_ξ of sample ``k``: the design's (a scheduled law overrides this)."""
+        return self.Ki
+
+    @checked_step
     def step(self, y: np.ndarray, x_ref: np.ndarray, u_ff: np.ndarray) -> np.ndarray:
         """Sample k: correct, predict with the torque applied, integrate, return sample k+1's torque."""
         M, C, _, Ad, Bd = self.matrices(self.k)
@@ -331,6 +338,35 @@ class PredictiveIntegralLQGLaw(PredictiveLQGLaw):
             self.xi = self.xi + self.dt * (np.asarray(y)[self.rows] - self.y0[self.rows] - self.Ce @ x_ref)
         self.k += 1
         nxt = min(self.k, len(self.u_ff) - 1)
-        u = self.u0 + (self.u_ff[nxt] - self.Ki @ self.xi) - self.Kx @ self.dz
+        Kx = self.matrices(self.k)[2]                   # the next sample's gains (a schedule's at k+1)
+        u = self.u0 + (self.u_ff[nxt] - self.integral_gain(self.k) @ self.xi) - Kx @ self.dz
         self.v = np.clip(u, -self.limits, self.limits)
         return self.v.copy()
+
+
+class ScheduledPredictiveIntegralLQGLaw(PredictiveIntegralLQGLaw):
+    """The predictive LQG with integral action and a gain schedule, for a loop one sample late.
+
+    :class:`PredictiveIntegralLQGLaw` with the matrices of
+    :class:`controllers.integral.ScheduledIntegralLQGLaw` (K_x and K_ξ included) at the reference's path
+    parameter: sample k corrects, predicts and integrates with sample k's matrices, and its torque for sample
+    k+1 takes sample k+1's K_x and K_ξ, as ``ctrl_fmu.c`` with ``DELAY 1``, ``INTEGRAL 1`` and ``NSCHED > 0``
+    does.
+    """
+
+    kind = "scheduled"
+
+    def __init__(self, integral: ScheduledIntegral, limits: Sequence[float], reference: Reference):
+        from controllers.integral import ScheduledIntegralLQGLaw
+
+        self.scheduled = ScheduledIntegralLQGLaw(integral, limits, reference)
+        super().__init__(integral.designs[0], limits, reference)
+        self.W = self.scheduled.W
+
+    def matrices(self, k: int) -> tuple[np.ndarray, ...]:
+        """The schedule's (M, C, K_x, A_d, B_d) at sample ``k`` (the last sample's after the reference)."""
+        return self.scheduled.matrices(min(k, len(self.u_ff) - 1))
+
+    def integral_gain(self, k: int) -> np.ndarray:
+        """The schedule's K_ξ at sample ``k`` (the last sample's after the reference)."""
+        return self.scheduled.integral_gain(min(k, len(self.u_ff) - 1))

@@ -254,12 +254,17 @@ _NUMBER = (int, float)
 _SPEC_TYPES: dict[str, tuple[type, ...]] = {
     "scene": (str,), "params": (dict,), "samples": (int,), "seed": (int,), "distributions": (dict,),
     "controller": (str,), "target_deg": (*_NUMBER, list), "duration": _NUMBER, "settle": _NUMBER,
-    "settle_band": _NUMBER, "torque_limit": _NUMBER, "sensors": (str,), "stop_time": _NUMBER,
+    "settle_band": _NUMBER, "torque_limit": (*_NUMBER, list, dict, str), "joint_error": (*_NUMBER, list, dict, str),
+    "tip_deflection": (*_NUMBER, list, dict, str), "root_moment": (*_NUMBER, list, dict, str),
+    "mode_limit": (*_NUMBER, list, dict, str), "sensors": (str,), "stop_time": _NUMBER,
     "sample_time": _NUMBER, "series": (list,), "series_every": (int,), "out": (str,), "resume": (bool,),
     "overwrite": (bool,), "scheduler": (str,), "n_workers": (int,), "batch_size": (int,), "shared_fs": (bool,),
     "progress": (bool,), "fmu": (str,), "case_timeout": _NUMBER,
 }
 _SPEC_PATHS = ("scene", "out", "fmu")          # relative to the spec file's folder
+#: The LQR's limits (``flexlink control``'s options, :mod:`controllers.weights`): a number for all, one per item
+#: in scene order, or a table by name; the torque limit too.
+_LIMITS = ("torque_limit", "joint_error", "tip_deflection", "root_moment", "mode_limit")
 
 
 @dataclass
@@ -288,6 +293,11 @@ class SweepSpec:
         ``flexlink control``; with several torque-driven joints one angle per joint; kept as a tuple of
         floats); the settling time is measured to a band of ``settle_band`` × the commanded angle.  The
         controller is designed once on the scene's values.
+    torque_limit, joint_error, tip_deflection, root_moment, mode_limit :
+        The LQR's limits as ``flexlink control`` takes them (N m, deg, mm, N m, modal units): a number for
+        every joint, link or mode, a sequence of one per item in scene order, a mapping by name, or the
+        command line's text (``"shoulder=60,elbow=40"``); checked against the scene by
+        :mod:`controllers.weights`.
     stop_time : float, optional
         Open loop instead: the scene's default inputs for ``stop_time`` s (``settle``: the final window of the
         residual vibration).
@@ -333,7 +343,11 @@ class SweepSpec:
     duration: float | None = None
     settle: float = 1.5
     settle_band: float = 0.02
-    torque_limit: float | None = None
+    torque_limit: float | Sequence[float] | Mapping[str, float] | None = None
+    joint_error: float | Sequence[float] | Mapping[str, float] | None = None
+    tip_deflection: float | Sequence[float] | Mapping[str, float] | None = None
+    root_moment: float | Sequence[float] | Mapping[str, float] | None = None
+    mode_limit: float | Sequence[float] | Mapping[str, float] | None = None
     sensors: str = "strain"
     stop_time: float | None = None
     sample_time: float = 1e-3
@@ -363,6 +377,8 @@ class SweepSpec:
                                            settle_band=self.settle_band, series_every=self.series_every)
         if self.controller is not None and self.controller not in ("lqr", "pd"):
             raise FlexlinkError(f"controller (--controller): expected 'lqr' or 'pd', got {self.controller!r}")
+        for name in _LIMITS:
+            setattr(self, name, _limit_value(name, getattr(self, name)))
         if self.sensors not in SENSORS:
             raise FlexlinkError(f"sensors (--sensors): expected one of {SENSORS}, got {self.sensors!r}")
         for name, option in (("n_workers", "--workers"), ("batch_size", "--batch-size")):
@@ -400,6 +416,40 @@ class SweepSpec:
             return cls(**values)                   # type: ignore[arg-type]  # each value's type checked
         except FlexlinkError as e:
             raise FlexlinkError(f"{path}: {e}") from None
+
+
+def _limit_value(name: str, value):
+    """One of :data:`_LIMITS` in the form :mod:`controllers.weights` takes, each value checked positive.
+
+    A number (or a list of one) is one value for all — a float for ``torque_limit``, as the one-joint design
+    takes it, else a list of one; a sequence one per item; a mapping by name; text, the command line's syntax.
+    """
+    import argparse
+
+    from controllers.options import limits
+
+    option = "--" + name.replace("_", "-")
+
+    def one(v) -> float:
+        if isinstance(v, bool) or not isinstance(v, int | float | np.floating | np.integer):
+            raise FlexlinkError(f"{name} ({option}): expected a number, got {v!r}")
+        if not (math.isfinite(v) and v > 0):
+            raise FlexlinkError(f"{name} ({option}): expected a positive number, got {v!r}")
+        return float(v)
+
+    if value is None:
+        return None
+    if isinstance(value, str):
+        try:
+            value = limits(value)
+        except argparse.ArgumentTypeError as e:
+            raise FlexlinkError(f"{name} ({option}): {e}") from None
+    if isinstance(value, Mapping):
+        return {str(k): one(v) for k, v in value.items()}
+    items = [one(v) for v in (value if isinstance(value, Sequence) else [value])]
+    if not items:
+        raise FlexlinkError(f"{name} ({option}): no value")
+    return items[0] if name == "torque_limit" and len(items) == 1 else items
 
 
 def _read_spec(path: Path) -> dict[str, object]:
@@ -459,6 +509,8 @@ def _check_items(path: Path, key: str, value: object) -> None:
         for name, item in value.items():
             ok = (isinstance(item, str | int | float) or key == "params" and isinstance(item, list)
                   and all(isinstance(x, int | float) and not isinstance(x, bool) for x in item))
+            if key in _LIMITS and not isinstance(item, int | float):
+                raise FlexlinkError(f"{path}: {key}.{name} = {item!r}: expected a number")
             if isinstance(item, bool) or not ok:
                 raise FlexlinkError(f"{path}: {key}.{name} = {item!r}: expected a string such as "
                                     "\"LO:HI:N\", a number" + (" or an array of numbers" if key == "params" else ""))
@@ -770,23 +822,26 @@ def _write_output(df, path: Path) -> None:
 
 
 # ============================================================================ the sweep
-def _design(model, *, controller, target, duration, sample_time, torque_limit, sensors):
+def _design(model, *, controller, target, duration, sample_time, torque_limit, sensors, weights=None):
     from controllers.manoeuvre import _target, check_scene, default_torque_limit, design
+    from controllers.weights import bryson_limits, torque_limits
     from flexlink.run.linearize import linear_plant
 
     check_scene(model)
     plant = linear_plant(model, outputs=[f"{model.scene.joints[0].name}.theta"])
-    limit = torque_limit if torque_limit is not None else default_torque_limit(plant, target - float(plant.x0[0]),
-                                                                                duration)
-    if not limit > 0:
+    limit = torque_limits(plant, torque_limit)
+    if limit is None:
+        limit = default_torque_limit(plant, target - float(plant.x0[0]), duration)
+    if isinstance(limit, float | int) and not limit > 0:
         raise FlexlinkError(f"--torque-limit must be positive, got {limit}")
-    d = design(model, torque_limit=limit, dt=sample_time, sensors=sensors)
+    d = design(model, torque_limit=limit, dt=sample_time, sensors=sensors, limits=bryson_limits(model, weights))
     d.law(controller)
     _target(d, target)          # checks the manoeuvre and caches the static deflection for the workers
     return d
 
 
 _DESIGNS: dict[str, tuple] = {}     # this process's designs: (ControlDesign, its cloudpickle)
+
 
 
 def _sweep_id(doc: dict) -> str:
@@ -835,6 +890,7 @@ def run_sweep(spec: SweepSpec, *, client: object = None,
     out = Path(spec.out) if spec.out is not None else None
     done: dict[str, dict] = {}
     journal = None
+    fresh = out is not None and not journal_path(out).exists() and not out.exists()
     if out is not None:
         done, journal = _open_journal(out, sweep=prep.sweep, scene_path=Path(spec.scene), mode=prep.mode,
                                       settings=prep.settings, resume=spec.resume, overwrite=spec.overwrite)
@@ -845,9 +901,16 @@ def run_sweep(spec: SweepSpec, *, client: object = None,
     run_settings = prep.settings
     try:
         if todo:
-            job = _sweep_job(prep.sweep, prep.fmu_path, prep.settings, prep.make_design, shared_fs=spec.shared_fs,
-                             mode=prep.mode, metric_names=prep.metric_names, series=spec.series,
-                             series_every=spec.series_every)
+            try:
+                job = _sweep_job(prep.sweep, prep.fmu_path, prep.settings, prep.make_design,
+                                 shared_fs=spec.shared_fs, mode=prep.mode, metric_names=prep.metric_names,
+                                 series=spec.series, series_every=spec.series_every)
+            except FlexlinkError:
+                if fresh and journal is not None:      # a design refused (a weight's count): no row to keep
+                    journal.close()
+                    journal_path(Path(str(out))).unlink(missing_ok=True)
+                    journal = None
+                raise
             job.case_timeout = spec.case_timeout
             run_settings = job.settings
             new_rows = _run_cases(job, todo, sweep=prep.sweep, total=len(prep.cases), resumed=resumed,
@@ -878,6 +941,7 @@ def _prepare(spec: SweepSpec) -> _Prepared:
 
     scene_path = Path(spec.scene)
     sc = load_scene(scene_path)
+    weights = _weights(sc, spec)
     kind, cases = spec.cases()
     names = list(cases[0])
     fmu_path = Path(spec.fmu) if spec.fmu is not None else cached_fmu(scene_path)
@@ -885,11 +949,25 @@ def _prepare(spec: SweepSpec) -> _Prepared:
     mode, metric_names, settings, make_design = _sweep_settings(
         sc, scene_path, variables, controller=spec.controller, target_deg=spec.target_deg, duration=spec.duration,
         settle=spec.settle, settle_band=spec.settle_band, torque_limit=spec.torque_limit, sensors=spec.sensors,
-        stop_time=spec.stop_time, sample_time=spec.sample_time)
+        stop_time=spec.stop_time, sample_time=spec.sample_time, weights=weights)
     sweep = _sweep_id({"scene": hashlib.sha256(scene_path.read_bytes()).hexdigest(), "mode": mode,
                        "settings": settings, "series": list(spec.series), "series_every": spec.series_every,
                        "flexlink": flexlink.__version__})
     return _Prepared(sc.name, kind, cases, names, fmu_path, mode, metric_names, settings, make_design, sweep)
+
+
+def _weights(sc, spec: SweepSpec) -> dict:
+    """The LQR's limits the spec gives (names checked against the scene before any build), for the settings."""
+    from types import SimpleNamespace
+
+    from controllers.weights import OPTIONS, check_names
+
+    given = {name: getattr(spec, name) for name in OPTIONS if getattr(spec, name) is not None}
+    if (given or spec.torque_limit is not None) and spec.controller is None:
+        raise FlexlinkError("the LQR's limits (--torque-limit, --joint-error, ...) need a closed-loop manoeuvre "
+                            "(--target, --duration)")
+    check_names(sc, SimpleNamespace(torque_limit=spec.torque_limit, **{name: getattr(spec, name) for name in OPTIONS}))
+    return given
 
 
 def _check_options(*, controller, stop_time, sample_time, settle, settle_band, series_every) -> int:
@@ -934,8 +1012,10 @@ def _fmu_variables(fmu_path: Path, names: list[str], series: Sequence[str]) -> d
 
 
 def _sweep_settings(sc, scene_path: Path, variables: dict, *, controller, target_deg, duration, settle, settle_band,
-                    torque_limit, sensors, stop_time, sample_time):
+                    torque_limit, sensors, stop_time, sample_time, weights=None):
     """The mode, metric names and settings shared by every case, which identify the sweep.
+
+    ``weights``: the LQR's limits by option (:func:`_weights`), in the settings (``"weights"``) when given.
 
     Returns ``(mode, metric_names, settings, make_design or None)``: for closed loop the controller design is
     deferred (it takes seconds) until there are cases to run.
@@ -948,6 +1028,8 @@ def _sweep_settings(sc, scene_path: Path, variables: dict, *, controller, target
         if len(montecarlo.torque_joints(sc)) > 1:
             settings.update(montecarlo.settings(sc, controller, target_deg, duration, settle, sample_time,
                                                 torque_limit, sensors))
+            if weights:
+                settings["weights"] = weights
             make_design = functools.partial(_closed_loop_design, sc, scene_path, settings, controller=controller,
                                             target_deg=target_deg, duration=duration, sample_time=sample_time,
                                             torque_limit=torque_limit, sensors=sensors)
@@ -961,11 +1043,11 @@ def _sweep_settings(sc, scene_path: Path, variables: dict, *, controller, target
         if target_deg is None or duration is None:
             raise FlexlinkError("a closed-loop sweep needs --target DEG and --duration S")
         _check_times(duration, settle, sample_time)
-        if torque_limit is not None and not (math.isfinite(torque_limit) and torque_limit > 0):
-            raise FlexlinkError(f"--torque-limit must be positive, got {torque_limit}")
         settings.update(controller=controller, target=math.radians(target_deg), target_deg=float(target_deg),
                         duration=float(duration), settle_band=float(settle_band), torque_limit=torque_limit,
                         sensors=sensors, record=[f"{joint}.theta", f"{link}.tip.v"])
+        if weights:
+            settings["weights"] = weights
         make_design = functools.partial(_closed_loop_design, sc, scene_path, settings, controller=controller,
                                         target_deg=target_deg, duration=duration, sample_time=sample_time,
                                         torque_limit=torque_limit, sensors=sensors)
@@ -1000,7 +1082,7 @@ def _closed_loop_design(sc, scene_path: Path, settings: dict, *, controller, tar
 
     dkey = json.dumps([hashlib.sha256(scene_path.read_bytes()).hexdigest(), controller,
                        [float(v) for v in np.atleast_1d(target_deg)], float(duration), float(sample_time),
-                       torque_limit, sensors])
+                       torque_limit, sensors, settings.get("weights")])
     if dkey not in _DESIGNS:
         if settings.get("multijoint"):
             from controllers.montecarlo import design
@@ -1008,7 +1090,8 @@ def _closed_loop_design(sc, scene_path: Path, settings: dict, *, controller, tar
             d = design(build_model(sc), settings, sample_time)
         else:
             d = _design(build_model(sc), controller=controller, target=math.radians(target_deg),
-                        duration=duration, sample_time=sample_time, torque_limit=torque_limit, sensors=sensors)
+                        duration=duration, sample_time=sample_time, torque_limit=torque_limit, sensors=sensors,
+                        weights=settings.get("weights"))
         while len(_DESIGNS) >= 4:
             _DESIGNS.pop(next(iter(_DESIGNS)))
         _DESIGNS[dkey] = (d, cloudpickle.dumps(d))

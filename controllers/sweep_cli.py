@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from controllers.options import SENSORS, angles
+from controllers.options import SENSORS, add_weight_options, angles
 from flexlink.errors import FlexlinkError
 from flexlink.paths import SCENE_HELP, OutputPath, check_output_path, output_file, plot_file
 
@@ -56,7 +56,8 @@ def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
                         "vibration (default 1.5)")
     p.add_argument("--settle-band", type=float, metavar="FRACTION",
                    help="settling-time band, fraction of the commanded angle (default 0.02)")
-    p.add_argument("--torque-limit", type=float, metavar="NM", help="closed loop: saturation (default as control)")
+    add_weight_options(p, "closed loop: saturation and Bryson torque limit of every joint, or one per torque-driven "
+                          "joint in scene order, or by joint name (default as flexlink control)")
     p.add_argument("--sensors", choices=SENSORS,
                    help="closed loop: the Kalman sensors, as in flexlink control (default strain)")
     p.add_argument("--stop-time", type=float, metavar="S", help="open loop: run the scene's default inputs")

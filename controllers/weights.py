@@ -19,7 +19,7 @@ import re
 
 from flexlink.errors import FlexlinkError
 
-__all__ = ["OPTIONS", "check_names", "describe", "overrides"]
+__all__ = ["OPTIONS", "bryson_limits", "check_names", "describe", "overrides", "torque_limits"]
 
 #: option → (what it limits, the output name of one item, its command-line unit's factor to SI: deg, mm, N m).
 OPTIONS = {
@@ -141,6 +141,37 @@ def _mode_items(value, modes: dict[str, list[str]]) -> dict[str, float]:
             raise FlexlinkError(f"--mode-limit: {name!r} is not a mode of the model (link {link!r} has "
                                 f"{', '.join(have) if have else 'no mode'})")
     return out
+
+
+def bryson_limits(model, weights) -> dict[str, float]:
+    """:func:`overrides` of the options given as a mapping (``flexlink sweep``'s settings: option → value).
+
+    Empty without any: the design's defaults.
+    """
+    from types import SimpleNamespace
+
+    weights = weights or {}
+    return overrides(model, SimpleNamespace(**{name: weights.get(name) for name in OPTIONS}))
+
+
+def torque_limits(plant, values):
+    """``--torque-limit`` as the design takes it: one number, or a mapping joint → limit.
+
+    One value (a number, or a list of one) is every joint's limit; several are one per torque-driven joint, in
+    order; a mapping is by name (checked by :func:`check_names`).  None when not given (the design then derives a
+    limit from the manoeuvre).
+    """
+    from controllers.design import actuated_joints
+
+    if values is None or isinstance(values, dict | float | int):
+        return values
+    if len(values) == 1:
+        return values[0]
+    joints = actuated_joints(plant)
+    if len(values) != len(joints):
+        raise FlexlinkError(f"--torque-limit: one limit for all joints or one per torque-driven joint "
+                            f"({', '.join(joints)}), got {len(values)}")
+    return dict(zip(joints, values, strict=True))
 
 
 def describe(limits: dict[str, float]) -> str:

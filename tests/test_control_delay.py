@@ -86,7 +86,10 @@ def test_delayed_margins_against_python_control(arm):
             warnings.simplefilter("ignore")
             gm, pm, *_ = ct.stability_margins(ct.frd(L, w, smooth=True), returnall=True)
         assert fig["gain_margin_db"] == pytest.approx(20 * np.log10(np.min(gm[gm > 1])), abs=1e-3)
-        assert fig["phase_margin_deg"] == pytest.approx(pm[np.argmin(np.abs(pm))], abs=1e-3)
+        # python-control's signed figure: its magnitude is the phase change that destabilises, its sign the sense
+        k = np.argmin(np.abs(pm))
+        assert fig["phase_margin_deg"] == pytest.approx(abs(pm[k]), abs=1e-3)
+        assert fig["phase_margin_sense"] == ("lag" if pm[k] > 0 else "lead")
 
 
 class ScaledShoulder:

@@ -9,8 +9,8 @@
 * the SSP package with integral action run by libcosim (its own SSP parser and Jacobi master) equals, to 1e-9,
   the plant FMU stepped by fmpy with the Python predictive law (``controllers.ssp.PredictiveIntegralLQGLaw``)
   applied one sample late, as that master applies it;
-* ``flexlink control --integral`` writes both, and with ``--schedule`` still refuses the SSP package (not built
-  yet; its controller FMU: tests/test_control_schedule_integral.py).
+* ``flexlink control --integral`` writes both, with ``--schedule`` too (that package run by libcosim:
+  tests/test_control_schedule_integral.py).
 """
 
 from __future__ import annotations
@@ -141,7 +141,7 @@ def test_libcosim_runs_the_integral_package_as_fmpy_and_python(rig, example_fmu,
     assert abs(math.degrees(py["elbow.theta"][-1] - TARGETS[1])) < 0.1
 
 
-def test_cli_writes_both_and_refuses_a_scheduled_package(tmp_path, capsys):
+def test_cli_writes_both_and_a_scheduled_package(tmp_path, capsys):
     from flexlink.cli import main
 
     base = ["control", str(SCENE), "--design-only", "--torque-limit", str(LIMIT), "--integral", str(TI),
@@ -151,6 +151,6 @@ def test_cli_writes_both_and_refuses_a_scheduled_package(tmp_path, capsys):
     err = capsys.readouterr().err
     assert f"wrote {fmu}" in err and f"wrote {ssp}" in err and "integral action (integral time 0.5 s)" in err
     assert validate_fmu(str(fmu)) == []
-    assert main([*base, "--schedule", "3", "--export-ssp", str(ssp)]) == 2
-    err = capsys.readouterr().err
-    assert "SSP package of the scheduled LQG with integral action is not built yet" in err and err.count("\n") == 1
+    # with a schedule too (tests/test_control_schedule_integral.py runs that package in libcosim)
+    assert main([*base, "--schedule", "3", "--export-ssp", str(ssp)]) == 0
+    assert "scheduled at 3 poses with integral action" in capsys.readouterr().err

@@ -10,10 +10,13 @@ shoulder 0 → 60°, elbow −20° → 90° in 1.5 s, the LQG scheduled at three
   python-control's DC gain of its closed loop at the target pose predicts; the scheduled LQG with integral
   action ends below 20 ρ^N of it (ρ the slowest pole of that loop with the integrators, N the settle's
   samples), settled;
-* the frozen-pose margins along the path of the integral loops against python-control's;
+* the frozen-pose margins along the path of the integral loops against python-control's, a stable loop whose
+  phase margin python-control gives as −19.56° (a lead destabilises it) among them;
 * the controller FMU of the scheduled integral law equals the Python law in closed loop with the plant FMU;
-* ``flexlink control --integral TI --schedule N``: the run and ``--design-only``, ``--json``, ``--export-fmu``
-  (``--export-ssp`` refused).
+* the SSP package of the scheduled integral law run by libcosim equals the plant FMU with the Python law one
+  sample late (``ScheduledPredictiveIntegralLQGLaw``);
+* ``flexlink control --integral TI --schedule N``: the run and ``--design-only``, ``--json``, ``--export-fmu``,
+  ``--export-ssp``.
 """
 
 from __future__ import annotations
@@ -24,15 +27,18 @@ import math
 import control as ct
 import numpy as np
 import pytest
-from conftest import EXAMPLES, BiasedLaw, assert_margins_are_python_controls, assert_runs_equal, two_link_plant_at
+from conftest import EXAMPLES, BiasedLaw, assert_runs_equal, two_link_plant_at
+from fmpy.ssp.ssd import read_ssd
 
 from controllers.cosim import FmuLoop
 from controllers.integral import ScheduledIntegralLQGLaw, design_scheduled_integral, sampled_integral_compensator
 from controllers.manoeuvre import design
 from controllers.multijoint import inverse_dynamics_reference, plan, run
 from controllers.schedule import ScheduledLQGLaw, along_path, design_schedule, path_fraction
+from controllers.ssp import CONTROLLER, PLANT, JacobiDelay, ScheduledPredictiveIntegralLQGLaw, write_ssp
 from flexlink.mechanics.model import build_model
 from flexlink.scene.loader import load_scene
+from flexlink.tools.importers import libcosim_available, run_libcosim_ssp
 
 SCENE = EXAMPLES / "two_link_payload.toml"
 TARGETS = [math.radians(60.0), math.radians(90.0)]
@@ -142,22 +148,108 @@ def test_constant_disturbance_through_the_fmu(sched, example_fmu):
     assert metrics["integral"]["settling_time_s"] is not None
 
 
-def test_margins_along_the_path_against_python_control(sched):
-    """At the target pose (σ = 1) and between the first two points, the integral loops' margins that
-    along_path reports equal python-control's on the loop built with the plant linearised afresh there.
+def broken(T, i: int):
+    """python-control's loop broken at input i of T (positive feedback), the other channel closed:
+    ``L = −feedback(T, E_o, sign=1)[i, i]``, negative-feedback convention of ``stability_margins``."""
+    return -ct.feedback(T, np.diag([0.0 if k == i else 1.0 for k in range(2)]), sign=1)[i, i]
 
-    On a 20 000-point grid: at σ = 0.25 the elbow's phase crossover is sharp enough that the default 4000
-    points report a gain margin 0.013 dB low (1.707 dB against python-control's 1.720 dB on 6000 points)."""
+
+def python_control_crossovers(L, points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """python-control's crossovers of L (``stability_margins``, returnall, on ``control.frd`` of L):
+    located on a 6000-point grid to Nyquist, then each found again on a grid of ``points`` points within
+    ±0.1 % of it (python-control refines on the table's spline, whose error falls as the grid tightens).
+    Returns (gains 1/|L| at the phase crossovers, their rad/s, signed phase margins at the gain crossovers,
+    their rad/s)."""
+    import warnings
+
+    def margins(w):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            gm, pm, _, wpc, wgc, _ = ct.stability_margins(ct.frd(L, w, smooth=True), returnall=True)
+        return np.asarray(gm), np.asarray(pm), np.asarray(wpc), np.asarray(wgc)
+
+    _, _, wpc0, wgc0 = margins(np.logspace(-3, np.log10(np.pi / DT), 6000)[:-1])
+    gm, wpc, pm, wgc = [], [], [], []
+    for w0 in wpc0:
+        g, _, x, _ = margins(np.linspace(w0 * (1 - 1e-3), w0 * (1 + 1e-3), points))
+        k = int(np.argmin(np.abs(x - w0)))
+        gm.append(g[k])
+        wpc.append(x[k])
+    for w0 in wgc0:
+        _, q, _, x = margins(np.linspace(w0 * (1 - 1e-3), w0 * (1 + 1e-3), points))
+        k = int(np.argmin(np.abs(x - w0)))
+        pm.append(q[k])
+        wgc.append(x[k])
+    return np.array(gm), np.array(wpc), np.array(pm), np.array(wgc)
+
+
+def test_margins_along_the_path_against_python_control(sched):
+    """At the target pose (σ = 1) and between the first two points (σ = 0.25), the integral loops' margins that
+    along_path reports on its default grid equal python-control's on the loop built with the plant linearised
+    afresh there, every crossover to 1e-6 dB and 1e-6°.
+
+    At σ = 0.25 the elbow's phase crossover (495 Hz) is sharp: python-control's ``stability_margins`` on the
+    4000-point table refines it on the table's spline and gives 1.7074 dB; its crossover found again on 400 and
+    4000 points within ±0.1 % gives the loop's 1.720427 dB (the two grids agree to 1e-9 dB, the
+    convergence shown), which along_path's crossovers, refined on the loop itself, equal."""
     d, pl, s, si = sched
-    along = along_path(d, s, pl, [0.25, 1.0], n_points=20000, integral=si)
+    along = along_path(d, s, pl, [0.25, 1.0], integral=si)
     for i, sigma in enumerate((0.25, 1.0)):
         pose = {j: a + sigma * (b - a) for j, a, b in zip(pl.joints, pl.angle_start, pl.target, strict=True)}
         pt = along["scheduled"]["points"][i]
         T = ct.series(sampled(built_at(pose)), sampled_integral_compensator(si.matrices(sigma), si.designs[0].rows, DT))
         rho = float(np.max(np.abs(ct.feedback(T, np.eye(2), sign=1).poles())))
         assert pt["stable"] and pt["spectral_radius"] == pytest.approx(rho, rel=1e-6)
-        assert_margins_are_python_controls(pt["actuators"], T, DT, f"sigma {sigma}: ")
+        for k, fig in enumerate(pt["actuators"]):
+            coarse, fine = (python_control_crossovers(broken(T, k), n) for n in (400, 4000))
+            gm_db, pm = 20 * np.log10(fine[0]), fine[2]
+            np.testing.assert_allclose(20 * np.log10(coarse[0]), gm_db, atol=1e-8)      # converged
+            np.testing.assert_allclose(coarse[2], pm, atol=1e-8)
+            ours = np.array(fig["phase_crossovers"])
+            np.testing.assert_allclose(ours[:, 1], gm_db, atol=1e-6)
+            np.testing.assert_allclose(ours[:, 0], fine[1] / (2 * np.pi), rtol=1e-9)
+            np.testing.assert_allclose(np.array(fig["gain_crossovers"])[:, 1], pm, atol=1e-6)
+            assert fig["gain_margin_db"] == pytest.approx(np.min(gm_db[gm_db > 0]), abs=1e-6)
+            assert fig["phase_margin_deg"] == pytest.approx(np.min(np.abs(pm)), abs=1e-6)
+            print(f"\nsigma {sigma} {fig['input']}: gain margin {fig['gain_margin_db']:.7f} dB, python-control "
+                  f"{np.min(gm_db[gm_db > 0]):.7f} dB; phase margin {fig['phase_margin_deg']:.6f} deg "
+                  f"({fig['phase_margin_sense']})")
     assert along["scheduled"]["worst"]["stable"]
+
+
+def test_a_lead_phase_margin_on_a_stable_loop(sched):
+    """At σ = 0.25 the shoulder's loop (the elbow's closed) is stable with two poles of its own outside the unit
+    circle (python-control: the elbow's loop alone does not hold the arm there), so its Nyquist curve must
+    encircle −1 twice and crosses the unit circle on both sides of it.  python-control's
+    ``stability_margins`` gives the crossover of smallest |pm| as −19.56° (at 243 Hz): a phase *lead* of
+    19.56° destabilises, not a lag.  along_path reports 19.56°, sense ``lead``, the two poles, every crossover
+    as python-control's signed figures; and the loop with L rotated by e^{±jφ} (its closed-loop matrix, numpy's
+    eigenvalues) is stable for |φ| 1 % below that margin and not 1 % above it, in either direction."""
+    d, pl, s, si = sched
+    sigma = 0.25
+    fig = along_path(d, s, pl, [sigma], integral=si)["scheduled"]["points"][0]["actuators"][0]
+    pose = {j: a + sigma * (b - a) for j, a, b in zip(pl.joints, pl.angle_start, pl.target, strict=True)}
+    T = ct.series(sampled(built_at(pose)), sampled_integral_compensator(si.matrices(sigma), si.designs[0].rows, DT))
+    L = broken(T, 0)
+    assert np.max(np.abs(ct.feedback(L, 1).poles())) < 1
+    # python-control's poles of L: three outside the unit circle, and the shoulder's rigid-body double integrator
+    # with its error integral, a triple pole at z = 1 that rounding scatters by 2e-7 (on the circle: not counted)
+    p = np.abs(L.poles())
+    assert np.sum(np.abs(p - 1) < 1e-6) == 3
+    assert fig["open_loop_unstable_poles"] == int(np.sum(p > 1 + 1e-6)) == 2
+    _, _, pm, wgc = python_control_crossovers(L, 4000)
+    k = int(np.argmin(np.abs(pm)))
+    assert pm[k] < 0 and fig["phase_margin_sense"] == "lead"
+    assert fig["phase_margin_deg"] == pytest.approx(-pm[k], abs=1e-6)
+    assert fig["gain_crossover_hz"] == pytest.approx(wgc[k] / (2 * np.pi), rel=1e-9)
+    A, B, C, D = (np.asarray(M, dtype=float) for M in (L.A, L.B, L.C, L.D))
+
+    def radius(phi_deg: float) -> float:
+        g = np.exp(1j * np.radians(phi_deg))          # u = −g y: x⁺ = (A − B g (1 + g D)⁻¹ C) x
+        return float(np.max(np.abs(np.linalg.eigvals(A - B @ (g / (1 + g * D)) @ C))))
+
+    for sign in (1, -1):
+        assert radius(sign * 0.99 * fig["phase_margin_deg"]) < 1 < radius(sign * 1.01 * fig["phase_margin_deg"])
 
 
 def test_cli(capsys):
@@ -210,13 +302,46 @@ def test_controller_fmu_equals_the_python_scheduled_integral_law(sched, example_
     print(f"\nlargest difference FMU - Python: {worst}")
 
 
-def test_cli_exports_the_fmu_and_refuses_the_ssp(tmp_path, capsys):
+@pytest.mark.skipif(not libcosim_available(), reason="libcosimpy is not installed")
+def test_libcosim_runs_the_scheduled_integral_package_as_the_python_law(sched, example_fmu, tmp_path):
+    """The SSP package of the scheduled integral law (its controller FMU ``DELAY 1`` with ``INTEGRAL 1`` and
+    ``NSCHED 3``: the next sample's K_x and K_ξ for the torque it outputs) run by libcosim (its own SSP parser
+    and Jacobi master) equals, to 1e-9 of every series' scale, the plant FMU stepped by fmpy with the Python
+    law one sample late (``JacobiDelay(ScheduledPredictiveIntegralLQGLaw)``); the integrators act (ξ ≠ 0)."""
+    d, pl, s, si = sched
+    plant = example_fmu("two_link_payload")
+    ref = inverse_dynamics_reference(d.plant, pl, DT, DURATION, 0.3)
+    path = write_ssp(d, plant, tmp_path / "system.ssp", ref, schedule=s, integral=si)
+    sensors = list(d.kalman.sensors)
+    record = ["upper.tip.v", "fore.tip.v"]
+    run_ = run_libcosim_ssp(path, len(ref.time) - 1, {PLANT: sensors + record, CONTROLLER: list(d.lqr.inputs)})
+    assert run_.ok, run_.why + run_.log[-2000:]
+    law = ScheduledPredictiveIntegralLQGLaw(si, [LIMIT, LIMIT], ref)
+    with FmuLoop(plant, record=record) as loop:
+        py = loop.run(JacobiDelay(law, law.initial()), ref)
+    assert np.max(np.abs(law.xi)) > 1e-5
+    for name in sensors + record:
+        x = np.asarray(run_.values[f"{PLANT}:{name}"])          # after step k: t_1 … t_n
+        scale = max(1.0, float(np.max(np.abs(py[name]))))
+        print(f"\n  libcosim: {name} differs by {np.max(np.abs(x - py[name][1:])):.2g} (scale {scale:.3g})")
+        assert np.max(np.abs(x - py[name][1:])) <= 1e-9 * scale, name
+    for u in d.lqr.inputs:                                     # output after step k: applied over [t_k, t_k+1]
+        x = np.asarray(run_.values[f"{CONTROLLER}:{u}"])
+        print(f"  libcosim: {u} differs by {np.max(np.abs(x[:-1] - py[u][1:-1])):.2g} N m")
+        assert np.max(np.abs(x[:-1] - py[u][1:-1])) <= 1e-9 * LIMIT, u
+    errors = np.degrees([py[f"{j}.theta"][-1] - t for j, t in zip(JOINTS, TARGETS, strict=True)])
+    print(f"  final joint errors {errors} deg")
+    assert np.all(np.abs(errors) < 0.1)
+
+
+def test_cli_exports_the_fmu_and_the_ssp(tmp_path, capsys):
     from flexlink.cli import main
 
     base = ["control", str(SCENE), "--design-only", "--torque-limit", "60", "--target", "60,90", "--duration", "1.5",
             "--integral", "0.5", "--schedule", "3"]
     assert main([*base, "--export-fmu", str(tmp_path / "c.fmu")]) == 0
     assert "scheduled at 3 poses with integral action" in capsys.readouterr().err
-    assert main([*base, "--export-ssp", str(tmp_path / "s.ssp")]) == 2
+    assert main([*base, "--export-ssp", str(tmp_path / "s.ssp")]) == 0
     err = capsys.readouterr().err
-    assert "SSP package of the scheduled LQG with integral action is not built yet" in err and err.count("\n") == 1
+    assert "scheduled at 3 poses with integral action (integral time 0.5 s)" in err
+    read_ssd(str(tmp_path / "s.ssp"), validate=True)
