@@ -19,6 +19,7 @@ import pytest
 
 from flexlink.mechanics import assembly, kinematics
 from flexlink.mechanics.assembly import ChainAssembly
+from flexlink.mechanics.outputs import chain_outputs
 from flexlink.scene.loader import parse_scene
 
 
@@ -51,6 +52,17 @@ def _built(scene: dict, kane: bool, monkeypatch) -> ChainAssembly:
     chain.add_potential_and_dissipation()
     chain.add_equations()
     return chain
+
+
+def _random_points(chain: ChainAssembly, count: int = 6):
+    """(q, q̇, q̈, u, p): angles over the circle, deflections of a few percent, large rates and accelerations."""
+    rng = np.random.default_rng(22)
+    kinds = np.array(chain.kinds)
+    nominal = np.array([item.value for item in chain.P.items])
+    for _ in range(count):
+        q = np.where(kinds == "elastic", rng.normal(scale=0.03, size=kinds.size), rng.uniform(-3, 3, kinds.size))
+        yield (q, rng.normal(scale=3.0, size=kinds.size), rng.normal(scale=30.0, size=kinds.size),
+               rng.normal(size=chain.u.numel()), nominal * rng.uniform(0.5, 2.0, nominal.size))
 
 
 def _largest_difference(scene: dict, monkeypatch, kane_links: int) -> float:
@@ -116,3 +128,24 @@ def test_kane_form_takes_fewer_operations(monkeypatch):
 
     assert operations(True) < 0.75 * operations(False)
 
+
+
+@pytest.mark.parametrize("scene", [pytest.param(_one_link(_link(16, modes=32)), id="32-modes"),
+                                   pytest.param(_chain(), id="spatial-chain")])
+def test_outputs_match_the_lagrange_builders(scene, monkeypatch):
+    """Reactions (the foreshortening's momenta differentiated by hand) and the kinetic energy (T_rest plus the
+    Kane links' share) equal the outputs of the builder that differentiates the whole momenta by AD."""
+    def outputs(kane: bool):
+        chain = _built(scene, kane, monkeypatch)
+        signals, expressions = chain_outputs(chain)
+        return chain, signals, ca.Function("y", [chain.qa, chain.va, chain.aa, chain.u, chain.p],
+                                           [ca.vertcat(*expressions)])
+
+    kane, signals, y_kane = outputs(True)
+    _, _, y_lagrange = outputs(False)
+    names = [s.name for s in signals]
+    assert any(".reaction.m" in name for name in names) and "energy.kinetic" in names
+    for point in _random_points(kane):
+        a, b = np.array(y_kane(*point)).ravel(), np.array(y_lagrange(*point)).ravel()
+        scale = np.maximum(np.abs(b), 1e-3 * np.max(np.abs(b)))      # each output against its own size
+        assert np.max(np.abs(a - b) / scale) < 1e-11, names[int(np.argmax(np.abs(a - b) / scale))]

@@ -22,6 +22,7 @@ import numpy as np
 
 from flexlink.errors import FlexlinkError
 from flexlink.mechanics.kinematics import (
+    ForeshorteningForces,
     FrameMotion,
     LinkDeformation,
     RateGram,
@@ -164,9 +165,49 @@ class KaneLink:
     part: LinkParts
     link: Link
     rho: ca.MX
-    velocity: ca.MX | ca.DM      # the frame's origin velocity (world), rotation and angular velocity (link)
+    origin: ca.MX | ca.DM        # the frame's origin and its velocity (world), its rotation, the rotation's
+    velocity: ca.MX | ca.DM      # rate, and its angular velocity (link basis)
     rotation: ca.MX
+    rotation_rate: ca.MX
     omega: ca.MX
+    _forces: ForeshorteningForces | None = field(default=None, init=False, repr=False)
+
+    def forces(self, chain: ChainAssembly) -> ForeshorteningForces:
+        """The link's :func:`~flexlink.mechanics.kinematics.foreshortening_forces`, formed once.
+
+        The residual and the outputs share them.
+        """
+        if self._forces is None:
+            part, qa, va, aa = self.part, chain.qa, chain.va, chain.aa
+            assert part.bending is not None         # kane_form: a beam link that bends
+            state, rates = ca.vertcat(qa, va), ca.vertcat(va, aa)
+            velocity = self.link_velocity
+            frame = FrameMotion(velocity, ca.jtimes(velocity, state, rates), self.omega,
+                                ca.jtimes(self.omega, state, rates))
+            accelerations: dict[str, ca.MX] = {name: ca.vertcat(*[aa[j] for j in part.fields[name]])
+                                               for name in ("v", "w") if name in part.fields}
+            self._forces = foreshortening_forces(part.bending.points, part.bending.integrals,
+                                                 chain.deformation(part, qa, va), accelerations, self.rho, frame)
+        return self._forces
+
+    @property
+    def link_velocity(self) -> ca.MX:
+        """V_L = Rᵀ V, the origin's velocity as the link's energy sees it."""
+        return ca.mtimes(self.rotation.T, self.velocity)
+
+    def momenta(self, chain: ChainAssembly) -> tuple[ca.MX, ca.MX, ca.MX, ca.MX]:
+        """The foreshortening's momentum and angular momentum about the world origin (world), and their rates.
+
+        R P_V and R P_ω + o × R P_V, differentiated as products: Ṙ and ȯ are the frame's exact rates.
+        """
+        f = self.forces(chain)
+        R, R_dot, o = self.rotation, self.rotation_rate, self.origin
+        momentum = ca.mtimes(R, f.momentum)
+        momentum_rate = ca.mtimes(R_dot, f.momentum) + ca.mtimes(R, f.momentum_rate)
+        spin = ca.mtimes(R, f.angular_momentum) + ca.cross(o, momentum)
+        spin_rate = (ca.mtimes(R_dot, f.angular_momentum) + ca.mtimes(R, f.angular_momentum_rate)
+                     + ca.cross(self.velocity, momentum) + ca.cross(o, momentum_rate))
+        return momentum, momentum_rate, spin, spin_rate
 
 
 @dataclass
@@ -434,7 +475,8 @@ class ChainAssembly:
         self.u = ca.MX.sym("u", len(inputs))
 
     # ---- kinetic and gravitational energy along the chain (seed 000 ch. 2–3, generalised)
-    def link_energy(self, i: int, link: Link, part: LinkParts, VL: ca.MX, RL: ca.MX, wL: ca.MX) -> tuple:
+    def link_energy(self, i: int, link: Link, part: LinkParts, VL: ca.MX, RL: ca.MX, wL: ca.MX,
+                    RL_dot: ca.MX) -> tuple:
         """Kinetic energy of link i's material, its body record, its gravitational energy, and T less Kane's share.
 
         The last is the kinetic energy less the foreshortening's share where that share's equations are formed
@@ -445,7 +487,7 @@ class ChainAssembly:
             T, record = self.rigid_body(part, VL, RL, wL)
             T_rest = T
         else:
-            T, record, T_rest = self.invariant_body(link, part, VL, RL, wL)
+            T, record, T_rest = self.invariant_body(link, part, VL, RL, wL, RL_dot)
         if part.torsion is not None:
             assert part.i_mu is not None            # a twisting link has its polar inertia (add_elastic_parameters)
             d = self.deformation(part, qa, va)
@@ -475,7 +517,7 @@ class ChainAssembly:
         return T, dict(mass=scale * mass, moment=scale * mass * self.origin + ca.mtimes(RL, scale * S1),
                        momentum=momentum, spin=spin)
 
-    def invariant_body(self, link: Link, part: LinkParts, VL, RL, wL) -> tuple:
+    def invariant_body(self, link: Link, part: LinkParts, VL, RL, wL, RL_dot=None) -> tuple:
         """T = ½∫ρ|V + ω×s + ṡ|² from the link's inertia invariants, exact for every kinematic model.
 
         Returns T, the body record and the T the Lagrange derivative is taken of: T itself, or, for a link whose
@@ -498,10 +540,13 @@ class ChainAssembly:
                 T, record = self.floating_body(rho, m_unit, inv.first_moment, ca.jtimes(inv.first_moment, qa, va),
                                                inv.inertia(), inv.angular_momentum, inv.relative_kinetic, VL, RL, wL)
                 first = beam_invariants(part.bending.integrals, link.length, d)
-                T_first, _ = self.floating_body(rho, m_unit, first.first_moment, ca.jtimes(first.first_moment, qa, va),
-                                                first.inertia(), first.angular_momentum, first.relative_kinetic,
-                                                VL, RL, wL)
-                self.kane_links.append(KaneLink(part, link, rho, VL, RL, wL))
+                T_first, first_record = self.floating_body(rho, m_unit, first.first_moment,
+                                                           ca.jtimes(first.first_moment, qa, va), first.inertia(),
+                                                           first.angular_momentum, first.relative_kinetic, VL, RL, wL)
+                # the record's momenta are the first-order ones: the outputs add the foreshortening's with their
+                # rates formed by hand (KaneLink.momenta); its first moment is whole (gravity)
+                record.update(momentum=first_record["momentum"], spin=first_record["spin"])
+                self.kane_links.append(KaneLink(part, link, rho, self.origin, VL, RL, RL_dot, wL))
                 return T, record, T_first
         else:                                   # torsion only: the link's axis stays straight
             L = link.length
@@ -630,7 +675,7 @@ class ChainAssembly:
             T, T_rest = T + T_rotor, T_rest + T_rotor
             self.bodies.append(dict(joint=i, mass=0, moment=ca.DM.zeros(3), momentum=ca.DM.zeros(3),
                                     spin=self.P(self.i_Ih[i]) * rotor_rate * ca.mtimes(R0, ca.DM(a))))
-            T_link, Vg_link, T_rest_link = self.link_energy(i, link, part, VL, RL, wL)
+            T_link, Vg_link, T_rest_link = self.link_energy(i, link, part, VL, RL, wL, RL_dot)
             frame = self.link_tip(link, part, VL, RL, RL_dot, wL)
             T, Vg, T_rest = T + T_link, Vg + Vg_link, T_rest + T_rest_link
             if part.i_pm is not None:
@@ -771,19 +816,10 @@ class ChainAssembly:
         if not self.kane_links:
             return 0
         qa, va, aa = self.qa, self.va, self.aa
-        state, rates = ca.vertcat(qa, va), ca.vertcat(va, aa)
         entries: list[ca.MX | float] = [0.0] * len(self.coordinates)
         total: ca.MX | float = 0
         for k in self.kane_links:
-            part = k.part
-            assert part.bending is not None         # kane_form: a beam link that bends
-            velocity = ca.mtimes(k.rotation.T, k.velocity)
-            frame = FrameMotion(velocity, ca.jtimes(velocity, state, rates), k.omega,
-                                ca.jtimes(k.omega, state, rates))
-            accelerations: dict[str, ca.MX] = {name: ca.vertcat(*[aa[j] for j in part.fields[name]])
-                                               for name in ("v", "w") if name in part.fields}
-            f = foreshortening_forces(part.bending.points, part.bending.integrals, self.deformation(part, qa, va),
-                                      accelerations, k.rho, frame)
+            part, f, velocity = k.part, k.forces(self), k.link_velocity
             total = (total + ca.jtimes(velocity, va, f.momentum_rate, True)
                      + ca.jtimes(k.omega, va, f.angular_momentum_rate, True)
                      + self.frame_transport(velocity, k.omega)(qa, va, aa, f.momentum, f.angular_momentum))

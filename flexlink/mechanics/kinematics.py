@@ -478,6 +478,7 @@ class ForeshorteningForces:
     momentum_rate: ca.MX
     angular_momentum: ca.MX
     angular_momentum_rate: ca.MX
+    energy: ca.MX              # T_u itself (the kinetic-energy output adds it to the first-order T)
     fields: dict[str, ca.MX]
 
 
@@ -582,8 +583,8 @@ def _point_motion(rule: PointRule, g: ShapeIntegrals, motion: dict[str, tuple[ca
     return _PointMotion(m, values, slopes, u, U, X)
 
 
-def _frame_momenta(p: _PointMotion, frame: FrameMotion) -> tuple[ca.MX, ca.MX, ca.MX, ca.MX]:
-    """P_V, Ṗ_V, P_ω, Ṗ_ω of T_u = ½[2V_L·(ω × ΔS1 + ΔṠ1) + ωᵀΔJω + 2ω·ΔH + ΔE] (ρ in the sums).
+def _frame_momenta(p: _PointMotion, frame: FrameMotion) -> tuple[ca.MX, ca.MX, ca.MX, ca.MX, ca.MX]:
+    """P_V, Ṗ_V, P_ω, Ṗ_ω and T_u itself of T_u = ½[2V_L·(ω × ΔS1 + ΔṠ1) + ωᵀΔJω + 2ω·ΔH + ΔE] (ρ in the sums).
 
     ΔS1 = e_x ρ∫u; ΔJ from ΔS, whose non-zero entries are ρ∫(2xu + u²), ρ∫uv, ρ∫uw; ΔH = ρ∫(0, wu̇ − uẇ, uv̇ − vu̇):
     the invariants' terms in u (:func:`beam_invariants`), with their rates from the points' u, u̇, ü.
@@ -611,7 +612,9 @@ def _frame_momenta(p: _PointMotion, frame: FrameMotion) -> tuple[ca.MX, ca.MX, c
     P_w = ca.cross(S1[0], V) + ca.mtimes(J[0], omega) + H
     P_w_dot = (ca.cross(S1[1], V) + ca.cross(S1[0], frame.velocity_rate) + ca.mtimes(J[1], omega)
                + ca.mtimes(J[0], alpha) + H_dot)
-    return P_V, P_V_dot, P_w, P_w_dot
+    energy = (ca.dot(V, 2 * ca.cross(omega, S1[0]) + 2 * S1[1]) + ca.dot(omega, ca.mtimes(J[0], omega))
+              + 2 * ca.dot(omega, H) + ca.dot(p.mass * u_dot, u_dot))
+    return P_V, P_V_dot, P_w, P_w_dot, 0.5 * energy
 
 
 def foreshortening_forces(rule: PointRule, g: ShapeIntegrals, d: LinkDeformation,
@@ -651,4 +654,5 @@ def foreshortening_forces(rule: PointRule, g: ShapeIntegrals, d: LinkDeformation
             Q = Q - rho * (A[0] * ca.mtimes(ca.sparsify(_dm(g.fs)), eta)
                            + W[0, 0] * ca.mtimes(ca.sparsify(_dm(g.fs_x)), eta))
         fields[name] = Q
-    return ForeshorteningForces(*_frame_momenta(p, frame), fields)
+    P_V, P_V_dot, P_w, P_w_dot, energy = _frame_momenta(p, frame)
+    return ForeshorteningForces(P_V, P_V_dot, P_w, P_w_dot, energy, fields)
