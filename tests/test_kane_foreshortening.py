@@ -16,11 +16,12 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 import pytest
+from conftest import EXAMPLES
 
 from flexlink.mechanics import assembly, kinematics
 from flexlink.mechanics.assembly import ChainAssembly
 from flexlink.mechanics.outputs import chain_outputs
-from flexlink.scene.loader import parse_scene
+from flexlink.scene.loader import load_scene, parse_scene
 
 
 def _link(count: int | None = None, *, kind: str = "fe", modes: int | None = None,
@@ -149,3 +150,24 @@ def test_outputs_match_the_lagrange_builders(scene, monkeypatch):
         a, b = np.array(y_kane(*point)).ravel(), np.array(y_lagrange(*point)).ravel()
         scale = np.maximum(np.abs(b), 1e-3 * np.max(np.abs(b)))      # each output against its own size
         assert np.max(np.abs(a - b) / scale) < 1e-11, names[int(np.argmax(np.abs(a - b) / scale))]
+
+
+@pytest.mark.parametrize("example", ["fast_two_link", "spatial_cantilever", "elastic_joint"])
+def test_example_residuals_match_lagrange(example, monkeypatch):
+    """Examples whose links take Kane's form (reduced or plain finite elements past the tensors): two flexible
+    links in a row, a spatial cantilever, an elastic joint before the link."""
+    scene = load_scene(EXAMPLES / f"{example}.toml")
+    chains = [_built_scene(scene, kane, monkeypatch) for kane in (True, False)]
+    assert chains[0].kane_links and not chains[1].kane_links
+    for point in _random_points(chains[0], 4):
+        r_kane, r_lagrange = (np.array(c.r_all(*point)).ravel() for c in chains)
+        assert np.max(np.abs(r_kane - r_lagrange)) < 1e-13 * np.max(np.abs(r_lagrange))
+
+
+def _built_scene(scene, kane: bool, monkeypatch) -> ChainAssembly:
+    monkeypatch.setattr(assembly, "KANE_FORESHORTENING", kane)
+    chain = ChainAssembly(scene)
+    chain.assemble_kinematics()
+    chain.add_potential_and_dissipation()
+    chain.add_equations()
+    return chain

@@ -305,8 +305,11 @@ class ForeshorteningTensors:
 
 
 #: The tensors grow like n⁴ in the number of shape functions n, the point sums like n: past this many the
-#: points are cheaper (measured on clamped-free and modal bases: benchmarks/scaling.py, docs/performance.md).
-TENSOR_MAX_SHAPES = 6
+#: points are cheaper.  Measured on the whole model (build, generated C, step) of one 16-element link reduced
+#: to n modes, both forms built in the same session, with the points' equations in Kane's form
+#: (docs/performance.md, "The tensors' threshold"): at 7 modes the tensors' C is the smaller and the steps are
+#: close, at 8 the points' step is half the tensors' for as much C.
+TENSOR_MAX_SHAPES = 7
 
 
 def use_tensors(rule: PointRule, fields: int) -> bool:
@@ -513,7 +516,7 @@ class _PointShapes:
             self.modal = ca.DM(rule.factor.modal)
             self.phi, self.slope = (ca.sparsify(ca.DM(m)) for m in (rule.factor.phi, rule.factor.slope))
         else:
-            self.phi, self.slope = ca.DM(rule.phi), ca.DM(rule.slope)
+            self.phi, self.slope = ca.sparsify(ca.DM(rule.phi)), ca.sparsify(ca.DM(rule.slope))
 
     def at_points(self, eta: ca.MX) -> tuple[ca.MX, ca.MX]:
         """(φ η, φ' η) at the points: N·n + 8 K operations through the nodal values, else 2 K·n."""
