@@ -600,7 +600,8 @@ class ChainAssembly:
         else:
             d = self.deformation(part, qa, va)
             tip = tip_kinematics(part.bending.integrals if part.bending else None,
-                                 part.torsion.integrals if part.torsion else None, link.length, d, part.second_order)
+                                 part.torsion.integrals if part.torsion else None, link.length, d, part.second_order,
+                                 part.bending.points if part.bending is not None and self.kane_form(part) else None)
         part.tip = tip
         assert isinstance(tip.rotation_vector, ca.MX)   # an elastic link's tip rotates with its coordinates
         Rdef = small_rotation(tip.rotation_vector, part.second_order)

@@ -392,7 +392,7 @@ class TipKinematics:
 
 
 def tip_kinematics(g: ShapeIntegrals | None, t: TorsionIntegrals | None, length: float, d: LinkDeformation,
-                   second_order: bool) -> TipKinematics:
+                   second_order: bool, rule: PointRule | None = None) -> TipKinematics:
     """The tip point and rotation vector of a beam link from its fields (the bending basis also for w).
 
     In second-order kinematics the tip is drawn back along x by the foreshortening u(L).  ``g`` is None for a
@@ -416,8 +416,14 @@ def tip_kinematics(g: ShapeIntegrals | None, t: TorsionIntegrals | None, length:
         assert t is not None, "a link with twist coordinates has a torsion basis"
         twist = ca.dot(_dm(t.tip), d.alpha)
     if second_order and g is not None:
+        # u(L) = −½ ηᵀ fs_tip η; on a rule with nodal values, the same sum over the points' slopes, exact for the
+        # piecewise cubics, which the Kane form's slopes share (the tip's acceleration: N·n + 4K, not 3 n²)
+        shapes = _PointShapes(rule) if rule is not None and rule.factor is not None else None
         for eta in (d.v, d.w):
-            if eta is not None:
+            if eta is not None and shapes is not None:
+                slope = shapes.at_points(eta)[1]
+                x_tip = x_tip - 0.5 * ca.dot(ca.DM(shapes.weights) * slope, slope)
+            elif eta is not None:
                 x_tip = x_tip - 0.5 * _quad(eta, g.fs_tip)
     return TipKinematics(ca.vertcat(x_tip, v_tip, w_tip), ca.vertcat(twist, -slope_w, slope_v))
 
@@ -511,7 +517,7 @@ class _PointShapes:
     """Values and slopes of a field at the rule's points, through the nodal values where the rule has them."""
 
     def __init__(self, rule: PointRule):
-        self.factor = rule.factor
+        self.factor, self.weights = rule.factor, rule.w
         if rule.factor is not None:
             self.modal = ca.DM(rule.factor.modal)
             self.phi, self.slope = (ca.sparsify(ca.DM(m)) for m in (rule.factor.phi, rule.factor.slope))
