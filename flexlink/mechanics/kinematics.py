@@ -229,22 +229,12 @@ class _PointFields:
 
 def _foreshortening_points(rule: PointRule, d: LinkDeformation) -> _PointFields:
     """U = −½∫₀ˣ(v'² + w'²) and u̇ = −∫₀ˣ(v'v̇' + w'ẇ') at the rule's points, with v, w, v̇, ẇ there."""
-    phi, slope, local, sums, start = (ca.sparsify(ca.DM(m)) for m in (rule.phi, rule.slope, rule.local,
-                                                                      rule.panel_sums, rule.start))
+    local, sums, start = (ca.sparsify(ca.DM(m)) for m in (rule.local, rule.panel_sums, rule.start))
 
     def integral(f: ca.MX | float) -> ca.MX | ca.DM:  # ∫₀^{x_k} f at every point: this panel's + earlier panels
         return ca.mtimes(local, f) + ca.mtimes(start, ca.mtimes(sums, f))
 
-    if rule.factor is not None:        # through the nodal values: N·n + 4 K operations instead of K·n
-        modal = ca.DM(rule.factor.modal)
-        phi_local, slope_local = (ca.sparsify(ca.DM(m)) for m in (rule.factor.phi, rule.factor.slope))
-
-        def values_and_slopes(eta: ca.MX) -> tuple[ca.MX, ca.MX]:
-            nodal = ca.mtimes(modal, eta)                  # formed once for both
-            return ca.mtimes(phi_local, nodal), ca.mtimes(slope_local, nodal)
-    else:
-        def values_and_slopes(eta: ca.MX) -> tuple[ca.MX, ca.MX]:
-            return ca.mtimes(phi, eta), ca.mtimes(slope, eta)
+    values_and_slopes = _PointShapes(rule).at_points   # through the nodal values where the rule has them
 
     squares: ca.MX | float = 0
     rates: ca.MX | float = 0
