@@ -22,18 +22,22 @@ import numpy as np
 
 from flexlink.errors import FlexlinkError
 from flexlink.mechanics.kinematics import (
+    ForeshorteningForces,
+    FrameMotion,
     LinkDeformation,
     RateGram,
     TipKinematics,
     beam_invariants,
     body_invariants,
     body_tip_kinematics,
+    foreshortening_forces,
     link_basis,
     rotation,
     skew,
     small_rotation,
     tip_kinematics,
     torsion_kinetic,
+    use_tensors,
 )
 from flexlink.mechanics.shapes import make_basis
 from flexlink.mechanics.shapes.base import ShapeBasis
@@ -42,6 +46,11 @@ from flexlink.mechanics.shapes.reduction import ModalBeamBasis, ModalTorsionBasi
 from flexlink.mechanics.shapes.torsion import TorsionBasis, make_torsion_basis
 from flexlink.mechanics.symbolic import Law, Parameter, Signal, StartValue
 from flexlink.scene.loader import Joint, Link, Scene
+
+#: The foreshortening's share of a second-order link's equations on the point sums in Kane's form
+#: (:func:`~flexlink.mechanics.kinematics.foreshortening_forces`); False takes CasADi's Lagrange derivative
+#: through the point sums, the same equations (tests/test_kane_foreshortening.py compares the two).
+KANE_FORESHORTENING = True
 
 
 def _unsupported(scene: Scene, what: str) -> FlexlinkError:
@@ -146,6 +155,62 @@ def _vee_skew(A):
 
 
 @dataclass
+class KaneLink:
+    """A second-order link on the point sums whose foreshortening's equations are formed in Kane's form.
+
+    Its first-order kinetic energy stays in the Lagrangian CasADi differentiates (``ChainAssembly.T_rest``);
+    the foreshortening's share is :func:`~flexlink.mechanics.kinematics.foreshortening_forces` at its frame.
+    """
+
+    part: LinkParts
+    link: Link
+    rho: ca.MX
+    origin: ca.MX | ca.DM        # the frame's origin and its velocity (world), its rotation, the rotation's
+    velocity: ca.MX | ca.DM      # rate, and its angular velocity (link basis)
+    rotation: ca.MX
+    rotation_rate: ca.MX
+    omega: ca.MX
+    _forces: ForeshorteningForces | None = field(default=None, init=False, repr=False)
+
+    def forces(self, chain: ChainAssembly) -> ForeshorteningForces:
+        """The link's :func:`~flexlink.mechanics.kinematics.foreshortening_forces`, formed once.
+
+        The residual and the outputs share them.
+        """
+        if self._forces is None:
+            part, qa, va, aa = self.part, chain.qa, chain.va, chain.aa
+            assert part.bending is not None         # kane_form: a beam link that bends
+            state, rates = ca.vertcat(qa, va), ca.vertcat(va, aa)
+            velocity = self.link_velocity
+            frame = FrameMotion(velocity, ca.jtimes(velocity, state, rates), self.omega,
+                                ca.jtimes(self.omega, state, rates))
+            accelerations: dict[str, ca.MX] = {name: ca.vertcat(*[aa[j] for j in part.fields[name]])
+                                               for name in ("v", "w") if name in part.fields}
+            self._forces = foreshortening_forces(part.bending.points, part.bending.integrals,
+                                                 chain.deformation(part, qa, va), accelerations, self.rho, frame)
+        return self._forces
+
+    @property
+    def link_velocity(self) -> ca.MX:
+        """V_L = Rᵀ V, the origin's velocity as the link's energy sees it."""
+        return ca.mtimes(self.rotation.T, self.velocity)
+
+    def momenta(self, chain: ChainAssembly) -> tuple[ca.MX, ca.MX, ca.MX, ca.MX]:
+        """The foreshortening's momentum and angular momentum about the world origin (world), and their rates.
+
+        R P_V and R P_ω + o × R P_V, differentiated as products: Ṙ and ȯ are the frame's exact rates.
+        """
+        f = self.forces(chain)
+        R, R_dot, o = self.rotation, self.rotation_rate, self.origin
+        momentum = ca.mtimes(R, f.momentum)
+        momentum_rate = ca.mtimes(R_dot, f.momentum) + ca.mtimes(R, f.momentum_rate)
+        spin = ca.mtimes(R, f.angular_momentum) + ca.cross(o, momentum)
+        spin_rate = (ca.mtimes(R_dot, f.angular_momentum) + ca.mtimes(R, f.angular_momentum_rate)
+                     + ca.cross(self.velocity, momentum) + ca.cross(o, momentum_rate))
+        return momentum, momentum_rate, spin, spin_rate
+
+
+@dataclass
 class ChainAssembly:
     """The working state of one chain's assembly, in the order the stages fill it."""
 
@@ -172,6 +237,8 @@ class ChainAssembly:
     frames: list[Frame] = field(default_factory=list)
     # per second-order link on the point sums: its density, its Σ w u̇² and the coordinates of the rates in it
     rate_grams: list[tuple[ca.MX, RateGram, list[int]]] = field(default_factory=list)
+    # per second-order link whose foreshortening enters the equations in Kane's form: what that form needs
+    kane_links: list[KaneLink] = field(default_factory=list)
     # the walk's cursor (add_energies): the current joint's or tip's origin, and the last link's tip rotation
     origin: ca.MX | ca.DM = field(init=False, repr=False, compare=False)
     Rdef: ca.MX | ca.DM = field(init=False, repr=False, compare=False)
@@ -408,21 +475,31 @@ class ChainAssembly:
         self.u = ca.MX.sym("u", len(inputs))
 
     # ---- kinetic and gravitational energy along the chain (seed 000 ch. 2–3, generalised)
-    def link_energy(self, i: int, link: Link, part: LinkParts, VL: ca.MX, RL: ca.MX, wL: ca.MX) -> tuple:
-        """Kinetic energy of link i's material, its body record and its gravitational energy."""
+    def link_energy(self, i: int, link: Link, part: LinkParts, VL: ca.MX, RL: ca.MX, wL: ca.MX,
+                    RL_dot: ca.MX) -> tuple:
+        """Kinetic energy of link i's material, its body record, its gravitational energy, and T less Kane's share.
+
+        The last is the kinetic energy less the foreshortening's share where that share's equations are formed
+        in Kane's form (:meth:`invariant_body`), else the kinetic energy itself.
+        """
         qa, va, p = self.qa, self.va, self.p
-        T, record = self.rigid_body(part, VL, RL, wL) if part.rigid else self.invariant_body(link, part, VL, RL, wL)
+        if part.rigid:
+            T, record = self.rigid_body(part, VL, RL, wL)
+            T_rest = T
+        else:
+            T, record, T_rest = self.invariant_body(link, part, VL, RL, wL, RL_dot)
         if part.torsion is not None:
             assert part.i_mu is not None            # a twisting link has its polar inertia (add_elastic_parameters)
             d = self.deformation(part, qa, va)
             assert d.alpha_dot is not None          # its twist rates come with its twist coordinates
-            T += 0.5 * p[part.i_mu] * torsion_kinetic(part.torsion.integrals, link.length, d, wL[0])
+            T_twist = 0.5 * p[part.i_mu] * torsion_kinetic(part.torsion.integrals, link.length, d, wL[0])
+            T, T_rest = T + T_twist, T_rest + T_twist
             record["spin"] += ca.mtimes(RL, ca.vertcat(p[part.i_mu] * (link.length * wL[0] + ca.dot(
                 ca.DM(part.torsion.integrals.phi), d.alpha_dot)), 0, 0))
         record["spin"] += ca.cross(self.origin, record["momentum"])
         self.bodies.append(dict(joint=i, **record))
         Vg = -ca.dot(self.g_vec, record["moment"]) if self.i_g is not None else 0
-        return T, Vg
+        return T, Vg, T_rest
 
     def floating_body(self, scale, mass, S1, S1d, J, H, relative, VL, RL, wL) -> tuple:
         """T = ½ scale (m|V|² + 2 RᵀV·(ω×S1 + Ṡ1) + ωᵀJω + 2ω·H + E) of a body in a floating frame.
@@ -440,8 +517,12 @@ class ChainAssembly:
         return T, dict(mass=scale * mass, moment=scale * mass * self.origin + ca.mtimes(RL, scale * S1),
                        momentum=momentum, spin=spin)
 
-    def invariant_body(self, link: Link, part: LinkParts, VL, RL, wL) -> tuple:
-        """T = ½∫ρ|V + ω×s + ṡ|² from the link's inertia invariants, exact for every kinematic model."""
+    def invariant_body(self, link: Link, part: LinkParts, VL, RL, wL, RL_dot=None) -> tuple:
+        """T = ½∫ρ|V + ω×s + ṡ|² from the link's inertia invariants, exact for every kinematic model.
+
+        Returns T, the body record and the T the Lagrange derivative is taken of: T itself, or, for a link whose
+        foreshortening's equations come in Kane's form (:meth:`kane_form`), its first-order kinetic energy.
+        """
         qa, va = self.qa, self.va
         rho = self.p[part.i_rho]
         zero = ca.DM.zeros(3)
@@ -450,18 +531,43 @@ class ChainAssembly:
             m_unit = part.body.volume           # mass per unit of the density parameter
         elif part.bending is not None:
             rule = part.bending.points if part.second_order else None
-            inv = beam_invariants(part.bending.integrals, link.length, self.deformation(part, qa, va), rule,
-                                  gram=True)
+            d = self.deformation(part, qa, va)
+            inv = beam_invariants(part.bending.integrals, link.length, d, rule, gram=True)
             m_unit = link.length
             if inv.rate_gram is not None:       # ½ρ Σ w u̇²: added to T by add_energies, kept apart for M
                 self.rate_grams.append((rho, inv.rate_gram, [k for f in inv.rate_gram.rates for k in part.fields[f]]))
+            if self.kane_form(part):
+                T, record = self.floating_body(rho, m_unit, inv.first_moment, ca.jtimes(inv.first_moment, qa, va),
+                                               inv.inertia(), inv.angular_momentum, inv.relative_kinetic, VL, RL, wL)
+                first = beam_invariants(part.bending.integrals, link.length, d)
+                T_first, first_record = self.floating_body(rho, m_unit, first.first_moment,
+                                                           ca.jtimes(first.first_moment, qa, va), first.inertia(),
+                                                           first.angular_momentum, first.relative_kinetic, VL, RL, wL)
+                # the record's momenta are the first-order ones: the outputs add the foreshortening's with their
+                # rates formed by hand (KaneLink.momenta); its first moment is whole (gravity)
+                record.update(momentum=first_record["momentum"], spin=first_record["spin"])
+                self.kane_links.append(KaneLink(part, link, rho, self.origin, VL, RL, RL_dot, wL))
+                return T, record, T_first
         else:                                   # torsion only: the link's axis stays straight
             L = link.length
             J = ca.diag(ca.vertcat(0, L**3 / 3, L**3 / 3))
-            return self.floating_body(rho, L, ca.vertcat(L**2 / 2, 0, 0), zero, J, zero, 0, VL, RL, wL)
+            return (*self.floating_body(rho, L, ca.vertcat(L**2 / 2, 0, 0), zero, J, zero, 0, VL, RL, wL), None)
         S1 = inv.first_moment
-        return self.floating_body(rho, m_unit, S1, ca.jtimes(S1, qa, va), inv.inertia(), inv.angular_momentum,
-                                  inv.relative_kinetic, VL, RL, wL)
+        T, record = self.floating_body(rho, m_unit, S1, ca.jtimes(S1, qa, va), inv.inertia(), inv.angular_momentum,
+                                       inv.relative_kinetic, VL, RL, wL)
+        return T, record, T
+
+    def kane_form(self, part: LinkParts) -> bool:
+        """Whether a beam link's foreshortening enters the equations in Kane's form (KANE_FORESHORTENING).
+
+        A second-order link on the point sums (past the tensors' threshold), in a chain without a linear link
+        (whose masked T, evaluated at η = 0, is not the Kane sums' energy).
+        """
+        if not (KANE_FORESHORTENING and part.second_order and part.bending is not None):
+            return False
+        fields = sum(name in part.fields for name in ("v", "w"))
+        return (not use_tensors(part.bending.points, fields)
+                and not any(p.kinematics == "linear" for p in self.parts if not p.rigid and p.eta))
 
     def rigid_body(self, part: LinkParts, VL, RL, wL) -> tuple:
         """A rigid link from its ten inertial parameters: S1 = m c, J_O = I_c + m(|c|² 1 − c cᵀ)."""
@@ -494,7 +600,8 @@ class ChainAssembly:
         else:
             d = self.deformation(part, qa, va)
             tip = tip_kinematics(part.bending.integrals if part.bending else None,
-                                 part.torsion.integrals if part.torsion else None, link.length, d, part.second_order)
+                                 part.torsion.integrals if part.torsion else None, link.length, d, part.second_order,
+                                 part.bending.points if part.bending is not None and self.kane_form(part) else None)
         part.tip = tip
         assert isinstance(tip.rotation_vector, ca.MX)   # an elastic link's tip rotates with its coordinates
         Rdef = small_rotation(tip.rotation_vector, part.second_order)
@@ -546,6 +653,7 @@ class ChainAssembly:
         """T and V_gravity of the whole chain, walking the frames from the base."""
         qa, va = self.qa, self.va
         T: ca.MX | float = 0
+        T_rest: ca.MX | float = 0
         Vg: ca.MX | float = 0
         self.origin = ca.DM.zeros(3)
         parent: tuple[ca.MX | ca.DM, ...] = (ca.DM.eye(3), ca.DM.zeros(3, 3), ca.DM.zeros(3), ca.DM.zeros(3))
@@ -564,15 +672,16 @@ class ChainAssembly:
             motor_rate = va[self.driven(i)]
             # the rotor spins about the joint axis with the shaft: angular momentum only (it sits at the joint)
             rotor_rate = ca.dot(ca.DM(a), w0) + motor_rate
-            T += 0.5 * self.P(self.i_Ih[i]) * rotor_rate ** 2
+            T_rotor = 0.5 * self.P(self.i_Ih[i]) * rotor_rate ** 2
+            T, T_rest = T + T_rotor, T_rest + T_rotor
             self.bodies.append(dict(joint=i, mass=0, moment=ca.DM.zeros(3), momentum=ca.DM.zeros(3),
                                     spin=self.P(self.i_Ih[i]) * rotor_rate * ca.mtimes(R0, ca.DM(a))))
-            T_link, Vg_link = self.link_energy(i, link, part, VL, RL, wL)
+            T_link, Vg_link, T_rest_link = self.link_energy(i, link, part, VL, RL, wL, RL_dot)
             frame = self.link_tip(link, part, VL, RL, RL_dot, wL)
-            T, Vg = T + T_link, Vg + Vg_link
+            T, Vg, T_rest = T + T_link, Vg + Vg_link, T_rest + T_rest_link
             if part.i_pm is not None:
                 T_pay, Vg_pay = self.payload_energy(i, link, part, VL, frame)
-                T, Vg = T + T_pay, Vg + Vg_pay
+                T, Vg, T_rest = T + T_pay, Vg + Vg_pay, T_rest + T_pay
             self.joint_frames.append((self.origin, ca.mtimes(R0, Rj)))
             self.frames.append(frame)
             self.origin = frame.tip_origin
@@ -589,6 +698,8 @@ class ChainAssembly:
         for rho, gram, _ in self.rate_grams:
             T = T + 0.5 * rho * gram.energy
         self.T, self.Vg = T, Vg
+        # the Lagrangian's T: without the foreshortening of the links whose equations take it in Kane's form
+        self.T_rest = T_rest if self.kane_links else T
 
     def tool_frame(self, last: Frame) -> Frame:
         """The end-effector frame ([tool] origin, rpy in the last link's tip frame) as a Frame.
@@ -666,12 +777,12 @@ class ChainAssembly:
         the free coordinates; the prescribed ones' residuals are the torques their laws need (an output).
         """
         qa, va, aa = self.qa, self.va, self.aa
-        Lag = self.T - self.Ve - self.Vg
+        Lag = self.T_rest - self.Ve - self.Vg
         dL_dv = ca.gradient(Lag, va)
         # d/dt ∂L/∂q̇ = ∂²L/∂q̇∂q q̇ + ∂²L/∂q̇² q̈ as one directional derivative along (q̇, q̈): one forward
         # sweep through the gradient's graph instead of two (18 % fewer operations on a 5-link chain)
         r_all = (ca.jtimes(dL_dv, ca.vertcat(qa, va), ca.vertcat(va, aa)) - ca.gradient(Lag, qa)
-                 + ca.gradient(self.R, va) - self.generalized_forces())
+                 + ca.gradient(self.R, va) - self.generalized_forces() + self.kane_forces())
         self.r_all_expr = r_all            # the outputs read the prescribed joints' torques from it
         self.r_all = ca.Function("r_all", [qa, va, aa, self.u, self.p], [r_all])
         if any(part.second_order for part in self.parts if not part.rigid and part.eta):
@@ -694,6 +805,42 @@ class ChainAssembly:
         r_full = self.r_all(self.qa_e, self.va_e, self.aa_e, self.u, self.p)
         self.residual = ca.Function("residual", [self.q, self.v, self.a, self.u, self.p], [r_full[self.free]],
                                     ["q", "v", "a", "u", "p"], ["r"])
+
+    def kane_forces(self) -> ca.MX | float:
+        """The foreshortening's share of the equations of the :class:`KaneLink` links, on every coordinate.
+
+        A link's own coordinates take its Kane sums.  Its frame's coordinates take ∂V_L/∂q̇ᵀ Ṗ_V + ∂ω/∂q̇ᵀ Ṗ_ω,
+        with P_V, P_ω the foreshortening energy's momenta (V_L = Rᵀ V, ω: the frame's velocities as the energy
+        sees them), plus the Lagrange derivative of V_L·P_V + ω·P_ω with the momenta held fixed
+        (:meth:`frame_transport`): only the frame's own expressions, however many points the link has.
+        """
+        if not self.kane_links:
+            return 0
+        qa, va, aa = self.qa, self.va, self.aa
+        entries: list[ca.MX | float] = [0.0] * len(self.coordinates)
+        total: ca.MX | float = 0
+        for k in self.kane_links:
+            part, f, velocity = k.part, k.forces(self), k.link_velocity
+            total = (total + ca.jtimes(velocity, va, f.momentum_rate, True)
+                     + ca.jtimes(k.omega, va, f.angular_momentum_rate, True)
+                     + self.frame_transport(velocity, k.omega)(qa, va, aa, f.momentum, f.angular_momentum))
+            for name, Q in f.fields.items():
+                for j, coordinate in enumerate(part.fields[name]):
+                    entries[coordinate] = entries[coordinate] + Q[j]
+        return total + ca.vertcat(*entries)
+
+    def frame_transport(self, velocity: ca.MX, omega: ca.MX) -> ca.Function:
+        """E(V_L·c + ω·d) = d/dt ∂/∂q̇ − ∂/∂q of the frame's velocities against fixed vectors c, d.
+
+        For a rigid frame these are the ω × P terms of Euler's equations; written as a derivative, they also
+        hold where the frame's R is orthogonal only to second order (a second-order link's tip upstream).
+        """
+        qa, va, aa = self.qa, self.va, self.aa
+        c, d = ca.MX.sym("c", 3), ca.MX.sym("d", 3)
+        power = ca.dot(velocity, c) + ca.dot(omega, d)
+        transport = (ca.jtimes(ca.gradient(power, va), ca.vertcat(qa, va), ca.vertcat(va, aa))
+                     - ca.gradient(power, qa))
+        return ca.Function("frame_transport", [qa, va, aa, c, d], [transport])
 
     def mass_matrix_all(self) -> ca.MX:
         """∂²T/∂q̇² of every coordinate, an expression in qa, u, p (T is quadratic in q̇: no q̇ left in it).

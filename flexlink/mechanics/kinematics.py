@@ -16,6 +16,7 @@ in η are left out: no model keeps them (docs/mechanics.md).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TypeVar
 
@@ -228,22 +229,12 @@ class _PointFields:
 
 def _foreshortening_points(rule: PointRule, d: LinkDeformation) -> _PointFields:
     """U = −½∫₀ˣ(v'² + w'²) and u̇ = −∫₀ˣ(v'v̇' + w'ẇ') at the rule's points, with v, w, v̇, ẇ there."""
-    phi, slope, local, sums, start = (ca.sparsify(ca.DM(m)) for m in (rule.phi, rule.slope, rule.local,
-                                                                      rule.panel_sums, rule.start))
+    local, sums, start = (ca.sparsify(ca.DM(m)) for m in (rule.local, rule.panel_sums, rule.start))
 
     def integral(f: ca.MX | float) -> ca.MX | ca.DM:  # ∫₀^{x_k} f at every point: this panel's + earlier panels
         return ca.mtimes(local, f) + ca.mtimes(start, ca.mtimes(sums, f))
 
-    if rule.factor is not None:        # through the nodal values: N·n + 4 K operations instead of K·n
-        modal = ca.DM(rule.factor.modal)
-        phi_local, slope_local = (ca.sparsify(ca.DM(m)) for m in (rule.factor.phi, rule.factor.slope))
-
-        def values_and_slopes(eta: ca.MX) -> tuple[ca.MX, ca.MX]:
-            nodal = ca.mtimes(modal, eta)                  # formed once for both
-            return ca.mtimes(phi_local, nodal), ca.mtimes(slope_local, nodal)
-    else:
-        def values_and_slopes(eta: ca.MX) -> tuple[ca.MX, ca.MX]:
-            return ca.mtimes(phi, eta), ca.mtimes(slope, eta)
+    values_and_slopes = _PointShapes(rule).at_points   # through the nodal values where the rule has them
 
     squares: ca.MX | float = 0
     rates: ca.MX | float = 0
@@ -304,8 +295,11 @@ class ForeshorteningTensors:
 
 
 #: The tensors grow like n⁴ in the number of shape functions n, the point sums like n: past this many the
-#: points are cheaper (measured on clamped-free and modal bases: benchmarks/scaling.py, docs/performance.md).
-TENSOR_MAX_SHAPES = 6
+#: points are cheaper.  Measured on the whole model (build, generated C, step) of one 16-element link reduced
+#: to n modes, both forms built in the same session, with the points' equations in Kane's form
+#: (docs/performance.md, "The tensors' threshold"): at 7 modes the tensors' C is the smaller and the steps are
+#: close, at 8 the points' step is half the tensors' for as much C.
+TENSOR_MAX_SHAPES = 7
 
 
 def use_tensors(rule: PointRule, fields: int) -> bool:
@@ -388,7 +382,7 @@ class TipKinematics:
 
 
 def tip_kinematics(g: ShapeIntegrals | None, t: TorsionIntegrals | None, length: float, d: LinkDeformation,
-                   second_order: bool) -> TipKinematics:
+                   second_order: bool, rule: PointRule | None = None) -> TipKinematics:
     """The tip point and rotation vector of a beam link from its fields (the bending basis also for w).
 
     In second-order kinematics the tip is drawn back along x by the foreshortening u(L).  ``g`` is None for a
@@ -412,8 +406,14 @@ def tip_kinematics(g: ShapeIntegrals | None, t: TorsionIntegrals | None, length:
         assert t is not None, "a link with twist coordinates has a torsion basis"
         twist = ca.dot(_dm(t.tip), d.alpha)
     if second_order and g is not None:
+        # u(L) = −½ ηᵀ fs_tip η; on a rule with nodal values, the same sum over the points' slopes, exact for the
+        # piecewise cubics, which the Kane form's slopes share (the tip's acceleration: N·n + 4K, not 3 n²)
+        shapes = _PointShapes(rule) if rule is not None and rule.factor is not None else None
         for eta in (d.v, d.w):
-            if eta is not None:
+            if eta is not None and shapes is not None:
+                slope = shapes.at_points(eta)[1]
+                x_tip = x_tip - 0.5 * ca.dot(ca.DM(shapes.weights) * slope, slope)
+            elif eta is not None:
                 x_tip = x_tip - 0.5 * _quad(eta, g.fs_tip)
     return TipKinematics(ca.vertcat(x_tip, v_tip, w_tip), ca.vertcat(twist, -slope_w, slope_v))
 
@@ -439,3 +439,219 @@ def body_tip_kinematics(b: BodyIntegrals, eta: ca.MX) -> TipKinematics:
     """Tip point and end-section rotation vector of a reduced finite-element link, linear in its modes."""
     return TipKinematics(_dm(b.tip_point) + ca.mtimes(_dm(b.tip_translation), eta),
                          ca.mtimes(_dm(b.tip_rotation), eta))
+
+
+# ---- the foreshortening's share of the equations in Kane's form (issue 15: the 32-mode link's residual)
+
+@dataclass
+class FrameMotion:
+    """What the foreshortening's equations need of a link's floating frame, all in the link basis.
+
+    ``velocity`` is V_L = Rᵀ V (the origin's velocity as the link's energy sees it), ``velocity_rate`` its time
+    derivative, ``omega`` and ``alpha`` the angular velocity and its rate.  R need not be a rotation: the tip
+    rotation I + [ψ×] + ½[ψ×]² of a second-order link upstream is orthogonal only to second order, and the
+    energy is written in V_L and ω, so the equations are derived in them (``acceleration``).
+    """
+
+    velocity: ca.MX
+    velocity_rate: ca.MX
+    omega: ca.MX
+    alpha: ca.MX
+
+    @property
+    def acceleration(self) -> ca.MX:
+        """V̇_L + ω × V_L: what a point's acceleration takes from the origin, d/dt b + ω × b at s = 0."""
+        return self.velocity_rate + ca.cross(self.omega, self.velocity)
+
+
+@dataclass
+class ForeshorteningForces:
+    """The Lagrange derivative of a link's foreshortening energy T_u, with what its frame's coordinates need.
+
+    ``fields`` maps "v" and "w" to the generalized forces on the link's own coordinates of that field.  The
+    frame's momenta P_V = ∂T_u/∂V_L and P_ω = ∂T_u/∂ω and their rates give a coordinate upstream its share,
+    ∂V_L/∂q̇ᵀ Ṗ_V + ∂ω/∂q̇ᵀ Ṗ_ω plus the Lagrange derivative of V_L·P_V + ω·P_ω with P_V, P_ω held fixed.
+    """
+
+    momentum: ca.MX
+    momentum_rate: ca.MX
+    angular_momentum: ca.MX
+    angular_momentum_rate: ca.MX
+    energy: ca.MX              # T_u itself (the kinetic-energy output adds it to the first-order T)
+    fields: dict[str, ca.MX]
+
+
+class _PointIntegration:
+    """C = ``local + start·panel_sums``, the rule's ∫₀^{x_k}, and its transpose, as running sums over panels."""
+
+    def __init__(self, rule: PointRule):
+        self.local, self.sums = (ca.sparsify(ca.DM(m)) for m in (rule.local, rule.panel_sums))
+        self.panel = [int(k) for k in np.rint(rule.start.sum(axis=1))]     # the panel of each point
+        self.panels = rule.panel_sums.shape[0]
+
+    def __call__(self, f: ca.MX) -> ca.MX:
+        """C f: this panel's part of ∫₀^{x_k} f, plus the Gauss sums of the panels before it."""
+        before = ca.vertcat(0, ca.cumsum(ca.mtimes(self.sums, f)))
+        return ca.mtimes(self.local, f) + before[self.panel]
+
+    def transpose(self, z: ca.MX) -> ca.MX:
+        """Cᵀ z: each point takes its panel's ``localᵀ z`` and its Gauss weight times the z of later panels."""
+        per_panel = ca.vertcat(*[ca.sum1(z[[k for k, p in enumerate(self.panel) if p == q]])
+                                 for q in range(self.panels)])
+        total = ca.cumsum(per_panel)
+        after = total[self.panels - 1] - total                   # Σ z over the panels after each panel
+        return ca.mtimes(self.local.T, z) + ca.mtimes(self.sums.T, after)
+
+
+class _PointShapes:
+    """Values and slopes of a field at the rule's points, through the nodal values where the rule has them."""
+
+    def __init__(self, rule: PointRule):
+        self.factor, self.weights = rule.factor, rule.w
+        if rule.factor is not None:
+            self.modal = ca.DM(rule.factor.modal)
+            self.phi, self.slope = (ca.sparsify(ca.DM(m)) for m in (rule.factor.phi, rule.factor.slope))
+        else:
+            self.phi, self.slope = ca.sparsify(ca.DM(rule.phi)), ca.sparsify(ca.DM(rule.slope))
+
+    def at_points(self, eta: ca.MX) -> tuple[ca.MX, ca.MX]:
+        """(φ η, φ' η) at the points: N·n + 8 K operations through the nodal values, else 2 K·n."""
+        nodal = ca.mtimes(self.modal, eta) if self.factor is not None else eta
+        return ca.mtimes(self.phi, nodal), ca.mtimes(self.slope, nodal)
+
+    def project(self, values: ca.MX, slopes: ca.MX) -> ca.MX:
+        """φᵀ values + φ'ᵀ slopes, summed over the points (one transpose of the nodal map)."""
+        nodal = ca.mtimes(self.phi.T, values) + ca.mtimes(self.slope.T, slopes)
+        return ca.mtimes(self.modal.T, nodal) if self.factor is not None else nodal
+
+
+def _weighted(a: ca.MX | None, b: ca.MX | None) -> Scalar:
+    """Σ_k a_k b_k where the caller has already weighted ``a`` by the points' masses; 0 for an absent field."""
+    return 0.0 if a is None or b is None else ca.dot(a, b)
+
+
+def _modal_functionals(g: ShapeIntegrals, rho: ca.MX, motion: dict[str, tuple[ca.MX, ca.MX, ca.MX]],
+                       which: np.ndarray) -> list[Scalar]:
+    """The functional ρ∫c u and its first two rates from its modal form ∫c u = −½ Σ ηᵀ F η.
+
+    F = ``which``: fs for c = 1, fs_x for c = x; how the invariants take ∫u and ∫xu on a rule without nodal
+    values.
+    """
+    out: list[Scalar] = [0.0, 0.0, 0.0]
+    for eta, rate, acc in motion.values():
+        out[0] = out[0] - 0.5 * rho * _quad(eta, which)
+        out[1] = out[1] - rho * _quad(eta, which, rate)
+        out[2] = out[2] - rho * (_quad(rate, which) + _quad(eta, which, acc))
+    return out
+
+
+@dataclass
+class _PointMotion:
+    """A second-order link's fields at the rule's points, with their first two rates.
+
+    Values and slopes of v, w, the foreshortening u, u̇, ü, and ρ∫u, ρ∫xu with their rates (point sums, or
+    their modal forms).
+    """
+
+    mass: ca.MX
+    values: dict[str, list[ca.MX]]
+    slopes: dict[str, list[ca.MX]]
+    u: list[ca.MX]
+    U: list[Scalar]
+    X: list[Scalar]
+
+
+def _point_motion(rule: PointRule, g: ShapeIntegrals, motion: dict[str, tuple[ca.MX, ca.MX, ca.MX]],
+                  rho: ca.MX, shapes: _PointShapes, integral: _PointIntegration) -> _PointMotion:
+    """The :class:`_PointMotion`: u = −½C Σ s², u̇ = −C Σ s ṡ, ü = −C Σ (s s̈ + ṡ²) from the slopes s = φ'η."""
+    m = rho * ca.DM(rule.w)
+    values: dict[str, list[ca.MX]] = {}
+    slopes: dict[str, list[ca.MX]] = {}
+    for name, triple in motion.items():
+        values[name], slopes[name] = (list(t) for t in zip(*(shapes.at_points(e) for e in triple), strict=True))
+    first, *more = slopes.values()               # a link on the points bends in v, w or both
+    q2, q1, q0 = first[0] * first[0], first[0] * first[1], first[0] * first[2] + first[1] * first[1]
+    for s in more:
+        q2, q1, q0 = q2 + s[0] * s[0], q1 + s[0] * s[1], q0 + s[0] * s[2] + s[1] * s[1]
+    u = [-0.5 * integral(q2), -integral(q1), -integral(q0)]
+    if rule.factor is not None:                 # ∫u, ∫xu as point sums, as beam_invariants takes them
+        U: list[Scalar] = [ca.dot(m, f) for f in u]
+        X: list[Scalar] = [ca.dot(m * ca.DM(rule.x), f) for f in u]
+    else:
+        U, X = _modal_functionals(g, rho, motion, g.fs), _modal_functionals(g, rho, motion, g.fs_x)
+    return _PointMotion(m, values, slopes, u, U, X)
+
+
+def _frame_momenta(p: _PointMotion, frame: FrameMotion) -> tuple[ca.MX, ca.MX, ca.MX, ca.MX, ca.MX]:
+    """P_V, Ṗ_V, P_ω, Ṗ_ω and T_u itself of T_u = ½[2V_L·(ω × ΔS1 + ΔṠ1) + ωᵀΔJω + 2ω·ΔH + ΔE] (ρ in the sums).
+
+    ΔS1 = e_x ρ∫u; ΔJ from ΔS, whose non-zero entries are ρ∫(2xu + u²), ρ∫uv, ρ∫uw; ΔH = ρ∫(0, wu̇ − uẇ, uv̇ − vu̇):
+    the invariants' terms in u (:func:`beam_invariants`), with their rates from the points' u, u̇, ü.
+    """
+    u, u_dot, u_acc = p.u
+    mu = p.mass * u
+    absent: list[ca.MX | None] = [None, None, None]
+    v: list[ca.MX | None] = list(p.values["v"]) if "v" in p.values else absent
+    w: list[ca.MX | None] = list(p.values["w"]) if "w" in p.values else absent
+    mv = None if v[0] is None else p.mass * v[0]
+    mw = None if w[0] is None else p.mass * w[0]
+    uv = [_weighted(mu, v[0]), _weighted(mu, v[1]) + _weighted(mv, u_dot)]
+    uw = [_weighted(mu, w[0]), _weighted(mu, w[1]) + _weighted(mw, u_dot)]
+    uu = [2 * p.X[0] + ca.dot(mu, u), 2 * p.X[1] + 2 * ca.dot(mu, u_dot)]
+    S = [ca.vertcat(ca.horzcat(uu[k], uv[k], uw[k]), ca.horzcat(uv[k], 0, 0), ca.horzcat(uw[k], 0, 0))
+         for k in range(2)]
+    J = [ca.trace(m) * ca.DM.eye(3) - m for m in S]
+    H = ca.vertcat(0, _weighted(mw, u_dot) - _weighted(mu, w[1]), _weighted(mu, v[1]) - _weighted(mv, u_dot))
+    H_dot = ca.vertcat(0, _weighted(mw, u_acc) - _weighted(mu, w[2]), _weighted(mu, v[2]) - _weighted(mv, u_acc))
+    e_x = ca.DM([1.0, 0.0, 0.0])
+    S1 = [e_x * U for U in p.U]
+    omega, alpha, V = frame.omega, frame.alpha, frame.velocity
+    P_V = ca.cross(omega, S1[0]) + S1[1]
+    P_V_dot = ca.cross(alpha, S1[0]) + ca.cross(omega, S1[1]) + S1[2]
+    P_w = ca.cross(S1[0], V) + ca.mtimes(J[0], omega) + H
+    P_w_dot = (ca.cross(S1[1], V) + ca.cross(S1[0], frame.velocity_rate) + ca.mtimes(J[1], omega)
+               + ca.mtimes(J[0], alpha) + H_dot)
+    energy = (ca.dot(V, 2 * ca.cross(omega, S1[0]) + 2 * S1[1]) + ca.dot(omega, ca.mtimes(J[0], omega))
+              + 2 * ca.dot(omega, H) + ca.dot(p.mass * u_dot, u_dot))
+    return P_V, P_V_dot, P_w, P_w_dot, 0.5 * energy
+
+
+def foreshortening_forces(rule: PointRule, g: ShapeIntegrals, d: LinkDeformation,
+                          accelerations: Mapping[str, ca.MX], rho: ca.MX, frame: FrameMotion) -> ForeshorteningForces:
+    """E(T_u) = d/dt ∂T_u/∂q̇ − ∂T_u/∂q of a link's foreshortening energy T_u, formed from the points by hand.
+
+    T_u is the kinetic energy the foreshortening u adds to a link's first-order one: ½ Σ_k m_k (|b_k|² − |b⁰_k|²)
+    with b = V_L + ω × s + ṡ, s_k = (x_k + u_k, v_k, w_k) against s⁰_k = (x_k, v_k, w_k) (the invariants' terms
+    in u of :func:`beam_invariants`).  On the link's own coordinates it is Kane's sum Σ m (∂s/∂η)ᵀ a − (∂s⁰/∂η)ᵀ a⁰
+    with a = ḃ + ω × b = A + (α × + ω × ω ×) s + 2 ω × ṡ + s̈: Σ m [φᵀ (a − a⁰)_field + (∂u/∂η)ᵀ a_x], one pass
+    back through the rule's integral and the nodal values.  The frame's share comes as its momenta and their
+    rates (:class:`ForeshorteningForces`).  The same equations as CasADi's Lagrange derivative through the
+    point sums (tests/test_kane_foreshortening.py) in about two thirds of the operations: the sums' derivatives
+    are formed once from u, u̇, ü at the points instead of forward over reverse.  ∫u and ∫xu are the point
+    sums where the invariants take them so (a rule with nodal values), else their modal forms.
+    """
+    shapes, integral = _PointShapes(rule), _PointIntegration(rule)
+    motion = {name: (getattr(d, name), _rate(getattr(d, f"{name}_dot")), accelerations[name])
+              for name in ("v", "w") if getattr(d, name) is not None}
+    p = _point_motion(rule, g, motion, rho, shapes, integral)
+    u, u_dot, u_acc = p.u
+    A, Om = frame.acceleration, skew(frame.omega)
+    W = skew(frame.alpha) + ca.mtimes(Om, Om)         # α × s + ω × (ω × s) = W s
+    column = {"v": 1, "w": 2}
+    # a_x at the points less what ∫u and ∫xu carry (A_x + W_xx x) where those are modal
+    a_x = W[0, 0] * u + u_acc
+    for name, (value, rate, _) in p.values.items():
+        a_x = a_x + W[0, column[name]] * value + 2 * Om[0, column[name]] * rate
+    if rule.factor is not None:
+        a_x = a_x + A[0] + W[0, 0] * ca.DM(rule.x)
+    back = integral.transpose(p.mass * a_x)
+    fields: dict[str, ca.MX] = {}
+    for name, (eta, _, _) in motion.items():
+        c = column[name]
+        Q = shapes.project(p.mass * (W[c, 0] * u + 2 * Om[c, 0] * u_dot), -(p.slopes[name][0] * back))
+        if rule.factor is None:                 # A_x ∂(ρ∫u)/∂η + W_xx ∂(ρ∫xu)/∂η in their modal forms
+            Q = Q - rho * (A[0] * ca.mtimes(ca.sparsify(_dm(g.fs)), eta)
+                           + W[0, 0] * ca.mtimes(ca.sparsify(_dm(g.fs_x)), eta))
+        fields[name] = Q
+    P_V, P_V_dot, P_w, P_w_dot, energy = _frame_momenta(p, frame)
+    return ForeshorteningForces(P_V, P_V_dot, P_w, P_w_dot, energy, fields)

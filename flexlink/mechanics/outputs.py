@@ -8,6 +8,8 @@ that leaves this range instead of returning numbers the model cannot stand behin
 
 from __future__ import annotations
 
+from typing import Any
+
 import casadi as ca
 
 from flexlink.mechanics.assembly import ChainAssembly, Frame, LinkParts
@@ -79,14 +81,26 @@ def _link_outputs(chain: ChainAssembly, i: int) -> list[tuple[Signal, ca.MX | ca
 def _subtree_sums(chain: ChainAssembly) -> list[dict]:
     """Mass, first moment, momentum and angular momentum (about the world origin) beyond each joint.
 
-    Suffix sums from the tip, so the n subtrees cost n additions, not n²/2.
+    Suffix sums from the tip, so the n subtrees cost n additions, not n²/2.  The momenta of the bodies' records
+    are differentiated by CasADi; a link whose foreshortening's equations take Kane's form
+    (:class:`~flexlink.mechanics.assembly.KaneLink`) adds that share's momenta with their rates formed by hand
+    (``momentum_rate``, ``spin_rate``: zero where every body is differentiated by CasADi).
     """
     n = len(chain.scene.joints)
     sums: list[dict] = [{}] * n
-    running = dict(mass=0, moment=ca.DM.zeros(3), momentum=ca.DM.zeros(3), spin=ca.DM.zeros(3))
+    running: dict[str, Any] = dict(mass=0, moment=ca.DM.zeros(3), momentum=ca.DM.zeros(3), spin=ca.DM.zeros(3),
+                   momentum_rate=ca.DM.zeros(3), spin_rate=ca.DM.zeros(3), kane_momentum=ca.DM.zeros(3),
+                   kane_spin=ca.DM.zeros(3))
+    kane = {id(k.part): k for k in chain.kane_links}
     for i in reversed(range(n)):
         for b in (b for b in chain.bodies if b["joint"] == i):
-            running = {k: running[k] + b[k] for k in running}
+            running = {k: running[k] + b[k] if k in b else running[k] for k in running}
+        if id(chain.parts[i]) in kane:
+            momentum, momentum_rate, spin, spin_rate = kane[id(chain.parts[i])].momenta(chain)
+            running = {**running, "momentum": running["momentum"] + momentum, "spin": running["spin"] + spin,
+                       "momentum_rate": running["momentum_rate"] + momentum_rate,
+                       "spin_rate": running["spin_rate"] + spin_rate,
+                       "kane_momentum": running["kane_momentum"] + momentum, "kane_spin": running["kane_spin"] + spin}
         sums[i] = running
     return sums
 
@@ -101,14 +115,19 @@ def _joint_reactions(chain: ChainAssembly) -> list[tuple[Signal, ca.MX | ca.DM]]
     qa, va, aa, u, g = chain.qa, chain.va, chain.aa, chain.u, chain.g_vec
     sums = _subtree_sums(chain)
     origins = [O for O, _ in chain.joint_frames]
-    stacked = ca.vertcat(*[ca.vertcat(s["momentum"], s["spin"] - ca.cross(O, s["momentum"]))
+    # the momenta CasADi differentiates (without the Kane links' foreshortening share), then that share's rates
+    stacked = ca.vertcat(*[ca.vertcat(s["momentum"] - s["kane_momentum"],
+                                      s["spin"] - s["kane_spin"] - ca.cross(O, s["momentum"] - s["kane_momentum"]))
                            for s, O in zip(sums, origins, strict=True)])
     rates = ca.jtimes(stacked, qa, va) + ca.jtimes(stacked, va, aa)
     out: list[tuple[Signal, ca.MX | ca.DM]] = []
     for i, (s, (O, Rjf)) in enumerate(zip(sums, chain.joint_frames, strict=True)):
         O_dot = chain.frames[i].velocity
-        force = rates[6 * i:6 * i + 3] - s["mass"] * g
-        torque = (rates[6 * i + 3:6 * i + 6] + ca.cross(O_dot, s["momentum"])
+        kane = s["kane_momentum"]
+        force = rates[6 * i:6 * i + 3] + s["momentum_rate"] - s["mass"] * g
+        # d/dt of the Kane share's spin − O × momentum: Ṡ − Ȯ × P − O × Ṗ
+        torque = (rates[6 * i + 3:6 * i + 6] + s["spin_rate"] - ca.cross(O_dot, kane)
+                  - ca.cross(O, s["momentum_rate"]) + ca.cross(O_dot, s["momentum"])
                   - ca.cross(s["moment"] - s["mass"] * O, g))
         if chain.tip_load is not None:
             k0 = chain.tip_load
@@ -180,7 +199,9 @@ def chain_outputs(chain: ChainAssembly) -> tuple[list[Signal], list[ca.MX | ca.D
             out += _link_accelerometer(chain, i)
     out += _joint_reactions(chain)
     out += _end_effector(chain)
-    out.append((Signal("energy.kinetic", "J", "kinetic energy"), chain.T))
+    # T as the Lagrangian's T_rest and the Kane links' foreshortening share, from the points (the same value)
+    kinetic = chain.T_rest + sum((k.forces(chain).energy for k in chain.kane_links), ca.MX(0))
+    out.append((Signal("energy.kinetic", "J", "kinetic energy"), kinetic))
     out.append((Signal("energy.potential", "J", "elastic and gravitational potential energy"),
                 chain.Ve + chain.Vg))
     return [s for s, _ in out], [e for _, e in out]
