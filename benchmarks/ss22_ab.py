@@ -11,9 +11,7 @@ sources (``sources/``, the generated model and the generic ``fmu_src``) are comp
 step where ω_max Δt = ``--omega-step``, ω_max the highest natural frequency at the start), alternately for
 ``--rounds`` rounds of ``--repeats`` runs each, so that the machine's load
 falls on both alike; the report gives the median CPU µs per SS22 step of each, their ratio and the counters
-(Newton iterations and factorisations per step: counts, the same in every run).  ``--define NAME=VALUE`` compiles
-the working tree's side with that macro of ``fmu_src/ss22.h`` set (e.g. ``SS22_TRUNCATION_FRACTION=0.03``, an
-option studied and left off: docs/integrator.md).
+(Newton iterations and factorisations per step: counts, the same in every run).
 """
 
 from __future__ import annotations
@@ -52,20 +50,8 @@ def fmu_with_sources_of(fmu: Path, rev: str, out: Path) -> Path:
     return out
 
 
-def fmu_with_defines(fmu: Path, defines: list[str], out: Path) -> Path:
-    """A copy of ``fmu`` whose ``sources/ss22.h`` starts with ``#define NAME VALUE`` for each ``NAME=VALUE``."""
-    head = "".join(f"#define {d.partition('=')[0]} {d.partition('=')[2]}\n" for d in defines)
-    with zipfile.ZipFile(fmu) as zin, zipfile.ZipFile(out, "w") as zout:
-        for item in zin.infolist():
-            data = zin.read(item.filename)
-            if item.filename == "sources/ss22.h":
-                data = head.encode() + data
-            zout.writestr(item, data)
-    return out
-
-
 def compare(scene_path: Path, rev: str, rounds: int, repeats: int, tolerance: float | None,
-            order: int = 2, omega_step: float = 0.299, defines: list[str] | None = None) -> dict:
+            order: int = 2, omega_step: float = 0.299) -> dict:
     """Median µs per SS22 step and counters per step of REV's integrator and the working tree's."""
     from flexlink.export.cache import cached_fmu
     from flexlink.mechanics.analysis import natural_frequencies
@@ -85,8 +71,7 @@ def compare(scene_path: Path, rev: str, rounds: int, repeats: int, tolerance: fl
         start["solver.tolerance"] = tolerance
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        now = fmu_with_defines(fmu, defines, tmp / "now.fmu") if defines else fmu
-        exes = {"now": step_floor.compile_driver(now, tmp / "now"),
+        exes = {"now": step_floor.compile_driver(fmu, tmp / "now"),
                 rev: step_floor.compile_driver(fmu_with_sources_of(fmu, rev, tmp / "rev.fmu"), tmp / "rev")}
         import fmpy
 
@@ -120,16 +105,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--order", type=int, choices=(2, 4), default=2)
     parser.add_argument("--omega-step", type=float, default=0.299,
                         help="with --order 4: ω_max Δt of the step (the FMU refuses above 0.3)")
-    parser.add_argument("--define", action="append", default=[], metavar="NAME=VALUE",
-                        help="a macro of fmu_src/ss22.h for the working tree's side (repeatable)")
     args = parser.parse_args(argv)
     scenes = [Path(s) for s in args.scenes] or [ROOT / "examples" / s for s in DEFAULT]
     print(f"| scene | µs/step {args.rev} | µs/step now | {args.rev} / now | iterations/step {args.rev} → now | "
           "LU/step → now | residual, Newton matrix, LU, solve µs |")
     print("| --- | --- | --- | --- | --- | --- | --- |")
     for scene in scenes:
-        r = compare(scene, args.rev, args.rounds, args.repeats, args.tolerance, args.order, args.omega_step,
-                    args.define)
+        r = compare(scene, args.rev, args.rounds, args.repeats, args.tolerance, args.order, args.omega_step)
         a, b = r["counts"][args.rev], r["counts"]["now"]
         us = r["us_per_step"]
         print(f"| {r['scene']} | {us[args.rev]:.2f} | {us['now']:.2f} | {r['ratio']:.2f} | "

@@ -65,10 +65,7 @@ static SS22Status richardson_step(Instance *inst, double t0, double t1) {
 }
 
 static SS22Status one_step(Instance *inst, double t0, double t1) {
-    const int order4 = inst->d.solver[SOLVER_ORDER] == 4;
-    /* order 4's own error is far below the predictor-corrector difference of its SS22 steps (ss22.h) */
-    inst->d.ss22.truncation_fraction = order4 ? SS22_TRUNCATION_FRACTION_ORDER4 : SS22_TRUNCATION_FRACTION;
-    return order4 ? richardson_step(inst, t0, t1) : ss22_from(inst, t0, t1, NULL);
+    return inst->d.solver[SOLVER_ORDER] == 4 ? richardson_step(inst, t0, t1) : ss22_from(inst, t0, t1, NULL);
 }
 
 static SS22Status internal_step(Instance *inst, double t0, double t1) {

@@ -9,7 +9,6 @@ void ss22_init(SS22 *s, double theta1, double theta2, double tolerance) {
     s->theta1 = theta1;
     s->theta2 = theta2;
     s->tolerance = tolerance;
-    s->truncation_fraction = SS22_TRUNCATION_FRACTION;
     s->max_iterations = SS22_MAX_ITERATIONS;
 }
 
@@ -92,8 +91,7 @@ static SS22Status step_matrix(SS22 *s, double dt, const double *alpha, const dou
     }
     s->factorisations++;
     f->rate = -1.0;
-    f->rate_first = -1.0;
-    f->estimated = f->estimated_first = 0;
+    f->estimated = 0;
     f->waste = 0.0;
     if (!all_finite(f->LU, N_Q * N_Q)) { f->valid = 0; return SS22_NOT_FINITE; }
     if (lu_factor(f->LU, N_Q, f->piv)) { f->valid = 0; return SS22_SINGULAR; }
@@ -142,14 +140,6 @@ static double record_rate(SS22Factor *f, double rate, int raise_only) {
     f->estimated = 0;
     return f->rate;
 }
-
-/* The same for a step's first ratio of increments, kept apart (ss22.h, SS22Factor.rate_first): it says how much
- * of the first increment a second one will be, not how fast the iteration contracts after that. */
-static void record_first_ratio(SS22Factor *f, double ratio, int raise_only) {
-    if (f->rate_first < 0.0) f->rate_first = ratio;
-    else f->rate_first = fmax(ratio, raise_only ? f->rate_first : SS22_RATE_DECAY * f->rate_first);
-    f->estimated_first = 0;
-}
 #endif
 
 SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
@@ -184,11 +174,6 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
         const uint64_t used = s->factorisations;
         if (start != NULL) { memcpy(a, start, sizeof(a)); predicted = 1; }
         else predicted = predict(s, dt, alpha, a);
-        /* the step's own error, estimated while it iterates: how far the iterate has moved from the start
-         * (ss22.h, SS22_TRUNCATION_FRACTION); only from a predicted start, which is a step of its own order */
-        double a_start[N_Q], level = s->tolerance;
-        memcpy(a_start, a, sizeof(a_start));
-        const double fraction = predicted ? s->truncation_fraction : 0.0;
         int converged = 0;
         int fresh = -1;          /* increments made with a matrix evaluated in this step; -1: an older one */
         double previous = INFINITY;
@@ -208,37 +193,30 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             for (int i = 0; i < N_Q; i++) delta[i] = -s->r[i];
             lu_solve(f->LU, N_Q, f->piv, delta);
             /* the increment's effect on the end-of-step rate, against the coordinate's nominal scale */
-            double err = 0.0, moved = 0.0;
+            double err = 0.0;
             for (int i = 0; i < N_Q; i++) {
                 a[i] += delta[i];
                 const double e = fabs(delta[i]) * dt / MODEL_NOMINAL_Q[i];
                 if (e > err) err = e;
-                const double m = fabs(a[i] - a_start[i]) * dt / MODEL_NOMINAL_Q[i];
-                if (m > moved) moved = m;
             }
-            if (fraction > 0.0) level = fmax(s->tolerance, fraction * moved);
             s->newton_iterations++;
             if (fresh >= 0) fresh++;
             if (!isfinite(err)) return SS22_NOT_FINITE;
-            if (err <= level) {
-                /* a ratio to an increment below the tolerance, perhaps at the rounding floor, only raises */
-                const int floor = err <= s->tolerance;
-                if (it > 1 && fresh < 0) record_rate(f, err / previous, floor);
-                else if (it == 1 && fresh < 0) record_first_ratio(f, err / previous, floor);
+            if (err <= s->tolerance) {
+                /* a ratio to an increment below the tolerance, perhaps at the rounding floor: it only raises */
+                if (it > 0 && fresh < 0) record_rate(f, err / previous, 1);
                 converged = 1;
                 break;
             }
-            int *estimated = it == 0 ? &f->estimated_first : &f->estimated;
-            if (it <= 1 && fresh < 0 && (it == 0 ? f->rate_first : f->rate) >= 0.0 &&
-                *estimated < SS22_RATE_MEASURE_EVERY && (it == 0 || err < previous)) {
-                /* an earlier step's matrix and its last measured rates: what is left after the first
-                 * increment is about the kept first ratio times it (then contracting at the kept rate), after
-                 * the second about rate/(1-rate) times it (ss22.h, SS22_RATE_MEASURE_EVERY) */
-                const double seen = it == 1 ? f->rate : fmax(f->rate_first, f->rate);
+            if (it <= 1 && fresh < 0 && f->rate >= 0.0 && f->estimated < SS22_RATE_MEASURE_EVERY) {
+                /* an earlier step's matrix and its last measured rate: what is left is about
+                 * rate/(1-rate) times this increment, the first or the second (ss22.h,
+                 * SS22_RATE_MEASURE_EVERY); the second's ratio to the first still raises the kept rate */
+                const double seen = it == 1 ? fmax(f->rate, err / previous) : f->rate;
                 const double aged = pow(fmax(seen, SS22_RATE_FLOOR), 0.8);
-                if (aged < 0.5 && aged / (1.0 - aged) * err <= level) {
-                    if (it == 1) record_first_ratio(f, err / previous, 0);
-                    (*estimated)++;
+                if (aged < 0.5 && aged / (1.0 - aged) * err <= s->tolerance) {
+                    f->rate = seen;
+                    f->estimated++;
                     converged = 1;
                     break;
                 }
@@ -253,17 +231,15 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             /* an older matrix is judged on its kept rate, but never on a step's first ratio (record_rate); a
              * fresh one's rate is Newton's own, not what it will show when older, and is not kept */
             const int first = it == 1 && fresh < 0;
-            if (first) record_first_ratio(f, rate, 0);
-            const double kept = first ? rate : fresh < 0 ? record_rate(f, rate, 0) : rate;
+            const double kept = fresh < 0 ? record_rate(f, rate, first) : rate;
             const double judged = first ? INFINITY : kept;
             /* linear convergence at rate < 1: what is left is about rate/(1-rate) times this increment */
-            if (judged < 0.5 && judged / (1.0 - judged) * err <= level) { converged = 1; break; }
+            if (judged < 0.5 && judged / (1.0 - judged) * err <= s->tolerance) { converged = 1; break; }
             /* at this rate an older matrix cannot reach the tolerance within the iterations left */
-            const int too_slow = fresh < 0 && err * pow(rate, s->max_iterations - 1 - it) > level;
+            const int too_slow = fresh < 0 && err * pow(rate, s->max_iterations - 1 - it) > s->tolerance;
             /* an old matrix whose extra iterations have paid for a new one (ss22.h, SS22_REFRESH_COST) */
             const int stale = fresh < 0 && f->waste >= SS22_REFRESH_COST;
-            /* a first ratio is no rate (record_first_ratio): only one that does not shrink refreshes */
-            if (rate <= (first ? 1.0 : 0.5) && !too_slow && !stale) {
+            if (rate <= 0.5 && !too_slow && !stale) {
                 fresh = -1;      /* contracting: judged as an older matrix from here on */
                 continue;
             }

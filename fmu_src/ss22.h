@@ -47,17 +47,6 @@ that rate (raised to its ratio to the first increment, if larger) is.  The floor
  * (docs/integrator.md), while only a rate above 0.5 refreshed it; its steps iterated 7 times. */
 #define SS22_REFRESH_COST (2.0 * N_Q)
 
-/* The Newton iteration of a step that started from a prediction may stop once what is left of it is below this
- * fraction of how far the iterate has moved from that prediction (the predictor-corrector difference: an
- * estimate of the step's own local error), when that is above the tolerance (Hairer & Wanner's stop, Solving
- * ODEs II, IV.8: the Newton error a small fraction of the local error).  0: the tolerance alone. */
-#ifndef SS22_TRUNCATION_FRACTION
-#define SS22_TRUNCATION_FRACTION 0.0
-#endif
-#ifndef SS22_TRUNCATION_FRACTION_ORDER4
-#define SS22_TRUNCATION_FRACTION_ORDER4 0.0
-#endif
-
 #define SS22_CACHE 4     /* factorisations kept: the regular step, a shortened last one, and the Δt/2 of the
                             order-4 option with their rounding variants (2 entries thrashed: 1800 LUs in 15000 steps) */
 
@@ -75,10 +64,7 @@ typedef struct {
     uint64_t stamp;              /* last use, for replacement */
     double rate;                 /* kept contraction rate of the simplified Newton iteration with this matrix
                                     (ss22.c, record_rate), or -1 before a measure */
-    double rate_first;           /* kept ratio of a step's second increment to its first (ss22.c,
-                                    record_first_ratio), or -1 before a measure */
-    int estimated, estimated_first;  /* steps accepted since on rate (after two increments) or on
-                                    rate_first (after one) without measuring it again */
+    int estimated;               /* steps accepted since on that rate without measuring it again */
     double waste;                /* iterations spent beyond two a step since it was evaluated */
     double LU[N_Q * N_Q];
     int piv[N_Q];
@@ -86,7 +72,6 @@ typedef struct {
 
 typedef struct {
     double theta1, theta2, tolerance;
-    double truncation_fraction;  /* SS22_TRUNCATION_FRACTION */
     int max_iterations;
     SS22Factor cache[SS22_CACHE];
     uint64_t clock;              /* fixed-width: an FMU state has one layout on every 64-bit platform */
