@@ -208,7 +208,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--tolerance", type=float, help="solver.tolerance (default: the scene's)")
     parser.add_argument("--stop", type=float, default=2.0)
     parser.add_argument("--every", type=int, default=50, help="steps between matrix-error splits (0: none)")
-    parser.add_argument("--out", default="newton_trace.txt")
+    parser.add_argument("--out", default="/tmp/newton_trace.txt")
     args = parser.parse_args(argv)
     run(Path(args.scene), args.tolerance, args.stop, args.every, Path(args.out))
 
