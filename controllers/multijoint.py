@@ -320,7 +320,7 @@ class MimoLQGLaw:
     def diverged(self) -> FlexlinkError:
         """The error of a sample whose estimate is not finite or would overflow (the controller FMU refuses too)."""
         return FlexlinkError(f"the LQG's estimate is not finite at sample {self.k} (t = {self.k * self.dt:.6g} s): "
-                             "it diverged")
+                             "it diverged (a NaN or infinite estimate, or a torque that overflows)")
 
     def finite(self, dx: np.ndarray) -> np.ndarray:
         """``dx``, or :meth:`diverged` when the estimate is not finite (a NaN measurement)."""

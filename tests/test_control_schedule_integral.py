@@ -232,7 +232,7 @@ def test_a_lead_phase_margin_on_a_stable_loop(sched):
     T = ct.series(sampled(built_at(pose)), sampled_integral_compensator(si.matrices(sigma), si.designs[0].rows, DT))
     L = broken(T, 0)
     assert np.max(np.abs(ct.feedback(L, 1).poles())) < 1
-    # python-control's poles of L: three outside the unit circle, and the shoulder's rigid-body double integrator
+    # python-control's poles of L: two outside the unit circle, and the shoulder's rigid-body double integrator
     # with its error integral, a triple pole at z = 1 that rounding scatters by 2e-7 (on the circle: not counted)
     p = np.abs(L.poles())
     assert np.sum(np.abs(p - 1) < 1e-6) == 3

@@ -425,10 +425,10 @@ def test_case_timeout_is_a_failed_row_and_is_rerun_on_resume(tmp_path, fmu):
 def test_cli_case_timeout_on_the_local_cluster(tmp_path, cache):
     out = tmp_path / "slow.csv"
     t0 = time.perf_counter()
-    # 500 internal steps against 5e7 (at least 7 s at the arm's 0.15 us a step): a 4 s limit leaves the first
+    # 500 internal steps against 5e8 (at least 75 s at the arm's 0.15 us a step): a 4 s limit leaves the first
     # case room on a loaded machine (at 1 s it timed out at load 10) and the second none
-    r = _flexlink(["sweep", str(SCENE), "--param", "solver.step=1e-3,1e-8", "--stop-time", "0.5",
-                   "--sample-time", "0.005", "--case-timeout", "4", "--out", str(out), "--no-progress"], cache)
+    r = _flexlink(["sweep", str(SCENE), "--param", "solver.step=1e-3,1e-9", "--stop-time", "0.5",
+                   "--sample-time", "0.0005", "--case-timeout", "4", "--out", str(out), "--no-progress"], cache)
     assert r.returncode == 0, r.stderr
     assert "2 cases (grid): 1 ok, 1 failed" in r.stdout and "case timeout of 4 s" in r.stdout
     df = pd.read_csv(out)
