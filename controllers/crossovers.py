@@ -43,13 +43,18 @@ def _roots(f: Callable[[float], float], w: np.ndarray, values: np.ndarray,
     """Every root of f between two grid points where its sampled values change sign, refined by ``brentq``.
 
     A sign change can also be a pole of the loop between the points (a lightly damped mode: L passes through
-    infinity, not through the crossing), to which ``brentq`` converges as well: ``is_root`` keeps the roots.
+    infinity, not through the crossing), to which ``brentq`` converges as well: ``is_root`` keeps the roots.  On
+    the way ``brentq`` may land on that pole exactly, where the loop's response is a singular solve: such a
+    bracket holds a pole, not a crossing (L is finite at a crossing), and is passed over.
     """
     out = []
     for i in np.flatnonzero(np.sign(values[:-1]) * np.sign(values[1:]) < 0):
-        x = float(brentq(f, w[i], w[i + 1], xtol=1e-13 * w[i], rtol=4 * np.finfo(float).eps))
-        if is_root(x):
-            out.append(x)
+        try:
+            x = float(brentq(f, w[i], w[i + 1], xtol=1e-13 * w[i], rtol=4 * np.finfo(float).eps))
+            if is_root(x):
+                out.append(x)
+        except np.linalg.LinAlgError:
+            continue
     out.extend(float(w[i]) for i in np.flatnonzero(values == 0.0) if is_root(float(w[i])))
     return sorted(out)
 
