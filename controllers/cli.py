@@ -98,9 +98,8 @@ def add_control_parsers(subparsers) -> None:
     p.add_argument("--integral", type=_finite, metavar="TI",
                    help="with several torque-driven joints: integral action on the joint positions in the LQG, "
                         "integral time TI s (Bryson weight 1/(joint-error limit x TI)^2 on each joint's error "
-                        "integral; strain gauges; also in --export-fmu and --export-ssp; with --schedule in the "
-                        "scheduled and the fixed LQG, designed at every pose; exported by --export-fmu and "
-                        "--export-ssp) (docs/control.md)")
+                        "integral; strain gauges; with --schedule in the scheduled and the fixed LQG, designed at "
+                        "every pose; exported by --export-fmu and --export-ssp) (docs/control.md)")
     p.add_argument("--export-fmu", type=output_file, metavar="CTRL.fmu",
                    help="also write the sampled LQG (Kalman current estimator + discrete LQR, saturation) as a "
                         "pure-C FMI 2.0 Co-Simulation FMU, its sample time the fixed communication step; with "

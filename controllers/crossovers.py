@@ -134,8 +134,11 @@ def loop_margins(Lw: np.ndarray, w: np.ndarray, evaluate: Evaluate, L_inf: compl
 
     with np.errstate(divide="ignore"):
         wgc = np.array(_roots(gain, w, np.log(np.abs(Lw)), lambda x: abs(gain(x)) < 1e-6))
-    wpc = np.array(_roots(imag, w, Lw.imag, lambda x: abs(imag(x)) < 1e-6 * abs(_at(evaluate, x))
-                          and _at(evaluate, x).real < 0.0))
+    def on_negative_axis(x: float) -> bool:
+        L = _at(evaluate, x)                # one evaluation for both conditions
+        return abs(L.imag) < 1e-6 * abs(L) and L.real < 0.0
+
+    wpc = np.array(_roots(imag, w, Lw.imag, on_negative_axis))
     Lgc = evaluate(wgc) if len(wgc) else np.zeros(0, dtype=complex)
     Lpc = evaluate(wpc) if len(wpc) else np.zeros(0, dtype=complex)
     pm = np.remainder(np.angle(np.asarray(Lgc).ravel(), deg=True), 360.0) - 180.0    # python-control's
