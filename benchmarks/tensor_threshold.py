@@ -27,13 +27,21 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 
-def main(argv: list[str] | None = None) -> None:
+def _measured(modes: int, builds: int, repeats: int) -> tuple[dict, dict[str, int]]:
+    """The n-mode link as the module's switches now build it: scaling.py's figures and each function's operations."""
     from scaling import measure, modes_scene
 
     from flexlink.export.codegen import generated_functions
-    from flexlink.mechanics import kinematics
     from flexlink.mechanics.model import build_model
     from flexlink.scene.loader import parse_scene
+
+    scene = parse_scene(modes_scene(modes))
+    ops = {name: v[1] for name, v in generated_functions(build_model(scene)).items()}
+    return measure(scene, builds=builds, repeats=repeats), ops
+
+
+def main(argv: list[str] | None = None) -> None:
+    from flexlink.mechanics import kinematics
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--modes", type=int, nargs="+", default=[4, 6, 7, 8, 10])
@@ -53,9 +61,7 @@ def main(argv: list[str] | None = None) -> None:
         for n in args.modes:
             for form, threshold in (("tensors", n), ("points", n - 1)):
                 kinematics.TENSOR_MAX_SHAPES = threshold
-                scene = parse_scene(modes_scene(n))
-                ops = {k: v[1] for k, v in generated_functions(build_model(scene)).items()}
-                r = measure(scene, builds=args.builds, repeats=args.repeats)
+                r, ops = _measured(n, args.builds, args.repeats)
                 print(f"| {n} | {form} | {r['build_s']:.1f} | {r['generated_bytes'] / 1e6:.2f} | {r['step_us']:.1f} | "
                       f"{r['residual_us']:.2f} | {ops['residual']} / {ops['mass_matrix']} / {ops['outputs']} |",
                       flush=True)
@@ -66,13 +72,9 @@ def main(argv: list[str] | None = None) -> None:
 
 def kane_against_lagrange(modes: int, rounds: int, builds: int, repeats: int) -> None:
     """The n-mode link with the foreshortening's equations in Kane's form and by AD, alternated."""
-    from scaling import measure, modes_scene
-
-    from flexlink.export.codegen import generated_functions
     from flexlink.mechanics import assembly
-    from flexlink.mechanics.model import build_model
-    from flexlink.scene.loader import parse_scene
 
+    kept = assembly.KANE_FORESHORTENING
     print(f"load average {os.getloadavg()[0]:.1f} at the start")
     print("| round | form | build [s] | C [MB] | µs per step | residual µs | operations: residual / outputs |\n"
           "| --- | --- | --- | --- | --- | --- | --- |")
@@ -80,14 +82,12 @@ def kane_against_lagrange(modes: int, rounds: int, builds: int, repeats: int) ->
         for k in range(rounds):
             for form, kane in (("Kane", True), ("Lagrange (AD)", False)):
                 assembly.KANE_FORESHORTENING = kane
-                scene = parse_scene(modes_scene(modes))
-                ops = {name: v[1] for name, v in generated_functions(build_model(scene)).items()}
-                r = measure(scene, builds=builds, repeats=repeats)
+                r, ops = _measured(modes, builds, repeats)
                 print(f"| {k + 1} | {form} | {r['build_s']:.1f} | {r['generated_bytes'] / 1e6:.2f} | "
                       f"{r['step_us']:.1f} | {r['residual_us']:.2f} | {ops['residual']} / {ops['outputs']} |",
                       flush=True)
     finally:
-        assembly.KANE_FORESHORTENING = True
+        assembly.KANE_FORESHORTENING = kept
     print(f"load average {os.getloadavg()[0]:.1f} at the end")
 
 
