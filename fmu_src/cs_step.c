@@ -101,7 +101,7 @@ static fmi2Status energy_chunk(Instance *inst, double t, EnergyPoint *e0, uint64
     const double t_start = inst->backup.time;
     d->time = t;
     d->outputs_valid = 0;
-    fmi2Status status = fmu_energy_point(inst, &e, "fmi2DoStep");
+    fmi2Status status = fmu_energy_point_inside(inst, &e, "fmi2DoStep");
     if (status <= fmi2Warning) {
         status = fmu_guard_energy(inst, e0, &e, (double)(d->ss22.steps - *steps_at_e0));
         if (status != fmi2OK) {

@@ -259,6 +259,32 @@ fmi2Status fmu_energy_point(Instance *inst, EnergyPoint *e, const char *function
     return fmi2OK;
 }
 
+/* An energy point inside a communication step, for a model without built-in laws: the energies are functions of
+ * q, v, the parameters and the laws' slots, never of the acceleration (T(q, v), V(q): tests/test_energy_guard.py
+ * checks every example's generated outputs), and the force inputs' generalized forces are residual differences
+ * at a = 0, so nothing here needs the consistent acceleration -- the mass matrix and its LU that
+ * fmu_update_outputs pays for the host's outputs.  The outputs are evaluated at the step's mean acceleration into
+ * a scratch array; d->y and d->acceleration are left as they were (not valid here: the host reads them only at
+ * the end of the step, from fmu_energy_point).  A law's torque is a reaction, a function of the acceleration:
+ * with laws the full point is taken. */
+fmi2Status fmu_energy_point_inside(Instance *inst, EnergyPoint *e, const char *function) {
+    FmuData *d = &inst->d;
+    if (N_LAWS > 0) return fmu_energy_point(inst, e, function);
+    e->available = 0;
+    if (!inst->energy_known) energy_init(inst);
+    if (inst->energy_kinetic < 0) return fmi2OK;
+    fmu_model_inputs(d, d->time, inst->u0);
+    if (model_outputs(d->q, d->v, d->alpha, inst->u0, d->p, inst->energy_y, &inst->work) ||
+        input_forces(inst, e, 0)) {
+        return fmu_error(inst, "%s: the model failed to evaluate at t = %.17g", function, d->time);
+    }
+    e->time = d->time;
+    e->kinetic = inst->energy_y[inst->energy_kinetic];
+    e->potential = inst->energy_y[inst->energy_potential];
+    e->available = 1;
+    return fmi2OK;
+}
+
 void fmu_energy_point_keep(Instance *inst, const EnergyPoint *e) {
     FmuData *d = &inst->d;
     inst->energy_end = *e;

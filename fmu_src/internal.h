@@ -48,6 +48,8 @@ void fmu_guard_init(Instance *inst, const double *u);
  * (EnergyPoint, cosimulation.h; outputs brought up to date at the current time, `function` names the caller
  * in messages), then fmi2OK or fmi2Discard with the reason in inst->guard_reason. */
 fmi2Status fmu_energy_point(Instance *inst, EnergyPoint *e, const char *function);
+/* The same inside a communication step, without the consistent acceleration where the model has no laws. */
+fmi2Status fmu_energy_point_inside(Instance *inst, EnergyPoint *e, const char *function);
 /* The energy point at the start of a communication step: fmu_energy_point's, reusing the one kept at the end
  * of the last step (fmu_energy_point_keep) when the state, time and parameters are still its own and only
  * force inputs changed (guards.c says why that is exact). */

@@ -288,3 +288,28 @@ def test_a_torque_driven_beam_pumped_by_its_host_is_refused(tmp_path):
     _, refused, message = _pumped_raise(fmu, STEP_TEN_PERIODS, 0.75, 1e-6, "base.tau")
     assert refused is not None
     assert "energy balance failed" in message, message
+
+
+def test_a_torque_driven_link_in_one_long_step_is_balanced_in_chunks_without_its_acceleration():
+    """rotating_link (torque-driven, no law) under 0.5 N m for 0.3 s in one fmi2DoStep: 300 internal steps,
+    balanced every 16 of them at points that skip the consistent acceleration (the energies depend on none, the
+    torque's generalized force is a residual difference at a = 0; fmu_energy_point_inside).  Had such a point
+    taken the torque's force as zero, the energy would grow with no work and the step be refused (tried).  The
+    step is accepted, its energy is the torque's work τ Δθ (work-energy theorem, no damping) to the
+    integrator's error, and its end is the same state as 300 steps of 1 ms (times equal but for rounding)."""
+    fmu = cached_fmu(load_scene(EXAMPLES / "rotating_link.toml"))
+    with FmuHost(fmu) as host:
+        host.initialize()
+        s, vr = host.instance, host.vr
+        out = [vr["hub.theta"], vr["energy.kinetic"], vr["energy.potential"]] + [
+            v.valueReference for v in host.model_description.modelVariables if v.causality == "output"]
+        theta0 = s.getReal(out)[0]
+        s.setReal([vr["hub.tau"]], [0.5])
+        host.call("fmi2DoStep", s.doStep, 0.0, 0.3)
+        long_step = np.array(s.getReal(out))
+    work = 0.5 * (long_step[0] - theta0)
+    assert work > 1e-3
+    np.testing.assert_allclose(long_step[1] + long_step[2], work, rtol=1e-3)
+    short = _torque_steps(fmu, lambda t: 0.5, 0.3)
+    np.testing.assert_allclose(long_step[0], short["theta"][-1], rtol=1e-9)
+    np.testing.assert_allclose(long_step[1] + long_step[2], short["energy"][-1], rtol=1e-9)
