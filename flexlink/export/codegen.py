@@ -69,8 +69,14 @@ REFRESH_EXPAND_MAX_OPERATIONS = 60_000
 # operations -- a unit compiled at -Og -- is compiled at -O0: complex straight-line code takes gcc about 4 times
 # the real unit's time at -Og (the 32-mode second-order link's residual, 36 600 operations: 8.9 s real, 36 s
 # complex at -Og, 5.5 s at -O0, measured 2026-11-27), which made that link's build 49 s and the five-link
-# chain's 11 s (16 s and 6.3 s with -O0 twins, benchmarks/scaling.py --table-only).  Small twins take their unit's -O2.
+# chain's 11 s (16 s and 6.3 s with -O0 twins, benchmarks/scaling.py --table-only).  Smaller twins compile at
+# -O1: at -O2 they were most of a small model's build, gcc 10 times its real unit's time (rotating_link's twins
+# 2.2 s and 1.6 s at -O2, 0.71 s and 0.50 s at -O1, its real residual 0.22 s; a one-link chain's 4.6 s and 2.3 s
+# at -O2).  Measured 2026-11-27, the two levels' builds alternated 3 times (load average 3.4-4.3, so the builds
+# are long): rotating_link's whole build 12.5 -> 6.6 s, two_link_payload's 8.8 -> 4.5 s, a directional derivative
+# 3.4 -> 5.8 us and 4.7 -> 4.9 us (medians of 5 x 2000 calls; python benchmarks/twin_level.py).
 COMPLEX_STEP_OPTIMISE_MAX_OPERATIONS = FULL_OPTIMISATION_MAX_OPERATIONS
+COMPLEX_STEP_SMALL_LEVEL = "O1"
 # The forward derivatives by the complex step wherever it applies (flexlink.export.derivatives); False keeps
 # CasADi's forward functions for every model, as a model with a non-analytic operation does (the tests build
 # both forms and compare them).
@@ -407,9 +413,10 @@ def _write_complex_unit(generated: _Generated, model: SymbolicModel, directory: 
     unit = f.name()
     path = directory / f"{unit}_complex.c"
     optimise = ""
-    if generated.operations > COMPLEX_STEP_OPTIMISE_MAX_OPERATIONS and not os.environ.get(OPTIMISE_ENV, "").strip():
-        optimise = ('#if defined(__GNUC__) && !defined(__clang__)   /* a large complex unit: -O0 (codegen.py) */\n'
-                    '#pragma GCC optimize ("O0")\n#define FLEXLINK_UNIT_LEVEL_SET 1\n#endif\n')
+    if not os.environ.get(OPTIMISE_ENV, "").strip():
+        level = "O0" if generated.operations > COMPLEX_STEP_OPTIMISE_MAX_OPERATIONS else COMPLEX_STEP_SMALL_LEVEL
+        optimise = (f'#if defined(__GNUC__) && !defined(__clang__)   /* a complex unit: -{level} (codegen.py) */\n'
+                    f'#pragma GCC optimize ("{level}")\n#define FLEXLINK_UNIT_LEVEL_SET 1\n#endif\n')
     path.write_text(_template("complex_unit.c.in").substitute(
         unit=unit, scene=model.scene.name, wrapper=wrapper, indent=" " * (4 + len(wrapper)), optimise=optimise,
         sz_arg=max(int(f.sz_arg()), 5), sz_res=max(int(f.sz_res()), 1), sz_iw=max(int(f.sz_iw()), 1),
