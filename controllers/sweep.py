@@ -265,6 +265,8 @@ _SPEC_PATHS = ("scene", "out", "fmu")          # relative to the spec file's fol
 #: The LQR's limits (``flexlink control``'s options, :mod:`controllers.weights`): a number for all, one per item
 #: in scene order, or a table by name; the torque limit too.
 _LIMITS = ("torque_limit", "joint_error", "tip_deflection", "root_moment", "mode_limit")
+_LIMIT_UNITS = {"torque_limit": "N m", "joint_error": "deg", "tip_deflection": "mm", "root_moment": "N m",
+                "mode_limit": "modal units"}
 
 
 @dataclass
@@ -484,8 +486,7 @@ def _spec_values(path: Path, doc: dict) -> dict[str, object]:
             raise FlexlinkError(f"{path}: unknown key {key!r}; the keys of a sweep spec are "
                                 + ", ".join(_SPEC_TYPES))
         if isinstance(value, bool) and bool not in kinds or not isinstance(value, kinds):
-            shown = str(value).lower() if isinstance(value, bool) else repr(value)
-            raise FlexlinkError(f"{path}: {key} = {shown}: expected {_describe(key, kinds)}")
+            raise FlexlinkError(f"{path}: {key} = {_shown(value)}: expected {_describe(key, kinds)}")
         _check_items(path, key, value)
         if key in _SPEC_PATHS:
             value = str(path.parent / str(value))
@@ -493,8 +494,20 @@ def _spec_values(path: Path, doc: dict) -> dict[str, object]:
     return values
 
 
+def _shown(value: object) -> str:
+    """A spec file's value as TOML writes it where that differs from Python (``true``, not ``True``)."""
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, list):
+        return "[" + ", ".join(_shown(x) for x in value) + "]"
+    return repr(value)
+
+
 def _describe(key: str, kinds: tuple[type, ...]) -> str:
     """What a spec key takes, in TOML's words, for the message that refuses another value."""
+    if key in _LIMITS:
+        return (f"a number ({_LIMIT_UNITS[key]}), an array of numbers (one per item in scene order), a table by "
+                "name or the command line's text")
     array = "an array of strings (output names)" if key == "series" else "an array of numbers"
     words = {dict: "a table", list: array, bool: "true or false", str: "a string"}
     if kinds == (int,):
@@ -503,22 +516,43 @@ def _describe(key: str, kinds: tuple[type, ...]) -> str:
     return " or ".join(number + [words[k] for k in kinds if k in words])
 
 
+def _kind(x: object) -> str:
+    """The TOML type of a spec file's value, for a message that refuses it."""
+    kinds = ((bool, "a boolean"), (str, "a string"), (dict, "a table"), (list, "an array"))
+    return next((word for kind, word in kinds if isinstance(x, kind)), type(x).__name__)
+
+
+def _is_number(x: object) -> bool:
+    """A TOML integer or float: its true and false are not numbers (Python's bool is an int)."""
+    return isinstance(x, int | float) and not isinstance(x, bool)
+
+
 def _check_items(path: Path, key: str, value: object) -> None:
-    """The elements of a spec file's tables and arrays: numbers and strings as the field takes them."""
-    if isinstance(value, dict):
+    """The elements of a spec file's tables and arrays: numbers and strings as the field takes them.
+
+    A limit's element that is not a number (``torque_limit = {shoulder = true}``) is named with the limit's
+    unit, and a boolean as the boolean it is: TOML's true is not 1.
+    """
+    if key in _LIMITS:
+        items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
+        for name, item in items:
+            if not _is_number(item):
+                where = f"{key}.{name}" if isinstance(value, dict) else f"{key}[{name + 1}]"
+                raise FlexlinkError(f"{path}: {where} = {_shown(item)}: expected a number ({_LIMIT_UNITS[key]}), "
+                                    f"got {_kind(item)}")
+    elif isinstance(value, dict):
         for name, item in value.items():
-            ok = (isinstance(item, str | int | float) or key == "params" and isinstance(item, list)
-                  and all(isinstance(x, int | float) and not isinstance(x, bool) for x in item))
-            if key in _LIMITS and not isinstance(item, int | float):
-                raise FlexlinkError(f"{path}: {key}.{name} = {item!r}: expected a number")
-            if isinstance(item, bool) or not ok:
-                raise FlexlinkError(f"{path}: {key}.{name} = {item!r}: expected a string such as "
-                                    "\"LO:HI:N\", a number" + (" or an array of numbers" if key == "params" else ""))
+            ok = (isinstance(item, str) or _is_number(item) or key == "params" and isinstance(item, list)
+                  and all(_is_number(x) for x in item))
+            if not ok:
+                what = ('a string such as "LO:HI:N", a number or an array of numbers' if key == "params"
+                        else 'a string such as "normal:MEAN:STD" or a number')
+                raise FlexlinkError(f"{path}: {key}.{name} = {_shown(item)}: expected {what}")
     elif isinstance(value, list):
         kind = str if key == "series" else (int, float)
         if not all(isinstance(x, kind) and not isinstance(x, bool) for x in value):
             what = "strings (output names)" if key == "series" else "numbers"
-            raise FlexlinkError(f"{path}: {key} = {value!r}: expected an array of {what}")
+            raise FlexlinkError(f"{path}: {key} = {_shown(value)}: expected an array of {what}")
 
 
 # ============================================================================ the job shipped to the workers
