@@ -923,30 +923,29 @@ def run_sweep(spec: SweepSpec, *, client: object = None,
     prep = _prepare(spec)
     out = Path(spec.out) if spec.out is not None else None
     done: dict[str, dict] = {}
-    journal = None
-    fresh = out is not None and not journal_path(out).exists() and not out.exists()
+    rejournal: list[dict] = []
     if out is not None:
-        done, journal = _open_journal(out, sweep=prep.sweep, scene_path=Path(spec.scene), mode=prep.mode,
-                                      settings=prep.settings, resume=spec.resume, overwrite=spec.overwrite)
+        done, rejournal = _results_so_far(out, sweep=prep.sweep, resume=spec.resume, overwrite=spec.overwrite)
         done = {k: r for k, r in done.items() if r.get("status") != "timeout"}
     todo = [(i, c) for i, c in enumerate(prep.cases) if case_key(c) not in done]
     resumed = len(prep.cases) - len(todo)
     new_rows: dict[str, dict] = {}
     run_settings = prep.settings
+    job = None
+    # the controller is designed before anything on disk changes: a design refused (a weight's count) leaves
+    # FILE and its journal as they were, an overwrite's included, and no journal of its own
+    if todo:
+        job = _sweep_job(prep.sweep, prep.fmu_path, prep.settings, prep.make_design,
+                         shared_fs=spec.shared_fs, mode=prep.mode, metric_names=prep.metric_names,
+                         series=spec.series, series_every=spec.series_every)
+        job.case_timeout = spec.case_timeout
+        run_settings = job.settings
+    journal = None
+    if out is not None:
+        journal = _open_journal(out, {"sweep": prep.sweep, "scene": str(Path(spec.scene)), "mode": prep.mode,
+                                      "settings": prep.settings}, overwrite=spec.overwrite, rows=rejournal)
     try:
-        if todo:
-            try:
-                job = _sweep_job(prep.sweep, prep.fmu_path, prep.settings, prep.make_design,
-                                 shared_fs=spec.shared_fs, mode=prep.mode, metric_names=prep.metric_names,
-                                 series=spec.series, series_every=spec.series_every)
-            except FlexlinkError:
-                if fresh and journal is not None:      # a design refused (a weight's count): no row to keep
-                    journal.close()
-                    journal_path(Path(str(out))).unlink(missing_ok=True)
-                    journal = None
-                raise
-            job.case_timeout = spec.case_timeout
-            run_settings = job.settings
+        if job is not None:
             new_rows = _run_cases(job, todo, sweep=prep.sweep, total=len(prep.cases), resumed=resumed,
                                   desc=f"sweep {prep.name}", progress=spec.progress, journal=journal,
                                   on_result=on_result, scheduler=spec.scheduler, client=client,
@@ -1133,19 +1132,20 @@ def _closed_loop_design(sc, scene_path: Path, settings: dict, *, controller, tar
     return {**settings, "torque_limit": d.torque_limit}, blob
 
 
-def _open_journal(out: Path, *, sweep: str, scene_path: Path, mode: str, settings: dict, resume: bool,
-                  overwrite: bool) -> tuple[dict[str, dict], _Journal]:
-    """The rows already done (by case key) and the journal opened for appending.
+def _results_so_far(out: Path, *, sweep: str, resume: bool, overwrite: bool) -> tuple[dict[str, dict], list[dict]]:
+    """The rows already done (by case key), and those to journal again; nothing on disk is changed.
 
-    The rows come from ``out``'s journal or ``out`` itself; another sweep's results are refused unless
-    ``overwrite``, so that rows of different settings never mix in one file.
+    The rows come from ``out``'s journal or, without one, from ``out`` itself (whose rows are then the second
+    list: :func:`_open_journal` journals them again).  Another sweep's results are refused unless ``overwrite``,
+    so that rows of different settings never mix in one file.  With ``overwrite`` nothing is read: FILE and
+    its journal are discarded by :func:`_open_journal`, once the sweep's design is accepted, so that an
+    overwrite refused before any case runs loses nothing and leaves no journal of its own behind.
     """
     if out.suffix not in (".parquet", ".csv"):
         raise FlexlinkError(f"--out {out}: expected a .parquet or .csv file name")
-    jpath = journal_path(out)
     if overwrite:
-        for p in (out, jpath):
-            p.unlink(missing_ok=True)
+        return {}, []
+    jpath = journal_path(out)
     old_rows: list[dict] = []
     source = None
     if jpath.exists():
@@ -1163,11 +1163,22 @@ def _open_journal(out: Path, *, sweep: str, scene_path: Path, mode: str, setting
     if other:
         raise FlexlinkError(f"{source} holds a sweep with other settings (scene, mode, manoeuvre or series): "
                             "pass --overwrite to replace it, or choose another --out")
-    done = {r["key"]: r for r in old_rows}
-    journal = _Journal(jpath, {"sweep": sweep, "scene": str(scene_path), "mode": mode, "settings": settings})
-    if source == out:      # resuming from a consolidated file without its journal: journal it again
-        journal.write([{k: v for k, v in r.items() if not _is_missing(v)} for r in old_rows])
-    return done, journal
+    return {r["key"]: r for r in old_rows}, old_rows if source == out else []
+
+
+def _open_journal(out: Path, header: dict, *, overwrite: bool, rows: list[dict]) -> _Journal:
+    """``out``'s journal opened for appending, with ``rows`` (a consolidated file's) journaled again.
+
+    With ``overwrite``, ``out`` and its journal are discarded first: the sweep starts afresh.
+    """
+    jpath = journal_path(out)
+    if overwrite:
+        for p in (out, jpath):
+            p.unlink(missing_ok=True)
+    journal = _Journal(jpath, header)
+    if rows:
+        journal.write([{k: v for k, v in r.items() if not _is_missing(v)} for r in rows])
+    return journal
 
 
 def _sweep_job(sweep: str, fmu_path: Path, settings: dict, make_design, *, shared_fs: bool, mode: str,
