@@ -265,6 +265,8 @@ _SPEC_PATHS = ("scene", "out", "fmu")          # relative to the spec file's fol
 #: The LQR's limits (``flexlink control``'s options, :mod:`controllers.weights`): a number for all, one per item
 #: in scene order, or a table by name; the torque limit too.
 _LIMITS = ("torque_limit", "joint_error", "tip_deflection", "root_moment", "mode_limit")
+_LIMIT_UNITS = {"torque_limit": "N m", "joint_error": "deg", "tip_deflection": "mm", "root_moment": "N m",
+                "mode_limit": "modal units"}
 
 
 @dataclass
@@ -484,8 +486,7 @@ def _spec_values(path: Path, doc: dict) -> dict[str, object]:
             raise FlexlinkError(f"{path}: unknown key {key!r}; the keys of a sweep spec are "
                                 + ", ".join(_SPEC_TYPES))
         if isinstance(value, bool) and bool not in kinds or not isinstance(value, kinds):
-            shown = str(value).lower() if isinstance(value, bool) else repr(value)
-            raise FlexlinkError(f"{path}: {key} = {shown}: expected {_describe(key, kinds)}")
+            raise FlexlinkError(f"{path}: {key} = {_shown(value)}: expected {_describe(key, kinds)}")
         _check_items(path, key, value)
         if key in _SPEC_PATHS:
             value = str(path.parent / str(value))
@@ -493,8 +494,20 @@ def _spec_values(path: Path, doc: dict) -> dict[str, object]:
     return values
 
 
+def _shown(value: object) -> str:
+    """A spec file's value as TOML writes it where that differs from Python (``true``, not ``True``)."""
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, list):
+        return "[" + ", ".join(_shown(x) for x in value) + "]"
+    return repr(value)
+
+
 def _describe(key: str, kinds: tuple[type, ...]) -> str:
     """What a spec key takes, in TOML's words, for the message that refuses another value."""
+    if key in _LIMITS:
+        return (f"a number ({_LIMIT_UNITS[key]}), an array of numbers (one per item in scene order), a table by "
+                "name or the command line's text")
     array = "an array of strings (output names)" if key == "series" else "an array of numbers"
     words = {dict: "a table", list: array, bool: "true or false", str: "a string"}
     if kinds == (int,):
@@ -503,22 +516,43 @@ def _describe(key: str, kinds: tuple[type, ...]) -> str:
     return " or ".join(number + [words[k] for k in kinds if k in words])
 
 
+def _kind(x: object) -> str:
+    """The TOML type of a spec file's value, for a message that refuses it."""
+    kinds = ((bool, "a boolean"), (str, "a string"), (dict, "a table"), (list, "an array"))
+    return next((word for kind, word in kinds if isinstance(x, kind)), type(x).__name__)
+
+
+def _is_number(x: object) -> bool:
+    """A TOML integer or float: its true and false are not numbers (Python's bool is an int)."""
+    return isinstance(x, int | float) and not isinstance(x, bool)
+
+
 def _check_items(path: Path, key: str, value: object) -> None:
-    """The elements of a spec file's tables and arrays: numbers and strings as the field takes them."""
-    if isinstance(value, dict):
+    """The elements of a spec file's tables and arrays: numbers and strings as the field takes them.
+
+    A limit's element that is not a number (``torque_limit = {shoulder = true}``) is named with the limit's
+    unit, and a boolean as the boolean it is: TOML's true is not 1.
+    """
+    if key in _LIMITS:
+        items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
+        for name, item in items:
+            if not _is_number(item):
+                where = f"{key}.{name}" if isinstance(value, dict) else f"{key}[{name + 1}]"
+                raise FlexlinkError(f"{path}: {where} = {_shown(item)}: expected a number ({_LIMIT_UNITS[key]}), "
+                                    f"got {_kind(item)}")
+    elif isinstance(value, dict):
         for name, item in value.items():
-            ok = (isinstance(item, str | int | float) or key == "params" and isinstance(item, list)
-                  and all(isinstance(x, int | float) and not isinstance(x, bool) for x in item))
-            if key in _LIMITS and not isinstance(item, int | float):
-                raise FlexlinkError(f"{path}: {key}.{name} = {item!r}: expected a number")
-            if isinstance(item, bool) or not ok:
-                raise FlexlinkError(f"{path}: {key}.{name} = {item!r}: expected a string such as "
-                                    "\"LO:HI:N\", a number" + (" or an array of numbers" if key == "params" else ""))
+            ok = (isinstance(item, str) or _is_number(item) or key == "params" and isinstance(item, list)
+                  and all(_is_number(x) for x in item))
+            if not ok:
+                what = ('a string such as "LO:HI:N", a number or an array of numbers' if key == "params"
+                        else 'a string such as "normal:MEAN:STD" or a number')
+                raise FlexlinkError(f"{path}: {key}.{name} = {_shown(item)}: expected {what}")
     elif isinstance(value, list):
         kind = str if key == "series" else (int, float)
         if not all(isinstance(x, kind) and not isinstance(x, bool) for x in value):
             what = "strings (output names)" if key == "series" else "numbers"
-            raise FlexlinkError(f"{path}: {key} = {value!r}: expected an array of {what}")
+            raise FlexlinkError(f"{path}: {key} = {_shown(value)}: expected an array of {what}")
 
 
 # ============================================================================ the job shipped to the workers
@@ -889,30 +923,29 @@ def run_sweep(spec: SweepSpec, *, client: object = None,
     prep = _prepare(spec)
     out = Path(spec.out) if spec.out is not None else None
     done: dict[str, dict] = {}
-    journal = None
-    fresh = out is not None and not journal_path(out).exists() and not out.exists()
+    rejournal: list[dict] = []
     if out is not None:
-        done, journal = _open_journal(out, sweep=prep.sweep, scene_path=Path(spec.scene), mode=prep.mode,
-                                      settings=prep.settings, resume=spec.resume, overwrite=spec.overwrite)
+        done, rejournal = _results_so_far(out, sweep=prep.sweep, resume=spec.resume, overwrite=spec.overwrite)
         done = {k: r for k, r in done.items() if r.get("status") != "timeout"}
     todo = [(i, c) for i, c in enumerate(prep.cases) if case_key(c) not in done]
     resumed = len(prep.cases) - len(todo)
     new_rows: dict[str, dict] = {}
     run_settings = prep.settings
+    job = None
+    # the controller is designed before anything on disk changes: a design refused (a weight's count) leaves
+    # FILE and its journal as they were, an overwrite's included, and no journal of its own
+    if todo:
+        job = _sweep_job(prep.sweep, prep.fmu_path, prep.settings, prep.make_design,
+                         shared_fs=spec.shared_fs, mode=prep.mode, metric_names=prep.metric_names,
+                         series=spec.series, series_every=spec.series_every)
+        job.case_timeout = spec.case_timeout
+        run_settings = job.settings
+    journal = None
+    if out is not None:
+        journal = _open_journal(out, {"sweep": prep.sweep, "scene": str(Path(spec.scene)), "mode": prep.mode,
+                                      "settings": prep.settings}, overwrite=spec.overwrite, rows=rejournal)
     try:
-        if todo:
-            try:
-                job = _sweep_job(prep.sweep, prep.fmu_path, prep.settings, prep.make_design,
-                                 shared_fs=spec.shared_fs, mode=prep.mode, metric_names=prep.metric_names,
-                                 series=spec.series, series_every=spec.series_every)
-            except FlexlinkError:
-                if fresh and journal is not None:      # a design refused (a weight's count): no row to keep
-                    journal.close()
-                    journal_path(Path(str(out))).unlink(missing_ok=True)
-                    journal = None
-                raise
-            job.case_timeout = spec.case_timeout
-            run_settings = job.settings
+        if job is not None:
             new_rows = _run_cases(job, todo, sweep=prep.sweep, total=len(prep.cases), resumed=resumed,
                                   desc=f"sweep {prep.name}", progress=spec.progress, journal=journal,
                                   on_result=on_result, scheduler=spec.scheduler, client=client,
@@ -1099,19 +1132,20 @@ def _closed_loop_design(sc, scene_path: Path, settings: dict, *, controller, tar
     return {**settings, "torque_limit": d.torque_limit}, blob
 
 
-def _open_journal(out: Path, *, sweep: str, scene_path: Path, mode: str, settings: dict, resume: bool,
-                  overwrite: bool) -> tuple[dict[str, dict], _Journal]:
-    """The rows already done (by case key) and the journal opened for appending.
+def _results_so_far(out: Path, *, sweep: str, resume: bool, overwrite: bool) -> tuple[dict[str, dict], list[dict]]:
+    """The rows already done (by case key), and those to journal again; nothing on disk is changed.
 
-    The rows come from ``out``'s journal or ``out`` itself; another sweep's results are refused unless
-    ``overwrite``, so that rows of different settings never mix in one file.
+    The rows come from ``out``'s journal or, without one, from ``out`` itself (whose rows are then the second
+    list: :func:`_open_journal` journals them again).  Another sweep's results are refused unless ``overwrite``,
+    so that rows of different settings never mix in one file.  With ``overwrite`` nothing is read: FILE and
+    its journal are discarded by :func:`_open_journal`, once the sweep's design is accepted, so that an
+    overwrite refused before any case runs loses nothing and leaves no journal of its own behind.
     """
     if out.suffix not in (".parquet", ".csv"):
         raise FlexlinkError(f"--out {out}: expected a .parquet or .csv file name")
-    jpath = journal_path(out)
     if overwrite:
-        for p in (out, jpath):
-            p.unlink(missing_ok=True)
+        return {}, []
+    jpath = journal_path(out)
     old_rows: list[dict] = []
     source = None
     if jpath.exists():
@@ -1129,11 +1163,22 @@ def _open_journal(out: Path, *, sweep: str, scene_path: Path, mode: str, setting
     if other:
         raise FlexlinkError(f"{source} holds a sweep with other settings (scene, mode, manoeuvre or series): "
                             "pass --overwrite to replace it, or choose another --out")
-    done = {r["key"]: r for r in old_rows}
-    journal = _Journal(jpath, {"sweep": sweep, "scene": str(scene_path), "mode": mode, "settings": settings})
-    if source == out:      # resuming from a consolidated file without its journal: journal it again
-        journal.write([{k: v for k, v in r.items() if not _is_missing(v)} for r in old_rows])
-    return done, journal
+    return {r["key"]: r for r in old_rows}, old_rows if source == out else []
+
+
+def _open_journal(out: Path, header: dict, *, overwrite: bool, rows: list[dict]) -> _Journal:
+    """``out``'s journal opened for appending, with ``rows`` (a consolidated file's) journaled again.
+
+    With ``overwrite``, ``out`` and its journal are discarded first: the sweep starts afresh.
+    """
+    jpath = journal_path(out)
+    if overwrite:
+        for p in (out, jpath):
+            p.unlink(missing_ok=True)
+    journal = _Journal(jpath, header)
+    if rows:
+        journal.write([{k: v for k, v in r.items() if not _is_missing(v)} for r in rows])
+    return journal
 
 
 def _sweep_job(sweep: str, fmu_path: Path, settings: dict, make_design, *, shared_fs: bool, mode: str,

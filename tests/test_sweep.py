@@ -136,6 +136,12 @@ scheduler = "serial"
     ('series = ["hub.theta", 3]', "series = ['hub.theta', 3]: expected an array of strings"),
     ('[params]\n"arm.EI" = {lo = 1}', "params.arm.EI = {'lo': 1}: expected a string"),
     ('settle = -1.0', "settle (--settle) must be a positive number of seconds, got -1.0"),
+    # a boolean where a limit's number is meant: TOML's true is not 1 (Python's bool is an int)
+    ("torque_limit = {shoulder = true}", "torque_limit.shoulder = true: expected a number (N m), got a boolean"),
+    ("joint_error = [0.2, false]", "joint_error[2] = false: expected a number (deg), got a boolean"),
+    ("mode_limit = true", "mode_limit = true: expected a number (modal units), an array of numbers"),
+    ('root_moment = {upper = "x"}', "root_moment.upper = 'x': expected a number (N m), got a string"),
+    ('[distributions]\n"arm.EI" = false', 'distributions.arm.EI = false: expected a string such as "normal:MEAN:STD"'),
     ('scene = [', "not a valid TOML file"),
 ])
 def test_a_bad_spec_file_is_one_message_naming_the_key(tmp_path, capsys, text, message):

@@ -6,7 +6,8 @@
   limits the options say; the same limits from a spec file give the same design.
 * A sweep with weights runs through the FMU, and its weights are part of its identity: its results are not
   resumed by a sweep with other weights.
-* A bad name, count or value is one line and exit status 2, and leaves no journal behind.
+* A bad name, count or value is one line and exit status 2, and leaves no journal behind; with ``--overwrite``
+  it leaves the results it would have replaced as they were, resumable.
 """
 
 from __future__ import annotations
@@ -120,3 +121,29 @@ def test_a_spec_files_bad_weight_names_the_key(tmp_path):
         SweepSpec.from_toml(spec)
     with pytest.raises(Exception, match=r"tip_deflection \(--tip-deflection\): expected a positive number, got -1"):
         SweepSpec(scene=SCENE, target_deg=(60, 20), duration=1.5, tip_deflection=[-1])
+
+
+def test_an_overwrite_whose_design_is_refused_keeps_the_results_it_would_replace(example_fmu, tmp_path, capsys):
+    """``--overwrite`` discards FILE and its journal once the new sweep can run, not before its design.
+
+    A weight's count is checked against the model when the controller is designed (after the scene's names,
+    before any case); an overwrite refused then used to have deleted the earlier results and left a journal of
+    the refused sweep, which a later run of the earlier sweep read as "a sweep with other settings".
+    """
+    example_fmu("two_link_payload")
+    out = tmp_path / "w.csv"
+    base = ["sweep", SCENE, *MANOEUVRE, "--torque-limit", "60", "--param", "fore.payload.mass=1.5", "--scheduler",
+            "serial", "--out", str(out), "--no-progress"]
+    assert main(base) == 0
+    capsys.readouterr()
+    journal = tmp_path / "w.csv.journal.jsonl"
+    kept = out.read_bytes(), journal.read_bytes()
+    assert main([*base, "--overwrite", "--joint-error", "0.1,0.2,0.3"]) == 2
+    err = capsys.readouterr().err
+    assert "one per item of the joints with an encoder" in err and len(err.strip().splitlines()) == 1
+    assert (out.read_bytes(), journal.read_bytes()) == kept
+    assert main(base) == 0                        # the earlier sweep resumes from its journal: nothing recomputed
+    assert "0 computed now, 1 from the journal" in capsys.readouterr().out
+    assert main([*base, "--overwrite"]) == 0      # an overwrite that runs starts afresh
+    assert "1 computed now, 0 from the journal" in capsys.readouterr().out
+    assert len(pd.read_csv(out)) == 1 and journal.read_bytes() != kept[1]

@@ -21,23 +21,20 @@ import casadi as ca
 import numpy as np
 
 from flexlink.errors import FlexlinkError
+from flexlink.mechanics.kane import KaneLink, kane_forces, takes_kane_form
 from flexlink.mechanics.kinematics import (
-    ForeshorteningForces,
-    FrameMotion,
     LinkDeformation,
     RateGram,
     TipKinematics,
     beam_invariants,
     body_invariants,
     body_tip_kinematics,
-    foreshortening_forces,
     link_basis,
     rotation,
     skew,
     small_rotation,
     tip_kinematics,
     torsion_kinetic,
-    use_tensors,
 )
 from flexlink.mechanics.shapes import make_basis
 from flexlink.mechanics.shapes.base import ShapeBasis
@@ -47,9 +44,10 @@ from flexlink.mechanics.shapes.torsion import TorsionBasis, make_torsion_basis
 from flexlink.mechanics.symbolic import Law, Parameter, Signal, StartValue
 from flexlink.scene.loader import Joint, Link, Scene
 
-#: The foreshortening's share of a second-order link's equations on the point sums in Kane's form
-#: (:func:`~flexlink.mechanics.kinematics.foreshortening_forces`); False takes CasADi's Lagrange derivative
-#: through the point sums, the same equations (tests/test_kane_foreshortening.py compares the two).
+#: Whether the builder forms the foreshortening's share of a second-order link's equations on the point sums in
+#: Kane's form (:mod:`flexlink.mechanics.kane`); False takes CasADi's Lagrange derivative through the point sums,
+#: the same equations (tests/test_kane_foreshortening.py and ``benchmarks/tensor_threshold.py --kane`` compare the
+#: two by setting this switch of the builder's).
 KANE_FORESHORTENING = True
 
 
@@ -152,62 +150,6 @@ class Frame:
 def _vee_skew(A):
     """The vector of the skew-symmetric part of a 3×3 matrix (ω from Rᵀ Ṙ)."""
     return 0.5 * ca.vertcat(A[2, 1] - A[1, 2], A[0, 2] - A[2, 0], A[1, 0] - A[0, 1])
-
-
-@dataclass
-class KaneLink:
-    """A second-order link on the point sums whose foreshortening's equations are formed in Kane's form.
-
-    Its first-order kinetic energy stays in the Lagrangian CasADi differentiates (``ChainAssembly.T_rest``);
-    the foreshortening's share is :func:`~flexlink.mechanics.kinematics.foreshortening_forces` at its frame.
-    """
-
-    part: LinkParts
-    link: Link
-    rho: ca.MX
-    origin: ca.MX | ca.DM        # the frame's origin and its velocity (world), its rotation, the rotation's
-    velocity: ca.MX | ca.DM      # rate, and its angular velocity (link basis)
-    rotation: ca.MX
-    rotation_rate: ca.MX
-    omega: ca.MX
-    _forces: ForeshorteningForces | None = field(default=None, init=False, repr=False)
-
-    def forces(self, chain: ChainAssembly) -> ForeshorteningForces:
-        """The link's :func:`~flexlink.mechanics.kinematics.foreshortening_forces`, formed once.
-
-        The residual and the outputs share them.
-        """
-        if self._forces is None:
-            part, qa, va, aa = self.part, chain.qa, chain.va, chain.aa
-            assert part.bending is not None         # kane_form: a beam link that bends
-            state, rates = ca.vertcat(qa, va), ca.vertcat(va, aa)
-            velocity = self.link_velocity
-            frame = FrameMotion(velocity, ca.jtimes(velocity, state, rates), self.omega,
-                                ca.jtimes(self.omega, state, rates))
-            accelerations: dict[str, ca.MX] = {name: ca.vertcat(*[aa[j] for j in part.fields[name]])
-                                               for name in ("v", "w") if name in part.fields}
-            self._forces = foreshortening_forces(part.bending.points, part.bending.integrals,
-                                                 chain.deformation(part, qa, va), accelerations, self.rho, frame)
-        return self._forces
-
-    @property
-    def link_velocity(self) -> ca.MX:
-        """V_L = Rᵀ V, the origin's velocity as the link's energy sees it."""
-        return ca.mtimes(self.rotation.T, self.velocity)
-
-    def momenta(self, chain: ChainAssembly) -> tuple[ca.MX, ca.MX, ca.MX, ca.MX]:
-        """The foreshortening's momentum and angular momentum about the world origin (world), and their rates.
-
-        R P_V and R P_ω + o × R P_V, differentiated as products: Ṙ and ȯ are the frame's exact rates.
-        """
-        f = self.forces(chain)
-        R, R_dot, o = self.rotation, self.rotation_rate, self.origin
-        momentum = ca.mtimes(R, f.momentum)
-        momentum_rate = ca.mtimes(R_dot, f.momentum) + ca.mtimes(R, f.momentum_rate)
-        spin = ca.mtimes(R, f.angular_momentum) + ca.cross(o, momentum)
-        spin_rate = (ca.mtimes(R_dot, f.angular_momentum) + ca.mtimes(R, f.angular_momentum_rate)
-                     + ca.cross(self.velocity, momentum) + ca.cross(o, momentum_rate))
-        return momentum, momentum_rate, spin, spin_rate
 
 
 @dataclass
@@ -560,14 +502,10 @@ class ChainAssembly:
     def kane_form(self, part: LinkParts) -> bool:
         """Whether a beam link's foreshortening enters the equations in Kane's form (KANE_FORESHORTENING).
 
-        A second-order link on the point sums (past the tensors' threshold), in a chain without a linear link
-        (whose masked T, evaluated at η = 0, is not the Kane sums' energy).
+        When the switch allows it, :func:`~flexlink.mechanics.kane.takes_kane_form` decides.
         """
-        if not (KANE_FORESHORTENING and part.second_order and part.bending is not None):
-            return False
-        fields = sum(name in part.fields for name in ("v", "w"))
-        return (not use_tensors(part.bending.points, fields)
-                and not any(p.kinematics == "linear" for p in self.parts if not p.rigid and p.eta))
+        linear = any(p.kinematics == "linear" for p in self.parts if not p.rigid and p.eta)
+        return KANE_FORESHORTENING and takes_kane_form(part, linear)
 
     def rigid_body(self, part: LinkParts, VL, RL, wL) -> tuple:
         """A rigid link from its ten inertial parameters: S1 = m c, J_O = I_c + m(|c|² 1 − c cᵀ)."""
@@ -782,7 +720,7 @@ class ChainAssembly:
         # d/dt ∂L/∂q̇ = ∂²L/∂q̇∂q q̇ + ∂²L/∂q̇² q̈ as one directional derivative along (q̇, q̈): one forward
         # sweep through the gradient's graph instead of two (18 % fewer operations on a 5-link chain)
         r_all = (ca.jtimes(dL_dv, ca.vertcat(qa, va), ca.vertcat(va, aa)) - ca.gradient(Lag, qa)
-                 + ca.gradient(self.R, va) - self.generalized_forces() + self.kane_forces())
+                 + ca.gradient(self.R, va) - self.generalized_forces() + kane_forces(self))
         self.r_all_expr = r_all            # the outputs read the prescribed joints' torques from it
         self.r_all = ca.Function("r_all", [qa, va, aa, self.u, self.p], [r_all])
         if any(part.second_order for part in self.parts if not part.rigid and part.eta):
@@ -805,42 +743,6 @@ class ChainAssembly:
         r_full = self.r_all(self.qa_e, self.va_e, self.aa_e, self.u, self.p)
         self.residual = ca.Function("residual", [self.q, self.v, self.a, self.u, self.p], [r_full[self.free]],
                                     ["q", "v", "a", "u", "p"], ["r"])
-
-    def kane_forces(self) -> ca.MX | float:
-        """The foreshortening's share of the equations of the :class:`KaneLink` links, on every coordinate.
-
-        A link's own coordinates take its Kane sums.  Its frame's coordinates take ∂V_L/∂q̇ᵀ Ṗ_V + ∂ω/∂q̇ᵀ Ṗ_ω,
-        with P_V, P_ω the foreshortening energy's momenta (V_L = Rᵀ V, ω: the frame's velocities as the energy
-        sees them), plus the Lagrange derivative of V_L·P_V + ω·P_ω with the momenta held fixed
-        (:meth:`frame_transport`): only the frame's own expressions, however many points the link has.
-        """
-        if not self.kane_links:
-            return 0
-        qa, va, aa = self.qa, self.va, self.aa
-        entries: list[ca.MX | float] = [0.0] * len(self.coordinates)
-        total: ca.MX | float = 0
-        for k in self.kane_links:
-            part, f, velocity = k.part, k.forces(self), k.link_velocity
-            total = (total + ca.jtimes(velocity, va, f.momentum_rate, True)
-                     + ca.jtimes(k.omega, va, f.angular_momentum_rate, True)
-                     + self.frame_transport(velocity, k.omega)(qa, va, aa, f.momentum, f.angular_momentum))
-            for name, Q in f.fields.items():
-                for j, coordinate in enumerate(part.fields[name]):
-                    entries[coordinate] = entries[coordinate] + Q[j]
-        return total + ca.vertcat(*entries)
-
-    def frame_transport(self, velocity: ca.MX, omega: ca.MX) -> ca.Function:
-        """E(V_L·c + ω·d) = d/dt ∂/∂q̇ − ∂/∂q of the frame's velocities against fixed vectors c, d.
-
-        For a rigid frame these are the ω × P terms of Euler's equations; written as a derivative, they also
-        hold where the frame's R is orthogonal only to second order (a second-order link's tip upstream).
-        """
-        qa, va, aa = self.qa, self.va, self.aa
-        c, d = ca.MX.sym("c", 3), ca.MX.sym("d", 3)
-        power = ca.dot(velocity, c) + ca.dot(omega, d)
-        transport = (ca.jtimes(ca.gradient(power, va), ca.vertcat(qa, va), ca.vertcat(va, aa))
-                     - ca.gradient(power, qa))
-        return ca.Function("frame_transport", [qa, va, aa, c, d], [transport])
 
     def mass_matrix_all(self) -> ca.MX:
         """∂²T/∂q̇² of every coordinate, an expression in qa, u, p (T is quadratic in q̇: no q̇ left in it).

@@ -83,7 +83,7 @@ def _subtree_sums(chain: ChainAssembly) -> list[dict]:
 
     Suffix sums from the tip, so the n subtrees cost n additions, not n²/2.  The momenta of the bodies' records
     are differentiated by CasADi; a link whose foreshortening's equations take Kane's form
-    (:class:`~flexlink.mechanics.assembly.KaneLink`) adds that share's momenta with their rates formed by hand
+    (:class:`~flexlink.mechanics.kane.KaneLink`) adds that share's momenta with their rates formed by hand
     (``momentum_rate``, ``spin_rate``: zero where every body is differentiated by CasADi).
     """
     n = len(chain.scene.joints)
