@@ -18,7 +18,7 @@ from flexlink.errors import FlexlinkError
 from flexlink.paths import SCENE_HELP, OutputPath, check_output_path, output_file, plot_file
 
 if TYPE_CHECKING:
-    from controllers.sweep import SweepSpec
+    from controllers.sweep_spec import SweepSpec
 
 __all__ = ["add_sweep_parser", "cmd_sweep", "spec_from_args"]
 
@@ -113,7 +113,7 @@ def spec_from_args(args: argparse.Namespace) -> SweepSpec:
     """
     from dataclasses import fields
 
-    from controllers.sweep import SweepSpec, _merge, _read_spec
+    from controllers.sweep_spec import SweepSpec, merge_spec, read_spec
 
     given = {f.name: getattr(args, f.name) for f in fields(SweepSpec) if getattr(args, f.name, None) is not None}
     for name, option in (("params", "--param"), ("distributions", "--distribution")):
@@ -123,11 +123,11 @@ def spec_from_args(args: argparse.Namespace) -> SweepSpec:
         raise FlexlinkError("--resume and --overwrite contradict each other")
     values: dict[str, object] = {"progress": None}
     if args.spec is not None:
-        values.update(_read_spec(Path(args.spec)))
+        values.update(read_spec(Path(args.spec)))
     if "scene" not in given and "scene" not in values:
         raise FlexlinkError("give the scene: flexlink sweep SCENE ..., or scene = \"FILE.toml\" in a --spec file "
                             "(see flexlink sweep --help)")
-    values = _merge(values, given)
+    values = merge_spec(values, given)
     if values.get("out") is None:
         raise FlexlinkError("--out FILE (or out = \"FILE\" in the --spec file) is required: the sweep's results "
                             "and its journal (see flexlink sweep --help)")
