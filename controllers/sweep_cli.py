@@ -110,6 +110,8 @@ def spec_from_args(args: argparse.Namespace) -> SweepSpec:
 
     A terminal gets a progress bar unless ``--no-progress`` or the file says otherwise; the results file is
     required (on the command line or as the file's ``out``) and its folder is checked before anything runs.
+    With ``--spec``, a value :class:`SweepSpec` refuses is named with the file, as :meth:`SweepSpec.from_toml`
+    names it, whether the value is the file's or an option's over it (the message names the option too).
     """
     from dataclasses import fields
 
@@ -132,7 +134,12 @@ def spec_from_args(args: argparse.Namespace) -> SweepSpec:
         raise FlexlinkError("--out FILE (or out = \"FILE\" in the --spec file) is required: the sweep's results "
                             "and its journal (see flexlink sweep --help)")
     check_output_path(OutputPath(str(values["out"])), "--out")
-    return SweepSpec(**values)                                          # type: ignore[arg-type]  # types checked
+    try:
+        return SweepSpec(**values)                                      # type: ignore[arg-type]  # types checked
+    except FlexlinkError as e:
+        if args.spec is None:
+            raise
+        raise FlexlinkError(f"{Path(args.spec)}: {e}") from None       # as SweepSpec.from_toml names the file
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:

@@ -138,6 +138,8 @@ scheduler = "serial"
     ('settle = -1.0', "settle (--settle) must be a positive number of seconds, got -1.0"),
     # a boolean where a limit's number is meant: TOML's true is not 1 (Python's bool is an int)
     ("torque_limit = {shoulder = true}", "torque_limit.shoulder = true: expected a number (N m), got a boolean"),
+    # the command line's text in a file: refused by SweepSpec itself (the limit's parser), not by the file's types
+    ('torque_limit = "shoulder=true"', "torque_limit (--torque-limit): expected a number, got 'true'"),
     ("joint_error = [0.2, false]", "joint_error[2] = false: expected a number (deg), got a boolean"),
     ("mode_limit = true", "mode_limit = true: expected a number (modal units), an array of numbers"),
     ('root_moment = {upper = "x"}', "root_moment.upper = 'x': expected a number (N m), got a string"),
@@ -145,6 +147,8 @@ scheduler = "serial"
     ('scene = [', "not a valid TOML file"),
 ])
 def test_a_bad_spec_file_is_one_message_naming_the_key(tmp_path, capsys, text, message):
+    """From Python and from ``flexlink sweep --spec``, the one line names the file too (the command line builds
+    its SweepSpec itself, not through ``from_toml``: a value SweepSpec refuses named no file before)."""
     path = tmp_path / "bad.toml"
     path.write_text(f'scene = "{SCENE.as_posix()}"\nstop_time = 0.1\n' + text + "\n")
     with pytest.raises(FlexlinkError) as e:
@@ -154,7 +158,7 @@ def test_a_bad_spec_file_is_one_message_naming_the_key(tmp_path, capsys, text, m
 
     assert main(["sweep", "--spec", str(path), "--out", str(tmp_path / "x.csv")]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and message in err and "Traceback" not in err, err
+    assert err.count("\n") == 1 and f"{path}: " in err and message in err and "Traceback" not in err, err
 
 
 def test_the_command_line_needs_a_scene_and_an_output(tmp_path, capsys):
