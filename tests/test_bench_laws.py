@@ -117,3 +117,26 @@ def test_a_host_driven_law_that_moves_is_one_error():
     held = BenchCase(model, 0.1, times, [(0.0, {"hub.theta_ref": 0.0})], ["arm.tip.v", "hub.tau"])
     _, X = casadi_states(held, "cvodes", 1e-8, repeats=1)
     assert np.all(np.isfinite(X))
+
+
+def test_chain_speed_renders_the_two_link_row(capsys):
+    """``benchmarks/chain_speed.py --from-json`` renders the committed two-link run (docs/performance.md): the law's
+    window in its header, the three error levels, and a bad ``--tolerances`` is one usage error."""
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    sys.path.insert(0, str(root / "benchmarks"))
+    try:
+        import chain_speed
+    finally:
+        sys.path.remove(str(root / "benchmarks"))
+    chain_speed.main(["--from-json", str(root / "benchmarks" / "chain_speed_two_links.json")])
+    out = capsys.readouterr().out
+    assert out.startswith("steel_beam_two_links (20 coordinates), its built-in law from 0 to 0.05 s")
+    levels = [ln.split(" | ")[0] for ln in out.splitlines() if ln.startswith(("| 0.001 ", "| 0.0001 ", "| 1e-05 "))]
+    assert levels[:3] == ["| 0.001", "| 0.0001", "| 1e-05"]        # the levels (then the split's 1 ms row)
+    with pytest.raises(SystemExit) as exc:
+        chain_speed.main(["--tolerances", "1e-3,often"])
+    assert exc.value.code == 2
+    assert "not a comma-separated list of numbers" in capsys.readouterr().err
