@@ -59,8 +59,8 @@ def test_start_state_is_the_static_sag(law_case):
     q = LINK["linear_density"] * 9.81
     sag = q * LINK["length"] ** 4 / (8 * LINK["EI"])
     # two clamped-free modes: the static shape is not exactly in their span (the 2-mode Rayleigh–Ritz sag is
-    # a fraction of a percent short)
-    assert y["arm.tip.v"][0] == pytest.approx(-sag, rel=1e-2)
+    # about 0.1 % short); the undeformed start the comparison used to take would be 100 % off
+    assert y["arm.tip.v"][0] == pytest.approx(-sag, rel=3e-3)
 
 
 def test_fmu_converges_to_the_law_driven_casadi_ode(law_case):
