@@ -81,7 +81,8 @@ def levels(rows: list[dict]) -> list[dict]:
         ss22 = cost_at([r for r in rows if r["method"] == "ss22 (FMU)"], level)
         order4 = cost_at([r for r in rows if r["method"] == ORDER4], level)
         loose = cost_at([r for r in rows if r["method"].startswith(ORDER4_LOOSE)], level)
-        best = [c for c in (cost_at([r for r in rows if r["method"] == m], level) for m in ("cvodes", "idas"))
+        sundials = sorted({r["method"] for r in rows if r["method"].split()[0] in ("cvodes", "idas")})
+        best = [c for c in (cost_at([r for r in rows if r["method"] == m], level) for m in sundials)
                 if c is not None]
         sundials = min(best) if best else None
         out.append({"error": level, "ss22_cpu": ss22, "order4_cpu": order4, "sundials_cpu": sundials,
@@ -91,14 +92,14 @@ def levels(rows: list[dict]) -> list[dict]:
     return out
 
 
-def sundials_counts(case, plugin: str, tol: float) -> dict:
+def sundials_counts(case, plugin: str, tol: float, max_order: int | None = None) -> dict:
     """One run of CasADi's CVODES or IDAS over ``case`` as ``flexlink bench`` runs it: steps, right-hand
     sides, Jacobians and Newton iterations summed over the input pieces."""
     from flexlink.tools.bench import casadi_integrators, start_state
 
     xk = np.concatenate(start_state(case))
     total = {"nsteps": 0, "nfevals": 0, "nlinsetups": 0, "nniters": 0}
-    for F, pk, _grid in casadi_integrators(case, plugin, tol):
+    for F, pk, _grid in casadi_integrators(case, plugin, tol, max_order=max_order):
         xk = np.asarray(F(x0=xk, p=pk)["xf"])[:, -1]
         stats = F.stats()
         for k in total:
@@ -108,7 +109,8 @@ def sundials_counts(case, plugin: str, tol: float) -> dict:
 
 def measure(scene_path: Path, stop: float, repeats: int, reference_rtol: float,
             order4_tolerance: float | None = None, *, sample: float = 0.01, halvings: int = HALVINGS,
-            order4_floor: float | None = None, tolerances=TOLERANCES, split_steps=None) -> dict:
+            order4_floor: float | None = None, tolerances=TOLERANCES, split_steps=None,
+            max_orders=(None,)) -> dict:
     """Every row, the ratios at the error levels and the per-step split.
 
     ``order4_floor``: the smallest order-4 step (default order 2's finest); ``split_steps``: the SS22 steps
@@ -143,10 +145,11 @@ def measure(scene_path: Path, stop: float, repeats: int, reference_rtol: float,
                             order=4):
             rows.append(r.as_dict() | {"method": f"{ORDER4_LOOSE} {order4_tolerance:g}"})
     for plugin in ("cvodes", "idas"):
-        for r in bench_casadi(case, plugin, tolerances, ref, repeats):
-            d = r.as_dict()
-            d.update(sundials_counts(case, plugin, float(d["setting"].split("=")[1])))
-            rows.append(d)
+        for max_order in max_orders:
+            for r in bench_casadi(case, plugin, tolerances, ref, repeats, max_order):
+                d = r.as_dict()
+                d.update(sundials_counts(case, plugin, float(d["setting"].split("=")[1]), max_order))
+                rows.append(d)
     with tempfile.TemporaryDirectory() as tmp:
         exe = step_floor.compile_driver(fmu, tmp)
         split = [step_floor.measure(exe, fmu, case, step=h, repeats=repeats) for h in split_steps or steps[:4]]
@@ -225,6 +228,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--order4-floor", type=float, help="smallest order-4 step, s (default order 2's finest)")
     parser.add_argument("--tolerances", type=floats, default=TOLERANCES, help="CVODES/IDAS rtols, comma-separated")
     parser.add_argument("--split-steps", type=floats, help="SS22 steps of the per-step split (default the 4 coarsest)")
+    parser.add_argument("--bdf2", action="store_true",
+                        help="CVODES and IDAS also with their BDF order capped at 2 (A-stable), in the best of")
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--from-json", help="render a --json output again instead of measuring")
     args = parser.parse_args(argv)
@@ -233,7 +238,8 @@ def main(argv: list[str] | None = None) -> None:
     else:
         data = measure(Path(args.scene), args.stop, args.repeats, args.reference_rtol, args.order4_tolerance or None,
                        sample=args.sample, halvings=args.halvings, order4_floor=args.order4_floor,
-                       tolerances=args.tolerances, split_steps=args.split_steps)
+                       tolerances=args.tolerances, split_steps=args.split_steps,
+                       max_orders=(None, 2) if args.bdf2 else (None,))
     print(json.dumps(data, indent=1) if args.json else markdown(data))
 
 
