@@ -1,7 +1,8 @@
 """Issue 22's chain comparison: SS22 in the FMU against the best of CVODES and IDAS at equal error, and where
 each one's time goes.
 
-    python benchmarks/chain_speed.py [SCENE.toml] [--stop T] [--repeats N] [--reference-rtol R] [--json]
+    python benchmarks/chain_speed.py [SCENE.toml] [--stop T] [--sample S] [--repeats N] [--reference-rtol R]
+        [--halvings K] [--order4-floor H] [--tolerances R,...] [--split-steps H,...] [--json]
 
 Default scene: ``benchmarks/scenes/planar_chain_3.toml`` (3 flexible links, 3 modes each, second-order
 kinematics), over ``flexlink bench``'s manoeuvre (``flexlink.tools.bench``: the same equations, the same
@@ -11,6 +12,13 @@ CVODES at 1e-12 takes minutes a simulated second), its own error stated against 
 For each error level 1e-3, 1e-4, 1e-5 each method's cost is read off
 its own cost-against-error curve (log-log interpolation between its settings; a level beyond a method's
 settings is not reported), and the ratio is CVODES's or IDAS's, whichever is cheaper, over SS22's.
+
+A scene driven by a built-in law (``examples/steel_beam_two_links.toml``) is measured over its law from
+t = 0 to ``--stop``: CVODES and IDAS then integrate the same equations with the law's (θ, θ̇, θ̈) as functions
+of time, as the FMU evaluates it (``flexlink.tools.bench.casadi_integrators``).  ``--halvings`` sets how
+many times SS22's step is halved from 1 ms, ``--order4-floor`` the smallest order-4 step tried (a stiff
+scene's stability bound lies below order 2's finest step), ``--sample`` the output samples the error is
+measured at (the bench's 10 ms is too coarse for a window of a few hundredths of a second).
 
 Where the time goes: the FMU's sources compiled with ``benchmarks/step_floor.c`` time one residual, one Newton
 matrix, one LU and one solve at a state of the run, and count the Newton iterations and factorisations a
@@ -35,7 +43,7 @@ import step_floor  # noqa: E402
 
 DEFAULT = HERE / "scenes" / "planar_chain_3.toml"
 LEVELS = (1e-3, 1e-4, 1e-5)
-STEPS = tuple(1e-3 / 2**k for k in range(10))            # 1 ms … 2 µs
+HALVINGS = 10                                           # 1 ms … 2 µs
 TOLERANCES = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)
 ORDER4 = "ss22 order 4 (FMU, Richardson)"
 ORDER4_LOOSE = "ss22 order 4, solver.tolerance"
@@ -73,7 +81,8 @@ def levels(rows: list[dict]) -> list[dict]:
         ss22 = cost_at([r for r in rows if r["method"] == "ss22 (FMU)"], level)
         order4 = cost_at([r for r in rows if r["method"] == ORDER4], level)
         loose = cost_at([r for r in rows if r["method"].startswith(ORDER4_LOOSE)], level)
-        best = [c for c in (cost_at([r for r in rows if r["method"] == m], level) for m in ("cvodes", "idas"))
+        sundials = sorted({r["method"] for r in rows if r["method"].split()[0] in ("cvodes", "idas")})
+        best = [c for c in (cost_at([r for r in rows if r["method"] == m], level) for m in sundials)
                 if c is not None]
         sundials = min(best) if best else None
         out.append({"error": level, "ss22_cpu": ss22, "order4_cpu": order4, "sundials_cpu": sundials,
@@ -83,20 +92,15 @@ def levels(rows: list[dict]) -> list[dict]:
     return out
 
 
-def sundials_counts(case, plugin: str, tol: float) -> dict:
+def sundials_counts(case, plugin: str, tol: float, max_order: int | None = None) -> dict:
     """One run of CasADi's CVODES or IDAS over ``case`` as ``flexlink bench`` runs it: steps, right-hand
     sides, Jacobians and Newton iterations summed over the input pieces."""
-    import casadi as ca
+    from flexlink.tools.bench import casadi_integrators, start_state
 
-    from flexlink.tools.bench import _model_inputs, _ode, _segments
-
-    x, u, p, rhs = _ode(case.model)
-    xk = np.concatenate(case.model.start_state())
+    xk = np.concatenate(start_state(case))
     total = {"nsteps": 0, "nfevals": 0, "nlinsetups": 0, "nniters": 0}
-    for lo, _hi, grid in _segments(case):
-        F = ca.integrator("F", plugin, {"x": x, "p": ca.vertcat(u, p), "ode": rhs}, lo, grid,
-                          {"abstol": tol * 1e-3, "reltol": tol, "max_num_steps": 10**7})
-        xk = np.asarray(F(x0=xk, p=np.concatenate([_model_inputs(case, lo), case.model.p0]))["xf"])[:, -1]
+    for F, pk, _grid in casadi_integrators(case, plugin, tol, max_order=max_order):
+        xk = np.asarray(F(x0=xk, p=pk)["xf"])[:, -1]
         stats = F.stats()
         for k in total:
             total[k] += int(stats.get(k, 0))
@@ -104,8 +108,14 @@ def sundials_counts(case, plugin: str, tol: float) -> dict:
 
 
 def measure(scene_path: Path, stop: float, repeats: int, reference_rtol: float,
-            order4_tolerance: float | None = None) -> dict:
-    """Every row, the ratios at the error levels and the per-step split."""
+            order4_tolerance: float | None = None, *, sample: float = 0.01, halvings: int = HALVINGS,
+            order4_floor: float | None = None, tolerances=TOLERANCES, split_steps=None,
+            max_orders=(None,)) -> dict:
+    """Every row, the ratios at the error levels and the per-step split.
+
+    ``order4_floor``: the smallest order-4 step (default order 2's finest); ``split_steps``: the SS22 steps
+    the per-step split is measured at (default the four coarsest).
+    """
     from flexlink.export.cache import cached_fmu
     from flexlink.mechanics.analysis import natural_frequencies
     from flexlink.mechanics.model import build_model
@@ -114,17 +124,19 @@ def measure(scene_path: Path, stop: float, repeats: int, reference_rtol: float,
 
     scene = load_scene(scene_path)
     model = build_model(scene)
-    case = default_case(model, stop=stop)
+    case = default_case(model, stop=stop, sample=sample)
+    steps = tuple(1e-3 / 2**k for k in range(halvings))
     ref = reference_outputs(case, reference_rtol)
     reference_error = relative_error(case, ref, reference_outputs(case, reference_rtol / 10))
     fmu = cached_fmu(scene, model=model)
-    rows = [r.as_dict() for r in bench_ss22(case, fmu, STEPS, [(0.5, 0.5)], ref, repeats)]
+    rows = [r.as_dict() for r in bench_ss22(case, fmu, steps, [(0.5, 0.5)], ref, repeats)]
     # order 4 (Richardson) only where it is stable, ω_max Δt ≤ 0.3 (the FMU refuses larger steps): at its bound,
-    # two thirds of it, then the halvings below; none below order 2's finest step (a stiff scene's bound, the FE
-    # beam's 0.3 µs, would take hours and cannot pay)
+    # two thirds of it, then the halvings below; by default none below order 2's finest step (a stiff scene's
+    # bound, the 40-element FE beam's 0.3 µs, would take hours over seconds: --order4-floor for a short window)
     omega_max = 2 * np.pi * max(natural_frequencies(model).frequencies_hz)
-    order4 = [h for h in (0.299 / omega_max, 0.2 / omega_max, *[h for h in STEPS if omega_max * h <= 0.2][:6])
-              if h >= STEPS[-1]]
+    floor = steps[-1] if order4_floor is None else order4_floor
+    order4 = [h for h in (0.299 / omega_max, 0.2 / omega_max, *[h for h in steps if omega_max * h <= 0.2][:6])
+              if h >= floor]
     rows += [r.as_dict() for r in bench_ss22(case, fmu, order4, [(0.5, 0.5)], ref, repeats, order=4)]
     if order4_tolerance is not None:
         # the same steps with the Newton iteration stopped far looser than the scene's 1e-10, still far below
@@ -133,14 +145,16 @@ def measure(scene_path: Path, stop: float, repeats: int, reference_rtol: float,
                             order=4):
             rows.append(r.as_dict() | {"method": f"{ORDER4_LOOSE} {order4_tolerance:g}"})
     for plugin in ("cvodes", "idas"):
-        for r in bench_casadi(case, plugin, TOLERANCES, ref, repeats):
-            d = r.as_dict()
-            d.update(sundials_counts(case, plugin, float(d["setting"].split("=")[1])))
-            rows.append(d)
+        for max_order in max_orders:
+            for r in bench_casadi(case, plugin, tolerances, ref, repeats, max_order):
+                d = r.as_dict()
+                d.update(sundials_counts(case, plugin, float(d["setting"].split("=")[1]), max_order))
+                rows.append(d)
     with tempfile.TemporaryDirectory() as tmp:
         exe = step_floor.compile_driver(fmu, tmp)
-        split = [step_floor.measure(exe, fmu, case, step=h, repeats=repeats) for h in STEPS[:4]]
-    return {"scene": scene_path.stem, "n_q": model.n_q, "stop": stop, "repeats": repeats, "rows": rows,
+        split = [step_floor.measure(exe, fmu, case, step=h, repeats=repeats) for h in split_steps or steps[:4]]
+    return {"scene": scene_path.stem, "n_q": model.n_q, "stop": stop, "sample": sample, "repeats": repeats,
+            "rows": rows, "driven_by_law": bool(model.laws),
             "order4_tolerance": order4_tolerance,
             "split": split, "omega_max_hz": omega_max / (2 * np.pi), "load": os.getloadavg(),
             "reference_rtol": reference_rtol, "reference_error": reference_error}
@@ -148,7 +162,9 @@ def measure(scene_path: Path, stop: float, repeats: int, reference_rtol: float,
 
 def markdown(data: dict) -> str:
     """The rows, the ratios and the split as Markdown."""
-    out = [f"{data['scene']} ({data['n_q']} coordinates), {data['stop']:g} s of the bench manoeuvre, medians of "
+    what = (f"its built-in law from 0 to {data['stop']:g} s, outputs sampled every {data['sample']:g} s"
+            if data.get("driven_by_law") else f"{data['stop']:g} s of the bench manoeuvre")
+    out = [f"{data['scene']} ({data['n_q']} coordinates), {what}, medians of "
            f"{data['repeats']} runs (reference: CVODES rtol {data['reference_rtol']:g}, its error "
            f"{data['reference_error']:.1e}; load average during the run {fmt_load(data)})", "",
            "| method | setting | CPU s/s | error | iterations/step | LU/step | steps | rhs | Jacobians |",
@@ -190,6 +206,14 @@ def fmt_load(data: dict) -> str:
     return "/".join(f"{x:.1f}" for x in data["load"]) if data.get("load") else "not recorded"
 
 
+def floats(text: str) -> tuple[float, ...]:
+    """A comma-separated list of numbers (an option's value)."""
+    try:
+        return tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a comma-separated list of numbers: {text!r}") from None
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("scene", nargs="?", default=str(DEFAULT))
@@ -198,13 +222,24 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--reference-rtol", type=float, default=1e-10)
     parser.add_argument("--order4-tolerance", type=float, default=1e-6,
                         help="also run order 4 at this solver.tolerance (0: not)")
+    parser.add_argument("--sample", type=float, default=0.01, help="output samples the error is measured at, s")
+    parser.add_argument("--halvings", type=int, default=HALVINGS,
+                        help="how many SS22 steps: 1 ms and its halvings (default 10: 1 ms … 2 µs)")
+    parser.add_argument("--order4-floor", type=float, help="smallest order-4 step, s (default order 2's finest)")
+    parser.add_argument("--tolerances", type=floats, default=TOLERANCES, help="CVODES/IDAS rtols, comma-separated")
+    parser.add_argument("--split-steps", type=floats, help="SS22 steps of the per-step split (default the 4 coarsest)")
+    parser.add_argument("--bdf2", action="store_true",
+                        help="CVODES and IDAS also with their BDF order capped at 2 (A-stable), in the best of")
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--from-json", help="render a --json output again instead of measuring")
     args = parser.parse_args(argv)
     if args.from_json:
         data = json.loads(Path(args.from_json).read_text())
     else:
-        data = measure(Path(args.scene), args.stop, args.repeats, args.reference_rtol, args.order4_tolerance or None)
+        data = measure(Path(args.scene), args.stop, args.repeats, args.reference_rtol, args.order4_tolerance or None,
+                       sample=args.sample, halvings=args.halvings, order4_floor=args.order4_floor,
+                       tolerances=args.tolerances, split_steps=args.split_steps,
+                       max_orders=(None, 2) if args.bdf2 else (None,))
     print(json.dumps(data, indent=1) if args.json else markdown(data))
 
 

@@ -104,10 +104,11 @@ def relative_error(case: BenchCase, y: dict[str, np.ndarray], ref: dict[str, np.
                for n in case.outputs)
 
 
-def reference_outputs(case: BenchCase, rtol: float = 1e-12) -> dict[str, np.ndarray]:
-    """The case's outputs under CVODES, from the state the FMU starts from.
+def start_state(case: BenchCase) -> tuple[np.ndarray, np.ndarray]:
+    """(q, v) the FMU starts the case from.
 
-    A coordinate the scene starts in static equilibrium is solved for as the FMU does it (laws at rest).
+    A coordinate the scene starts in static equilibrium is solved for as the FMU does it (laws at rest), so
+    that every method, the reference included, integrates from the same state.
     """
     from flexlink.mechanics.analysis import static_deflection
 
@@ -118,6 +119,13 @@ def reference_outputs(case: BenchCase, rtol: float = 1e-12) -> dict[str, np.ndar
         for law in model.laws:
             u0[law.u_offset + 1:law.u_offset + 3] = 0.0
         q0 = static_deflection(model, q0, v0, u0, model.p0, model.static_coordinates)
+    return q0, v0
+
+
+def reference_outputs(case: BenchCase, rtol: float = 1e-12) -> dict[str, np.ndarray]:
+    """The case's outputs under CVODES, from the state the FMU starts from (:func:`start_state`)."""
+    model = case.model
+    q0, v0 = start_state(case)
     res = simulate_reference(model, case.times, inputs=case.pieces, q0=q0, v0=v0, rtol=rtol, atol=rtol * 1e-3)
     return {n: res.output(model, n) for n in case.outputs}
 
@@ -199,10 +207,22 @@ def _ode(model: SymbolicModel):
     return x, u, p, ca.vertcat(x[n:], acc)
 
 
+def _law_switches(case: BenchCase) -> set[float]:
+    """The ends of the built-in laws' segments inside the case (where a law's acceleration may jump)."""
+    return {s.until for law in case.model.laws if law.trajectory is not None
+            for s in law.trajectory.segments if 0.0 < s.until < case.stop}
+
+
 def _segments(case: BenchCase):
-    bounds = [0.0, *case.switches, case.stop]
+    """(start, end, sample times in (start, end]) of each interval between input switches and law segment ends.
+
+    An integrator is restarted at each, as the reference is (CVODES across a jump at tight tolerances fails).
+    """
+    bounds = [0.0, *sorted(set(case.switches) | _law_switches(case)), case.stop]
     for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
         grid = [t for t in case.times if lo < t <= hi + 1e-12]
+        if not grid or abs(grid[-1] - hi) > 1e-12:
+            grid.append(hi)         # a law's segment end between samples: the restart's state
         yield lo, hi, grid
 
 
@@ -228,39 +248,103 @@ def _outputs(case: BenchCase, X: np.ndarray) -> dict[str, np.ndarray]:
     return {name: Y[:, model.output_index(name)] for name in case.outputs}
 
 
-def casadi_states(case: BenchCase, plugin: str, tol: float, repeats: int = 5, ode=None) -> tuple[float, np.ndarray]:
-    """One of CasADi's SUNDIALS integrators (CVODES, IDAS) over ``case``, restarted at every input switch.
+def _check_host_laws(case: BenchCase) -> None:
+    """Refuse a host-driven law that moves (one clear error, no traceback).
 
-    Returns the median CPU seconds per simulated second and the states (q, v) at ``case.times`` (rows).
+    The FMU extends such a law in time from the moment the host sets it (θ_ref + ω_ref s + α_ref s²/2), which
+    depends on how often the host calls, not on the case alone.
     """
-    if case.model.laws:
-        raise FlexlinkError("the CasADi comparison needs constant inputs between switches (no built-in law)")
-    x, u, p, rhs = ode or _ode(case.model)
-    x0 = np.concatenate(case.model.start_state())
-    integrators = [ca.integrator("F", plugin, {"x": x, "p": ca.vertcat(u, p), "ode": rhs}, lo, grid,
-                                 {"abstol": tol * 1e-3, "reltol": tol, "max_num_steps": 10**7})
-                   for lo, hi, grid in _segments(case)]
+    for law in case.model.laws:
+        if law.trajectory is None:
+            for lo, _hi, _grid in _segments(case):
+                if np.any(_model_inputs(case, lo)[law.u_offset + 1:law.u_offset + 3] != 0.0):
+                    raise FlexlinkError(
+                        f'the CasADi and SciPy comparisons cannot follow joint "{law.joint}": its law is set by the '
+                        "host with a non-zero rate or acceleration, which the FMU extends in time from each call "
+                        "(give it a built-in trajectory, or hold it)")
+
+
+def _segment_ode(case: BenchCase, ode, lo: float, hi: float):
+    """(x, t, the integrator's p, X') on [lo, hi], the same equations as the FMU's.
+
+    The held inputs and the parameters are p; the built-in laws' (θ, θ̇, θ̈) are the functions of t the FMU
+    evaluates (the law's segment that holds on the interval), as in the reference.
+    """
+    from flexlink.mechanics.reference import _law_expression
+
+    x, u, p, rhs = ode
+    t = ca.SX.sym("t")
+    u_t = u
+    for law in case.model.laws:
+        if law.trajectory is not None:
+            o = law.u_offset
+            u_t = ca.vertcat(u_t[:o], *_law_expression(law.trajectory, t, 0.5 * (lo + hi)), u_t[o + 3:])
+    return x, t, ca.vertcat(u, p), ca.substitute(rhs, u, ca.densify(u_t))
+
+
+def casadi_integrators(case: BenchCase, plugin: str, tol: float, ode=None, max_order: int | None = None) -> list[tuple]:
+    """One of CasADi's SUNDIALS integrators per interval of :func:`_segments`: (integrator, its p value).
+
+    ``max_order`` caps the BDF order (SUNDIALS' default 5): above 2 BDF is not A-stable, and undamped modes far
+    above the step, a stiff FE beam's, force high orders into tiny steps where BDF2 takes large ones.
+    """
+    _check_host_laws(case)
+    ode = ode or _ode(case.model)
+    out = []
+    for lo, hi, grid in _segments(case):
+        x, t, pp, rhs = _segment_ode(case, ode, lo, hi)
+        F = ca.integrator("F", plugin, {"x": x, "t": t, "p": pp, "ode": rhs}, lo, grid,
+                          {"abstol": tol * 1e-3, "reltol": tol, "max_num_steps": 10**7}
+                          | ({"max_order": max_order} if max_order else {}))
+        out.append((F, np.concatenate([_model_inputs(case, lo), case.model.p0]), grid))
+    return out
+
+
+def _on_times(case: BenchCase, pieces: list[tuple[list[float], np.ndarray]]) -> np.ndarray:
+    """The states at ``case.times`` (rows) from the intervals' (grid, states) and the start state."""
+    times, xs = [0.0], [np.concatenate(start_state(case))]
+    for grid, X in pieces:
+        times.extend(grid)
+        xs.extend(X)
+    keep = [next(k for k, tk in enumerate(times) if abs(tk - t) <= 1e-12) for t in case.times]
+    return np.array(xs)[keep]
+
+
+def casadi_states(case: BenchCase, plugin: str, tol: float, repeats: int = 5, ode=None,
+                  max_order: int | None = None) -> tuple[float, np.ndarray]:
+    """One of CasADi's SUNDIALS integrators (CVODES, IDAS) over ``case``, from the FMU's start state.
+
+    Restarted at every input switch and every end of a built-in law's segment.  Returns the median CPU
+    seconds per simulated second and the states (q, v) at ``case.times`` (rows).
+    """
+    integrators = casadi_integrators(case, plugin, tol, ode, max_order)
+    x0 = np.concatenate(start_state(case))
     cpu = []
     for _ in range(repeats):
-        xs = [x0]
+        pieces = []
         xk = x0
         t0 = time.process_time()
-        for F, (lo, _hi, _grid) in zip(integrators, _segments(case), strict=True):
-            res = np.asarray(F(x0=xk, p=np.concatenate([_model_inputs(case, lo), case.model.p0]))["xf"])
-            xs.extend(res.T)
+        for F, pk, grid in integrators:
+            res = np.asarray(F(x0=xk, p=pk)["xf"])
+            pieces.append((grid, res.T))
             xk = res[:, -1]
         cpu.append(time.process_time() - t0)
-    return statistics.median(cpu) / case.stop, np.array(xs)
+    return statistics.median(cpu) / case.stop, _on_times(case, pieces)
 
 
-def bench_casadi(case: BenchCase, plugin: str, tolerances, ref, repeats: int = 5) -> list[BenchRow]:
-    """CasADi's SUNDIALS integrators (CVODES, IDAS), restarted at every input switch."""
+def bench_casadi(case: BenchCase, plugin: str, tolerances, ref, repeats: int = 5,
+                 max_order: int | None = None) -> list[BenchRow]:
+    """CasADi's SUNDIALS integrators (CVODES, IDAS), restarted at every input switch.
+
+    With ``max_order`` the method is named for it ("cvodes BDF<=2").
+    """
     ode = _ode(case.model)
     rows = []
+    name = f"{plugin} BDF<={max_order}" if max_order else plugin
     for tol in tolerances:
-        cpu, X = casadi_states(case, plugin, tol, repeats, ode)
+        cpu, X = casadi_states(case, plugin, tol, repeats, ode, max_order)
         y = _outputs(case, X)
-        rows.append(BenchRow(plugin, f"rtol={tol:g}", cpu, relative_error(case, y, ref)))
+        rows.append(BenchRow(name, f"rtol={tol:g}", cpu, relative_error(case, y, ref)))
     return rows
 
 
@@ -268,31 +352,33 @@ def bench_scipy(case: BenchCase, method: str, tolerances, ref, repeats: int = 3)
     """SciPy's solve_ivp on the same equations (right-hand side and Jacobian from CasADi)."""
     from scipy.integrate import solve_ivp
 
-    if case.model.laws:
-        raise FlexlinkError("the SciPy comparison needs constant inputs between switches (no built-in law)")
-    x, u, p, ode = _ode(case.model)
-    f = ca.Function("f", [x, u, p], [ode])
-    jac = ca.Function("ode_jacobian", [x, u, p], [ca.jacobian(ode, x)])
-    x0 = np.concatenate(case.model.start_state())
+    _check_host_laws(case)
+    ode = _ode(case.model)
+    segments = []
+    for lo, hi, grid in _segments(case):
+        x, t, pp, rhs = _segment_ode(case, ode, lo, hi)
+        pk = np.concatenate([_model_inputs(case, lo), case.model.p0])
+        f = ca.Function("f", [t, x, pp], [rhs])
+        jac = ca.Function("ode_jacobian", [t, x, pp], [ca.jacobian(rhs, x)])
+        segments.append((lo, hi, grid, pk, f, jac))
+    x0 = np.concatenate(start_state(case))
     rows = []
     for tol in tolerances:
         cpu = []
         for _ in range(repeats):
-            xs = [x0]
+            pieces = []
             xk = x0
             t0 = time.process_time()
-            for lo, hi, grid in _segments(case):
-                uk = _model_inputs(case, lo)
-                pk = case.model.p0
+            for lo, hi, grid, pk, f, jac in segments:
                 kwargs = {}
                 if method in ("Radau", "BDF", "LSODA"):
-                    kwargs["jac"] = lambda t, y, uk=uk, pk=pk: np.asarray(jac(y, uk, pk))
-                sol = solve_ivp(lambda t, y, uk=uk, pk=pk: np.asarray(f(y, uk, pk)).ravel(), (lo, hi), xk,
+                    kwargs["jac"] = lambda t, y, pk=pk, jac=jac: np.asarray(jac(t, y, pk))
+                sol = solve_ivp(lambda t, y, pk=pk, f=f: np.asarray(f(t, y, pk)).ravel(), (lo, hi), xk,
                                 method=method, t_eval=grid, rtol=tol, atol=tol * 1e-3, **kwargs)
-                xs.extend(sol.y.T)
+                pieces.append((grid, sol.y.T))
                 xk = sol.y[:, -1]
             cpu.append(time.process_time() - t0)
-        y = _outputs(case, np.array(xs))
+        y = _outputs(case, _on_times(case, pieces))
         rows.append(BenchRow(f"scipy {method}", f"rtol={tol:g}", statistics.median(cpu) / case.stop,
                              relative_error(case, y, ref)))
     return rows
@@ -377,11 +463,10 @@ def run_bench(scene_path, *, quick: bool = False, repeats: int | None = None) ->
         rows = bench_ss22(case, fmu, steps, thetas, ref, repeats)
         rows += bench_ss22(case, fmu, steps, [(0.5, 0.5)], ref, repeats, order=4)
         rows += bench_model_exchange(case, fmu, tols[:2] if quick else tols[:5], ref, max(1, repeats // 2))
-    if not model.laws:
-        rows += bench_casadi(case, "cvodes", tols, ref, repeats)
-        rows += bench_casadi(case, "idas", tols, ref, repeats)
-        for method in (["Radau"] if quick else ["Radau", "LSODA", "DOP853"]):
-            rows += bench_scipy(case, method, tols[:2] if quick else tols[:5], ref, max(1, repeats // 2))
+    rows += bench_casadi(case, "cvodes", tols, ref, repeats)
+    rows += bench_casadi(case, "idas", tols, ref, repeats)
+    for method in (["Radau"] if quick else ["Radau", "LSODA", "DOP853"]):
+        rows += bench_scipy(case, method, tols[:2] if quick else tols[:5], ref, max(1, repeats // 2))
     return rows, info
 
 
