@@ -14,7 +14,7 @@ import os
 import sys
 
 from controllers.sweep_cases import case_key
-from controllers.sweep_worker import SweepJob, error_text, release_jobs, run_batch, run_case
+from controllers.sweep_worker import SweepJob, error_text, release_jobs, run_batch, run_case, worker_dir_prefix
 from flexlink.errors import FlexlinkError
 
 __all__ = ["run_cases"]
@@ -105,6 +105,7 @@ def _run_on_dask(spec: SweepJob, todo, collect, *, client, scheduler, n_workers,
                               "error": msg, "wall_s": math.nan, "worker": ""} for case, c in batches[k]])
             fut.release()
     finally:
+        _release_workers(client, spec.key)
         if own_client is not None:
             try:
                 own_client.close()
@@ -112,3 +113,30 @@ def _run_on_dask(spec: SweepJob, todo, collect, *, client, scheduler, n_workers,
                 pass
         if own_cluster is not None:
             own_cluster.close()
+        _remove_worker_dirs(spec.key)
+
+
+def _release_workers(client, key: str) -> None:
+    """Every worker frees this sweep's FMU instances and removes its copy of the FMU.
+
+    A long-lived cluster would otherwise keep them until its workers exit (best effort: a worker may be gone).
+    """
+    if client is None:
+        return
+    try:
+        client.run(release_jobs, key)
+    except Exception:  # noqa: BLE001 (cleaning up is best effort)
+        pass
+
+
+def _remove_worker_dirs(key: str) -> None:
+    """Remove the folders this sweep's workers on this machine left (one killed mid-sweep cannot remove its own).
+
+    They are named for the sweep's key, unique to this run (pid and time), so nothing else is touched.
+    """
+    import glob
+    import shutil
+    import tempfile
+
+    for folder in glob.glob(os.path.join(tempfile.gettempdir(), glob.escape(worker_dir_prefix(key)) + "*")):
+        shutil.rmtree(folder, ignore_errors=True)

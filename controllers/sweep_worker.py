@@ -71,7 +71,7 @@ class _WorkerJob:
 
     def __init__(self, spec: SweepJob):
         self.spec = spec
-        self.dir = tempfile.mkdtemp(prefix="flexlink-sweep-")
+        self.dir = tempfile.mkdtemp(prefix=worker_dir_prefix(spec.key))
         if spec.fmu_bytes is not None:
             self.fmu = os.path.join(self.dir, spec.fmu_name)
             with open(self.fmu, "wb") as f:
@@ -264,6 +264,15 @@ def run_case(spec: SweepJob, case: int, params: dict[str, float]) -> dict:
 def run_batch(spec: SweepJob, batch: list[tuple[int, dict[str, float]]]) -> list[dict]:
     """One Dask task's cases, in order: their rows (:func:`run_case`)."""
     return [run_case(spec, case, params) for case, params in batch]
+
+
+def worker_dir_prefix(key: str) -> str:
+    """The name prefix of a worker's folder (its FMU's copy) for the sweep ``key``.
+
+    The sweep's own, so that the client can remove the folders of workers killed before they could
+    (:mod:`controllers.sweep_schedule`).
+    """
+    return f"flexlink-sweep-{key}-"
 
 
 def release_jobs(key: str) -> None:

@@ -237,11 +237,21 @@ def _journal(out):
     return docs[0], docs[1:]
 
 
+def _worker_dirs() -> set[str]:
+    """The sweep workers' folders (their FMU's copy) in this machine's temporary directory."""
+    import tempfile
+
+    return {p.name for p in Path(tempfile.gettempdir()).glob("flexlink-sweep-*")}
+
+
 # ------------------------------------------------------------------------------------------------ Dask
 def test_dask_sweep_equals_the_plain_loop_and_records_refused_cases(client, fmu, plain_loop, tmp_path):
     out = tmp_path / "grid.parquet"
     t0 = time.perf_counter()
+    before = _worker_dirs()
     df = run_sweep(SweepSpec(SCENE, GRID, fmu=fmu, out=out, **MANOEUVRE), client=client)
+    # the workers (alive, the cluster is the caller's) kept no copy of the FMU once the sweep was done
+    assert _worker_dirs() <= before, _worker_dirs() - before
     print(f"\n30 closed-loop cases on 2 Dask workers: {time.perf_counter() - t0:.2f} s")
     print(summary_table(df))
     _check_against_plain_loop(df, plain_loop)
@@ -279,9 +289,11 @@ def test_killing_a_worker_mid_sweep_loses_nothing(client, fmu, plain_loop, tmp_p
             killed.append(done)
 
     out = tmp_path / "killed.parquet"
+    before = _worker_dirs()
     df = run_sweep(SweepSpec(SCENE, GRID, fmu=fmu, out=out, batch_size=2, **MANOEUVRE), client=client,
                              on_result=on_result)
     assert killed
+    assert _worker_dirs() <= before, _worker_dirs() - before    # the killed worker's folder too
     _check_against_plain_loop(df, plain_loop)
     assert df.attrs["computed"] == 30 and len(seen) == 30
     _, rows = _journal(out)                       # every row reported, before and after the kill, as it was
