@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import tempfile
@@ -207,25 +208,43 @@ def fmt_load(data: dict) -> str:
 
 
 def floats(text: str) -> tuple[float, ...]:
-    """A comma-separated list of numbers (an option's value)."""
+    """A comma-separated list of positive numbers (an option's value)."""
     try:
-        return tuple(float(x) for x in text.split(","))
+        values = tuple(float(x) for x in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a comma-separated list of numbers: {text!r}") from None
+    if not all(v > 0 and math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"every number must be > 0: {text!r}")
+    return values
+
+
+def positive(kind):
+    """An argparse type: ``kind`` (float or int) and > 0."""
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        if not (value > 0 and math.isfinite(value)):
+            raise argparse.ArgumentTypeError(f"must be > 0: {text!r}")
+        return value
+    return parse
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("scene", nargs="?", default=str(DEFAULT))
-    parser.add_argument("--stop", type=float, default=2.0, help="end of the manoeuvre, s (default 2: ±τ)")
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--reference-rtol", type=float, default=1e-10)
+    parser.add_argument("--stop", type=positive(float), default=2.0, help="end of the manoeuvre, s (default 2: ±τ)")
+    parser.add_argument("--repeats", type=positive(int), default=5)
+    parser.add_argument("--reference-rtol", type=positive(float), default=1e-10)
     parser.add_argument("--order4-tolerance", type=float, default=1e-6,
                         help="also run order 4 at this solver.tolerance (0: not)")
-    parser.add_argument("--sample", type=float, default=0.01, help="output samples the error is measured at, s")
-    parser.add_argument("--halvings", type=int, default=HALVINGS,
+    parser.add_argument("--sample", type=positive(float), default=0.01,
+                        help="output samples the error is measured at, s")
+    parser.add_argument("--halvings", type=positive(int), default=HALVINGS,
                         help="how many SS22 steps: 1 ms and its halvings (default 10: 1 ms … 2 µs)")
-    parser.add_argument("--order4-floor", type=float, help="smallest order-4 step, s (default order 2's finest)")
+    parser.add_argument("--order4-floor", type=positive(float),
+                        help="smallest order-4 step, s (default order 2's finest)")
     parser.add_argument("--tolerances", type=floats, default=TOLERANCES, help="CVODES/IDAS rtols, comma-separated")
     parser.add_argument("--split-steps", type=floats, help="SS22 steps of the per-step split (default the 4 coarsest)")
     parser.add_argument("--bdf2", action="store_true",

@@ -66,6 +66,7 @@ def _run_on_dask(spec: SweepJob, todo, collect, *, client, scheduler, n_workers,
     from dask.distributed import Client, LocalCluster, as_completed
 
     own_cluster = own_client = None
+    finished = False            # every task done: no worker is still running one of this sweep's cases
     try:
         if client is None:
             if scheduler:
@@ -104,8 +105,10 @@ def _run_on_dask(spec: SweepJob, todo, collect, *, client, scheduler, n_workers,
                     collect([{"case": case, "key": case_key(c), **c, "status": "failed", "failed": True,
                               "error": msg, "wall_s": math.nan, "worker": ""} for case, c in batches[k]])
             fut.release()
+        finished = True
     finally:
-        _release_workers(client, spec.key)
+        if finished:
+            _release_workers(client, spec.key)
         if own_client is not None:
             try:
                 own_client.close()
@@ -113,7 +116,8 @@ def _run_on_dask(spec: SweepJob, todo, collect, *, client, scheduler, n_workers,
                 pass
         if own_cluster is not None:
             own_cluster.close()
-        _remove_worker_dirs(spec.key)
+        if finished or own_cluster is not None:     # else a caller's worker may still be running a case there
+            _remove_worker_dirs(spec.key)
 
 
 def _release_workers(client, key: str) -> None:

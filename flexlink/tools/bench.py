@@ -93,7 +93,13 @@ def default_case(model: SymbolicModel, stop: float = 5.0, torque: float = 0.2, s
         outputs = [f"{link}.tip.v", f"{joint}.tau"]
     else:
         raise FlexlinkError("flexlink bench needs a torque-driven first joint or a built-in trajectory")
-    times = np.round(np.arange(int(round(stop / sample)) + 1) * sample, 12)
+    if not (stop > 0 and sample > 0 and np.isfinite(stop) and np.isfinite(sample)):
+        raise FlexlinkError(f"the bench's manoeuvre: stop = {stop:g} s and sample = {sample:g} s must be > 0")
+    samples = round(stop / sample)
+    if samples < 1 or abs(samples * sample - stop) > 1e-9 * stop:
+        raise FlexlinkError(f"the bench's manoeuvre: stop = {stop:g} s is not a whole number of samples of "
+                            f"{sample:g} s (every method is compared at the same sample times, the last at stop)")
+    times = np.round(np.arange(samples + 1) * sample, 12)
     switches = sorted({ts for ts, _ in pieces if 0 < ts < stop})
     return BenchCase(model, stop, times, pieces, outputs, switches)
 
