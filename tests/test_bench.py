@@ -260,3 +260,19 @@ def test_timing_splits_a_run_longer_than_one_dostep_may_integrate(example_fmu):
     assert 0 < cost < float("inf")
     assert abs(timed[0]) > 1e-3                          # the hub turned: the run was integrated
     assert timed == pytest.approx([reference[n][-1] for n in case.outputs], rel=1e-9, abs=1e-12)
+
+
+def test_a_stop_between_samples_ends_the_samples_before_it():
+    """stop = 0.05 s sampled every 3 ms: the samples end at 48 ms, inside every method's run (rounding the count
+    put one at 51 ms, past the CasADi runs' last point, and the comparison ended in a StopIteration); CVODES's
+    states come back at every sample, finite; a sample time of 0 is one FlexlinkError."""
+    from flexlink.errors import FlexlinkError
+    from flexlink.tools.bench import casadi_states, default_case
+
+    model = build_model(load_scene("examples/rotating_link_linear.toml"))
+    case = default_case(model, stop=0.05, sample=0.003)
+    assert case.times[-1] == pytest.approx(0.048) and case.times.max() <= case.stop
+    _, X = casadi_states(case, "cvodes", 1e-8, repeats=1)
+    assert X.shape == (len(case.times), 2 * model.n_q) and np.all(np.isfinite(X))
+    with pytest.raises(FlexlinkError, match="must be > 0"):
+        default_case(model, stop=0.05, sample=0.0)
