@@ -22,6 +22,24 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 if os.environ.get("FLEXLINK_FULL") != "1":
     os.environ.setdefault("FLEXLINK_OPTIMISE", "O0")
 
+@pytest.fixture
+def check_harness_lock():
+    """Hold an exclusive lock for the test: the checks of tests/test_check.py and of the third-party FMUs
+    (tests/test_check_third_party.py) never run at the same time on xdist workers.  Run side by side, the
+    PythonFMU fixture's process died of SIGABRT in the fuzz's fmi2Instantiate with a wrong GUID and resource
+    location (three CI runs of 2026-11-27, reproduced with `pytest -n 2 --dist loadfile` on those two files;
+    one after the other they pass).  The cause is not found (open, issue 22's note of that day)."""
+    import fcntl
+    import tempfile
+
+    with open(os.path.join(tempfile.gettempdir(), "flexlink-tests-check-harness.lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
 @pytest.fixture(scope="session")
 def example_fmu():
     """``example_fmu(name)``: the FMU of examples/<name>.toml, from flexlink's build cache (several test files,

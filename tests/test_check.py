@@ -17,6 +17,8 @@ from flexlink.cli import main
 from flexlink.export.cbuild import compile_shared_library
 from flexlink.tools.check import check_fmu, write_report
 
+pytestmark = pytest.mark.usefixtures("check_harness_lock")   # conftest.py: never beside the other
+
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 NAMES = sorted(p.stem for p in EXAMPLES.glob("*.toml"))
 FULL = os.environ.get("FLEXLINK_FULL") == "1"

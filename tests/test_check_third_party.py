@@ -17,6 +17,8 @@ from check_third_party import build, container, oscillator_x
 
 from flexlink.cli import main
 
+pytestmark = pytest.mark.usefixtures("check_harness_lock")   # conftest.py: never beside the other
+
 pytest.importorskip("pythonfmu")
 FUZZ = "20"                 # CI size; `flexlink check ... --fuzz 5000` for a full run
 # the harness's warnings that a correct FMI 2.0 FMU may earn: FMI 2.0 leaves an illegal call's behaviour
