@@ -12,11 +12,15 @@
  *   set VR VALUE          fmi2SetReal before initialisation (solver.step, solver.order, ...)
  *   seg UNTIL VR VALUE    hold input VR at VALUE until time UNTIL (segments in order, from t = 0);
  *                         VR "-": no input (an FMU driven by its built-in laws)
+ *   host H                the host steps: every segment is walked in fmi2DoStep calls of H (equal pieces,
+ *                         as a host stepping at H), each followed by fmi2GetReal of the `out` variables
+ *   out VR                an output the host reads after every step (repeatable)
  * Prints one JSON object: medians over REPEATS of CPU seconds, counters of one run, and the parts of
  * the floor timed separately.  Exit 0 on success. */
 #define _POSIX_C_SOURCE 199309L
 #include <stdio.h>
 #include <stdlib.h>
+#include <math.h>
 #include <string.h>
 #include <time.h>
 #include "cosimulation.h"
@@ -24,15 +28,33 @@
 #include "driver_util.h"
 
 #define MAX_TOKENS 64
+#define MAX_OUTPUTS 4096
 
 #define NO_INPUT 0xffffffffu   /* a segment that sets no input */
 typedef struct { int n_set, n_seg; unsigned set_vr[MAX_TOKENS]; double set_val[MAX_TOKENS];
-                 double until[MAX_TOKENS]; unsigned seg_vr[MAX_TOKENS]; double seg_val[MAX_TOKENS]; } Plan;
+                 double until[MAX_TOKENS]; unsigned seg_vr[MAX_TOKENS]; double seg_val[MAX_TOKENS];
+                 double host; int n_out; unsigned out_vr[MAX_OUTPUTS]; long communication_steps; } Plan;
 
-typedef struct { unsigned long steps, newton_iterations, factorisations, residual_evaluations; } Counters;
+typedef struct { unsigned long steps, newton_iterations, factorisations, residual_evaluations, mass_refreshes,
+                 mass_iterations; } Counters;
 
 /* one run of the plan from a reset instance; returns CPU seconds of the doStep calls, fills counters */
-static double run(fmi2Component c, const Plan *plan, Counters *cnt) {
+/* one segment from t to until: one fmi2DoStep, or the host's equal steps of at most plan->host */
+static void walk(fmi2Component c, Plan *plan, double t, double until) {
+    const long n = plan->host > 0.0 ? (long)ceil((until - t) / plan->host - 1e-9) : 1;
+    static double y[MAX_OUTPUTS];
+    for (long k = 0; k < n; k++) {
+        const double t0 = t + (until - t) * (double)k / (double)n, t1 = t + (until - t) * (double)(k + 1) / (double)n;
+        if (fmi2DoStep(c, t0, t1 - t0, fmi2True) != fmi2OK) { fprintf(stderr, "doStep failed\n"); exit(1); }
+        if (plan->n_out > 0 && fmi2GetReal(c, plan->out_vr, (size_t)plan->n_out, y) != fmi2OK) {
+            fprintf(stderr, "getReal failed\n");
+            exit(1);
+        }
+    }
+    plan->communication_steps += n;
+}
+
+static double run(fmi2Component c, Plan *plan, Counters *cnt) {
     Instance *inst = (Instance *)c;
     if (fmi2Reset(c) != fmi2OK) { fprintf(stderr, "reset failed\n"); exit(1); }
     for (int k = 0; k < plan->n_set; k++) {
@@ -44,11 +66,13 @@ static double run(fmi2Component c, const Plan *plan, Counters *cnt) {
         exit(1);
     }
     const SS22 before = inst->d.ss22;
+    plan->communication_steps = 0;
+    const uint64_t refreshes = inst->d.mass_refreshes, iterations = inst->d.mass_iterations;
     double t = 0.0, cpu = 0.0;
     for (int k = 0; k < plan->n_seg; k++) {
         if (plan->seg_vr[k] != NO_INPUT) fmi2SetReal(c, &plan->seg_vr[k], 1, &plan->seg_val[k]);
         const double t0 = now(CLOCK_PROCESS_CPUTIME_ID);
-        if (fmi2DoStep(c, t, plan->until[k] - t, fmi2True) != fmi2OK) { fprintf(stderr, "doStep failed\n"); exit(1); }
+        walk(c, plan, t, plan->until[k]);
         cpu += now(CLOCK_PROCESS_CPUTIME_ID) - t0;
         t = plan->until[k];
     }
@@ -57,6 +81,8 @@ static double run(fmi2Component c, const Plan *plan, Counters *cnt) {
     cnt->newton_iterations = s->newton_iterations - before.newton_iterations;
     cnt->factorisations = s->factorisations - before.factorisations;
     cnt->residual_evaluations = s->residual_evaluations - before.residual_evaluations;
+    cnt->mass_refreshes = inst->d.mass_refreshes - refreshes;
+    cnt->mass_iterations = inst->d.mass_iterations - iterations;
     return cpu;
 }
 
@@ -138,6 +164,12 @@ int main(int argc, char **argv) {
             plan.seg_vr[plan.n_seg] = strcmp(argv[k + 2], "-") ? (unsigned)atol(argv[k + 2]) : NO_INPUT;
             plan.seg_val[plan.n_seg++] = atof(argv[k + 3]);
             k += 4;
+        } else if (!strcmp(argv[k], "host") && k + 1 < argc) {
+            plan.host = atof(argv[k + 1]);
+            k += 2;
+        } else if (!strcmp(argv[k], "out") && k + 1 < argc && plan.n_out < MAX_OUTPUTS) {
+            plan.out_vr[plan.n_out++] = (unsigned)atol(argv[k + 1]);
+            k += 2;
         } else {
             fprintf(stderr, "bad argument %s\n", argv[k]);
             return 2;
@@ -170,10 +202,12 @@ int main(int argc, char **argv) {
     printf("{\"n_q\": %d, \"linear_in_state\": %d, \"jacobian_constant\": %d, \"order\": %d, \"repeats\": %d, "
            "\"run_cpu_s\": %.9g, \"simulated_s\": %.9g, \"ss22_steps\": %lu, \"internal_steps\": %.9g, "
            "\"newton_iterations\": %lu, \"factorisations\": %lu, \"residual_evaluations\": %lu, "
-           "\"step_s\": %.9g, \"ss22_step_s\": %.9g",
+           "\"step_s\": %.9g, \"ss22_step_s\": %.9g, \"communication_steps\": %ld, "
+           "\"mass_refreshes\": %lu, \"mass_iterations\": %lu",
            N_Q, MODEL_LINEAR_IN_STATE, MODEL_JACOBIAN_CONSTANT, order, repeats, run_cpu,
            plan.until[plan.n_seg - 1], cnt.steps, internal, cnt.newton_iterations, cnt.factorisations,
-           cnt.residual_evaluations, run_cpu / internal, run_cpu / (double)(cnt.steps ? cnt.steps : 1));
+           cnt.residual_evaluations, run_cpu / internal, run_cpu / (double)(cnt.steps ? cnt.steps : 1),
+           plan.communication_steps, cnt.mass_refreshes, cnt.mass_iterations);
     for (int p = 0; p < N_PARTS; p++) printf(", \"%s_s\": %.9g", PART_NAMES[p], part_s[p]);
     printf("}\n");
     free(runs);

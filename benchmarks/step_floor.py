@@ -26,26 +26,28 @@ DRIVER = Path(__file__).resolve().parent / "step_floor.c"
 DEFAULT = ["rotating_link_linear.toml", "rotating_link.toml"]
 
 
-def compile_driver(fmu: str | Path, workdir: str | Path, driver: Path = DRIVER) -> Path:
+def compile_driver(fmu: str | Path, workdir: str | Path, driver: Path = DRIVER, defines: tuple[str, ...] = (),
+                   name: str | None = None) -> Path:
     """Extract the FMU's ``sources/`` into ``workdir`` and compile ``driver`` (a C file, by default this
-    benchmark's) with them (an executable)."""
+    benchmark's) with them (an executable, ``name`` or the driver's stem; ``defines``: ``-D`` flags)."""
     from flexlink.errors import BuildError
     from flexlink.export.cbuild import compiler
 
     workdir = Path(workdir)
     src = workdir / "sources"
     with zipfile.ZipFile(fmu) as z:
-        for name in z.namelist():
-            if name.startswith("sources/") and not name.endswith("/"):
-                z.extract(name, workdir)
+        for member in z.namelist():
+            if member.startswith("sources/") and not member.endswith("/"):
+                z.extract(member, workdir)
     import xml.etree.ElementTree as ET
 
     with zipfile.ZipFile(fmu) as z:
         root = ET.fromstring(z.read("modelDescription.xml"))
     # the files the FMU lists (model.c includes the CasADi file with its own warning settings)
     files = [f.get("name") for f in root.findall("CoSimulation/SourceFiles/File")]
-    exe = workdir / Path(driver).stem
-    command = [*compiler(), "-O2", "-std=c99", "-Wall", "-Wextra", "-Werror", f"-I{src}", f"-I{Path(driver).parent}",
+    exe = workdir / (name or Path(driver).stem)
+    command = [*compiler(), "-O2", "-std=c99", "-Wall", "-Wextra", "-Werror", *(f"-D{x}" for x in defines),
+               f"-I{src}", f"-I{Path(driver).parent}",
                *(str(src / f) for f in files), str(driver), "-o", str(exe), "-lm"]
     res = subprocess.run(command, capture_output=True, text=True, check=False)
     if res.returncode != 0:

@@ -65,6 +65,14 @@ typedef struct {
     double law_torque[FMU_SZ(N_LAWS)], law_angle[FMU_SZ(N_LAWS)], law_rate[FMU_SZ(N_LAWS)];
 } EnergyPoint;
 
+/* The mass matrix factorised at an earlier consistent acceleration, kept as the preconditioner of the next
+ * (consistent.c).  Part of the state: a restored state computes the same outputs to the last bit. */
+typedef struct {
+    int valid;                        /* LU holds a factorised M of the current parameters        */
+    double LU[N_Q * N_Q];
+    int piv[N_Q];
+} KeptMass;
+
 /* Everything numeric: an FMU state is a copy of this struct. */
 typedef struct {
     int phase;                        /* Phase                                                  */
@@ -92,6 +100,8 @@ typedef struct {
     double y[FMU_SZ(N_Y)];                /* outputs at time                                         */
     double law_time[FMU_SZ(N_LAWS)];      /* host-driven law k: time at which u[offset..+2] hold      */
     SS22 ss22;                        /* integrator, with its factorisations and counters        */
+    KeptMass mass;                    /* consistent acceleration's kept factorisation (consistent.c) */
+    uint64_t mass_refreshes, mass_iterations;   /* its counters: mass matrices evaluated, residuals iterated */
 } FmuData;
 
 struct SavedState;

@@ -144,6 +144,10 @@ static const char *invalid_data(const FmuData *d) {
             if (f->piv[i] < i || f->piv[i] >= N_Q) return "solver cache";
         }
     }
+    if (d->mass.valid & ~1) return "kept mass matrix";
+    for (int i = 0; i < N_Q && d->mass.valid; i++) {
+        if (d->mass.piv[i] < i || d->mass.piv[i] >= N_Q) return "kept mass matrix";
+    }
     if (!isfinite(d->time) || !fmu_all_finite(d->q, N_Q) || !fmu_all_finite(d->v, N_Q)) return "time or state";
     if (d->omega_max_known && !(d->omega_max >= 0.0 && isfinite(d->omega_max))) return "highest frequency";
     return NULL;

@@ -10,6 +10,7 @@
  *   derivatives.c     directional derivatives
  *   fmu_state.c       FMU states and their serialisation
  *   guards.c          the checks that refuse a state the model cannot stand behind
+ *   consistent.c      the consistent acceleration, with a factorised mass matrix kept across calls
  *   richardson.c      when the order-4 option is stable: the highest natural frequency against the step */
 #ifndef FLEXLINK_INTERNAL_H
 #define FLEXLINK_INTERNAL_H
@@ -37,6 +38,12 @@ fmi2Status fmu_update_outputs(Instance *inst, const char *function);
  * accepts, in why; NULL if they are all acceptable.  A deserialised FMU state passes the same gate as the
  * values a host sets one by one (inst lends its work memory to the parameter relations). */
 const char *fmu_invalid_values(Instance *inst, const FmuData *d, char *why, size_t n);
+
+/* consistent.c: d->acceleration = the a of M(q) a = -r0, r0 = r(q, v, 0, u0, p) at d's state and the model
+ * inputs u0: 0, or 1 if M is singular there (or not finite), or -1 if the model failed to evaluate. */
+int fmu_consistent_acceleration(Instance *inst, const double *u0, const double *r0);
+/* Parameters changed: the kept mass matrix is another model's. */
+void fmu_consistent_forget(FmuData *d);
 
 /* guards.c: fmi2OK if the state d (q, v; inputs u at time t) is finite and within the model's validity
  * (and, if check_mass_matrix, its mass matrix positive definite); else fmi2Discard with the reason in

@@ -115,17 +115,12 @@ fmi2Status fmu_update_outputs(Instance *inst, const char *function) {
     fmi2Status status = fmi2OK;
     if (d->outputs_valid) return fmi2OK;
     fmu_model_inputs(d, d->time, inst->u0);
-    if (model_residual(d->q, d->v, inst->zero, inst->u0, d->p, inst->r, &inst->work) ||
-        model_newton_matrix(d->q, d->v, inst->zero, inst->u0, d->p, 1.0, 0.0, 0.0, inst->J, &inst->work)) {
+    if (model_residual(d->q, d->v, inst->zero, inst->u0, d->p, inst->r, &inst->work)) {
         return fmu_error(inst, "%s: the model failed to evaluate at t = %.17g", function, d->time);
     }
-    if (fmu_all_finite(inst->J, N_Q * N_Q) && lu_factor(inst->J, N_Q, inst->piv) == 0) {
-        for (int i = 0; i < N_Q; i++) d->acceleration[i] = -inst->r[i];
-        lu_solve(inst->J, N_Q, inst->piv, d->acceleration);
-        d->acceleration_ok = fmu_all_finite(d->acceleration, N_Q);
-    } else {
-        d->acceleration_ok = 0;
-    }
+    const int solved = fmu_consistent_acceleration(inst, inst->u0, inst->r);
+    if (solved < 0) return fmu_error(inst, "%s: the model failed to evaluate at t = %.17g", function, d->time);
+    d->acceleration_ok = solved == 0;
     if (!d->acceleration_ok) {
         memcpy(d->acceleration, d->alpha, sizeof(d->acceleration));
         fmu_log(inst, fmi2Warning, LOG_STATUS_WARNING,
@@ -291,7 +286,7 @@ const char *fmu_invalid_values(Instance *inst, const FmuData *d, char *why, size
 static fmi2Status set_values(Instance *inst, const char *function, int is_integer, const fmi2ValueReference vr[],
                              size_t nvr, const fmi2Real real[], const fmi2Integer integer[]) {
     FmuData *d = &inst->d;
-    int invalidate = 0;
+    int invalidate = 0, any_parameter = 0;
     char why[512];
     if (check_references(inst, function, is_integer, vr, nvr) != fmi2OK) return fmi2Error;
     for (size_t i = 0; i < nvr; i++) {
@@ -318,8 +313,10 @@ static fmi2Status set_values(Instance *inst, const char *function, int is_intege
         if (v->kind == VAR_START_V) d->v[v->index] = x;
         if (v->kind == VAR_PARAMETER && d->phase == PHASE_STEP) invalidate = 1;
         if (v->kind == VAR_PARAMETER) d->omega_max_known = 0;   /* order 4's check looks again */
+        if (v->kind == VAR_PARAMETER) any_parameter = 1;
     }
     if (invalidate) ss22_invalidate(&d->ss22);
+    if (any_parameter) fmu_consistent_forget(d);
     if (nvr > 0) d->outputs_valid = 0;
     return fmi2OK;
 }

@@ -36,7 +36,7 @@ LOG_CATEGORIES: tuple[str, ...] = (
 #: functions behind it (cosimulation.h) by concern, the integrator and dense LU.
 GENERIC_SOURCES: tuple[str, ...] = (
     "fmi2Functions.c", "calls.c", "logging.c", "instance.c", "variables.c", "cs_step.c", "model_exchange.c",
-    "derivatives.c", "complex_step.c", "fmu_state.c", "guards.c", "richardson.c", "ss22.c", "linalg.c",
+    "derivatives.c", "complex_step.c", "fmu_state.c", "guards.c", "consistent.c", "richardson.c", "ss22.c", "linalg.c",
 )
 #: The FMI API layer of each FMI version, by concern: an FMU carries one (the functions behind it are shared).
 API_SOURCES: dict[int, tuple[str, ...]] = {

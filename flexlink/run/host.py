@@ -40,8 +40,11 @@ INTERFACES = ("CoSimulation", "ModelExchange")
 STATUS_LABELS = ("ok", "warning", "discard", "error", "fatal", "pending")
 
 # fmu_src/logging.c's logStatistics message, and the counters it holds
-STATISTICS = re.compile(r"(\d+) SS22 steps, (\d+) Newton iterations, (\d+) factorisations, (\d+) residual")
-STATISTICS_KEYS = ("steps", "newton_iterations", "factorisations", "residual_evaluations")
+# the consistent accelerations' counters since 2026-11-27 (fmu_src/consistent.c); an older FMU logs without them
+STATISTICS = re.compile(r"(\d+) SS22 steps, (\d+) Newton iterations, (\d+) factorisations, (\d+) residual"
+                        r"(?:.*?consistent accelerations: (\d+) mass matrices, (\d+) residual iterations)?")
+STATISTICS_KEYS = ("steps", "newton_iterations", "factorisations", "residual_evaluations", "mass_matrices",
+                   "consistent_iterations")
 
 
 #: The argument types of the functions :meth:`FmuHost.raw` returns (FMI 2.0, ``fmi2FunctionTypes.h``).
@@ -249,7 +252,8 @@ class FmuHost:
     def solver_statistics(self) -> dict[str, int]:
         """Read the integrator's counters of the run just made from the FMU's ``logStatistics`` message.
 
-        SS22 steps, Newton iterations, factorisations and residual evaluations, logged at fmi2Terminate.
+        SS22 steps, Newton iterations, factorisations and residual evaluations, logged at fmi2Terminate, and
+        the consistent accelerations' mass matrices and residual iterations (fmu_src/consistent.c).
 
         Ends the run (the next :meth:`initialize` resets the instance).  Empty for an FMU without that
         category.
@@ -261,7 +265,8 @@ class FmuHost:
         for message in reversed(self.messages):
             found = STATISTICS.search(message)
             if found:
-                return {key: int(value) for key, value in zip(STATISTICS_KEYS, found.groups(), strict=True)}
+                return {key: int(value) for key, value in zip(STATISTICS_KEYS, found.groups(), strict=True)
+                        if value is not None}
         return {}
 
     def close(self) -> None:
