@@ -339,7 +339,7 @@ def _cache_key(args, scene) -> str | None:
 def _store(key: str, args, d, target: float, info: dict, rob: dict | None) -> None:
     """Cache what the run needs (its law's affine form along the reference) and what it prints."""
     from controllers.design_cache import load, store
-    from controllers.manoeuvre import _target, reference
+    from controllers.manoeuvre import reference, static_tip
 
     law = d.law(args.controller)
     ref = reference(d, args.controller, target, args.duration, args.settle)
@@ -353,7 +353,7 @@ def _store(key: str, args, d, target: float, info: dict, rob: dict | None) -> No
                         "form": form},
                 "reference": ref, "info": info, "json": rob if rob is not None else old.get("json"),
                 "context": {"joint": d.joint, "link": d.link, "torque_input": d.plant.inputs[0],
-                            "torque_limit": d.torque_limit, "static_tip": _target(d, target),
+                            "torque_limit": d.torque_limit, "static_tip": static_tip(d, target),
                             "start_angle": d.start_angle}})
 
 
@@ -439,9 +439,9 @@ def _export_ssp(args, d, targets, schedule=None) -> None:
     """
     import sys
 
-    from controllers.manoeuvre import _check_times
     from controllers.multijoint import check_multijoint, inverse_dynamics_reference, plan
     from controllers.ssp import write_ssp
+    from controllers.trajectory import check_times
     from flexlink.export.cache import cached_fmu
 
     if targets is None or args.duration is None:
@@ -450,7 +450,7 @@ def _export_ssp(args, d, targets, schedule=None) -> None:
         raise FlexlinkError(f"--export-ssp {args.export_ssp}: expected a file name ending in .ssp")
     check_multijoint(d)
     pl = plan(d.plant, targets)
-    _check_times(args.duration, args.settle, d.dt)
+    check_times(args.duration, args.settle, d.dt)
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, args.duration, args.settle)
     integ = _integral_design(args, d) if schedule is None else _scheduled_integral(args, schedule)
     path = write_ssp(d, cached_fmu(args.scene), args.export_ssp, ref, schedule=schedule, integral=integ)
@@ -488,8 +488,8 @@ def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int
     JSON, with the plot on request; what a repeated command needs is stored under ``key``
     (:mod:`controllers.design_cache`).
     """
-    from controllers.manoeuvre import _check_times
     from controllers.multijoint import JointPDLaw, MimoLQGLaw, check_multijoint, compare, joint_pd_gains, plan
+    from controllers.trajectory import check_times
     from flexlink.export.cache import cached_fmu
 
     if args.controller != "lqr":
@@ -497,7 +497,7 @@ def _run_multijoint(args, d, targets, run_params, key: str | None = None) -> int
                             "PD; leave --controller out")
     check_multijoint(d)                   # the refusals before an FMU is built
     pl = plan(d.plant, targets)
-    _check_times(args.duration, args.settle, d.dt)
+    check_times(args.duration, args.settle, d.dt)
     fmu = cached_fmu(args.scene)
     if args.schedule is not None:
         return _run_scheduled(args, d, targets, run_params, fmu)

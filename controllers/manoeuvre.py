@@ -54,6 +54,7 @@ __all__ = [
     "reference",
     "rest_to_rest",
     "stability_report",
+    "static_tip",
 ]
 
 CONTROLLERS = ("lqr", "pd")
@@ -203,7 +204,7 @@ def design(scene_or_model, *, torque_limit: float | Mapping[str, float], dt: flo
     return ControlDesign(plant, float(dt), lqr.torque_limit, lqr, kalman, pd)
 
 
-def _target(d: ControlDesign, target: float) -> float:
+def static_tip(d: ControlDesign, target: float) -> float:
     """The tip's static deflection ``<link>.tip.v`` at rest at the target, the zero of the residual vibration.
 
     It also checks that the manoeuvre does not change the loads (the plant at the target is the plant at the
@@ -242,7 +243,7 @@ def _metrics(d: ControlDesign, series: Mapping[str, np.ndarray], target: float, 
     from controllers.figures import manoeuvre_figures
 
     return manoeuvre_figures(series, joint=d.joint, link=d.link, torque_input=d.plant.inputs[0],
-                             torque_limit=d.torque_limit, static_tip=_target(d, target), target=target,
+                             torque_limit=d.torque_limit, static_tip=static_tip(d, target), target=target,
                              duration=duration, settle=settle, sample_time=d.dt, controller=controller,
                              wall_time=wall_time)
 
@@ -277,7 +278,7 @@ def rest_to_rest(d: ControlDesign, loop: FmuLoop | str | os.PathLike, target: fl
         ``saturated_fraction``.
     """
     _check_times(duration, settle, d.dt)
-    _target(d, target)
+    static_tip(d, target)
     law = d.law(controller)
     ref = reference(d, controller, target, duration, settle)
     if noise is True:

@@ -53,7 +53,7 @@ def torque_joints(sc) -> list[str]:
 def settings(sc, controller: str, target_deg, duration: float, settle: float, sample_time: float,
              torque_limit, sensors: str) -> dict:
     """The shared settings of a multi-joint closed-loop sweep (checked here, before any FMU is run)."""
-    from controllers.manoeuvre import _check_times
+    from controllers.trajectory import check_times
 
     joints = torque_joints(sc)
     targets = [float(v) for v in np.atleast_1d(target_deg)]
@@ -61,7 +61,7 @@ def settings(sc, controller: str, target_deg, duration: float, settle: float, sa
         raise FlexlinkError(f"--target: one angle per torque-driven joint ({', '.join(joints)}), got {len(targets)}")
     if controller not in ("lqr", "pd"):
         raise FlexlinkError(f"--controller: expected lqr (the MIMO LQG) or pd (the joint PD), got {controller!r}")
-    _check_times(duration, settle, sample_time)
+    check_times(duration, settle, sample_time)
     if isinstance(torque_limit, float | int) and not (math.isfinite(torque_limit) and torque_limit > 0):
         raise FlexlinkError(f"--torque-limit must be positive, got {torque_limit}")
     return {"multijoint": True, "controller": controller, "targets": [math.radians(v) for v in targets],

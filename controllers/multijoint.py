@@ -601,9 +601,9 @@ def compare(d, loop: FmuLoop, targets: Sequence[float], duration: float, settle:
     ``noise``: each law reads its sensors with their noise (:func:`sensor_noise`, the Kalman design's levels),
     drawn from ``seed``.
     """
-    from controllers.manoeuvre import _check_times
+    from controllers.trajectory import check_times
 
-    _check_times(duration, settle, d.dt)
+    check_times(duration, settle, d.dt)
     check_multijoint(d)
     pl = plan(d.plant, targets) if pl is None else pl
     ref = inverse_dynamics_reference(d.plant, pl, d.dt, duration, settle)

@@ -95,7 +95,7 @@ __all__ = [
 
 
 def _design(model, *, controller, target, duration, sample_time, torque_limit, sensors, weights=None):
-    from controllers.manoeuvre import _target, check_scene, default_torque_limit, design
+    from controllers.manoeuvre import check_scene, default_torque_limit, design, static_tip
     from controllers.weights import bryson_limits, torque_limits
     from flexlink.run.linearize import linear_plant
 
@@ -108,7 +108,7 @@ def _design(model, *, controller, target, duration, sample_time, torque_limit, s
         raise FlexlinkError(f"--torque-limit must be positive, got {limit}")
     d = design(model, torque_limit=limit, dt=sample_time, sensors=sensors, limits=bryson_limits(model, weights))
     d.law(controller)
-    _target(d, target)          # checks the manoeuvre and caches the static deflection for the workers
+    static_tip(d, target)          # checks the manoeuvre and caches the static deflection for the workers
     return d
 
 
@@ -286,13 +286,14 @@ def _sweep_settings(sc, scene_path: Path, variables: dict, *, controller, target
             return "closed", montecarlo.MULTIJOINT_METRICS, settings, make_design
         target_deg = _one_angle(target_deg)
     if controller is not None:
-        from controllers.manoeuvre import CONTROLLERS, _check_times
+        from controllers.manoeuvre import CONTROLLERS
+        from controllers.trajectory import check_times
 
         if controller not in CONTROLLERS:
             raise FlexlinkError(f"--controller: expected one of {CONTROLLERS}, got {controller!r}")
         if target_deg is None or duration is None:
             raise FlexlinkError("a closed-loop sweep needs --target DEG and --duration S")
-        _check_times(duration, settle, sample_time)
+        check_times(duration, settle, sample_time)
         settings.update(controller=controller, target=math.radians(target_deg), target_deg=float(target_deg),
                         duration=float(duration), settle_band=float(settle_band), torque_limit=torque_limit,
                         sensors=sensors, record=[f"{joint}.theta", f"{link}.tip.v"])
