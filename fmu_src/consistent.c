@@ -35,12 +35,14 @@ void fmu_consistent_forget(FmuData *d) {
     d->mass.valid = 0;
 }
 
-/* max_i |x_i| / nominal_i: the coordinates' own units, as the Newton tolerance measures them. */
+/* max_i |x_i| / nominal_i: the coordinates' own units, as the Newton tolerance measures them; NaN if any x_i
+ * is (a running max with !(s <= m) let a later finite s replace a NaN m: a = (NaN, 0, ...) measured 0). */
 static double scaled_size(const double *x) {
     double m = 0.0;
     for (int i = 0; i < N_Q; i++) {
         const double s = fabs(x[i]) / MODEL_NOMINAL_Q[i];
-        if (!(s <= m)) m = s;          /* a NaN propagates */
+        if (isnan(s)) return s;
+        if (s > m) m = s;
     }
     return m;
 }

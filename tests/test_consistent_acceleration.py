@@ -238,10 +238,6 @@ def test_a_kept_mass_matrix_the_iteration_cannot_use_is_never_accepted(built, b,
     increments is small.  b = 3 diverges (ratio 2: a stop on ρ/(1 − ρ) taken negative accepted it 4 % off);
     b = 0.01 crawls (ratio 0.99: its steps are 1 % of its error, which a stop on the step took at 5e-9).
     """
-    import struct
-
-    import fmpy
-
     model, fmu = built
     p = np.array(model.p0, float)
     n = model.n_q
@@ -263,16 +259,42 @@ def test_a_kept_mass_matrix_the_iteration_cannot_use_is_never_accepted(built, b,
         c = w - (w @ rest) / (rest @ rest) * rest
         c /= c @ w
         K = M - (b - 1.0) / b * np.outer(M @ w, c)          # M B⁻¹, Sherman-Morrison
-        LU, piv = _lu_factor(K)
-        # FmuData ends with the kept factors {int valid; double LU[n²]; int piv[n]} (padded to 8), two counters
-        end = len(blob) - 16 - (4 * n) % 8
-        start = end - 4 * n - 8 * n * n - 8
-        blob[start:start + 4] = struct.pack("<i", 1)
-        blob[start + 8:end - 4 * n] = np.asfortranarray(LU).tobytes(order="F")
-        blob[end - 4 * n:end] = struct.pack(f"<{n}i", *piv)
-        header = 8 + len(fmpy.read_model_description(str(fmu)).guid) + 1 + 16
-        blob[header - 8:header] = struct.pack("<Q", _fnv1a(bytes(blob[header:])))
-        host.instance.setFMUstate(host.instance.deSerializeFMUstate(bytes(blob)))
+        _restore_with_kept(host, fmu, blob, *_lu_factor(K))
         host.set_values({"hub.tau": 4.0})      # the same input: only the outputs are asked for again
         worst = _compare(host, model, p, 4.0)
     assert worst <= 1.0, worst
+
+
+def test_a_kept_factor_that_is_not_a_number_is_never_accepted(built):
+    """At rest in equilibrium (r0 = 0) a kept U₀₀ = NaN makes a₁ = (NaN, 0, …, 0): a size that let the NaN
+    through (max over |aᵢ| kept the later zeros) took it for a = 0 exactly, and outputs NaN with fmi2OK."""
+    model, fmu = built
+    _, _, an = _names(model)
+    with FmuHost(fmu) as host:
+        host.initialize()
+        host.get_real(an)
+        blob = bytearray(host.instance.serializeFMUstate(host.instance.getFMUstate()))
+        LU, piv = np.eye(model.n_q), np.arange(model.n_q)
+        LU[0, 0] = np.nan
+        _restore_with_kept(host, fmu, blob, LU, piv)
+        host.set_values({"hub.tau": 0.0})
+        a = np.array(host.get_real(an))
+    assert np.array_equal(a, np.zeros(model.n_q)), a      # at rest, unforced: a = 0 (the direct solve's)
+
+
+def _restore_with_kept(host: FmuHost, fmu, blob: bytearray, LU: np.ndarray, piv: np.ndarray) -> None:
+    """Write kept factors into a serialised state (checksum made right) and restore it in host."""
+    import struct
+
+    import fmpy
+
+    n = len(piv)
+    # FmuData ends with the kept factors {int valid; double LU[n²]; int piv[n]} (padded to 8), two counters
+    end = len(blob) - 16 - (4 * n) % 8
+    start = end - 4 * n - 8 * n * n - 8
+    blob[start:start + 4] = struct.pack("<i", 1)
+    blob[start + 8:end - 4 * n] = np.asarray(LU, float).tobytes(order="F")
+    blob[end - 4 * n:end] = struct.pack(f"<{n}i", *piv)
+    header = 8 + len(fmpy.read_model_description(str(fmu)).guid) + 1 + 16
+    blob[header - 8:header] = struct.pack("<Q", _fnv1a(bytes(blob[header:])))
+    host.instance.setFMUstate(host.instance.deSerializeFMUstate(bytes(blob)))
