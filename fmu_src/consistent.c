@@ -80,6 +80,9 @@ static int iterate_on_kept(Instance *inst, const double *u0, const double *r0) {
          * in a direction where M_kept⁻¹ M exceeds 2 (error (1 - b)/b of the step). */
         if (k > 0 && rate > 0.5 && remainder <= 1e3 * CONSISTENT_TOLERANCE * size) return 0;
         if (rate > CONSISTENT_MAX_RATE) return 1;
+        /* Out of reach within the budget (about a new M's price in residuals) at the measured rate: the new M
+         * now, not after spending the budget too (at 0.05 on a price of 5.3, 4 residuals and then the M). */
+        if (k > 0 && remainder * pow(rate, max_iterations - 1 - k) > CONSISTENT_TOLERANCE * size) return 1;
         last = step;
     }
     return 1;

@@ -265,6 +265,34 @@ def test_a_kept_mass_matrix_the_iteration_cannot_use_is_never_accepted(built, b,
     assert worst <= 1.0, worst
 
 
+def test_an_iteration_that_cannot_converge_in_its_budget_buys_a_new_mass_matrix_early(built):
+    """A kept M that contracts at 0.05 everywhere (B = M_kept⁻¹ M = 1.05 I) needs about 11 residuals to 1e-13;
+    the budget is a new M's price less one (4 here).  The measured rate tells after the second residual that the
+    budget cannot reach the tolerance: the new M is bought then, not after the 4 (2 wasted instead of 4)."""
+    model, fmu = built
+    p = np.array(model.p0, float)
+    qn, _, an = _names(model)
+    with zipfile.ZipFile(fmu) as z:
+        cost = float(re.search(r"#define CONSISTENT_REFRESH_COST (\S+)", z.read("sources/config.h").decode())[1])
+    budget = int(cost) - 1
+    assert budget >= 3, cost             # room for a saving: the first two residuals are always spent
+    with FmuHost(fmu) as host:
+        host.initialize()
+        host.set_values({"hub.tau": 4.0})
+        host.instance.doStep(0.0, 2e-3)
+        host.get_real(an)
+        blob = bytearray(host.instance.serializeFMUstate(host.instance.getFMUstate()))
+        counters = np.frombuffer(bytes(blob[-16:]), "<u8")          # mass matrices, residuals iterated
+        M = np.array(model.mass_matrix_function()(np.array(host.get_real(qn)), np.array([4.0]), p))
+        _restore_with_kept(host, fmu, blob, *_lu_factor(M / 1.05))
+        host.set_values({"hub.tau": 4.0})
+        worst = _compare(host, model, p, 4.0)
+        stats = host.solver_statistics()
+    assert worst <= 1.0, worst
+    assert stats["mass_matrices"] - counters[0] == 1, (stats, counters)
+    assert stats["consistent_iterations"] - counters[1] == 2, (stats, counters, budget)
+
+
 def test_a_kept_factor_that_is_not_a_number_is_never_accepted(built):
     """At rest in equilibrium (r0 = 0) a kept U₀₀ = NaN makes a₁ = (NaN, 0, …, 0): a size that let the NaN
     through (max over |aᵢ| kept the later zeros) took it for a = 0 exactly, and outputs NaN with fmi2OK."""
