@@ -213,3 +213,116 @@ def _fnv1a(payload: bytes) -> int:
     for byte in payload:
         h = ((h ^ byte) * 1099511628211) % 2**64
     return h
+
+
+def _lu_factor(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """fmu_src/linalg.c's lu_factor, transcribed: partial pivoting, L\\U packed column-major, LAPACK's pivots."""
+    A = np.array(A, float)
+    n = len(A)
+    piv = np.zeros(n, int)
+    for k in range(n):
+        p = k + int(np.argmax(np.abs(A[k:, k])))
+        piv[k] = p
+        A[[k, p]] = A[[p, k]]
+        A[k + 1:, k] /= A[k, k]
+        A[k + 1:, k + 1:] -= np.outer(A[k + 1:, k], A[k, k + 1:])
+    return A, piv
+
+
+@pytest.mark.parametrize("b, share", [(3.0, 1e-2), (0.01, 5e-9)])
+def test_a_kept_mass_matrix_the_iteration_cannot_use_is_never_accepted(built, b, share):
+    """Whatever M the FMU keeps is only a preconditioner: a bad one may cost a new M, never accuracy.
+
+    A kept K = M B⁻¹ with B = M_kept⁻¹ M = I + (b − 1) w cᵀ (cᵀw = 1) written into a state: the iteration's error
+    (1 − b)ᵏ along w, and nothing elsewhere but a share along w of the acceleration, so that the first ratio of
+    increments is small.  b = 3 diverges (ratio 2: a stop on ρ/(1 − ρ) taken negative accepted it 4 % off);
+    b = 0.01 crawls (ratio 0.99: its steps are 1 % of its error, which a stop on the step took at 5e-9).
+    """
+    model, fmu = built
+    p = np.array(model.p0, float)
+    n = model.n_q
+    qn, vn, an = _names(model)
+    nominal = np.asarray(model.nominal_q)
+    with FmuHost(fmu) as host:
+        host.initialize()
+        host.set_values({"hub.tau": 4.0})
+        host.instance.doStep(0.0, 2e-3)
+        host.get_real(an)
+        blob = bytearray(host.instance.serializeFMUstate(host.instance.getFMUstate()))
+        q, v = np.array(host.get_real(qn)), np.array(host.get_real(vn))
+        M = np.array(model.mass_matrix_function()(q, np.array([4.0]), p))
+        a = _reference(model, q, v, np.array([4.0]), p)[0]
+        # w: along the largest modal coordinate's nominal unit, its share of a put there; c ⟂ the rest of a
+        w = np.zeros(n)
+        w[n - 1] = nominal[n - 1] * share * np.max(np.abs(a) / nominal)
+        rest = a - w
+        c = w - (w @ rest) / (rest @ rest) * rest
+        c /= c @ w
+        K = M - (b - 1.0) / b * np.outer(M @ w, c)          # M B⁻¹, Sherman-Morrison
+        _restore_with_kept(host, fmu, blob, *_lu_factor(K))
+        host.set_values({"hub.tau": 4.0})      # the same input: only the outputs are asked for again
+        worst = _compare(host, model, p, 4.0)
+    assert worst <= 1.0, worst
+
+
+def test_an_iteration_that_cannot_converge_in_its_budget_buys_a_new_mass_matrix_early(built):
+    """A kept M that contracts at 0.05 everywhere (B = M_kept⁻¹ M = 1.05 I) needs about 11 residuals to 1e-13;
+    the budget is a new M's price less one (4 here).  The measured rate tells after the second residual that the
+    budget cannot reach the tolerance: the new M is bought then, not after the 4 (2 wasted instead of 4)."""
+    model, fmu = built
+    p = np.array(model.p0, float)
+    qn, _, an = _names(model)
+    with zipfile.ZipFile(fmu) as z:
+        cost = float(re.search(r"#define CONSISTENT_REFRESH_COST (\S+)", z.read("sources/config.h").decode())[1])
+    budget = int(cost) - 1
+    assert budget >= 3, cost             # room for a saving: the first two residuals are always spent
+    with FmuHost(fmu) as host:
+        host.initialize()
+        host.set_values({"hub.tau": 4.0})
+        host.instance.doStep(0.0, 2e-3)
+        host.get_real(an)
+        blob = bytearray(host.instance.serializeFMUstate(host.instance.getFMUstate()))
+        counters = np.frombuffer(bytes(blob[-16:]), "<u8")          # mass matrices, residuals iterated
+        M = np.array(model.mass_matrix_function()(np.array(host.get_real(qn)), np.array([4.0]), p))
+        _restore_with_kept(host, fmu, blob, *_lu_factor(M / 1.05))
+        host.set_values({"hub.tau": 4.0})
+        worst = _compare(host, model, p, 4.0)
+        stats = host.solver_statistics()
+    assert worst <= 1.0, worst
+    assert stats["mass_matrices"] - counters[0] == 1, (stats, counters)
+    assert stats["consistent_iterations"] - counters[1] == 2, (stats, counters, budget)
+
+
+def test_a_kept_factor_that_is_not_a_number_is_never_accepted(built):
+    """At rest in equilibrium (r0 = 0) a kept U₀₀ = NaN makes a₁ = (NaN, 0, …, 0): a size that let the NaN
+    through (max over |aᵢ| kept the later zeros) took it for a = 0 exactly, and outputs NaN with fmi2OK."""
+    model, fmu = built
+    _, _, an = _names(model)
+    with FmuHost(fmu) as host:
+        host.initialize()
+        host.get_real(an)
+        blob = bytearray(host.instance.serializeFMUstate(host.instance.getFMUstate()))
+        LU, piv = np.eye(model.n_q), np.arange(model.n_q)
+        LU[0, 0] = np.nan
+        _restore_with_kept(host, fmu, blob, LU, piv)
+        host.set_values({"hub.tau": 0.0})
+        a = np.array(host.get_real(an))
+    assert np.array_equal(a, np.zeros(model.n_q)), a      # at rest, unforced: a = 0 (the direct solve's)
+
+
+def _restore_with_kept(host: FmuHost, fmu, blob: bytearray, LU: np.ndarray, piv: np.ndarray) -> None:
+    """Write kept factors into a serialised state (checksum made right) and restore it in host."""
+    import struct
+
+    import fmpy
+
+    n = len(piv)
+    # FmuData ends with the kept factors {int valid; double LU[n²]; int piv[n]} (padded to 8), two counters
+    end = len(blob) - 16 - (4 * n) % 8
+    start = end - 4 * n - 8 * n * n - 8
+    blob[start:start + 4] = struct.pack("<i", 1)
+    blob[start + 8:end - 4 * n] = np.asarray(LU, float).tobytes(order="F")
+    blob[end - 4 * n:end] = struct.pack(f"<{n}i", *piv)
+    header = 8 + len(fmpy.read_model_description(str(fmu)).guid) + 1 + 16
+    blob[header - 8:header] = struct.pack("<Q", _fnv1a(bytes(blob[header:])))
+    host.instance.setFMUstate(host.instance.deSerializeFMUstate(bytes(blob)))
