@@ -28,6 +28,12 @@ that rate (raised to its ratio to the first increment, if larger) is.  The floor
  * jump where a measured rate of 5e-9 accepted a step 1290 tolerances off).  Every SS22_RATE_MEASURE_EVERY-th
  * such step iterates once more and measures the rate again. */
 #define SS22_RATE_MEASURE_EVERY 4
+/* The one-increment stop takes the last first ratio of increments, grown with the matrix's age (ss22.c,
+ * one_increment_rate), times this margin: a ratio of two increments' largest entries, and what the first
+ * increment leaves depends on the direction of the predictor's error.  On the six-axis arm the old matrix's G = I - J_old^-1 J
+ * has an infinity-norm 1.65-2.1 times the ratios it shows (benchmarks/newton_trace.py --every 25), and two steps
+ * accepted on a rate of 0.163 were 0.33 of their increment from their solution (benchmarks/step_audit.py). */
+#define SS22_DIRECTION_MARGIN 2.0
 #define SS22_RATE_FLOOR 1e-3
 /* The kept contraction rate of a matrix falls by at most this factor per measured ratio of increments (ss22.c,
  * record_rate; CVODE's CRDOWN). */
@@ -65,6 +71,9 @@ typedef struct {
     double rate;                 /* kept contraction rate of the simplified Newton iteration with this matrix
                                     (ss22.c, record_rate), or -1 before a measure */
     int estimated;               /* steps accepted since on that rate without measuring it again */
+    uint64_t made;               /* SS22.steps when it was evaluated: its age is SS22.steps - made */
+    double first;                /* the last ratio of a step's second increment to its first with it, or -1 */
+    uint64_t first_age;          /* its age at that step */
     double waste;                /* iterations spent beyond two a step since it was evaluated */
     double LU[N_Q * N_Q];
     int piv[N_Q];
