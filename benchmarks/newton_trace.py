@@ -6,11 +6,13 @@ The FMU's sources are compiled with ``benchmarks/step_floor.c`` and a copy of ``
 write, for every step of the scene's bench manoeuvre (``flexlink.tools.bench.default_case``) at its own step:
 the iterations, the kept matrix's age in steps, the predictor's error (the converged acceleration against the
 iteration's start) next to the errors other predictors would have made (holding the last acceleration, the
-mean of the last two, a parabola through the last three), and every increment, all in the tolerance's units
-(Δt |δα_i| / nominal_i, largest over i).  Every ``--every`` steps it also splits the kept matrix's error
-G = J_old⁻¹ (J_now − J_old), J = M + Θ₁Δt C + Θ₂Δt²/2 K, into its M, C and K parts (∞-norms in nominal units)
-and gives G's spectral radius, the rate simplified Newton contracts at.  The summary prints geometric means and
-the iterations' distribution; the trace file keeps the lines.  Nothing here ships in an FMU.
+mean of the last two, a parabola through the last three), the matrix's kept contraction rate and the steps
+accepted on it since it was last measured (``SS22Factor.rate``, ``.estimated``, after the step), and every
+increment, all in the tolerance's units (Δt |δα_i| / nominal_i, largest over i).  Every ``--every`` steps it
+also splits the kept matrix's error G = J_old⁻¹ (J_now − J_old), J = M + Θ₁Δt C + Θ₂Δt²/2 K, into its M, C and
+K parts (∞-norms in nominal units) and gives G's spectral radius, the rate simplified Newton contracts at.  The
+summary prints geometric means and the iterations' distribution; the trace file keeps the lines.  Nothing here
+ships in an FMU.
 """
 
 from __future__ import annotations
@@ -101,8 +103,8 @@ static void trace_step(SS22 *s, double dt, const double *q, const double *v, con
     memcpy(a2, a1, sizeof(a1));
     memcpy(a1, a, sizeof(a1));
     const int k = (int)(f - s->cache);
-    fprintf(TR, "%llu %d %llu %.3e %.3e %.3e %.3e |", (unsigned long long)s->steps, TR_n,
-            (unsigned long long)(s->steps - OLD_step[k]), used, hold, mean, parabola);
+    fprintf(TR, "%llu %d %llu %.3e %.3e %.3e %.3e %.3e %d |", (unsigned long long)s->steps, TR_n,
+            (unsigned long long)(s->steps - OLD_step[k]), used, hold, mean, parabola, f->rate, f->estimated);
     for (int i = 0; i < TR_n && i < 20; i++) fprintf(TR, " %.2e", TR_err[i]);
     if (SS22_TRACE_EVERY > 0 && seen % SS22_TRACE_EVERY == 0) {
         const double cv = s->theta1 * dt, cq = s->theta2 * 0.5 * dt * dt;

@@ -93,6 +93,9 @@ static SS22Status step_matrix(SS22 *s, double dt, const double *alpha, const dou
     f->rate = -1.0;
     f->estimated = 0;
     f->waste = 0.0;
+    f->made = s->steps;
+    f->first = -1.0;
+    f->first_age = 0;
     if (!all_finite(f->LU, N_Q * N_Q)) { f->valid = 0; return SS22_NOT_FINITE; }
     if (lu_factor(f->LU, N_Q, f->piv)) { f->valid = 0; return SS22_SINGULAR; }
     f->dt = dt; f->theta1 = s->theta1; f->theta2 = s->theta2;
@@ -139,6 +142,21 @@ static double record_rate(SS22Factor *f, double rate, int raise_only) {
     else f->rate = fmax(rate, raise_only ? f->rate : SS22_RATE_DECAY * f->rate);
     f->estimated = 0;
     return f->rate;
+}
+
+/* What one increment with f leaves of this step's error, per unit of that increment: its last first ratio of
+ * increments grown to this step's age (or its kept rate, if larger), times SS22_DIRECTION_MARGIN (ss22.h).  The
+ * first ratio says how much of the predictor's error the old matrix misses, and so how much it leaves after
+ * one increment (the kept rate, which later ratios lower, says how fast it contracts after that).  It misses
+ * the change of J since it was made, which in a smooth motion grows in proportion to the time since: on the
+ * six-axis arm the first ratio is 3.1e-3 at age 1, 0.019 at 6, 0.026 at 8 (its ratio to the age 0.012 +-
+ * 0.002 over the first 0.25 s, benchmarks/newton_trace.py), and a rate measured at age 1 accepted the steps of
+ * ages 2-5 after one increment up to 2 tolerances off (benchmarks/step_audit.py).  A ratio measured in the
+ * matrix's own step says nothing of its growth: no one-increment stop before one is measured at age >= 1. */
+static double one_increment_rate(const SS22 *s, const SS22Factor *f) {
+    if (f->first < 0.0 || f->first_age == 0) return INFINITY;
+    const double grown = f->first * fmax(1.0, (double)(s->steps - f->made) / (double)f->first_age);
+    return SS22_DIRECTION_MARGIN * fmax(f->rate, grown);
 }
 #endif
 
@@ -202,6 +220,7 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             s->newton_iterations++;
             if (fresh >= 0) fresh++;
             if (!isfinite(err)) return SS22_NOT_FINITE;
+            if (it == 1 && fresh < 0) { f->first = err / previous; f->first_age = s->steps - f->made; }
             if (err <= s->tolerance) {
                 /* a ratio to an increment below the tolerance, perhaps at the rounding floor: it only raises */
                 if (it > 0 && fresh < 0) record_rate(f, err / previous, 1);
@@ -212,10 +231,10 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
                 /* an earlier step's matrix and its last measured rate: what is left is about
                  * rate/(1-rate) times this increment, the first or the second (ss22.h,
                  * SS22_RATE_MEASURE_EVERY); the second's ratio to the first still raises the kept rate */
-                const double seen = it == 1 ? fmax(f->rate, err / previous) : f->rate;
+                const double seen = it == 1 ? fmax(f->rate, err / previous) : one_increment_rate(s, f);
                 const double aged = pow(fmax(seen, SS22_RATE_FLOOR), 0.8);
                 if (aged < 0.5 && aged / (1.0 - aged) * err <= s->tolerance) {
-                    f->rate = seen;
+                    if (it == 1) f->rate = seen;
                     f->estimated++;
                     converged = 1;
                     break;

@@ -19,15 +19,25 @@
 
 /* SS22_MAX_ITERATIONS and SS22_ROUNDING_FACTOR: solver_settings.h (from flexlink/scene/solver.py) */
 
-/* A step whose first increment, times rate/(1 - rate) for the rate its matrix last showed over two increments
- * in an earlier step (at least SS22_RATE_FLOOR, then raised once to the power 0.8: Radau5 raises its
- * contraction factor so at every step, Hairer & Wanner, Solving ODEs II, IV.8; here the rate is measured again
- * instead), is below the tolerance is accepted after one iteration; so is, after two, a step whose second increment times
-that rate (raised to its ratio to the first increment, if larger) is.  The floor keeps a rate measured where the increments had already reached rounding, or after an
- * input jump, from accepting a large first increment (an independent review built a stiff model with an input
- * jump where a measured rate of 5e-9 accepted a step 1290 tolerances off).  Every SS22_RATE_MEASURE_EVERY-th
- * such step iterates once more and measures the rate again. */
+/* A step whose first increment, times rate/(1 - rate) for the rate its matrix showed in an earlier step (its
+ * last ratio of a second increment to a first, grown with the matrix's age and doubled: SS22_DIRECTION_MARGIN
+ * below; or its kept rate, if larger), at least SS22_RATE_FLOOR, then raised once to the power 0.8 (Radau5
+ * raises its contraction factor so at every step, Hairer & Wanner, Solving ODEs II, IV.8; here the rate is
+ * measured again instead), is below the tolerance is accepted after one iteration; so is, after two, a step
+ * whose second increment times the kept rate (raised to its ratio to the first increment, if larger) is.  The
+ * floor keeps a rate measured where the increments had already reached rounding, or after an input jump, from
+ * accepting a large first increment (an independent review built a stiff model with an input jump where a
+ * measured rate of 5e-9 accepted a step 1290 tolerances off).  Every SS22_RATE_MEASURE_EVERY-th such step
+ * iterates once more and measures the rate again. */
 #define SS22_RATE_MEASURE_EVERY 4
+/* The one-increment stop takes the last first ratio of increments, grown with the matrix's age (ss22.c,
+ * one_increment_rate), times this margin: a ratio of two increments' largest entries, and what the first
+ * increment leaves depends on the direction of the predictor's error.  On the six-axis arm two steps accepted
+ * on a rate of 0.163 were 0.33 of their increment from their solution (benchmarks/step_audit.py), and the
+ * infinity-norm of the old matrix's error J_old^-1 (J - J_old), a bound over all directions, was 1.6 to 90
+ * times the step's first ratio, median 2.45, over 189 sampled steps of 3 s (benchmarks/newton_trace.py
+ * --every 25, its M part): 2 is what those steps needed, not a bound (docs/integrator.md). */
+#define SS22_DIRECTION_MARGIN 2.0
 #define SS22_RATE_FLOOR 1e-3
 /* The kept contraction rate of a matrix falls by at most this factor per measured ratio of increments (ss22.c,
  * record_rate; CVODE's CRDOWN). */
@@ -65,6 +75,9 @@ typedef struct {
     double rate;                 /* kept contraction rate of the simplified Newton iteration with this matrix
                                     (ss22.c, record_rate), or -1 before a measure */
     int estimated;               /* steps accepted since on that rate without measuring it again */
+    uint64_t made;               /* SS22.steps when it was evaluated: its age is SS22.steps - made */
+    double first;                /* the last ratio of a step's second increment to its first with it, or -1 */
+    uint64_t first_age;          /* its age at that step */
     double waste;                /* iterations spent beyond two a step since it was evaluated */
     double LU[N_Q * N_Q];
     int piv[N_Q];
