@@ -26,6 +26,10 @@
 #define CONSISTENT_TOLERANCE 1e-13
 /* A kept M whose iteration contracts slower than this is replaced (more than 13 residuals to 1e-13). */
 #define CONSISTENT_MAX_RATE 0.1
+/* A model's config.h states the price (codegen.py); a hand-written model (tests/c/) may not: the direct solve. */
+#ifndef CONSISTENT_REFRESH_COST
+#define CONSISTENT_REFRESH_COST 0.0
+#endif
 /* Below this many residuals' worth a new M (and its LU) is cheaper than iterating on a kept one. */
 #ifndef CONSISTENT_KEEP_MIN_COST
 #define CONSISTENT_KEEP_MIN_COST 4.0
