@@ -216,15 +216,15 @@ def _cmd_explain(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from flexlink.tools.bench import plot_bench, report_markdown, run_bench
+    from flexlink.tools.bench import plot_bench, report_markdown, rows_json, run_bench
 
-    rows, info = run_bench(args.scene, quick=args.quick, repeats=args.repeats)
+    rows, info = run_bench(args.scene, quick=args.quick, repeats=args.repeats, stop=args.stop)
     if args.plot:
         plot_bench(rows, info, args.plot)
     if args.report:
         Path(args.report).write_text(report_markdown(rows, info))
     if args.json:
-        print(json.dumps([r.as_dict() for r in rows]))
+        print(json.dumps(rows_json(rows, info)))
     else:
         print(report_markdown(rows, info))
     return 0
@@ -337,7 +337,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the rows as JSON")
     p.add_argument("--plot", type=plot_file, metavar="OUT.png", help="CPU time against error, every method")
     p.add_argument("--report", type=output_file, metavar="OUT.md", help="write the rows as a Markdown report")
-    p.add_argument("--quick", action="store_true", help="fewer settings and a shorter run (CI size)")
+    p.add_argument("--quick", action="store_true", help="fewer settings and a shorter run (CI size): 2.5 s, or less "
+                   "where the reference or Radau would be slow (timed over the first 2 ms, docs/fidelity.md); "
+                   "reference CVODES rtol 1e-10")
+    p.add_argument("--stop", type=float, metavar="SECONDS", help="the run's horizon, from 1 ms to the scene's stop "
+                   "time (5 s); default 5 s, or --quick's")
     p.add_argument("--repeats", type=int, help="timed runs per setting (median; default 5, quick 2)")
     p.set_defaults(func=_cmd_bench)
 

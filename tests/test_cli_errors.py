@@ -176,6 +176,18 @@ def test_a_run_that_would_not_end_is_refused_before_the_build(tmp_path, args):
     assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").rglob("*.fmu"))
 
 
+@pytest.mark.parametrize(("stop", "words"), [
+    ("0", ["--stop 0", "> 0"]), ("-1", ["> 0"]), ("nan", ["> 0"]), ("inf", ["> 0"]),
+    ("5.5", ["beyond the scene's stop time, 5 s"]), ("1e-4", ["at least 0.001 s"]),
+    ("abc", ["--stop", "invalid float value"]),
+])
+def test_bench_stop_out_of_range_is_one_error(tmp_path, stop, words):
+    """``flexlink bench --stop``: the horizon must be from 1 ms to the scene's stop time (the FMU's
+    DefaultExperiment, 5 s, which is also the bench's whole manoeuvre); anything else is one line, exit status 2,
+    before the model is built (so quickly)."""
+    one_line(run(["bench", SCENE, "--stop", stop], tmp_path, timeout=60), *words)
+
+
 def test_an_output_name_too_long_for_the_file_system(tmp_path):
     one_line(run(["linearize", SCENE, "--save", "x" * 300 + ".json"], tmp_path), "--save", "cannot be written")
 

@@ -25,6 +25,9 @@ from flexlink.export.variables import FmuVariable
 from flexlink.mechanics.model import SymbolicModel
 from flexlink.scene.loader import Scene
 
+# the DefaultExperiment's stop time: the length of the scene's run, e.g. flexlink bench's manoeuvre
+DEFAULT_STOP_TIME = 5.0
+
 # unit → exponents of the SI base units (FMI 2.0 BaseUnit attributes)
 UNITS = {
     "rad": {"rad": 1}, "rad/s": {"rad": 1, "s": -1}, "rad/s2": {"rad": 1, "s": -2},
@@ -153,7 +156,7 @@ def log_categories_and_experiment(scene: Scene) -> list[str]:
     step = _num(scene.fmu.solver.default_communication_step)
     return ["  <LogCategories>", *[f'    <Category name="{k}" description="{d}"/>' for k, d in LOG_CATEGORIES.items()],
             "  </LogCategories>",
-            f'  <DefaultExperiment startTime="0" stopTime="5" stepSize="{step}"/>']
+            f'  <DefaultExperiment startTime="0" stopTime="{DEFAULT_STOP_TIME:g}" stepSize="{step}"/>']
 
 
 def model_description(model: SymbolicModel, gen: GeneratedModel, sources: list[str]) -> str:
