@@ -51,6 +51,15 @@ def _names(model):
     return [f"q.{c}" for c in coords], [f"v.{c}" for c in coords], [f"der(v.{c})" for c in coords]
 
 
+def _state_after_a_torque_step(host: FmuHost, accelerations: list[str]) -> bytearray:
+    """Initialise, push the hub with 4 N m for 2 ms, read the accelerations (kept factors made), serialise."""
+    host.initialize()
+    host.set_values({"hub.tau": 4.0})
+    host.instance.doStep(0.0, 2e-3)
+    host.get_real(accelerations)
+    return bytearray(host.instance.serializeFMUstate(host.instance.getFMUstate()))
+
+
 def _compare(host: FmuHost, model, p: np.ndarray, torque: float) -> float:
     """The FMU's der(v) against the reference at its state, in the scaled norm the FMU's stop uses; returns
     the difference over the bound its tolerance and both solves' round-off allow."""
@@ -244,11 +253,7 @@ def test_a_kept_mass_matrix_the_iteration_cannot_use_is_never_accepted(built, b,
     qn, vn, an = _names(model)
     nominal = np.asarray(model.nominal_q)
     with FmuHost(fmu) as host:
-        host.initialize()
-        host.set_values({"hub.tau": 4.0})
-        host.instance.doStep(0.0, 2e-3)
-        host.get_real(an)
-        blob = bytearray(host.instance.serializeFMUstate(host.instance.getFMUstate()))
+        blob = _state_after_a_torque_step(host, an)
         q, v = np.array(host.get_real(qn)), np.array(host.get_real(vn))
         M = np.array(model.mass_matrix_function()(q, np.array([4.0]), p))
         a = _reference(model, q, v, np.array([4.0]), p)[0]
@@ -277,11 +282,7 @@ def test_an_iteration_that_cannot_converge_in_its_budget_buys_a_new_mass_matrix_
     budget = int(cost) - 1
     assert budget >= 3, cost             # room for a saving: the first two residuals are always spent
     with FmuHost(fmu) as host:
-        host.initialize()
-        host.set_values({"hub.tau": 4.0})
-        host.instance.doStep(0.0, 2e-3)
-        host.get_real(an)
-        blob = bytearray(host.instance.serializeFMUstate(host.instance.getFMUstate()))
+        blob = _state_after_a_torque_step(host, an)
         counters = np.frombuffer(bytes(blob[-16:]), "<u8")          # mass matrices, residuals iterated
         M = np.array(model.mass_matrix_function()(np.array(host.get_real(qn)), np.array([4.0]), p))
         _restore_with_kept(host, fmu, blob, *_lu_factor(M / 1.05))
