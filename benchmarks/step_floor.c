@@ -38,7 +38,6 @@ typedef struct { int n_set, n_seg; unsigned set_vr[MAX_TOKENS]; double set_val[M
 typedef struct { unsigned long steps, newton_iterations, factorisations, residual_evaluations, mass_refreshes,
                  mass_iterations; } Counters;
 
-/* one run of the plan from a reset instance; returns CPU seconds of the doStep calls, fills counters */
 /* one segment from t to until: one fmi2DoStep, or the host's equal steps of at most plan->host */
 static void walk(fmi2Component c, Plan *plan, double t, double until) {
     const long n = plan->host > 0.0 ? (long)ceil((until - t) / plan->host - 1e-9) : 1;
@@ -54,6 +53,7 @@ static void walk(fmi2Component c, Plan *plan, double t, double until) {
     plan->communication_steps += n;
 }
 
+/* one run of the plan from a reset instance; returns CPU seconds of the doStep calls, fills counters */
 static double run(fmi2Component c, Plan *plan, Counters *cnt) {
     Instance *inst = (Instance *)c;
     if (fmi2Reset(c) != fmi2OK) { fprintf(stderr, "reset failed\n"); exit(1); }

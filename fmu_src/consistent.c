@@ -13,11 +13,10 @@
  * when the remainder predicted from the measured rate is CONSISTENT_TOLERANCE of the acceleration (round-off
  * of a direct solve, which LU's backward error also leaves), or at the rounding floor; a rate above
  * CONSISTENT_MAX_RATE, or more residuals than a new M costs (or a rate that cannot reach the tolerance within
- * them), buys a new M instead: its price in residuals is CONSISTENT_REFRESH_COST (model.h's operation counts,
- * codegen.py).  Where a new M costs no more than a few residuals the direct solve is taken every time, as
+ * them), buys a new M instead: its price in residuals is CONSISTENT_REFRESH_COST (config.h, from the build's
+ * operation counts: codegen.py, consistent_refresh_cost).  Where a new M costs no more than a few residuals the direct solve is taken every time, as
  * before.  docs/integrator.md, "The consistent acceleration". */
 #include <math.h>
-#include <string.h>
 #include "internal.h"
 #include "linalg.h"
 
