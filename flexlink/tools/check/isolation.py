@@ -154,11 +154,26 @@ def _watch(p: subprocess.Popen, trace: str, call_limit: float, deadline: float) 
                                       f"{calls[-1] if calls else 'none'})", sequence=calls)
         time.sleep(0.05)
     if p.returncode < 0:
-        _, _, calls = _read(trace)
+        began, _, calls = _read(trace)
         sig = signal.Signals(-p.returncode).name if -p.returncode in signal.valid_signals() else p.returncode
-        last = calls[-1] if calls else "no FMI call"
-        return Finding("no-crash", f"the process died of {sig} in {last}", sequence=calls)
+        if not calls:
+            where = "before any FMI call"
+        elif began > 0.0:
+            where = f"in {calls[-1]}"
+        else:                   # between calls: in Python, or at the exit (an FMU's library destructors)
+            where = f"after {calls[-1]} returned"
+        return Finding("no-crash", f"the process died of {sig} {where}", sequence=calls)
     return None
+
+
+def _last_words(stderr: str, n: int = 3) -> str:
+    """The last lines a crashed child wrote to stderr.
+
+    glibc's "free(): invalid pointer", "Fatal Python error: ...", an FMU's own message: what tells one abort
+    from another.
+    """
+    lines = [x.strip() for x in stderr.splitlines() if x.strip()][-n:]
+    return "; its last words on stderr: " + " | ".join(x[:200] for x in lines) if lines else ""
 
 
 def run_isolated(name: str, fmu: str, options: dict, *, call_limit: float, limit: float,
@@ -200,6 +215,8 @@ def run_isolated(name: str, fmu: str, options: dict, *, call_limit: float, limit
             bad.reproduce = f"flexlink check {fmu} --only {name}{extra} --call-timeout {call_limit:g}"
             if resumable and marker >= 0:
                 bad.message += f" ({item} {marker})"
+            if bad.rule == "no-crash" and p.returncode < 0:
+                bad.message += _last_words(stderr)
             found.append(bad)
             bad_items.append(str(marker))
             if not (resumable and marker >= first and time.monotonic() < t0 + limit and "limit" not in bad.message):

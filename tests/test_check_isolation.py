@@ -1,0 +1,47 @@
+"""The check harness's watch over a child process (flexlink/tools/check/isolation.py), on children that end
+the way a crashing FMU ends them: killed by a signal while a call is in progress, or between two calls (in
+Python, or in an FMU library's destructor at the exit).  The expected values are what the child was made to
+do: the signal it raises, the call it writes to the trace, the line it writes to stderr."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import pytest
+
+from flexlink.tools.check import isolation
+
+# a child that writes one call to the trace (in progress or returned), a line to stderr, and aborts
+CHILD = """
+import os, signal, sys, time
+from flexlink.tools.check import isolation
+isolation.install(sys.argv[1])
+isolation._enter("fmi2Instantiate('wrong', 1)")
+if sys.argv[2] == "after":
+    isolation._leave()
+sys.stderr.write("noise\\nfree(): invalid pointer\\n")
+sys.stderr.flush()
+os.kill(os.getpid(), signal.SIGABRT)
+"""
+
+
+@pytest.mark.parametrize("when, where", [("in", "in fmi2Instantiate('wrong', 1)"),
+                                         ("after", "after fmi2Instantiate('wrong', 1) returned")])
+def test_a_crash_names_the_call_it_happened_in_or_after(tmp_path, when, where):
+    """A call is said to have crashed only if it had begun and not returned; the child's stderr is kept."""
+    trace = tmp_path / "trace"
+    trace.write_bytes(isolation._HEADER.pack(0.0, -1, 0) + bytes(isolation.SIZE - isolation._HEADER.size))
+    with open(tmp_path / "err", "w+") as err:
+        p = subprocess.Popen([sys.executable, "-c", CHILD, str(trace), when], stderr=err, text=True)
+        bad = isolation._watch(p, str(trace), call_limit=30.0, deadline=time.monotonic() + 60.0)
+        err.seek(0)
+        stderr = err.read()
+    assert bad is not None and bad.rule == "no-crash"
+    assert bad.message == f"the process died of SIGABRT {where}"
+    assert isolation._last_words(stderr, 1) == "; its last words on stderr: free(): invalid pointer"
+
+
+def test_a_silent_crash_adds_nothing():
+    assert isolation._last_words("\n  \n") == ""
