@@ -205,10 +205,12 @@ def _wrong_guid(f: Fmu) -> list[Finding]:
     kind = f.interfaces[0]
     wrong = (Slave if kind == "CS" else Model)(guid="{00000000-0000-0000-0000-000000000000}", unzipDirectory=f.dir,
                                                modelIdentifier=f.identifier, instanceName="wrong")
+    inst = Fmi3AsFmi2(wrong) if f.fmi3 else wrong
     try:
-        (Fmi3AsFmi2(wrong) if f.fmi3 else wrong).instantiate(callbacks=quiet_callbacks())
+        inst.instantiate(callbacks=quiet_callbacks())
     except Exception:
         return []
+    free(inst)          # an importer frees what it made: none left for the process's exit to meet
     what = "instantiation token" if f.fmi3 else "GUID"
     return [Finding("flexlink-contract" if f.is_flexlink else "wrong-guid",
                     f"{kind}: an instance with a wrong {what} was created", sequence=isolation.recent(1))]
