@@ -192,6 +192,42 @@ def newton_matrix_template(model: SymbolicModel) -> str:
     return "newton_matrix_columns.c.in" if exact else "newton_matrix_differences.c.in"
 
 
+# model_newton_matrix's M (newton_matrix_differences.c.in): the generated mass matrix ...
+_GENERATED_MASS_MATRIX = """/* M(q): the generated mass matrix */
+static int mass_matrix(const double *q, const double *u, const double *p, double *M, ModelWork *work) {
+    work->arg[0] = q;
+    work->arg[1] = u;
+    work->arg[2] = p;
+    work->res[0] = M;
+    return ${identifier}_mass_matrix(work->arg, work->res, work->iw, work->w, 0);
+}"""
+# ... or, where it would be a large matrix graph (mass_by_differences), differences of the residual in a
+_MASS_MATRIX_BY_DIFFERENCES = """/* M(q) = dr/da by differences of the residual at v = 0.  r is affine in the
+ * accelerations, so M e_j = (r(q, 0, s e_j) - r(q, 0, 0)) / s for any s: s = 2^30 makes r(q, 0, 0) a
+ * rounding error of the column (the difference is exact to a few ulps of M's entries) and divides exactly.
+ * The result is symmetrised, as M is.  N_Q + 1 residuals instead of a generated mass matrix
+ * (codegen.mass_by_differences). */
+static int mass_matrix(const double *q, const double *u, const double *p, double *M, ModelWork *work) {
+    static const double s = 1073741824.0;
+    double zero[N_Q] = {0.0}, a[N_Q] = {0.0}, r0[N_Q], r1[N_Q];
+    int status = model_residual(q, zero, a, u, p, r0, work);
+    if (status) return status;
+    for (int j = 0; j < N_Q; j++) {
+        a[j] = s;
+        status = model_residual(q, zero, a, u, p, r1, work);
+        a[j] = 0.0;
+        if (status) return status;
+        for (int i = 0; i < N_Q; i++) M[(size_t)j * N_Q + i] = (r1[i] - r0[i]) / s;
+    }
+    for (int j = 0; j < N_Q; j++)
+        for (int i = j + 1; i < N_Q; i++) {
+            const double m = 0.5 * (M[(size_t)j * N_Q + i] + M[(size_t)i * N_Q + j]);
+            M[(size_t)j * N_Q + i] = M[(size_t)i * N_Q + j] = m;
+        }
+    return 0;
+}"""
+
+
 @dataclass(frozen=True)
 class _Generated:
     """One function as it is generated: its scalar or matrix form, and its scalar operation count."""
@@ -235,6 +271,20 @@ class _Plan:
 
     functions: list[_Generated]
     complex_step: bool        # the forward derivatives by the complex step on residual and outputs
+    mass_by_differences: bool = False   # M from differences of the residual, not generated (mass_by_differences)
+
+    @property
+    def residual(self) -> _Generated:
+        return self.functions[0]
+
+    @property
+    def outputs(self) -> _Generated:
+        return self.functions[1]
+
+    @property
+    def matrix(self) -> _Generated | None:
+        """The generated mass matrix or dense Newton matrix (None: M by differences)."""
+        return None if self.mass_by_differences else self.functions[2]
 
 
 def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> _Plan:
@@ -255,7 +305,8 @@ def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> _Plan
         newton = _prepare(model.mass_matrix_function(), ident, expanded, off_step=True)
     if model.validity is None:
         raise BuildError("the model has no validity function (flexlink.mechanics.model.build_model makes one)")
-    functions = [residual, newton, outputs]
+    by_differences = mass_by_differences(model, newton)
+    functions = [residual, outputs] + ([] if by_differences else [newton])
     derivatives = model.scene.fmu.directional_derivatives
     complex_step = derivatives and COMPLEX_STEP and complex_step_applies(residual.function, outputs.function)
     if derivatives and not complex_step:
@@ -263,7 +314,21 @@ def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> _Plan
     functions.append(_prepare(model.validity, ident, expanded))
     if model.parameter_check is not None:
         functions.append(_prepare(model.parameter_check, ident, expanded))
-    return _Plan(functions, bool(complex_step))
+    return _Plan(functions, bool(complex_step), by_differences)
+
+
+def mass_by_differences(model: SymbolicModel, mass_matrix: _Generated) -> bool:
+    """Whether model_newton_matrix takes M from N_Q + 1 residuals instead of a generated mass matrix.
+
+    Where ``"auto"`` would generate it as a matrix graph (past REFRESH_EXPAND_MAX_OPERATIONS as scalar code):
+    the 32-mode second-order link's, 287 000 operations as scalar code, 0.37 MB of C in its matrix form and
+    a quarter of the FMU's code, for a matrix that 33 residuals give exactly but for rounding (the residual
+    is affine in the accelerations; M is ∂r/∂a at v = a = 0, ``SymbolicModel.mass_matrix_function``).
+    Refreshed only with the Newton matrix, in the guards and for the consistent acceleration, at about the
+    generated matrix graph's cost.
+    """
+    return (newton_matrix_template(model) == "newton_matrix_differences.c.in" and mass_matrix.matrix_graph
+            and model.n_q <= EXPAND_MAX_COORDINATES)
 
 
 def generated_functions(model: SymbolicModel) -> dict[str, tuple[ca.Function, int]]:
@@ -346,8 +411,10 @@ def _law_tables(model: SymbolicModel) -> str:
     return "\n".join(arrays) + "\nconst KinematicLaw MODEL_LAWS[N_LAWS] = {\n" + "\n".join(law_rows) + "\n};\n"
 
 
-def _model_c(model: SymbolicModel, variables: list[FmuVariable], units: list[str], complex_step: bool) -> str:
+def _model_c(model: SymbolicModel, variables: list[FmuVariable], units: list[str], plan: _Plan) -> str:
     """``model.c``: the variable table, the kinematic laws and the functions of ``fmu_src/model.h``."""
+    complex_step = plan.complex_step
+    mass = _MASS_MATRIX_BY_DIFFERENCES if plan.mass_by_differences else _GENERATED_MASS_MATRIX
     ident = model.scene.model_identifier
     static = ""
     if model.static_coordinates:
@@ -359,7 +426,8 @@ def _model_c(model: SymbolicModel, variables: list[FmuVariable], units: list[str
         casadi_includes="\n".join(f'#include "{u}.h"' for u in units),
         variables=_variable_rows(variables), nominal_q=", ".join(_c(x) for x in model.nominal_q),
         static_coordinates=static, laws=_law_tables(model),
-        newton_matrix=newton.substitute(identifier=ident).rstrip("\n"),
+        newton_matrix=newton.substitute(identifier=ident, mass_matrix=mass.replace("${identifier}", ident))
+        .rstrip("\n"),
         validity_names="\n".join(f"    {_c_string(name)}," for name in model.validity_names) or '    ""',
         parameter_check_names="\n".join(f"    {_c_string(n)}," for n in model.parameter_check_names) or '    ""',
         parameter_check_body=_parameter_check_body(model),
@@ -411,11 +479,39 @@ def _write_unit(generated: _Generated, model: SymbolicModel, directory: Path) ->
     cg.add(f)
     cg.generate(str(directory) + "/")
     path = directory / f"{name}.c"
-    preamble = _template("unit.c.in").substitute(unit=name, scene=model.scene.name,
-                                                 optimise=_optimise_pragma(generated_code_optimisation(
-                                                     operations, generated.matrix_graph)))
-    path.write_text(preamble + path.read_text())
+    level = generated_code_optimisation(operations, generated.matrix_graph)
+    preamble = _template("unit.c.in").substitute(unit=name, scene=model.scene.name, optimise=_optimise_pragma(level))
+    code = path.read_text()
+    path.write_text(preamble + _dense_product(code, level))
     return path, operations
+
+
+#: CasADi's dense product loop in generated code (the constant maps that stay calls, kinematics.dense_map)
+_DENSE_LOOP = "\nvoid casadi_mtimes_dense("
+_PUSH_O2 = ('#if defined(__GNUC__) && !defined(__clang__)\n#pragma GCC push_options\n'
+            '#pragma GCC optimize ("O2")\n#endif\n')
+_POP = "#if defined(__GNUC__) && !defined(__clang__)\n#pragma GCC pop_options\n#endif\n"
+
+
+def _dense_product(code: str, level: str) -> str:
+    """CasADi's dense product loop replaced by dense_product.c.in, at -O2 in a unit of a lower level.
+
+    The replacement gives the same values to the bit (the same sums in the same order) with the plain
+    product's inner loop contiguous in memory: CasADi's adds each row in memory, a chain of dependent loads
+    and stores whose speed depended on where the loop landed (the 32-mode link's residual 4.1 µs in one
+    build, 5.3 µs in another with the same residual code).  A large unit's straight-line code compiles at
+    -Og, as fast to run and several times faster to compile; a loop is not (at -Og that link's step went
+    11 → 23 µs).  ``push_options`` keeps the rest of the unit at its level.  Measured 2026-11-27 with the
+    step-floor driver, medians of 3 runs.
+    """
+    start = code.find(_DENSE_LOOP)
+    if start < 0:
+        return code
+    end = code.index("\n}\n", start) + 3
+    ours = (fmu_src_dir() / "templates" / "dense_product.c.in").read_text()
+    if level != "O2":
+        ours = _PUSH_O2 + ours + _POP
+    return code[:start + 1] + ours + code[end:]
 
 
 def _write_complex_unit(generated: _Generated, model: SymbolicModel, directory: Path, wrapper: str) -> Path:
@@ -454,14 +550,16 @@ def generate(model: SymbolicModel, directory: Path) -> GeneratedModel:
     variables = fmu_variables(model, _feedthrough(model))
     sz = {k: max(int(getattr(f, f"sz_{k}")()) for f in functions) for k in ("arg", "res", "iw", "w")}
     guid = _guid("".join(path.read_text() for path, _ in units), variables, model)
-    refresh = consistent_refresh_cost(model.n_q, prepared[0].operations, prepared[1].operations)
+    matrix_operations = (model.n_q + 1) * plan.residual.operations if plan.matrix is None else \
+        plan.matrix.operations
+    refresh = consistent_refresh_cost(model.n_q, plan.residual.operations, matrix_operations)
     (directory / "config.h").write_text(_config_h(model, guid, variables, sz, plan.complex_step, refresh))
     names = [f.name() for f in functions]
-    (directory / "model.c").write_text(_model_c(model, variables, names, plan.complex_step))
+    (directory / "model.c").write_text(_model_c(model, variables, names, plan))
     twins = []
-    if plan.complex_step:       # residual and outputs are the first and third functions (_casadi_functions)
-        twins = [_write_complex_unit(prepared[0], model, directory, "model_residual_complex"),
-                 _write_complex_unit(prepared[2], model, directory, "model_outputs_complex")]
+    if plan.complex_step:
+        twins = [_write_complex_unit(plan.residual, model, directory, "model_residual_complex"),
+                 _write_complex_unit(plan.outputs, model, directory, "model_outputs_complex")]
     sources = [directory / "model.c", *(path for path, _ in units), *twins]
     generated = [*sources, *(directory / f"{n}.h" for n in names)]
     matrix_graph = tuple(g.function.name().removeprefix(f"{ident}_") for g in prepared if g.matrix_graph)

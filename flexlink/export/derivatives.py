@@ -20,11 +20,13 @@ its pattern), an output on what it reads directly and through a.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 
+from flexlink.mechanics.kinematics import DENSE_MAP_PREFIX
 from flexlink.mechanics.model import SymbolicModel
 
 __all__ = ["COMPLEX_STEP_OPERATIONS", "Structure", "complex_step_applies", "forward_functions", "structure"]
@@ -76,14 +78,19 @@ def forward_functions(model: SymbolicModel) -> tuple[ca.Function, ca.Function]:
 def complex_step_applies(*functions: ca.Function) -> bool:
     """Whether the complex step gives the forward derivatives of these generated functions exactly.
 
-    They must be scalar (SX) code, whose every operation is in COMPLEX_STEP_OPERATIONS: the complex-step
-    unit compiles their generated C with ``casadi_real`` complex, and a matrix graph's helper loops or a
-    non-analytic operation would not carry the tangent (or not compile).
+    They must be scalar (SX) code, whose every operation is in COMPLEX_STEP_OPERATIONS, or a call of a
+    constant linear map or of its forward derivatives (``dense_map`` in flexlink.mechanics.kinematics:
+    CasADi's dense product loop, linear and so exact in complex arithmetic): the complex-step unit compiles
+    their generated C with ``casadi_real`` complex, and a matrix graph's other helpers or a non-analytic
+    operation would not carry the tangent (or not compile).
     """
     for f in functions:
         if not f.is_a("SXFunction"):
             return False
-        if any(f.instruction_id(k) not in COMPLEX_STEP_OPERATIONS for k in range(f.n_instructions())):
+        if not all(re.sub(r"^(fwd\d+_)*", "", name).startswith(DENSE_MAP_PREFIX) for name in f.get_function()):
+            return False
+        allowed = COMPLEX_STEP_OPERATIONS | {ca.OP_CALL}
+        if any(f.instruction_id(k) not in allowed for k in range(f.n_instructions())):
             return False
     return True
 

@@ -511,18 +511,44 @@ class _PointShapes:
         if rule.factor is not None:
             self.modal = ca.DM(rule.factor.modal)
             self.phi, self.slope = (ca.sparsify(ca.DM(m)) for m in (rule.factor.phi, rule.factor.slope))
+            self.to_nodal, self.to_modal = _dense_map(rule.factor.modal), _dense_map(rule.factor.modal.T)
         else:
             self.phi, self.slope = ca.sparsify(ca.DM(rule.phi)), ca.sparsify(ca.DM(rule.slope))
 
     def at_points(self, eta: ca.MX) -> tuple[ca.MX, ca.MX]:
         """(φ η, φ' η) at the points: N·n + 8 K operations through the nodal values, else 2 K·n."""
-        nodal = ca.mtimes(self.modal, eta) if self.factor is not None else eta
+        nodal = self.to_nodal(eta) if self.factor is not None else eta
         return ca.mtimes(self.phi, nodal), ca.mtimes(self.slope, nodal)
 
     def project(self, values: ca.MX, slopes: ca.MX) -> ca.MX:
         """φᵀ values + φ'ᵀ slopes, summed over the points (one transpose of the nodal map)."""
         nodal = ca.mtimes(self.phi.T, values) + ca.mtimes(self.slope.T, slopes)
-        return ca.mtimes(self.modal.T, nodal) if self.factor is not None else nodal
+        return self.to_modal(nodal) if self.factor is not None else nodal
+
+
+#: A constant map with at least this many entries stays a matrix product in the generated code.
+DENSE_MAP_MIN_ENTRIES = 256
+#: the names of those maps' CasADi functions begin so (flexlink.export.derivatives: the complex step carries them)
+DENSE_MAP_PREFIX = "dense_map_"
+
+
+def _dense_map(matrix: np.ndarray):
+    """``x ↦ matrix @ x`` for the symbolic model; a call that stays one in scalar code, for a large matrix.
+
+    Where the matrix has DENSE_MAP_MIN_ENTRIES entries or more, the map is a CasADi function that expanding
+    the model to scalar code keeps as a call (``never_inline``).
+
+    The reduced FE link's modes in nodal coordinates are dense: as scalar code each entry is a constant, a
+    product and a sum, three lines of C (the 32-mode link's four maps were 12 000 of its residual's 24 000
+    operations); as a call, the generated code holds the matrix once as a constant array and multiplies in
+    CasADi's dense loop.  Small maps stay scalar code, where they are cheapest.
+    """
+    m = ca.DM(matrix)
+    if matrix.size < DENSE_MAP_MIN_ENTRIES:
+        return lambda x: ca.mtimes(m, x)
+    x = ca.MX.sym("x", matrix.shape[1])
+    return ca.Function(f"{DENSE_MAP_PREFIX}{matrix.shape[0]}x{matrix.shape[1]}", [x], [ca.mtimes(m, x)],
+                       {"never_inline": True})
 
 
 def _weighted(a: ca.MX | None, b: ca.MX | None) -> Scalar:

@@ -1,0 +1,85 @@
+"""The mass matrix from differences of the residual (flexlink.export.codegen.mass_by_differences).
+
+Where "auto" would generate M(q) as a large matrix graph (a reduced FE link of 12 modes and more, second-order
+kinematics), the FMU takes it from N_Q + 1 residuals: r is affine in the accelerations, so
+M e_j = (r(q, 0, s e_j) − r(q, 0, 0)) / s.  The reference is independent of that C: CasADi's symbolic
+M = ∂r/∂a of the same model (``SymbolicModel.mass_matrix_function``), evaluated in Python.  The FMU's own M is
+read through ``model_newton_matrix(q, 0, 0, u, p, 1, 0, 0)`` by tests/c/mass_probe.c, compiled with the
+FMU's sources.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import xml.etree.ElementTree as ET
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from flexlink.export.cache import cached_fmu
+from flexlink.export.cbuild import compiler
+from flexlink.mechanics.model import build_model
+from flexlink.scene.loader import parse_scene
+
+PROBE = Path(__file__).resolve().parent / "c" / "mass_probe.c"
+MODES = 12
+
+
+def _scene(newton_matrix: str) -> dict:
+    joint = dict(name="hub", axis=[0.0, 0.0, 1.0], inertia=1e-2)
+    link = dict(name="arm", length=1.0, linear_density=2.0, EI=100.0, deformation=["v"],
+                shapes=dict(kind="fe", count=16, modes=MODES), kinematics="second-order")
+    return dict(name="mass_differences", gravity=[0.0, 0.0, -9.81], joint=[joint], link=[link],
+                fmu=dict(step=1e-4, newton_matrix=newton_matrix))
+
+
+@pytest.fixture(scope="module")
+def probe(tmp_path_factory):
+    """(model, FMU sources, the compiled probe) of the 12-mode link under "auto"."""
+    scene = parse_scene(_scene("auto"))
+    model = build_model(scene)
+    fmu = cached_fmu(scene, model=model)
+    work = tmp_path_factory.mktemp("mass_probe")
+    with zipfile.ZipFile(fmu) as z:
+        z.extractall(work)
+        files = [f.get("name") for f in ET.fromstring(z.read("modelDescription.xml")).findall(
+            "CoSimulation/SourceFiles/File")]
+    src = work / "sources"
+    exe = work / "mass_probe"
+    subprocess.run([*compiler(), "-O2", "-std=c99", f"-I{src}", *(str(src / f) for f in files), str(PROBE),
+                    "-o", str(exe), "-lm"], check=True, capture_output=True, text=True)
+    return model, src, exe
+
+
+def _probe_M(exe: Path, q: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
+    stdin = "\n".join(f"{x:.17g}" for x in (*q, *u, *p))
+    out = subprocess.run([str(exe)], input=stdin, capture_output=True, text=True, check=True).stdout
+    n = q.size
+    return np.array([float(x) for x in out.split()]).reshape(n, n).T      # column-major
+
+
+def test_auto_takes_the_mass_matrix_from_the_residual_at_this_size(probe):
+    """No generated mass-matrix unit: model.c forms M from residuals."""
+    _, src, _ = probe
+    assert not list(src.glob("*_mass_matrix.c"))
+    assert "M(q) = dr/da by differences of the residual" in (src / "model.c").read_text()
+
+
+def test_the_differenced_mass_matrix_is_casadis_to_rounding(probe):
+    """At rest and at three random deflections (each modal coordinate up to its nominal scale): the FMU's M
+    equals CasADi's ∂r/∂a to 64 ε of M's largest entry, and is symmetric."""
+    model, _, exe = probe
+    rng = np.random.default_rng(15)
+    nominal = np.asarray(model.nominal_q)
+    p = np.asarray(model.p0, float)
+    u = np.array([0.5])
+    for k in range(4):
+        q = np.zeros(model.n_q) if k == 0 else rng.uniform(-1.0, 1.0, model.n_q) * nominal
+        M = _probe_M(exe, q, u, p)
+        reference = np.array(model.mass_matrix_function()(q, u, p))
+        scale = np.max(np.abs(reference))
+        error = np.max(np.abs(M - reference)) / scale
+        assert error <= 64 * np.finfo(float).eps, (k, error)        # measured: up to 6.2 ε
+        assert np.array_equal(M, M.T)
