@@ -28,7 +28,11 @@ def check_harness_lock():
     (tests/test_check_third_party.py) never run at the same time on xdist workers.  Run side by side, the
     PythonFMU fixture's process died of SIGABRT in the fuzz's fmi2Instantiate with a wrong GUID and resource
     location (three CI runs of 2026-11-27, reproduced with `pytest -n 2 --dist loadfile` on those two files;
-    one after the other they pass).  The cause is not found (open, issue 22's note of that day)."""
+    one after the other they pass), and twice more on 2026-11-27 with the lock.  The cause is not found.  The
+    old finding said "in" the last call even when it had returned: the process may have died at its exit,
+    with the wrong-GUID instance never freed.  The harness now frees it, says "after" when no call was in
+    progress, and quotes the child's last stderr lines (tests/test_check_isolation.py), so that a recurrence
+    names its cause."""
     import fcntl
     import tempfile
 

@@ -84,6 +84,9 @@ def explain(scene_path) -> dict:
         "generated_operations": {name: ops for name, (_, ops) in functions.items()},
         "matrix_graph": [name for name, (f, _) in functions.items() if not f.is_a("SXFunction")],
         "newton_columns_exact": newton_matrix_template(model) == "newton_matrix_columns.c.in",
+        # codegen.mass_by_differences: no generated mass matrix, M from the residual
+        "mass_by_differences": (newton_matrix_template(model) == "newton_matrix_differences.c.in"
+                                and "mass_matrix" not in functions),
         "directional_derivatives": ("none" if not scene.fmu.directional_derivatives else
                                     "forward mode" if "forward" in functions else "complex step"),
         "frequencies_hz": modes.frequencies_hz,
@@ -132,6 +135,9 @@ def format_explanation(info: dict) -> str:
                      + ", ".join(info["matrix_graph"]))
     lines.append(f"  a Co-Simulation step evaluates {step} of them (residual, Newton matrix or mass matrix and the "
                  "directional derivatives where [fmu] newton_matrix = \"columns\" asks for them, validity, outputs)")
+    if info.get("mass_by_differences"):
+        lines.append(f"  mass matrix: from {len(info['coordinates']) + 1} residuals (r is affine in the "
+                     "accelerations; generated, it would be a large matrix graph)")
     lines.append("  " + _derivatives_line(info.get("directional_derivatives", "forward mode")))
     freqs = info["frequencies_hz"]
     lines.append("natural frequencies (Hz): " + ", ".join(f"{f:.4g}" for f in freqs[:12])
