@@ -63,7 +63,8 @@ def main(argv: list[str] | None = None) -> None:
                 kinematics.TENSOR_MAX_SHAPES = threshold
                 r, ops = _measured(n, args.builds, args.repeats)
                 print(f"| {n} | {form} | {r['build_s']:.1f} | {r['generated_bytes'] / 1e6:.2f} | {r['step_us']:.1f} | "
-                      f"{r['residual_us']:.2f} | {ops['residual']} / {ops['mass_matrix']} / {ops['outputs']} |",
+                      f"{r['residual_us']:.2f} | {ops['residual']} / {ops.get('mass_matrix', '-')} "
+                      f"/ {ops['outputs']} |",
                       flush=True)
     finally:
         kinematics.TENSOR_MAX_SHAPES = kept

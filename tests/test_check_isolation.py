@@ -45,3 +45,40 @@ def test_a_crash_names_the_call_it_happened_in_or_after(tmp_path, when, where):
 
 def test_a_silent_crash_adds_nothing():
     assert isolation._last_words("\n  \n") == ""
+
+
+def test_a_crash_whose_stderr_says_limit_does_not_end_a_resumable_check(tmp_path, monkeypatch):
+    """The harness resumes after a crashed item unless its own deadline ended the check; an FMU's stderr
+    ("stack size limit reached") is not the harness's deadline (the independent review of 2026-11-27)."""
+    crashes = []
+
+    def launch(name, fmu, options, trace, out, err):
+        first = options.get("first", 0)
+        crashes.append(first)
+        with open(trace, "wb") as fh:              # the trace's empty header, as the real launch writes it
+            fh.write(isolation._HEADER.pack(0.0, -1, 0) + bytes(isolation.SIZE - isolation._HEADER.size))
+        code = (CHILD_ITEMS % (trace, first)) if first < 3 else (CHILD_DONE % name)
+        return subprocess.Popen([sys.executable, "-c", code], stdout=out, stderr=err, text=True)
+
+    monkeypatch.setattr(isolation, "_launch", launch)
+    result = isolation.run_isolated("fuzz", "x.fmu", {}, call_limit=30.0, limit=120.0, item="sequence")
+    assert crashes == [0, 1, 2, 3]
+    assert [x.rule for x in result.findings] == ["no-crash"] * 3
+    assert all("stack size limit reached" in x.message for x in result.findings)
+
+
+# a child that marks item `first` as begun, says "limit" on stderr and aborts; one that reports a result
+CHILD_ITEMS = """
+import os, signal, sys
+from flexlink.tools.check import isolation
+isolation.install(%r)
+isolation.progress(%d)
+sys.stderr.write("stack size limit reached\\n")
+sys.stderr.flush()
+os.kill(os.getpid(), signal.SIGABRT)
+"""
+CHILD_DONE = """
+import json
+from flexlink.tools.check.findings import CheckResult
+print("RESULT " + json.dumps(CheckResult(%r, "-", "-", "done", seconds=0.0).as_dict()))
+"""

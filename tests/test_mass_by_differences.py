@@ -83,3 +83,18 @@ def test_the_differenced_mass_matrix_is_casadis_to_rounding(probe):
         error = np.max(np.abs(M - reference)) / scale
         assert error <= 64 * np.finfo(float).eps, (k, error)        # measured: up to 6.2 ε
         assert np.array_equal(M, M.T)
+
+
+def test_the_complex_step_carries_the_modal_maps(probe):
+    """The residual under gravity takes its Lagrange derivative in reverse mode through the maps, so its
+    scalar code calls their adjoints too (products by the transpose, linear): the directional derivatives
+    are still the complex step on it, with no generated forward functions (they were 1.4 MB of C here when
+    the adjoints turned the complex step off: the independent review of 2026-11-27)."""
+    model, src, _ = probe
+    from flexlink.export.codegen import _casadi_functions
+
+    plan = _casadi_functions(model, "probe", True)
+    called = set(plan.residual.function.get_function())
+    assert any(name.startswith("adj") for name in called) and any(n.startswith("dense_map_") for n in called)
+    assert plan.complex_step
+    assert list(src.glob("*_complex.c")) and not list(src.glob("*_forward.c"))

@@ -79,15 +79,16 @@ def complex_step_applies(*functions: ca.Function) -> bool:
     """Whether the complex step gives the forward derivatives of these generated functions exactly.
 
     They must be scalar (SX) code, whose every operation is in COMPLEX_STEP_OPERATIONS, or a call of a
-    constant linear map or of its forward derivatives (``dense_map`` in flexlink.mechanics.kinematics:
-    CasADi's dense product loop, linear and so exact in complex arithmetic): the complex-step unit compiles
+    constant linear map or of its forward or reverse derivatives (``dense_map`` in
+    flexlink.mechanics.kinematics, and the maps CasADi's AD makes of it, ``fwd1_…``, ``adj1_…``: products by
+    the matrix or its transpose, linear and so exact in complex arithmetic): the complex-step unit compiles
     their generated C with ``casadi_real`` complex, and a matrix graph's other helpers or a non-analytic
     operation would not carry the tangent (or not compile).
     """
     for f in functions:
         if not f.is_a("SXFunction"):
             return False
-        if not all(re.sub(r"^(fwd\d+_)*", "", name).startswith(DENSE_MAP_PREFIX) for name in f.get_function()):
+        if not all(re.sub(r"^((fwd|adj)\d+_)*", "", name).startswith(DENSE_MAP_PREFIX) for name in f.get_function()):
             return False
         allowed = COMPLEX_STEP_OPERATIONS | {ca.OP_CALL}
         if any(f.instruction_id(k) not in allowed for k in range(f.n_instructions())):
