@@ -549,10 +549,7 @@ def run_bench(scene_path, *, quick: bool = False, repeats: int | None = None,
     The case is :func:`bench_case`'s; SS22's steps shrink with its sample (at most 0.4 of it), so that a short
     window is still measured at steps that resolve it.
     """
-    import tempfile
-    from pathlib import Path
-
-    from flexlink.export.fmu import build_fmu
+    from flexlink.export.cache import cached_fmu
     from flexlink.mechanics.model import build_model
     from flexlink.scene.loader import load_scene
 
@@ -571,11 +568,10 @@ def run_bench(scene_path, *, quick: bool = False, repeats: int | None = None,
                                  [8e-3, 4e-3, 2e-3, 1e-3, 5e-4, 2.5e-4, 1.25e-4])]
     thetas = [(0.5, 0.5)] if quick else [(0.5, 0.5), (0.6, 0.6)]
     tols = [1e-4, 1e-6] if quick else [1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9]
-    with tempfile.TemporaryDirectory() as tmp:
-        fmu = build_fmu(scene, Path(tmp) / "bench.fmu", model=model).fmu
-        rows = bench_ss22(case, fmu, steps, thetas, ref, repeats)
-        rows += bench_ss22(case, fmu, steps, [(0.5, 0.5)], ref, repeats, order=4)
-        rows += bench_model_exchange(case, fmu, tols[:2] if quick else tols[:5], ref, max(1, repeats // 2))
+    fmu = cached_fmu(scene, model=model)      # built once per scene and flexlink (what `flexlink run` uses)
+    rows = bench_ss22(case, fmu, steps, thetas, ref, repeats)
+    rows += bench_ss22(case, fmu, steps, [(0.5, 0.5)], ref, repeats, order=4)
+    rows += bench_model_exchange(case, fmu, tols[:2] if quick else tols[:5], ref, max(1, repeats // 2))
     rows += bench_casadi(case, "cvodes", tols, ref, repeats)
     rows += bench_casadi(case, "idas", tols, ref, repeats)
     for method in (["Radau"] if quick else ["Radau", "LSODA", "DOP853"]):
