@@ -509,7 +509,7 @@ def _dense_product(code: str, level: str) -> str:
         return code
     end = code.index("\n}\n", start) + 3
     ours = (fmu_src_dir() / "templates" / "dense_product.c.in").read_text()
-    if level != "O2":
+    if level != "O2" and not os.environ.get(OPTIMISE_ENV, "").strip():     # an imposed level holds everywhere
         ours = _PUSH_O2 + ours + _POP
     return code[:start + 1] + ours + code[end:]
 
