@@ -253,7 +253,9 @@ def main(argv: list[str] | None = None) -> None:
     info = {"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
             "quick": args.quick, "builds": builds, "repeats": repeats,
             "command": " ".join(["python benchmarks/scaling.py", *(argv if argv is not None else sys.argv[1:])]),
-            "optimise": os.environ.get(OPTIMISE_ENV) or "the default levels (-O2, -Og above 5 000 operations)",
+            "optimise": os.environ.get(OPTIMISE_ENV) or ("the default levels (-O2, -Og above 5 000 operations; "
+                                                         "their complex-step twins -O1, -O0 above 5 000; "
+                                                         "the dense product loop -O2)"),
             "load": (load_at_start, os.getloadavg()[0])}
     if families_from is not None:
         info["families_from"] = {k: families_from[k] for k in ("date", "command", "builds", "repeats")}

@@ -273,9 +273,9 @@ fmi2Status fmu_energy_point_inside(Instance *inst, EnergyPoint *e, const char *f
     e->available = 0;
     if (!inst->energy_known) energy_init(inst);
     if (inst->energy_kinetic < 0) return fmi2OK;
-    fmu_model_inputs(d, d->time, inst->u0);
-    if (model_outputs(d->q, d->v, d->alpha, inst->u0, d->p, inst->energy_y, &inst->work) ||
-        input_forces(inst, e, 0)) {
+    /* input_forces evaluates the inputs at d->time into inst->u0 first; the outputs take the same */
+    if (input_forces(inst, e, 0) ||
+        model_outputs(d->q, d->v, d->alpha, inst->u0, d->p, inst->energy_y, &inst->work)) {
         return fmu_error(inst, "%s: the model failed to evaluate at t = %.17g", function, d->time);
     }
     e->time = d->time;
