@@ -149,6 +149,17 @@ def test_cli_stop_sets_the_horizon(tmp_path):
     assert "over 0.2 s (--stop), sampled every 0.004 s; reference CVODES rtol 1e-10" in report
 
 
+def test_a_scene_the_manoeuvre_leaves_at_rest_is_refused():
+    """spatial_cantilever's hub is held and nothing else loads it (no gravity, no input): the link stays
+    exactly at rest, so every method's error against the reference would be 0/0.  One line, exit status 2,
+    naming the outputs, before any FMU is built or timed."""
+    out = subprocess.run([sys.executable, "-m", "flexlink.cli", "bench", "examples/spatial_cantilever.toml",
+                          "--quick", "--stop", "0.01", "--repeats", "1"], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 2 and out.stdout == ""
+    (line,) = out.stderr.strip().splitlines()
+    assert "leaves arm.tip.v and hub.tau at exactly 0" in line
+
+
 # --------------------------------------------------------------------------- issue 6: benchmarks/report.py
 # One CI-size run of the report generator (about 35 s); the tests below read its report.json.  Timings are
 # never asserted (a shared 2-core machine), only what the code's structure and the numerics guarantee.

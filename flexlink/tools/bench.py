@@ -559,6 +559,11 @@ def run_bench(scene_path, *, quick: bool = False, repeats: int | None = None,
     case, horizon = bench_case(model, quick, stop)
     repeats = repeats or (2 if quick else 5)
     ref, ref_check = reference_pair(case, horizon.rtol, horizon.check_rtol)
+    still = [name for name in case.outputs if not np.any(ref[name])]
+    if still:       # a relative error against an output that stays exactly 0 says nothing
+        raise FlexlinkError(f"the bench's manoeuvre leaves {' and '.join(still)} at exactly 0 on this scene "
+                            f"(nothing drives it: a held joint and no load), so there is no error to measure; "
+                            f"give the scene a torque-driven first joint, a moving trajectory or gravity")
     sample = float(case.times[1] - case.times[0])
     info = {"scene": str(scene_path), "outputs": case.outputs, "stop_time": case.stop, "sample": sample,
             "horizon": horizon.why, "reference": f"CVODES rtol {horizon.rtol:g}",
