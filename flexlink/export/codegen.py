@@ -192,42 +192,6 @@ def newton_matrix_template(model: SymbolicModel) -> str:
     return "newton_matrix_columns.c.in" if exact else "newton_matrix_differences.c.in"
 
 
-# model_newton_matrix's M (newton_matrix_differences.c.in): the generated mass matrix ...
-_GENERATED_MASS_MATRIX = """/* M(q): the generated mass matrix */
-static int mass_matrix(const double *q, const double *u, const double *p, double *M, ModelWork *work) {
-    work->arg[0] = q;
-    work->arg[1] = u;
-    work->arg[2] = p;
-    work->res[0] = M;
-    return ${identifier}_mass_matrix(work->arg, work->res, work->iw, work->w, 0);
-}"""
-# ... or, where it would be a large matrix graph (mass_by_differences), differences of the residual in a
-_MASS_MATRIX_BY_DIFFERENCES = """/* M(q) = dr/da by differences of the residual at v = 0.  r is affine in the
- * accelerations, so M e_j = (r(q, 0, s e_j) - r(q, 0, 0)) / s for any s: s = 2^30 makes r(q, 0, 0) a
- * rounding error of the column (the difference is exact to a few ulps of M's entries) and divides exactly.
- * The result is symmetrised, as M is.  N_Q + 1 residuals instead of a generated mass matrix
- * (codegen.mass_by_differences). */
-static int mass_matrix(const double *q, const double *u, const double *p, double *M, ModelWork *work) {
-    static const double s = 1073741824.0;
-    double zero[N_Q] = {0.0}, a[N_Q] = {0.0}, r0[N_Q], r1[N_Q];
-    int status = model_residual(q, zero, a, u, p, r0, work);
-    if (status) return status;
-    for (int j = 0; j < N_Q; j++) {
-        a[j] = s;
-        status = model_residual(q, zero, a, u, p, r1, work);
-        a[j] = 0.0;
-        if (status) return status;
-        for (int i = 0; i < N_Q; i++) M[(size_t)j * N_Q + i] = (r1[i] - r0[i]) / s;
-    }
-    for (int j = 0; j < N_Q; j++)
-        for (int i = j + 1; i < N_Q; i++) {
-            const double m = 0.5 * (M[(size_t)j * N_Q + i] + M[(size_t)i * N_Q + j]);
-            M[(size_t)j * N_Q + i] = M[(size_t)i * N_Q + j] = m;
-        }
-    return 0;
-}"""
-
-
 @dataclass(frozen=True)
 class _Generated:
     """One function as it is generated: its scalar or matrix form, and its scalar operation count."""
@@ -414,7 +378,9 @@ def _law_tables(model: SymbolicModel) -> str:
 def _model_c(model: SymbolicModel, variables: list[FmuVariable], units: list[str], plan: _Plan) -> str:
     """``model.c``: the variable table, the kinematic laws and the functions of ``fmu_src/model.h``."""
     complex_step = plan.complex_step
-    mass = _MASS_MATRIX_BY_DIFFERENCES if plan.mass_by_differences else _GENERATED_MASS_MATRIX
+    # model_newton_matrix's M (newton_matrix_differences.c.in): from the residual (mass_by_differences), or
+    # the generated mass matrix
+    mass = _template("mass_matrix_differences.c.in" if plan.mass_by_differences else "mass_matrix_generated.c.in")
     ident = model.scene.model_identifier
     static = ""
     if model.static_coordinates:
@@ -426,7 +392,7 @@ def _model_c(model: SymbolicModel, variables: list[FmuVariable], units: list[str
         casadi_includes="\n".join(f'#include "{u}.h"' for u in units),
         variables=_variable_rows(variables), nominal_q=", ".join(_c(x) for x in model.nominal_q),
         static_coordinates=static, laws=_law_tables(model),
-        newton_matrix=newton.substitute(identifier=ident, mass_matrix=mass.replace("${identifier}", ident))
+        newton_matrix=newton.substitute(identifier=ident, mass_matrix=mass.substitute(identifier=ident).rstrip("\n"))
         .rstrip("\n"),
         validity_names="\n".join(f"    {_c_string(name)}," for name in model.validity_names) or '    ""',
         parameter_check_names="\n".join(f"    {_c_string(n)}," for n in model.parameter_check_names) or '    ""',
