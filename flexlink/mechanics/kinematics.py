@@ -546,9 +546,15 @@ def _dense_map(matrix: np.ndarray):
     m = ca.DM(matrix)
     if matrix.size < DENSE_MAP_MIN_ENTRIES:
         return lambda x: ca.mtimes(m, x)
-    x = ca.MX.sym("x", matrix.shape[1])
-    return ca.Function(f"{DENSE_MAP_PREFIX}{matrix.shape[0]}x{matrix.shape[1]}", [x], [ca.mtimes(m, x)],
-                       {"never_inline": True})
+    key = (matrix.shape, np.ascontiguousarray(matrix, dtype=float).tobytes())
+    if key not in _DENSE_MAPS:      # one function a matrix: the generated code holds each matrix once
+        x = ca.MX.sym("x", matrix.shape[1])
+        _DENSE_MAPS[key] = ca.Function(f"{DENSE_MAP_PREFIX}{matrix.shape[0]}x{matrix.shape[1]}", [x],
+                                       [ca.mtimes(m, x)], {"never_inline": True})
+    return _DENSE_MAPS[key]
+
+
+_DENSE_MAPS: dict[tuple, ca.Function] = {}
 
 
 def _weighted(a: ca.MX | None, b: ca.MX | None) -> Scalar:
