@@ -509,7 +509,6 @@ class _PointShapes:
     def __init__(self, rule: PointRule):
         self.factor, self.weights = rule.factor, rule.w
         if rule.factor is not None:
-            self.modal = ca.DM(rule.factor.modal)
             self.phi, self.slope = (ca.sparsify(ca.DM(m)) for m in (rule.factor.phi, rule.factor.slope))
             self.to_nodal, self.to_modal = _dense_map(rule.factor.modal), _dense_map(rule.factor.modal.T)
         else:
