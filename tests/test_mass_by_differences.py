@@ -1,11 +1,12 @@
 """The mass matrix from differences of the residual (flexlink.export.codegen.mass_by_differences).
 
-Where "auto" would generate M(q) as a large matrix graph (a reduced FE link of 12 modes and more, second-order
-kinematics), the FMU takes it from N_Q + 1 residuals: r is affine in the accelerations, so
-M e_j = (r(q, 0, s e_j) − r(q, 0, 0)) / s.  The reference is independent of that C: CasADi's symbolic
-M = ∂r/∂a of the same model (``SymbolicModel.mass_matrix_function``), evaluated in Python.  The FMU's own M is
-read through ``model_newton_matrix(q, 0, 0, u, p, 1, 0, 0)`` by tests/c/mass_probe.c, compiled with the
-FMU's sources.
+Where "auto" would generate M(q) as a large matrix graph (a reduced FE link of 12 modes and more,
+second-order kinematics), the FMU takes it from N_Q + 1 residuals:
+r is affine in the accelerations, so M e_j = (r(q, 0, s e_j) − r(q, 0, 0)) / s; and the Newton matrix's
+columns carry their M part in the residuals of their differences in q and v.  The references are independent
+of that C: CasADi's symbolic M = ∂r/∂a of the same model (``SymbolicModel.mass_matrix_function``) and its
+Jacobians ∂r/∂v, ∂r/∂q, evaluated in Python.  The FMU's own matrices are read through ``model_newton_matrix``
+by tests/c/mass_probe.c, compiled with the FMU's sources.
 """
 
 from __future__ import annotations
@@ -27,21 +28,19 @@ PROBE = Path(__file__).resolve().parent / "c" / "mass_probe.c"
 MODES = 12
 
 
-def _scene(newton_matrix: str) -> dict:
+def _link_scene() -> dict:
     joint = dict(name="hub", axis=[0.0, 0.0, 1.0], inertia=1e-2)
     link = dict(name="arm", length=1.0, linear_density=2.0, EI=100.0, deformation=["v"],
                 shapes=dict(kind="fe", count=16, modes=MODES), kinematics="second-order")
     return dict(name="mass_differences", gravity=[0.0, 0.0, -9.81], joint=[joint], link=[link],
-                fmu=dict(step=1e-4, newton_matrix=newton_matrix))
+                fmu=dict(step=1e-4, newton_matrix="auto"))
 
 
-@pytest.fixture(scope="module")
-def probe(tmp_path_factory):
-    """(model, FMU sources, the compiled probe) of the 12-mode link under "auto"."""
-    scene = parse_scene(_scene("auto"))
+def _build_probe(scene_data: dict, work: Path):
+    """(model, FMU sources, the compiled probe) of a scene, built under "auto"."""
+    scene = parse_scene(scene_data)
     model = build_model(scene)
     fmu = cached_fmu(scene, model=model)
-    work = tmp_path_factory.mktemp("mass_probe")
     with zipfile.ZipFile(fmu) as z:
         z.extractall(work)
         files = [f.get("name") for f in ET.fromstring(z.read("modelDescription.xml")).findall(
@@ -53,11 +52,27 @@ def probe(tmp_path_factory):
     return model, src, exe
 
 
-def _probe_M(exe: Path, q: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
-    stdin = "\n".join(f"{x:.17g}" for x in (*q, *u, *p))
+@pytest.fixture(scope="module")
+def probe(tmp_path_factory):
+    """The 12-mode link under "auto": its generated M would be a large matrix graph."""
+    return _build_probe(_link_scene(), tmp_path_factory.mktemp("mass_probe"))
+
+
+def _probe(exe: Path, c: tuple[float, float, float], *values: np.ndarray) -> np.ndarray:
+    """The FMU's c[0] M + c[1] ∂r/∂v + c[2] ∂r/∂q at (q, v, a, u, p)."""
+    stdin = "\n".join(f"{x:.17g}" for x in (*c, *np.concatenate(values)))
     out = subprocess.run([str(exe)], input=stdin, capture_output=True, text=True, check=True).stdout
-    n = q.size
+    n = values[0].size
     return np.array([float(x) for x in out.split()]).reshape(n, n).T      # column-major
+
+
+def _probe_M(exe: Path, q: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
+    zero = np.zeros_like(q)
+    return _probe(exe, (1.0, 0.0, 0.0), q, zero, zero, u, p)
+
+
+def _inputs(model) -> np.ndarray:
+    return np.full(len(model.inputs), 0.5)
 
 
 def test_auto_takes_the_mass_matrix_from_the_residual_at_this_size(probe):
@@ -74,7 +89,7 @@ def test_the_differenced_mass_matrix_is_casadis_to_rounding(probe):
     rng = np.random.default_rng(15)
     nominal = np.asarray(model.nominal_q)
     p = np.asarray(model.p0, float)
-    u = np.array([0.5])
+    u = _inputs(model)
     for k in range(4):
         q = np.zeros(model.n_q) if k == 0 else rng.uniform(-1.0, 1.0, model.n_q) * nominal
         M = _probe_M(exe, q, u, p)
@@ -83,6 +98,34 @@ def test_the_differenced_mass_matrix_is_casadis_to_rounding(probe):
         error = np.max(np.abs(M - reference)) / scale
         assert error <= 64 * np.finfo(float).eps, (k, error)        # measured: up to 6.2 ε
         assert np.array_equal(M, M.T)
+
+
+def test_the_newton_matrix_carries_its_mass_matrix_in_its_columns(probe):
+    """SS22's Newton matrix M + cv ∂r/∂v + cq ∂r/∂q (Θ = ½ at the scene's step) at rest and at three random
+    states: its M part from the same residuals as its differences in q and v.  Against CasADi's exact
+    Jacobians, within 1e-6 of the matrix's largest entry.  Why that size: a column moves q_j by √ε of its
+    scale (and a_j by the matching multiple), so a forward difference leaves about √ε = 1.5e-8 of the
+    residual's curvature -- the position part's own, and M's change with q_j (∂M/∂q_j, the cross term the M
+    part now carries); the rest is that curvature's size."""
+    model, _, exe = probe
+    import casadi as ca
+
+    rng = np.random.default_rng(22)
+    dt = model.scene.fmu.solver.step
+    cv, cq = 0.5 * dt, 0.25 * dt * dt
+    nominal = np.asarray(model.nominal_q)
+    p = np.asarray(model.p0, float)
+    u = _inputs(model)
+    q_, v_, a_ = (ca.MX.sym(n, model.n_q) for n in "qva")
+    r = model.residual(q_, v_, a_, u, p)
+    jacobians = ca.Function("jacobians", [q_, v_, a_], [ca.jacobian(r, a_), ca.jacobian(r, v_), ca.jacobian(r, q_)])
+    for k in range(4):
+        q, v, a = (rng.uniform(-1.0, 1.0, model.n_q) * nominal * s * (k > 0) for s in (1.0, 10.0, 100.0))
+        M, C, K = (np.array(x) for x in jacobians(q, v, a))
+        J = _probe(exe, (1.0, cv, cq), q, v, a, u, p)
+        error = np.abs(J - (M + cv * C + cq * K))
+        relative = np.max(error) / np.max(np.abs(M + cv * C + cq * K))
+        assert relative <= 1e-6, (k, relative)      # measured: up to 4e-8 (the 12-mode link)
 
 
 def test_the_complex_step_carries_the_modal_maps(probe):

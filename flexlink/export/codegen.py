@@ -282,14 +282,21 @@ def _casadi_functions(model: SymbolicModel, ident: str, expanded: bool) -> _Plan
 
 
 def mass_by_differences(model: SymbolicModel, mass_matrix: _Generated) -> bool:
-    """Whether model_newton_matrix takes M from N_Q + 1 residuals instead of a generated mass matrix.
+    """Whether model_newton_matrix takes M from residuals instead of a generated mass matrix.
 
     Where ``"auto"`` would generate it as a matrix graph (past REFRESH_EXPAND_MAX_OPERATIONS as scalar code):
     the 32-mode second-order link's, 287 000 operations as scalar code, 0.37 MB of C in its matrix form and
     a quarter of the FMU's code, for a matrix that 33 residuals give exactly but for rounding (the residual
-    is affine in the accelerations; M is ∂r/∂a at v = a = 0, ``SymbolicModel.mass_matrix_function``).
-    Refreshed only with the Newton matrix, in the guards and for the consistent acceleration, at about the
-    generated matrix graph's cost.
+    is affine in the accelerations; M is ∂r/∂a at v = a = 0, ``SymbolicModel.mass_matrix_function``).  The
+    Newton matrix's columns carry their M part in the residuals of their differences in q and v
+    (``newton_matrix_differences.c.in``), so that a refresh costs N_Q + 1 residuals; M alone (the consistent
+    acceleration's refresh, the guards' definiteness check) costs N_Q + 1 residuals, about the generated
+    matrix graph's cost.
+
+    Not for a chain's M, though its scalar code grows like the pairs of bodies and outgrows the residual
+    from about five bodies: measured 2026-11-27 (``benchmarks/host_step.py``, a host stepping at the
+    solver's step), M from residuals made the six-axis arm's communication step 17.2 → 36.0 µs and
+    ``fast_two_link``'s 28.7 → 42.4 µs, where the consistent acceleration buys a new M nearly every step.
     """
     return (newton_matrix_template(model) == "newton_matrix_differences.c.in" and mass_matrix.matrix_graph
             and model.n_q <= EXPAND_MAX_COORDINATES)
@@ -462,13 +469,14 @@ _POP = "#if defined(__GNUC__) && !defined(__clang__)\n#pragma GCC pop_options\n#
 def _dense_product(code: str, level: str) -> str:
     """CasADi's dense product loop replaced by dense_product.c.in, at -O2 in a unit of a lower level.
 
-    The replacement gives the same values to the bit (the same sums in the same order) with the plain
-    product's inner loop contiguous in memory: CasADi's adds each row in memory, a chain of dependent loads
-    and stores whose speed depended on where the loop landed (the 32-mode link's residual 4.1 µs in one
-    build, 5.3 µs in another with the same residual code).  A large unit's straight-line code compiles at
-    -Og, as fast to run and several times faster to compile; a loop is not (at -Og that link's step went
-    11 → 23 µs).  ``push_options`` keeps the rest of the unit at its level.  Measured 2026-11-27 with the
-    step-floor driver, medians of 3 runs.
+    The replacement gives the same values to the bit (the same sums in the same order,
+    tests/test_dense_product.py against CasADi's own loop) with the partial sums in registers: CasADi's loop
+    adds each row in memory, a chain of dependent loads and stores whose speed also depended on where the
+    loop landed (the 32-mode link's residual 4.3 µs in one build, 5.2 µs in another with the same residual
+    code).  Measured 2026-11-27 on that link (step-floor driver, medians of 3 runs, three placements each):
+    the step 11.9-13.5 µs → 9.6-9.7 µs, the residual 4.4-5.3 → 3.5-3.6 µs.  A large unit's straight-line
+    code compiles at -Og, as fast to run and several times faster to compile; a loop is not (at -Og that
+    link's step went 11 → 23 µs).  ``push_options`` keeps the rest of the unit at its level.
     """
     start = code.find(_DENSE_LOOP)
     if start < 0:
