@@ -5,12 +5,14 @@ by a constant dense matrix (the form :func:`flexlink.mechanics.kinematics.dense_
 must give the same values to the bit -- the same sums in the same order, only several entries carried side by
 side in registers -- for every shape (the blocks of 8 rows and 4 columns, and the rows and columns left over),
 both the plain and the transposed product, several right-hand sides, and at every optimisation level; and the
-plain loops of the complex-step twins (``FLEXLINK_COMPLEX_UNIT``) too.
+plain loops of the complex-step twins (``FLEXLINK_COMPLEX_UNIT``) too; under the build's compiler and clang.
 """
 
 from __future__ import annotations
 
+import shutil
 import subprocess
+from pathlib import Path
 
 import casadi as ca
 import pytest
@@ -27,6 +29,9 @@ HARNESS = r"""
 %(reference)s
 #undef casadi_mtimes_dense
 %(ours)s
+#if !FLEXLINK_PAIRS && !defined(FLEXLINK_COMPLEX_UNIT)
+#error "the pairs are not compiled: this would test the plain loops only"
+#endif
 
 static double value(void) {                  /* mixed signs and magnitudes, so that rounding shows */
     double r = (double)rand() / RAND_MAX - 0.5;
@@ -69,14 +74,23 @@ def _casadi_loop() -> str:
     return text[start:text.index("\n}\n", start) + 3]
 
 
+def _compilers() -> list[list[str]]:
+    """The build's compiler, and clang where it is installed (importers compile the FMU's sources with it)."""
+    found = [compiler()]
+    if shutil.which("clang"):
+        found.append(["clang"])
+    return found
+
+
+@pytest.mark.parametrize("cc", _compilers(), ids=lambda c: Path(c[0]).name)
 @pytest.mark.parametrize("level, complex_unit", [("-O0", False), ("-O2", False), ("-O3", False), ("-O2", True)])
-def test_our_dense_product_is_casadis_to_the_bit(tmp_path, level, complex_unit):
+def test_our_dense_product_is_casadis_to_the_bit(tmp_path, cc, level, complex_unit):
     ours = (fmu_src_dir() / "templates" / "dense_product.c.in").read_text()
     source = tmp_path / "dense_product_check.c"
     source.write_text(HARNESS % {"reference": _casadi_loop(), "ours": ours})
     exe = tmp_path / "dense_product_check"
     defines = ["-DFLEXLINK_COMPLEX_UNIT=1"] if complex_unit else []
-    subprocess.run([*compiler(), level, "-std=c99", "-Wall", "-Wextra", "-Werror", *defines, str(source),
+    subprocess.run([*cc, level, "-std=c99", "-Wall", "-Wextra", "-Werror", *defines, str(source),
                     "-o", str(exe)], check=True, capture_output=True, text=True)
     run = subprocess.run([str(exe)], capture_output=True, text=True)
     assert run.returncode == 0, run.stdout
