@@ -133,7 +133,7 @@ PATCHES = [
      "    { const int k_ = (int)(f - s->cache); memcpy(OLD_qb[k_], s->q_bar, sizeof(OLD_qb[k_]));\n"
      "      memcpy(OLD_vb[k_], s->v_bar, sizeof(OLD_vb[k_])); memcpy(OLD_a[k_], alpha, sizeof(OLD_a[k_]));\n"
      "      memcpy(OLD_u[k_], s->u_bar, sizeof(OLD_u[k_])); OLD_step[k_] = s->steps; }\n"),
-    ("        else predicted = predict(s, dt, alpha, a);\n",
+    ("        if (predicted == 2) memcpy(s->start, a, sizeof(a));\n",
      "        TR_n = 0; memcpy(TR_start, a, sizeof(TR_start));\n"),
     ("            s->newton_iterations++;\n", "            if (TR_n < 64) TR_err[TR_n++] = err;\n"),
     ("        if (!converged) return SS22_NOT_CONVERGED;\n", "        trace_step(s, dt, q, v, a, p, work, f);\n"),
@@ -197,7 +197,8 @@ def summarise(lines: list[str]) -> None:
     iterations = Counter(int(r[1]) for r in rows)
     print(f"steps {len(rows)}, iterations a step {sum(int(r[1]) for r in rows) / max(len(rows), 1):.2f}, "
           f"distribution {dict(sorted(iterations.items()))}")
-    print(f"predictor error (geometric mean): line through the last two {gmean(3):.2e}, hold the last "
+    print(f"predictor error (geometric mean): the start used (the line through the last two, or the parabola "
+          f"through three while it has missed by less) {gmean(3):.2e}, hold the last "
           f"{gmean(4):.2e}, mean of the last two {gmean(5):.2e}, parabola through three {gmean(6):.2e}")
     split = [line.split("|")[2].split() for line in lines if line.count("|") == 2]
     for s in split[:: max(1, len(split) // 10)]:

@@ -134,6 +134,10 @@ static const char *invalid_data(const FmuData *d) {
         isfinite(d->ss22.dt_last + d->ss22.dt_before) && fmu_all_finite(d->ss22.alpha_last, N_Q) &&
         fmu_all_finite(d->ss22.alpha_before, N_Q))))
         return "solver history";
+    if ((d->ss22.parabola & ~1) || d->ss22.depth < 0 || d->ss22.depth > 3 || !(fabs(d->ss22.predictor_bias) <= 1.0) ||
+        (d->ss22.depth == 3 && !(d->ss22.dt_older > 0.0 && isfinite(d->ss22.dt_older) &&
+                                 fmu_all_finite(d->ss22.alpha_older, N_Q))))
+        return "solver history";
     for (int k = 0; k < SS22_CACHE; k++) {
         const SS22Factor *f = &d->ss22.cache[k];
         if (f->valid & ~1) return "solver cache";

@@ -42,6 +42,10 @@
 /* The kept contraction rate of a matrix falls by at most this factor per measured ratio of increments (ss22.c,
  * record_rate; CVODE's CRDOWN). */
 #define SS22_RATE_DECAY 0.3
+/* The comparisons over which the parabola's and the line's misses are weighed (ss22.c, choose_predictor), and
+ * how often the parabola is formed and compared while the line leads (ss22.c, predict). */
+#define SS22_PREDICTOR_MEMORY 8.0
+#define SS22_PREDICTOR_PROBE 4
 
 /* A matrix from an earlier step is refreshed, at the current iterate of a step that would need a third
  * iteration, once the iterations spent beyond two a step since it was made add up to SS22_REFRESH_COST: about
@@ -88,12 +92,15 @@ typedef struct {
     int max_iterations;
     SS22Factor cache[SS22_CACHE];
     uint64_t clock;              /* fixed-width: an FMU state has one layout on every 64-bit platform */
-    /* the last two accelerations this solver returned and their steps: the Newton iteration starts from their
-     * linear extrapolation when the caller passes the last one back unchanged (else from the caller's) */
-    int history;
-    double alpha_last[N_Q], alpha_before[N_Q], dt_last, dt_before;
-    /* scratch, kept here so that a step allocates nothing */
-    double q_bar[N_Q], v_bar[N_Q], r[N_Q], u_bar[N_U > 0 ? N_U : 1];
+    /* the last accelerations this solver returned and their steps: the Newton iteration starts from their
+     * extrapolation when the caller passes the last one back unchanged (else from the caller's): the line
+     * through the last two, or the parabola through the last three where it missed the last step by less
+     * (ss22.c, predict).  depth: how many of last, before, older are consecutive steps' own (0 to 3) */
+    int history, depth, parabola;
+    double alpha_last[N_Q], alpha_before[N_Q], alpha_older[N_Q], dt_last, dt_before, dt_older;
+    double predictor_bias;       /* running mean of the line's (+1) and the parabola's (-1) wins */
+    /* scratch, kept here so that a step allocates nothing (start, other_start: the two predictions) */
+    double q_bar[N_Q], v_bar[N_Q], r[N_Q], u_bar[N_U > 0 ? N_U : 1], start[N_Q], other_start[N_Q];
     /* counters, for benchmarks and logging */
     uint64_t steps, newton_iterations, factorisations, residual_evaluations;
 } SS22;

@@ -1,0 +1,31 @@
+"""SS22's Newton start: the line through the last two accelerations, or the parabola through three.
+
+``fmu_src/ss22.c`` starts each step's Newton iteration from an extrapolation of the accelerations it returned
+(each taken at its step's middle).  The checks in tests/c/predictor_check.c (which includes ss22.c, to reach
+its static functions) compare them with closed forms: on unequal steps the parabola reproduces a quadratic law
+exactly and the line misses it by exactly c2 (t_n − t_l)(t_n − t_b); on a smooth law their errors fall like h³
+and h² (measured orders, ±0.1); and the choice between them follows a running mean of which one missed by less,
+not one step's.  The Newton iteration itself, whatever its start, is judged by tests/test_ss22_numerics.py
+(every accepted step within its tolerance of its own exact solution).
+"""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+from flexlink.export import cbuild
+
+TESTS_C = Path(__file__).parent / "c"
+
+
+def test_the_predictors_against_closed_forms(tmp_path):
+    exe = tmp_path / "predictor_check"
+    src = cbuild.fmu_src_dir()
+    subprocess.run([*cbuild.compiler(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2",
+                    f"-I{TESTS_C / 'nonlinear'}", f"-I{src}", f"-I{cbuild.fmi_headers_dir()}",
+                    str(TESTS_C / "predictor_check.c"), str(TESTS_C / "nonlinear" / "model.c"), str(src / "linalg.c"),
+                    "-o", str(exe), "-lm"], check=True, capture_output=True, text=True)
+    run = subprocess.run([str(exe)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stdout
+    assert run.stdout.count("ok ") == 11, run.stdout
