@@ -123,8 +123,8 @@ static void weighted_state(SS22 *s, double dt, const double *q, const double *v,
  * whose line leads pays little for the comparison), and starts the iteration while it has missed the steps'
  * solutions by less than the line
  * (s->parabola, set by choose_predictor).  Where the motion is smooth and resolved it is the better
- * extrapolation: the six-axis arm's laws at 0.5 ms, 1.8e-10 against the line's 3.8e-9 in the tolerance's
- * units (geometric means, benchmarks/newton_trace.py), so fewer increments, and a kept matrix's age costs
+ * extrapolation: the six-axis arm's laws at 0.5 ms, 1.2e-10 against the line's 3.8e-9 in the tolerance's
+ * units (geometric means over 2 s, benchmarks/newton_trace.py), so fewer increments, and a kept matrix's age costs
  * less.  Where a step leaves modes unresolved they ring near its Nyquist frequency and every extrapolation
  * misses by about as much as they move (planar_chain_5 at 1 ms: the line 1.24e-3, the parabola 1.67e-3,
  * whose coefficients 3, -3, 1 amplify the jitter more than the line's 2, -1): the line keeps those. */
@@ -234,7 +234,8 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
         if (start != NULL) { memcpy(a, start, sizeof(a)); predicted = 1; }
         else predicted = predict(s, dt, alpha, a, s->other_start);
         if (predicted == 2) memcpy(s->start, a, sizeof(a));
-        /* a parabola's first increment alone ends no step with an older matrix (below) */
+        /* a parabola's first increment below the tolerance does not by itself end a step with an older matrix
+         * (below; the one-increment stop on the matrix's rate still may) */
         const int below_tolerance_ends = !(predicted == 2 && s->parabola);
         int converged = 0;
         int fresh = -1;          /* increments made with a matrix evaluated in this step; -1: an older one */

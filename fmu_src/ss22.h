@@ -94,7 +94,7 @@ typedef struct {
     uint64_t clock;              /* fixed-width: an FMU state has one layout on every 64-bit platform */
     /* the last accelerations this solver returned and their steps: the Newton iteration starts from their
      * extrapolation when the caller passes the last one back unchanged (else from the caller's): the line
-     * through the last two, or the parabola through the last three where it missed the last step by less
+     * through the last two, or the parabola through the last three while it has missed by less (a vote)
      * (ss22.c, predict).  depth: how many of last, before, older are consecutive steps' own (0 to 3) */
     int history, depth, parabola;
     double alpha_last[N_Q], alpha_before[N_Q], alpha_older[N_Q], dt_last, dt_before, dt_older;

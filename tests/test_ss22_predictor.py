@@ -5,8 +5,10 @@
 its static functions) compare them with closed forms: on unequal steps the parabola reproduces a quadratic law
 exactly and the line misses it by exactly c2 (t_n − t_l)(t_n − t_b); on a smooth law their errors fall like h³
 and h² (measured orders, ±0.1); and the choice between them follows a running mean of which one missed by less,
-not one step's.  The Newton iteration itself, whatever its start, is judged by tests/test_ss22_numerics.py
-(every accepted step within its tolerance of its own exact solution).
+not one step's.  And through ``ss22_step_from`` on the hand-written nonlinear model (a smooth motion with
+restarts, given starts and shorter steps mixed in): whenever the history is three deep it is the last three
+accelerations returned and their steps, the parabola leads, and every step is within its tolerance of its own
+solution by full Newton.  tests/test_ss22_numerics.py audits the examples' steps the same way.
 """
 
 from __future__ import annotations
@@ -28,4 +30,4 @@ def test_the_predictors_against_closed_forms(tmp_path):
                     "-o", str(exe), "-lm"], check=True, capture_output=True, text=True)
     run = subprocess.run([str(exe)], capture_output=True, text=True)
     assert run.returncode == 0, run.stdout
-    assert run.stdout.count("ok ") == 11, run.stdout
+    assert run.stdout.count("ok ") == 19, run.stdout
