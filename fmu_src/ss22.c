@@ -121,11 +121,10 @@ static void weighted_state(SS22 *s, double dt, const double *q, const double *v,
  * After three consecutive steps the parabola through their accelerations is formed too (into parabola; it
  * returns 2: every step while it leads, every SS22_PREDICTOR_PROBE-th while the line does, so that a chain
  * whose line leads pays little for the comparison), and starts the iteration while it has missed the steps'
- * solutions by less than the line
- * (s->parabola, set by choose_predictor).  Where the motion is smooth and resolved it is the better
- * extrapolation: the six-axis arm's laws at 0.5 ms, 1.2e-10 against the line's 3.8e-9 in the tolerance's
- * units (geometric means over 2 s, benchmarks/newton_trace.py), so fewer increments, and a kept matrix's age costs
- * less.  Where a step leaves modes unresolved they ring near its Nyquist frequency and every extrapolation
+ * solutions by less than the line (a running vote: s->parabola, set by choose_predictor).  Where the motion
+ * is smooth and resolved it is the better extrapolation: the six-axis arm's laws at 0.5 ms, 1.2e-10 against
+ * the line's 3.8e-9 in the tolerance's units (geometric means over 2 s, benchmarks/newton_trace.py), so
+ * fewer increments, and a kept matrix's age costs less.  Where a step leaves modes unresolved they ring near its Nyquist frequency and every extrapolation
  * misses by about as much as they move (planar_chain_5 at 1 ms: the line 1.24e-3, the parabola 1.67e-3,
  * whose coefficients 3, -3, 1 amplify the jitter more than the line's 2, -1): the line keeps those. */
 #if !MODEL_LINEAR_IN_STATE
