@@ -130,11 +130,12 @@ static const char *invalid_data(const FmuData *d) {
     if (!(d->energy_scale >= 0.0 && isfinite(d->energy_scale)) || (d->energy_last.available & ~1) ||
         !(d->energy_floor >= 0.0 && isfinite(d->energy_floor)))
         return "energy balance";
-    if ((d->ss22.history & ~1) || (d->ss22.history && !(d->ss22.dt_last > 0.0 && d->ss22.dt_before > 0.0 &&
-        isfinite(d->ss22.dt_last + d->ss22.dt_before) && fmu_all_finite(d->ss22.alpha_last, N_Q) &&
-        fmu_all_finite(d->ss22.alpha_before, N_Q))))
+    if (d->ss22.depth < 0 || d->ss22.depth > 3 ||
+        (d->ss22.depth > 0 && !(d->ss22.dt_last > 0.0 && d->ss22.dt_before > 0.0 &&
+                                isfinite(d->ss22.dt_last + d->ss22.dt_before) &&
+                                fmu_all_finite(d->ss22.alpha_last, N_Q) && fmu_all_finite(d->ss22.alpha_before, N_Q))))
         return "solver history";
-    if ((d->ss22.parabola & ~1) || d->ss22.depth < 0 || d->ss22.depth > 3 || !(fabs(d->ss22.predictor_bias) <= 1.0) ||
+    if ((d->ss22.parabola & ~1) || !(fabs(d->ss22.predictor_bias) <= 1.0) ||
         (d->ss22.depth == 3 && !(d->ss22.dt_older > 0.0 && isfinite(d->ss22.dt_older) &&
                                  fmu_all_finite(d->ss22.alpha_older, N_Q))))
         return "solver history";

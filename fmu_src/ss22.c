@@ -124,12 +124,13 @@ static void weighted_state(SS22 *s, double dt, const double *q, const double *v,
  * solutions by less than the line (a running vote: s->parabola, set by choose_predictor).  Where the motion
  * is smooth and resolved it is the better extrapolation: the six-axis arm's laws at 0.5 ms, 1.2e-10 against
  * the line's 3.8e-9 in the tolerance's units (geometric means over 2 s, benchmarks/newton_trace.py), so
- * fewer increments, and a kept matrix's age costs less.  Where a step leaves modes unresolved they ring near its Nyquist frequency and every extrapolation
- * misses by about as much as they move (planar_chain_5 at 1 ms: the line 1.24e-3, the parabola 1.67e-3,
- * whose coefficients 3, -3, 1 amplify the jitter more than the line's 2, -1): the line keeps those. */
+ * fewer increments, and a kept matrix's age costs less.  Where a step leaves modes unresolved they ring near
+ * its Nyquist frequency and every extrapolation misses by about as much as they move (planar_chain_5 at
+ * 1 ms: the line 1.24e-3, the parabola 1.67e-3, whose coefficients 3, -3, 1 amplify the jitter more than the
+ * line's 2, -1): the line keeps those. */
 #if !MODEL_LINEAR_IN_STATE
 static int predict(const SS22 *s, double dt, const double *alpha, double *a, double *parabola) {
-    if (!s->history || memcmp(alpha, s->alpha_last, sizeof(double) * N_Q) != 0) return 0;
+    if (s->depth == 0 || memcmp(alpha, s->alpha_last, sizeof(double) * N_Q) != 0) return 0;
     const double ratio = (dt + s->dt_last) / (s->dt_last + s->dt_before);
     for (int i = 0; i < N_Q; i++) a[i] = alpha[i] + ratio * (alpha[i] - s->alpha_before[i]);
     if (s->depth < 3 || (!s->parabola && s->steps % SS22_PREDICTOR_PROBE != 0)) return 1;
@@ -341,7 +342,6 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
     else { memcpy(s->alpha_before, a, sizeof(a)); s->dt_before = dt; }     /* the line starts again here */
     memcpy(s->alpha_last, a, sizeof(a));
     s->dt_last = dt;
-    s->history = 1;
     memcpy(alpha, a, sizeof(a));
     s->steps++;
     return SS22_OK;

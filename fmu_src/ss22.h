@@ -95,8 +95,9 @@ typedef struct {
     /* the last accelerations this solver returned and their steps: the Newton iteration starts from their
      * extrapolation when the caller passes the last one back unchanged (else from the caller's): the line
      * through the last two, or the parabola through the last three while it has missed by less (a vote)
-     * (ss22.c, predict).  depth: how many of last, before, older are consecutive steps' own (0 to 3) */
-    int history, depth, parabola;
+     * (ss22.c, predict).  depth: how many of last, before, older are consecutive steps' own (0 to 3; 0: no
+     * history yet) */
+    int depth, parabola;
     double alpha_last[N_Q], alpha_before[N_Q], alpha_older[N_Q], dt_last, dt_before, dt_older;
     double predictor_bias;       /* running mean of the line's (+1) and the parabola's (-1) wins */
     /* scratch, kept here so that a step allocates nothing (start, other_start: the two predictions) */

@@ -20,7 +20,6 @@ static double quadratic(int i, double t) { return (1.0 + i) - 0.5 * t + (3.0 - 2
  * (as SS22 takes its constant acceleration), and the next step's length dt. */
 static void history(SS22 *s, double (*f)(int, double), double dto, double dtb, double dtl) {
     memset(s, 0, sizeof(*s));
-    s->history = 1;
     s->depth = 3;
     s->dt_older = dto;
     s->dt_before = dtb;
