@@ -1,9 +1,12 @@
 """How tight SS22's Newton iteration must be: its error against the step's own truncation error (issue 22).
 
-    python benchmarks/newton_tolerance.py [SCENE.toml ...] [--tolerances 1e-6 1e-8 ...] [--stop T] [--json]
+    python benchmarks/newton_tolerance.py [SCENE.toml ...] [--tolerances 1e-6 1e-8 ...] [--stop T]
+        [--step scene|recommended] [--json]
 
 Each scene runs its bench manoeuvre (``flexlink.tools.bench.default_case``: ±τ on the first joint, or its
-own law) at its own ``solver.step`` h, once per ``solver.tolerance``.  Two errors are compared, both as the
+own law) at its own ``solver.step`` h, or with ``--step recommended`` at the step ``flexlink explain``
+recommends (20 steps a period of the highest mode: issue 22 counts iterations and factorisations there), once
+per ``solver.tolerance``.  Two errors are compared, both as the
 largest difference over the outputs and the communication points, relative to each output's peak:
 
 * the **Newton error** of a tolerance: the run against the same run at tolerance 1e-13 (the same
@@ -38,20 +41,22 @@ def difference(names: list[str], a: dict, b: dict) -> float:
     return worst
 
 
-def study(scene_path: Path, tolerances: list[float], stop: float) -> list[dict]:
+def study(scene_path: Path, tolerances: list[float], stop: float, step: str = "scene") -> list[dict]:
     """Rows of (tolerance, Newton error, truncation error, iterations and factorisations per step)."""
     from flexlink.export.cache import cached_fmu
     from flexlink.mechanics.model import build_model
     from flexlink.run.simulate import SlaveRunner
     from flexlink.scene.loader import load_scene
     from flexlink.tools.bench import default_case
+    from flexlink.tools.fidelity import recommended_step
 
     scene = load_scene(scene_path)
     model = build_model(scene)
     case = default_case(model, stop=stop)
     fmu = cached_fmu(scene, model=model)
     with SlaveRunner(fmu) as runner:
-        h = next(float(v.start) for v in runner.model_description.modelVariables if v.name == "solver.step")
+        h = (recommended_step(model)[0] if step == "recommended" else
+             next(float(v.start) for v in runner.model_description.modelVariables if v.name == "solver.step"))
         names = [n for n in case.outputs if n in runner.vr]      # the bench's outputs the FMU has
 
         def run(tol: float, step: float) -> tuple[dict, dict]:
@@ -78,10 +83,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("scenes", nargs="*", help="scene files (default: five examples)")
     parser.add_argument("--tolerances", nargs="+", type=float, default=[1e-4, 1e-6, 1e-8, 1e-10, 1e-12])
     parser.add_argument("--stop", type=float, default=2.0, help="end of the manoeuvre, s (default 2)")
+    parser.add_argument("--step", choices=["scene", "recommended"], default="scene",
+                        help="SS22 step: the scene's solver.step (default) or the recommended one")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     scenes = [Path(s) for s in args.scenes] or [ROOT / "examples" / s for s in DEFAULT]
-    rows = [row for scene in scenes for row in study(scene, args.tolerances, args.stop)]
+    rows = [row for scene in scenes for row in study(scene, args.tolerances, args.stop, args.step)]
     if args.json:
         print(json.dumps(rows, indent=1))
         return

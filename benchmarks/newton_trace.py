@@ -1,6 +1,7 @@
 """Why SS22's Newton iteration takes the iterations it takes: one line per step from an instrumented copy of the loop.
 
-    python benchmarks/newton_trace.py SCENE.toml [--tolerance TOL] [--stop T] [--every N] [--out TRACE.txt]
+    python benchmarks/newton_trace.py SCENE.toml [--tolerance TOL] [--stop T] [--every N] [--torque TAU]
+        [--out TRACE.txt]
 
 The FMU's sources are compiled with ``benchmarks/step_floor.c`` and a copy of ``fmu_src/ss22.c`` patched to
 write, for every step of the scene's bench manoeuvre (``flexlink.tools.bench.default_case``) at its own step:
@@ -150,7 +151,8 @@ def instrument(source: str, every: int) -> str:
     return source.replace(marker, f"#define SS22_TRACE_EVERY {every}\n{TRACE}\n{marker}", 1)
 
 
-def run(scene_path: Path, tolerance: float | None, stop: float, every: int, out: Path) -> None:
+def run(scene_path: Path, tolerance: float | None, stop: float, every: int, out: Path,
+        torque: float = 0.2) -> None:
     """Build (or reuse) the scene's FMU, compile the instrumented driver and run the manoeuvre once."""
     import fmpy
 
@@ -161,7 +163,7 @@ def run(scene_path: Path, tolerance: float | None, stop: float, every: int, out:
 
     scene = load_scene(scene_path)
     model = build_model(scene)
-    case = default_case(model, stop=stop)
+    case = default_case(model, stop=stop, torque=torque)
     fmu = Path(cached_fmu(scene, model=model))
     start = {"solver.step": scene.fmu.solver.step}
     if tolerance is not None:
@@ -211,9 +213,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--tolerance", type=float, help="solver.tolerance (default: the scene's)")
     parser.add_argument("--stop", type=float, default=2.0)
     parser.add_argument("--every", type=int, default=50, help="steps between matrix-error splits (0: none)")
+    parser.add_argument("--torque", type=float, default=0.2,
+                        help="the manoeuvre's torque on a torque-driven first joint, N m (default 0.2, the bench's)")
     parser.add_argument("--out", default="/tmp/newton_trace.txt")
     args = parser.parse_args(argv)
-    run(Path(args.scene), args.tolerance, args.stop, args.every, Path(args.out))
+    run(Path(args.scene), args.tolerance, args.stop, args.every, Path(args.out), args.torque)
 
 
 if __name__ == "__main__":

@@ -143,7 +143,8 @@ static const char *invalid_data(const FmuData *d) {
         const SS22Factor *f = &d->ss22.cache[k];
         if (f->valid & ~1) return "solver cache";
         if (f->valid && !((f->rate == -1.0 || (f->rate >= 0.0 && isfinite(f->rate))) &&
-                          f->estimated >= 0 && f->estimated <= SS22_RATE_MEASURE_EVERY && f->waste >= 0.0 && isfinite(f->waste) &&
+                          f->confirmed >= 0 && f->confirmed <= SS22_RATE_CONFIRMATIONS && f->estimated >= 0 &&
+                          f->estimated <= SS22_RATE_MEASURE_EVERY << f->confirmed && f->waste >= 0.0 && isfinite(f->waste) &&
                           (f->first == -1.0 || (f->first >= 0.0 && isfinite(f->first))) && f->made <= d->ss22.steps))
             return "solver cache";
         for (int i = 0; i < N_Q && f->valid; i++) {

@@ -1,5 +1,5 @@
 /* predictor_check.c -- SS22's Newton start (fmu_src/ss22.c: predict, choose_predictor) against closed forms,
- * for tests/test_ss22_predictor.py.  It includes ss22.c itself, to reach its static functions, and links the
+ * and the cadence of its rate measures (confirm_rate, measure_interval), for tests/test_ss22_predictor.py.  It includes ss22.c itself, to reach its static functions, and links the
  * hand-written nonlinear model (tests/c/nonlinear) for N_Q and the nominal scales.
  * Prints one line per check ("ok ..." or "FAIL ...") and exits 1 if any failed. */
 #include <math.h>
@@ -77,7 +77,7 @@ static void step_solution(const SS22 *s0, double dt, const double *q, const doub
     }
 }
 
-static void run_model(int steps, int *mismatches, int *parabola_steps, int *beyond) {
+static void run_model(int steps, int *mismatches, int *parabola_steps, int *beyond, int *longest) {
     static SS22 s;
     static ModelWork work;
     const double dt = 1e-3;
@@ -113,6 +113,8 @@ static void run_model(int steps, int *mismatches, int *parabola_steps, int *beyo
                              seen_dt[1] != s.dt_before || seen_dt[2] != s.dt_last))
             (*mismatches)++;
         *parabola_steps += s.parabola;
+        for (int c = 0; c < SS22_CACHE; c++)
+            if (s.cache[c].valid && s.cache[c].estimated > *longest) *longest = s.cache[c].estimated;
     }
 }
 
@@ -189,10 +191,38 @@ int main(void) {
      * 97 steps, a given start (the order-4 option's path) every 131 and a shorter step every 53: whenever the
      * history is three deep it holds the last three accelerations returned and their steps, the parabola
      * leads, and no step ends beyond its tolerance (against the step's own solution by full Newton) */
-    int mismatches = 0, parabola_steps = 0, beyond = 0, steps = 4000;
-    run_model(steps, &mismatches, &parabola_steps, &beyond);
+    int mismatches = 0, parabola_steps = 0, beyond = 0, longest = 0, steps = 4000;
+    run_model(steps, &mismatches, &parabola_steps, &beyond, &longest);
     check(mismatches == 0, "the history is the last three steps'", mismatches);
     check(parabola_steps > steps / 2, "the parabola leads on a smooth motion", parabola_steps);
     check(beyond == 0, "every step within its tolerance", beyond);
+    /* with the rate measures that find it held, the steps between them grow past SS22_RATE_MEASURE_EVERY */
+    check(longest > SS22_RATE_MEASURE_EVERY, "measures grow apart while the kept rate holds", longest);
+
+    /* 5. the cadence: 4 steps on a kept rate, doubled by each measure in a row within the rate they were
+     * accepted on (aged_rate of the kept one), up to SS22_RATE_CONFIRMATIONS doublings; a measure above it
+     * starts again from 4, and so does a new matrix */
+    SS22Factor f = {.rate = 1e-4};
+    check(measure_interval(&f) == SS22_RATE_MEASURE_EVERY, "a new rate: measured again after 4 steps",
+          measure_interval(&f));
+    const int expected[] = {8, 16, 32, 32};
+    int doubled = 1;
+    for (int k = 0; k < 4; k++) {
+        confirm_rate(&f, 0.99 * aged_rate(f.rate), 0);
+        record_rate(&f, 0.99 * aged_rate(f.rate), 0);
+        f.rate = 1e-4;
+        doubled = doubled && measure_interval(&f) == expected[k];
+    }
+    check(doubled, "measures that hold double the interval to 32", measure_interval(&f));
+    confirm_rate(&f, 1.01 * aged_rate(f.rate), 1);
+    check(measure_interval(&f) == 32, "a ratio of increments below the tolerance does not undo",
+          measure_interval(&f));
+    confirm_rate(&f, 1.01 * aged_rate(f.rate), 0);
+    check(measure_interval(&f) == SS22_RATE_MEASURE_EVERY, "a measure beyond the rate accepted on: back to 4",
+          measure_interval(&f));
+    f.rate = -1.0;
+    f.confirmed = 2;
+    confirm_rate(&f, 1e-9, 0);
+    check(f.confirmed == 0, "no kept rate yet: a measure confirms nothing", f.confirmed);
     return failures != 0;
 }
