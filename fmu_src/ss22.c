@@ -192,23 +192,23 @@ static double record_rate(SS22Factor *f, double rate, int raise_only) {
     return f->rate;
 }
 
-/* A third increment or later with an older matrix measures its rate: did the rate the steps accepted on it
- * since its last measure allowed for (aged_rate of the kept one) hold?  Called before the rate is recorded.  An
- * increment below the tolerance (below_tolerance) may be rounding noise: it confirms, but does not undo, as its
- * ratio only raises the kept rate (record_rate). */
-static void confirm_rate(SS22Factor *f, double rate, int below_tolerance) {
-    if (!(f->rate >= 0.0 && rate <= aged_rate(f->rate))) {
-        if (!below_tolerance) f->confirmed = 0;
-    } else if (f->confirmed < SS22_RATE_CONFIRMATIONS) {
-        f->confirmed++;
+/* A step's third increment with a matrix from an earlier step measures its rate, once a step: did the rate
+ * the steps since its last measure were accepted on (aged_rate of the kept one) allow for it?  Called before
+ * the rate is recorded.  A ratio to a second increment within SS22_ROUNDING_FACTOR tolerances (noisy: its
+ * third is near the rounding floor) confirms but does not undo, as such ratios only raise the kept rate. */
+static void confirm_rate(SS22Factor *f, double rate, double second, double tolerance) {
+    if (f->rate >= 0.0 && rate <= aged_rate(f->rate)) {
+        if (f->confirmed < SS22_RATE_CONFIRMATIONS) f->confirmed++;
+    } else if (second > SS22_ROUNDING_FACTOR * tolerance) {
+        f->confirmed = 0;
     }
 }
 
 /* What a step's own ratios of increments say of the next one: within a step an older matrix's ratios rise
  * towards its slowest contraction (the first increment takes out what it contracts fast: planar_chain_5 at
  * 1 ms, 899 of 902 three-increment steps had a second ratio above the first, benchmarks/newton_trace.py), so
- * the next ratio is taken as at least the last one before this (the kept rate may fall by SS22_RATE_DECAY a
- * ratio, not within a step) and, where they rise, as rising twice more by the same factor (extrapolate: only
+ * the next ratio is taken as at least the last one before this (the kept rate falls by up to SS22_RATE_DECAY a
+ * ratio, the step's judged one does not) and, where they rise, as rising twice more by the same factor (extrapolate: only
  * on an increment above SS22_ROUNDING_FACTOR tolerances, where its ratio is not rounding noise; noise raised so
  * above 0.5 kept steps iterating that had converged).  Judged on the last ratio alone, steps ended up to 1.49
  * tolerances from their solution (planar_chain_5 at 1 ms under 0.5 N m, benchmarks/step_audit.py: 11 of 2000
@@ -307,6 +307,7 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             s->newton_iterations++;
             if (fresh >= 0) fresh++;
             if (!isfinite(err)) return SS22_NOT_FINITE;
+            const int older = f->made != s->steps;   /* a matrix from an earlier step */
             if (it == 1 && fresh < 0) { f->first = err / previous; f->first_age = s->steps - f->made; }
             if (err <= s->tolerance && (it > 0 || fresh >= 0 || below_tolerance_ends)) {
                 /* a ratio to an increment below the tolerance, perhaps at the rounding floor: it only raises.
@@ -314,7 +315,7 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
                  * its size, which can undercut it where the matrix's error cancels the start's; the six-axis
                  * arm, benchmarks/step_audit.py over 4 s: with this stop 193 of 8000 steps beyond their
                  * tolerance, the worst by 5.3; without it none, the worst 0.48 tolerances) */
-                if (it > 1 && fresh < 0) confirm_rate(f, err / previous, 1);
+                if (it == 2 && older) confirm_rate(f, err / previous, previous, s->tolerance);
                 if (it > 0 && fresh < 0) record_rate(f, err / previous, 1);
                 converged = 1;
                 break;
@@ -340,12 +341,13 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             }
             const double rate = err / previous;
             previous = err;
-            const double rising = in_step_rate(rate, ratio_before, err > SS22_ROUNDING_FACTOR * s->tolerance);
+            const double rising = older ? in_step_rate(rate, ratio_before, err > SS22_ROUNDING_FACTOR * s->tolerance)
+                                        : 0.0;
             ratio_before = rate;
             /* an older matrix is judged on its kept rate, but never on a step's first ratio (record_rate); a
              * fresh one's rate is Newton's own, not what it will show when older, and is not kept */
             const int first = it == 1 && fresh < 0;
-            if (it > 1 && fresh < 0) confirm_rate(f, rate, 0);
+            if (it == 2 && older) confirm_rate(f, rate, err / rate, s->tolerance);   /* err / rate: the second */
             const double kept = fresh < 0 ? record_rate(f, rate, first) : rate;
             const double judged = first ? INFINITY : fmax(kept, rising);
             /* linear convergence at rate < 1: what is left is about rate/(1-rate) times this increment */

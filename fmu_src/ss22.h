@@ -27,11 +27,12 @@
  * whose second increment times the kept rate (raised to its ratio to the first increment, if larger) is.  The
  * floor keeps a rate measured where the increments had already reached rounding, or after an input jump, from
  * accepting a large first increment (an independent review built a stiff model with an input jump where a
- * measured rate of 5e-9 accepted a step 1290 tolerances off).  Every SS22_RATE_MEASURE_EVERY-th such step
- * iterates once more and measures the rate again; each measure in a row that finds the rate within the one the
- * steps since were accepted on (the kept rate at least SS22_RATE_FLOOR, to the power 0.8: ss22.c, aged_rate)
- * doubles that interval, up to SS22_RATE_CONFIRMATIONS doublings, and one that does not, or a new matrix,
- * starts again from SS22_RATE_MEASURE_EVERY.
+ * measured rate of 5e-9 accepted a step 1290 tolerances off).  After SS22_RATE_MEASURE_EVERY such steps the
+ * next iterates once more and measures the rate again.  Each step's measure (its third increment with a matrix
+ * from an earlier step, whatever made the step take it) that finds the rate within the one steps are accepted
+ * on (the kept rate at least SS22_RATE_FLOOR, to the power 0.8: ss22.c, aged_rate) doubles that number, up to
+ * SS22_RATE_CONFIRMATIONS doublings in a row; one that does not starts again from SS22_RATE_MEASURE_EVERY, and
+ * so does a new matrix.
  * At the recommended step the measures were nearly all of the chains' third iterations (planar_chain_5: 815 of
  * 820 over 1 s, benchmarks/newton_trace.py: one step in ten; docs/integrator.md). */
 #define SS22_RATE_MEASURE_EVERY 4
@@ -85,7 +86,7 @@ typedef struct {
     double rate;                 /* kept contraction rate of the simplified Newton iteration with this matrix
                                     (ss22.c, record_rate), or -1 before a measure */
     int estimated;               /* steps accepted since on that rate without measuring it again */
-    int confirmed;               /* measures in a row that found the rate within the one steps were accepted on */
+    int confirmed;               /* steps' measures in a row that found the rate within the one accepted on */
     uint64_t made;               /* SS22.steps when it was evaluated: its age is SS22.steps - made */
     double first;                /* the last ratio of a step's second increment to its first with it, or -1 */
     uint64_t first_age;          /* its age at that step */

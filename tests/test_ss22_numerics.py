@@ -329,10 +329,11 @@ def test_every_accepted_step_is_within_the_newton_tolerance_of_its_solution(scen
 def test_steps_whose_increments_contract_ever_slower_stay_within_their_tolerance():
     """``planar_chain_5`` at its 1 ms step under 0.5 N m: with a kept matrix the ratios of a step's increments
     rise (its first increment takes out what the matrix contracts fast, the later ones what it contracts slowly),
-    so the last ratio under-states the next one.  Judged on it, steps were accepted up to 1.24 tolerances from
-    their solution within these 300 steps (1.49 within 600, benchmarks/step_audit.py); fmu_src/ss22.c,
-    in_step_rate, takes the next ratio as at least the one before and, where they rise, rising once more."""
-    errors = step_newton_errors("planar_chain_5.toml", 300, {"shoulder.tau": 0.5})
+    so the last ratio under-states the next one.  Judged on it, steps were accepted up to 1.49 tolerances from
+    their solution within these 800 steps (benchmarks/step_audit.py); fmu_src/ss22.c, in_step_rate, takes the
+    next ratio as at least the one before and, where they rise, rising twice more by the same factor (rising
+    once more left step 776 at 1.21 tolerances)."""
+    errors = step_newton_errors("planar_chain_5.toml", 800, {"shoulder.tau": 0.5})
     assert np.max(errors) <= 1.0, (int(np.argmax(errors)), float(np.max(errors)))
 
 

@@ -11,7 +11,7 @@ accelerations returned and their steps, the parabola leads, and every step is wi
 solution by full Newton, and the steps accepted on a matrix's kept rate between two measures of it grow past 4.
 The cadence of those measures on its own: 4 steps, doubled by each measure in a row that finds the rate within
 the one the steps were accepted on, up to 32, and back to 4 on one that does not
-(unless its increment is below the tolerance, perhaps rounding noise).
+(unless its second increment is within 100 tolerances, where the ratio may be rounding noise).
 tests/test_ss22_numerics.py audits the examples' steps the same way.
 """
 
