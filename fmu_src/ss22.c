@@ -207,14 +207,14 @@ static void confirm_rate(SS22Factor *f, double rate, double second, double toler
 /* What a step's own ratios of increments say of the next one: within a step an older matrix's ratios rise
  * towards its slowest contraction (the first increment takes out what it contracts fast: planar_chain_5 at
  * 1 ms, 899 of 902 three-increment steps had a second ratio above the first, benchmarks/newton_trace.py), so
- * the next ratio is taken as at least the last one before this (the kept rate falls by up to SS22_RATE_DECAY a
- * ratio, the step's judged one does not) and, where they rise, as rising twice more by the same factor (extrapolate: only
- * on an increment above SS22_ROUNDING_FACTOR tolerances, where its ratio is not rounding noise; noise raised so
- * above 0.5 kept steps iterating that had converged).  Judged on the last ratio alone, steps ended up to 1.49
- * tolerances from their solution (planar_chain_5 at 1 ms under 0.5 N m, benchmarks/step_audit.py: 11 of 2000
- * beyond); rising once more, up to 1.21 (ratios 3.2e-3, 4.5e-3, then 9.3e-3); twice, none beyond.  What is
- * needed, not a bound: a slow part of the error that has not yet shown in any ratio is not foreseen (the
- * kept rate is the only guard there, docs/integrator.md). */
+ * the next ratio is taken as at least the last one before this (the kept rate falls by up to SS22_RATE_DECAY
+ * a ratio, the step's judged one does not) and, where they rise, as rising twice more by the same factor
+ * (extrapolate: only on an increment above SS22_ROUNDING_FACTOR tolerances, where its ratio is not rounding
+ * noise; noise raised so above 0.5 kept steps iterating that had converged).  Judged on the last ratio alone,
+ * steps ended up to 1.49 tolerances from their solution (planar_chain_5 at 1 ms under 0.5 N m,
+ * benchmarks/step_audit.py: 11 of 2000 beyond); rising once more, up to 1.21 (ratios 3.2e-3, 4.5e-3, then
+ * 9.3e-3); twice, none beyond.  What is needed, not a bound: a slow part of the error that has not yet shown
+ * in any ratio is not foreseen (the kept rate is the only guard there, docs/integrator.md). */
 static double in_step_rate(double rate, double before, int extrapolate) {
     if (before <= 0.0) return 0.0;
     return rate > before && extrapolate ? rate * (rate / before) * (rate / before) : before;
@@ -341,8 +341,8 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             }
             const double rate = err / previous;
             previous = err;
-            const double rising = older ? in_step_rate(rate, ratio_before, err > SS22_ROUNDING_FACTOR * s->tolerance)
-                                        : 0.0;
+            const int clear = err > SS22_ROUNDING_FACTOR * s->tolerance;   /* not a ratio of rounding noise */
+            const double rising = older ? in_step_rate(rate, ratio_before, clear) : 0.0;
             ratio_before = rate;
             /* an older matrix is judged on its kept rate, but never on a step's first ratio (record_rate); a
              * fresh one's rate is Newton's own, not what it will show when older, and is not kept */
