@@ -1,0 +1,81 @@
+"""A serialised FMU state whose SS22 rate cadence is out of range is refused, nothing restored.
+
+SS22's kept factorisations come back with an FMU state (fmu_src/fmu_state.c), each with its rate measures'
+cadence: ``confirmed`` measures in a row (0 … SS22_RATE_CONFIRMATIONS = 3) and ``estimated`` steps accepted since
+the last one (at most SS22_RATE_MEASURE_EVERY << confirmed).  ``confirmed`` is a shift count: out of range it
+would be undefined behaviour, so deserialisation checks it like the cache's pivots.  The offsets come from the
+FMU's own FmuData (tests/c/state_offsets.c compiled with its sources); the forged states carry a right checksum,
+so only the range check can refuse them.
+"""
+
+from __future__ import annotations
+
+import struct
+import subprocess
+import xml.etree.ElementTree as ET
+import zipfile
+from pathlib import Path
+
+import fmpy
+import pytest
+from fmpy.fmi1 import FMICallException
+
+from flexlink.export.cache import cached_fmu
+from flexlink.export.cbuild import compiler
+from flexlink.run.host import FmuHost
+
+EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "rotating_link.toml"
+PROBE = Path(__file__).resolve().parent / "c" / "state_offsets.c"
+
+
+def _fnv1a(payload: bytes) -> int:
+    """FNV-1a 64, the checksum of a serialised state (fmu_src/fmu_state.c)."""
+    h = 14695981039346656037
+    for byte in payload:
+        h = ((h ^ byte) * 1099511628211) % 2**64
+    return h
+
+
+@pytest.fixture(scope="module")
+def layout(tmp_path_factory):
+    """(FMU, offsets of cache[0].valid, .estimated, .confirmed in FmuData, SS22_RATE_MEASURE_EVERY)."""
+    fmu = cached_fmu(EXAMPLE)
+    work = tmp_path_factory.mktemp("state_offsets")
+    with zipfile.ZipFile(fmu) as z:
+        z.extractall(work)
+        files = [f.get("name") for f in ET.fromstring(z.read("modelDescription.xml")).findall(
+            "CoSimulation/SourceFiles/File")]
+    src, exe = work / "sources", work / "state_offsets"
+    subprocess.run([*compiler(), "-std=c99", f"-I{src}", *(str(src / f) for f in files), str(PROBE),
+                    "-o", str(exe), "-lm"], check=True, capture_output=True, text=True)
+    valid, estimated, confirmed, every = (int(x) for x in subprocess.run(
+        [str(exe)], check=True, capture_output=True, text=True).stdout.split())
+    return fmu, valid, estimated, confirmed, every
+
+
+@pytest.mark.parametrize("confirmed, estimated, accepted", [
+    (3, 32, True),        # the largest cadence: restored
+    (4, 0, False),        # beyond SS22_RATE_CONFIRMATIONS
+    (-1, 0, False),       # a negative shift
+    (0, 5, False),        # more steps on the kept rate than its cadence allows
+])
+def test_a_forged_rate_cadence_is_refused(layout, confirmed, estimated, accepted):
+    fmu, at_valid, at_estimated, at_confirmed, every = layout
+    assert every == 4
+    with FmuHost(fmu) as host:
+        host.initialize({"hub.tau": 0.5})
+        for k in range(20):
+            host.instance.doStep(k * 1e-3, 1e-3)
+        blob = bytearray(host.instance.serializeFMUstate(host.instance.getFMUstate()))
+        guid = fmpy.read_model_description(str(fmu)).guid
+        header = 8 + len(guid) + 1 + 16            # magic, GUID and its NUL, payload size, checksum
+        assert struct.unpack_from("<i", blob, header + at_valid)[0] == 1, "the first factorisation is kept"
+        struct.pack_into("<i", blob, header + at_confirmed, confirmed)
+        struct.pack_into("<i", blob, header + at_estimated, estimated)
+        blob[header - 8:header] = struct.pack("<Q", _fnv1a(bytes(blob[header:])))
+        if accepted:
+            host.instance.deSerializeFMUstate(bytes(blob))
+            return
+        with pytest.raises(FMICallException):
+            host.instance.deSerializeFMUstate(bytes(blob))
+        assert "solver cache" in " ".join(host.messages)
