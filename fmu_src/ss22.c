@@ -339,7 +339,7 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
                 ratio_before = -1.0;
                 continue;
             }
-            const double rate = err / previous;
+            const double rate = err / previous, second = previous;
             previous = err;
             const int clear = err > SS22_ROUNDING_FACTOR * s->tolerance;   /* not a ratio of rounding noise */
             const double rising = older ? in_step_rate(rate, ratio_before, clear) : 0.0;
@@ -347,7 +347,7 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             /* an older matrix is judged on its kept rate, but never on a step's first ratio (record_rate); a
              * fresh one's rate is Newton's own, not what it will show when older, and is not kept */
             const int first = it == 1 && fresh < 0;
-            if (it == 2 && older) confirm_rate(f, rate, err / rate, s->tolerance);   /* err / rate: the second */
+            if (it == 2 && older) confirm_rate(f, rate, second, s->tolerance);
             const double kept = fresh < 0 ? record_rate(f, rate, first) : rate;
             const double judged = first ? INFINITY : fmax(kept, rising);
             /* linear convergence at rate < 1: what is left is about rate/(1-rate) times this increment */
