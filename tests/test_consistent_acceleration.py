@@ -13,6 +13,7 @@ import zipfile
 
 import numpy as np
 import pytest
+from serial_state import reseal
 
 from flexlink.export.cache import cached_fmu
 from flexlink.mechanics.model import build_model
@@ -220,19 +221,10 @@ def test_a_forged_state_with_a_kept_pivot_out_of_range_is_refused(built):
         assert all(i <= k < n for i, k in enumerate(pivots)), pivots     # where the layout says they are
         blob[end - 4 * n:end - 4 * n + 4] = struct.pack("<i", 10**6)
         guid = fmpy.read_model_description(str(fmu)).guid
-        header = 8 + len(guid) + 1 + 16
-        blob[header - 8:header] = struct.pack("<Q", _fnv1a(bytes(blob[header:])))
+        reseal(blob, guid)
         with pytest.raises(Exception) as refused:
             host.instance.deSerializeFMUstate(bytes(blob))
         assert "kept mass matrix" in str(refused.value) + " ".join(host.messages)
-
-
-def _fnv1a(payload: bytes) -> int:
-    """FNV-1a 64, the checksum of a serialised state (fmu_src/fmu_state.c)."""
-    h = 14695981039346656037
-    for byte in payload:
-        h = ((h ^ byte) * 1099511628211) % 2**64
-    return h
 
 
 def _lu_factor(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -335,6 +327,5 @@ def _restore_with_kept(host: FmuHost, fmu, blob: bytearray, LU: np.ndarray, piv:
     blob[start:start + 4] = struct.pack("<i", 1)
     blob[start + 8:end - 4 * n] = np.asarray(LU, float).tobytes(order="F")
     blob[end - 4 * n:end] = struct.pack(f"<{n}i", *piv)
-    header = 8 + len(fmpy.read_model_description(str(fmu)).guid) + 1 + 16
-    blob[header - 8:header] = struct.pack("<Q", _fnv1a(bytes(blob[header:])))
+    reseal(blob, fmpy.read_model_description(str(fmu)).guid)
     host.instance.setFMUstate(host.instance.deSerializeFMUstate(bytes(blob)))

@@ -30,6 +30,7 @@ import numpy as np
 import pytest
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave, fmi2LastSuccessfulTime
+from serial_state import payload_start, reseal
 
 from flexlink.mechanics.analysis import natural_frequencies
 from flexlink.mechanics.model import build_model
@@ -337,14 +338,6 @@ def test_corrupted_serialized_state_is_refused(new_slave):
     s.fmu.freeFMUstate(good)
 
 
-def _fnv1a(payload: bytes) -> int:
-    """FNV-1a 64, the checksum the FMU's serialised state carries (fmu_src/fmu_state.c)."""
-    h = 14695981039346656037
-    for byte in payload:
-        h = ((h ^ byte) * 1099511628211) % 2**64
-    return h
-
-
 def test_deserialized_state_values_pass_the_set_real_gate(new_slave, fmus):
     """A state whose bytes are intact (checksum right) but whose parameter is outside the domain the model
     description declares is refused as fmi2SetReal would refuse that value; nothing is restored."""
@@ -359,14 +352,14 @@ def test_deserialized_state_values_pass_the_set_real_gate(new_slave, fmus):
     md = fmus["rotating_link"].md
     ei = next(v for v in md.modelVariables if v.name.endswith(".EI"))
     declared_min = float(ei.min)                       # the domain the FMU declares: EI > min
-    header = 8 + len(md.guid) + 1 + 16
+    header = payload_start(md.guid)
     value = struct.pack("<d", float(s.get([ei.name])[0]))
     at = bytes(blob).find(value, header)
     assert at > 0 and bytes(blob).find(value, at + 1) < 0, "the parameter's bytes must be unique in the state"
     for bad in (declared_min - 1.0, float("nan")):
         forged = bytearray(blob)
         forged[at:at + 8] = struct.pack("<d", bad)
-        forged[header - 8:header] = struct.pack("<Q", _fnv1a(bytes(forged[header:])))
+        reseal(forged, md.guid)
         refused(s, lambda forged=forged: s.fmu.deSerializeFMUstate(bytes(forged)), ERROR,
                 "fmi2DeSerializeFMUstate", ei.name)
         s.fmu.setFMUstate(good)                        # the instance comes back from a stored state

@@ -19,6 +19,7 @@ from pathlib import Path
 import fmpy
 import pytest
 from fmpy.fmi1 import FMICallException
+from serial_state import payload_start, reseal
 
 from flexlink.export.cache import cached_fmu
 from flexlink.export.cbuild import compiler
@@ -26,14 +27,6 @@ from flexlink.run.host import FmuHost
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "rotating_link.toml"
 PROBE = Path(__file__).resolve().parent / "c" / "state_offsets.c"
-
-
-def _fnv1a(payload: bytes) -> int:
-    """FNV-1a 64, the checksum of a serialised state (fmu_src/fmu_state.c)."""
-    h = 14695981039346656037
-    for byte in payload:
-        h = ((h ^ byte) * 1099511628211) % 2**64
-    return h
 
 
 @pytest.fixture(scope="module")
@@ -68,11 +61,11 @@ def test_a_forged_rate_cadence_is_refused(layout, confirmed, estimated, accepted
             host.instance.doStep(k * 1e-3, 1e-3)
         blob = bytearray(host.instance.serializeFMUstate(host.instance.getFMUstate()))
         guid = fmpy.read_model_description(str(fmu)).guid
-        header = 8 + len(guid) + 1 + 16            # magic, GUID and its NUL, payload size, checksum
+        header = payload_start(guid)
         assert struct.unpack_from("<i", blob, header + at_valid)[0] == 1, "the first factorisation is kept"
         struct.pack_into("<i", blob, header + at_confirmed, confirmed)
         struct.pack_into("<i", blob, header + at_estimated, estimated)
-        blob[header - 8:header] = struct.pack("<Q", _fnv1a(bytes(blob[header:])))
+        reseal(blob, guid)
         if accepted:
             host.instance.deSerializeFMUstate(bytes(blob))
             return
