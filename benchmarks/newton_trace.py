@@ -1,7 +1,7 @@
 """Why SS22's Newton iteration takes the iterations it takes: one line per step from an instrumented copy of the loop.
 
     python benchmarks/newton_trace.py SCENE.toml [--tolerance TOL] [--stop T] [--every N] [--torque TAU]
-        [--out TRACE.txt]
+        [--set NAME=VALUE ...] [--out TRACE.txt]
 
 The FMU's sources are compiled with ``benchmarks/step_floor.c`` and a copy of ``fmu_src/ss22.c`` patched to
 write, for every step of the scene's bench manoeuvre (``flexlink.tools.bench.default_case``) at its own step:
@@ -107,6 +107,20 @@ static void trace_step(SS22 *s, double dt, const double *q, const double *v, con
     fprintf(TR, "%llu %d %llu %.3e %.3e %.3e %.3e %.3e %d |", (unsigned long long)s->steps, TR_n,
             (unsigned long long)(s->steps - OLD_step[k]), used, hold, mean, parabola, f->rate, f->estimated);
     for (int i = 0; i < TR_n && i < 20; i++) fprintf(TR, " %.2e", TR_err[i]);
+    {   /* what the accepted step has left by the FMU's own residual: one Newton increment with a fresh matrix */
+        const double cv = s->theta1 * dt, cq = s->theta2 * 0.5 * dt * dt;
+        double qb[N_Q], vb[N_Q], r[N_Q];
+        int piv[N_Q];
+        for (int i = 0; i < N_Q; i++) { qb[i] = q[i] + cv * v[i] + cq * a[i]; vb[i] = v[i] + cv * a[i]; }
+        double left = -1.0;
+        if (!model_residual(qb, vb, a, s->u_bar, p, r, work)
+            && !model_newton_matrix(qb, vb, a, s->u_bar, p, 1.0, cv, cq, Xn, work) && !lu_factor(Xn, N_Q, piv)) {
+            lu_solve(Xn, N_Q, piv, r);
+            left = 0.0;
+            for (int i = 0; i < N_Q; i++) left = fmax(left, fabs(r[i]) * dt / MODEL_NOMINAL_Q[i]);
+        }
+        fprintf(TR, " = left %.2e", left);
+    }
     if (SS22_TRACE_EVERY > 0 && seen % SS22_TRACE_EVERY == 0) {
         const double cv = s->theta1 * dt, cq = s->theta2 * 0.5 * dt * dt;
         const double weights[3][3] = {{1, 0, 0}, {0, cv, 0}, {0, 0, cq}};
@@ -152,7 +166,7 @@ def instrument(source: str, every: int) -> str:
 
 
 def run(scene_path: Path, tolerance: float | None, stop: float, every: int, out: Path,
-        torque: float = 0.2) -> None:
+        torque: float = 0.2, values: dict[str, float] | None = None) -> None:
     """Build (or reuse) the scene's FMU, compile the instrumented driver and run the manoeuvre once."""
     import fmpy
 
@@ -165,7 +179,7 @@ def run(scene_path: Path, tolerance: float | None, stop: float, every: int, out:
     model = build_model(scene)
     case = default_case(model, stop=stop, torque=torque)
     fmu = Path(cached_fmu(scene, model=model))
-    start = {"solver.step": scene.fmu.solver.step}
+    start = {"solver.step": scene.fmu.solver.step, **(values or {})}
     if tolerance is not None:
         start["solver.tolerance"] = tolerance
     with tempfile.TemporaryDirectory() as tmp:
@@ -215,9 +229,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--every", type=int, default=50, help="steps between matrix-error splits (0: none)")
     parser.add_argument("--torque", type=float, default=0.2,
                         help="the manoeuvre's torque on a torque-driven first joint, N m (default 0.2, the bench's)")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="a start value or held input (e.g. elbow.tau=5, as benchmarks/step_audit.py takes them)")
     parser.add_argument("--out", default="/tmp/newton_trace.txt")
     args = parser.parse_args(argv)
-    run(Path(args.scene), args.tolerance, args.stop, args.every, Path(args.out), args.torque)
+    values = {name: float(value) for name, value in (item.split("=", 1) for item in args.set)}
+    run(Path(args.scene), args.tolerance, args.stop, args.every, Path(args.out), args.torque, values)
 
 
 if __name__ == "__main__":
