@@ -1,7 +1,7 @@
 """Why SS22's Newton iteration takes the iterations it takes: one line per step from an instrumented copy of the loop.
 
     python benchmarks/newton_trace.py SCENE.toml [--tolerance TOL] [--stop T] [--every N] [--torque TAU]
-        [--set NAME=VALUE ...] [--out TRACE.txt]
+        [--set NAME=VALUE ...] [--hold] [--out TRACE.txt]
 
 The FMU's sources are compiled with ``benchmarks/step_floor.c`` and a copy of ``fmu_src/ss22.c`` patched to
 write, for every step of the scene's bench manoeuvre (``flexlink.tools.bench.default_case``) at its own step:
@@ -9,7 +9,9 @@ the iterations, the kept matrix's age in steps, the predictor's error (the conve
 iteration's start) next to the errors other predictors would have made (holding the last acceleration, the
 mean of the last two, a parabola through the last three), the matrix's kept contraction rate and the steps
 accepted on it since it was last measured (``SS22Factor.rate``, ``.estimated``, after the step), and every
-increment, all in the tolerance's units (Δt |δα_i| / nominal_i, largest over i).  Every ``--every`` steps it
+increment, all in the tolerance's units (Δt |δα_i| / nominal_i, largest over i), then ``= left X``: what the
+accepted step has left by the FMU's own residual, one Newton increment with a matrix evaluated at it (the
+figure ``benchmarks/step_audit.py`` audits, here from the FMU itself).  Every ``--every`` steps it
 also splits the kept matrix's error G = J_old⁻¹ (J_now − J_old), J = M + Θ₁Δt C + Θ₂Δt²/2 K, into its M, C and
 K parts (∞-norms in nominal units) and gives G's spectral radius, the rate simplified Newton contracts at.  The
 summary prints geometric means and the iterations' distribution; the trace file keeps the lines.  Nothing here
@@ -19,6 +21,7 @@ ships in an FMU.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 import subprocess
@@ -166,7 +169,7 @@ def instrument(source: str, every: int) -> str:
 
 
 def run(scene_path: Path, tolerance: float | None, stop: float, every: int, out: Path,
-        torque: float = 0.2, values: dict[str, float] | None = None) -> None:
+        torque: float = 0.2, values: dict[str, float] | None = None, hold: bool = False) -> None:
     """Build (or reuse) the scene's FMU, compile the instrumented driver and run the manoeuvre once."""
     import fmpy
 
@@ -178,6 +181,8 @@ def run(scene_path: Path, tolerance: float | None, stop: float, every: int, out:
     scene = load_scene(scene_path)
     model = build_model(scene)
     case = default_case(model, stop=stop, torque=torque)
+    if hold:        # the inputs as set from t = 0 (as benchmarks/step_audit.py holds them), no ±τ pieces
+        case = dataclasses.replace(case, pieces=[], switches=[])
     fmu = Path(cached_fmu(scene, model=model))
     start = {"solver.step": scene.fmu.solver.step, **(values or {})}
     if tolerance is not None:
@@ -231,10 +236,12 @@ def main(argv: list[str] | None = None) -> None:
                         help="the manoeuvre's torque on a torque-driven first joint, N m (default 0.2, the bench's)")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="a start value or held input (e.g. elbow.tau=5, as benchmarks/step_audit.py takes them)")
+    parser.add_argument("--hold", action="store_true",
+                        help="hold the inputs at their start values (--set) instead of the bench's ±τ pieces")
     parser.add_argument("--out", default="/tmp/newton_trace.txt")
     args = parser.parse_args(argv)
     values = {name: float(value) for name, value in (item.split("=", 1) for item in args.set)}
-    run(Path(args.scene), args.tolerance, args.stop, args.every, Path(args.out), args.torque, values)
+    run(Path(args.scene), args.tolerance, args.stop, args.every, Path(args.out), args.torque, values, args.hold)
 
 
 if __name__ == "__main__":

@@ -342,14 +342,18 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             const double rate = err / previous, second = previous;
             previous = err;
             const int clear = err > SS22_ROUNDING_FACTOR * s->tolerance;   /* not a ratio of rounding noise */
-            const double rising = older ? in_step_rate(rate, ratio_before, clear) : 0.0;
+            const double rising = in_step_rate(rate, ratio_before, clear);
             ratio_before = rate;
-            /* an older matrix is judged on its kept rate, but never on a step's first ratio (record_rate); a
-             * fresh one's rate is Newton's own, not what it will show when older, and is not kept */
+            /* an older matrix is judged on its kept rate, never on a step's first ratio (record_rate); a fresh
+             * one's rate is Newton's own, not what it will show when older, and is not kept.  Either is aged as
+             * in the early stops: ratios can jump 10-200x after two that agreed (fast_two_link, 20 and 5 N m:
+             * 5.9e-5, 6.9e-5, then 0.011; a matrix made at a start 13 units off: 0.035, 0.22, 2.6e-5), and on
+             * the bare rate steps ended up to 7.1 tolerances off (6 of 3000; planar_chain_3 at 1 ms, 0.5 N m: 4
+             * of 2000, 1.72; benchmarks/step_audit.py), aged none (0.61, 0.37) */
             const int first = it == 1 && fresh < 0;
             if (it == 2 && older) confirm_rate(f, rate, second, s->tolerance);
             const double kept = fresh < 0 ? record_rate(f, rate, first) : rate;
-            const double judged = first ? INFINITY : fmax(kept, rising);
+            const double judged = first ? INFINITY : aged_rate(fmax(kept, rising));
             /* linear convergence at rate < 1: what is left is about rate/(1-rate) times this increment */
             if (judged < 0.5 && judged / (1.0 - judged) * err <= s->tolerance) { converged = 1; break; }
             /* at this rate an older matrix cannot reach the tolerance within the iterations left */
