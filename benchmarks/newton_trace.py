@@ -226,6 +226,17 @@ def summarise(lines: list[str]) -> None:
         print("kept matrix error: " + " ".join(s))
 
 
+def _name_value(text: str) -> tuple[str, float]:
+    """``NAME=VALUE`` as (name, float), or argparse's one-line error."""
+    name, sep, value = text.partition("=")
+    try:
+        if not (sep and name):
+            raise ValueError
+        return name, float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE with a number, got {text!r}") from None
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("scene")
@@ -234,13 +245,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--every", type=int, default=50, help="steps between matrix-error splits (0: none)")
     parser.add_argument("--torque", type=float, default=0.2,
                         help="the manoeuvre's torque on a torque-driven first joint, N m (default 0.2, the bench's)")
-    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", type=_name_value,
                         help="a start value or held input (e.g. elbow.tau=5, as benchmarks/step_audit.py takes them)")
     parser.add_argument("--hold", action="store_true",
-                        help="hold the inputs at their start values (--set) instead of the bench's ±τ pieces")
+                        help="hold the inputs at their start values (--set) instead of the bench's ±τ pieces "
+                             "(--torque is then not used)")
     parser.add_argument("--out", default="/tmp/newton_trace.txt")
     args = parser.parse_args(argv)
-    values = {name: float(value) for name, value in (item.split("=", 1) for item in args.set)}
+    values = dict(args.set)
     run(Path(args.scene), args.tolerance, args.stop, args.every, Path(args.out), args.torque, values, args.hold)
 
 
