@@ -345,12 +345,10 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             const double rising = in_step_rate(rate, ratio_before, clear);
             ratio_before = rate;
             /* an older matrix is judged on its kept rate, never on a step's first ratio (record_rate); a new
-             * one's rate is Newton's own, not what it will show when older, and is kept only once it is judged
-             * as older (below).  Either is aged as in the early stops: an older matrix's ratios can jump 10-200x
-             * after two that agreed (fast_two_link, 20 and 5 N m: 5.9e-5, 6.9e-5, then 0.011), and on the bare
-             * rate steps ended up to 7.1 tolerances off (6 of 3000; planar_chain_3 at 1 ms, 0.5 N m: 4 of 2000,
-             * 1.72; benchmarks/step_audit.py), aged none (0.61, 0.37); a new one made at a start 13 units off
-             * went 0.035, 0.22, 2.6e-5, and such steps ended up to 1.02 tolerances off (docs/integrator.md) */
+             * one's is Newton's own, kept once judged as older (below).  Both aged as in the early stops: ratios
+             * can jump 10-200x after two that agreed (fast_two_link, 20 and 5 N m: 5.9e-5, 6.9e-5, then 0.011;
+             * a new matrix 0.035, 0.22, 2.6e-5), and on the bare rate steps ended up to 7.1 tolerances off
+             * (planar_chain_3 at 1 ms, 0.5 N m: 1.72; benchmarks/step_audit.py; docs/integrator.md) */
             const int first = it == 1 && fresh < 0;
             if (it == 2 && older) confirm_rate(f, rate, second, s->tolerance);
             const double kept = fresh < 0 ? record_rate(f, rate, first) : rate;
