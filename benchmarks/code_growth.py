@@ -7,7 +7,7 @@ each, second-order kinematics), the operations of each function a build generate
 counts: scalar, after CSE, as compiled), the fitted exponent of each against the number of links, and what
 each adds a link over the first and the last interval of sizes (constant for a function linear in the chain;
 the log-log exponent of an affine count with a cheaper first link is above 1).  No gcc:
-the counts come from the CasADi functions themselves, in about a minute.  ``--write`` rewrites the block between
+the counts come from the CasADi functions themselves, in seconds.  ``--write`` rewrites the block between
 the code-growth markers of docs/performance.md.
 """
 
@@ -37,7 +37,8 @@ def counts(links: list[int]) -> dict[int, dict[str, int]]:
 
 
 def table(by_links: dict[int, dict[str, int]]) -> list[str]:
-    """A markdown table: one row per function, one column per chain length, and the fitted exponent."""
+    """A markdown table: one row per function (and their sum), one column per chain length, the fitted exponent
+    and the operations each adds a link over the first and the last interval of sizes."""
     links = sorted(by_links)
     names = sorted({name for row in by_links.values() for name in row}, key=lambda k: -by_links[links[-1]].get(k, 0))
     lines = ["| function | " + " | ".join(f"{n} link{'s' if n > 1 else ''}" for n in links)
