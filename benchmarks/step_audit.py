@@ -31,6 +31,8 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from flexlink.errors import FlexlinkError
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -134,7 +136,11 @@ def main(argv: list[str] | None = None) -> int:
     start = {k: float(v) for k, v in (s.split("=", 1) for s in args.set)}
     if args.tolerance is not None:
         start["solver.tolerance"] = args.tolerance
-    audit = step_errors(args.scene, args.stop, start)
+    try:
+        audit = step_errors(args.scene, args.stop, start)
+    except FlexlinkError as exc:    # a bad scene or start value: one message, exit status 2
+        print(f"step_audit: {exc}", file=sys.stderr)
+        return 2
     e = audit.errors
     print(f"{args.scene}: {len(e)} steps of {audit.step:g} s at tolerance {audit.tolerance:g}: worst "
           f"{e.max():.3g} tolerances (step at t = {audit.time[int(np.argmax(e))]:.6g} s), {int(np.sum(e > 1))} "
