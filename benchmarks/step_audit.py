@@ -133,12 +133,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="a start value")
     ap.add_argument("--worst", type=int, default=10, help="list the N worst steps")
     args = ap.parse_args(argv)
-    start = {k: float(v) for k, v in (s.split("=", 1) for s in args.set)}
+    try:
+        start = {k: float(v) for k, v in (s.split("=", 1) for s in args.set)}
+    except ValueError:
+        ap.error(f"--set takes NAME=NUMBER, got {args.set}")   # exit status 2
     if args.tolerance is not None:
         start["solver.tolerance"] = args.tolerance
     try:
         audit = step_errors(args.scene, args.stop, start)
-    except FlexlinkError as exc:    # a bad scene or start value: one message, exit status 2
+    except FlexlinkError as exc:    # a bad scene or start value, or a step the FMU refused: exit status 2
         print(f"step_audit: {exc}", file=sys.stderr)
         return 2
     e = audit.errors

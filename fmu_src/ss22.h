@@ -43,8 +43,8 @@
  * on a rate of 0.163 were 0.33 of their increment from their solution (benchmarks/step_audit.py), and the
  * infinity-norm of the old matrix's error J_old^-1 (J - J_old), a bound over all directions, was 1.6 to 90
  * times the step's first ratio, median 2.45, over 189 sampled steps of 3 s (benchmarks/newton_trace.py
- * --every 25, its M part): 2 is what those steps needed, not a bound.  At other tolerances 2 was not enough (the
- * arm at 1e-9: 5 of 8000 steps beyond, at 1e-8: 383; with 3 none, docs/integrator.md "Every tolerance"). */
+ * --every 25, its M part): 2 is what those steps needed, not a bound.  At other tolerances 2 was not enough even with
+ * ss22.c's bounds_error (the arm at 1e-9: 5 of 8000 beyond, at 1e-8: 383; with 3 none; docs/integrator.md). */
 #define SS22_DIRECTION_MARGIN 3.0
 #define SS22_RATE_FLOOR 1e-3
 /* The kept contraction rate of a matrix falls by at most this factor per measured ratio of increments (ss22.c,
