@@ -357,8 +357,8 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             /* an old matrix whose extra iterations have paid for a new one (ss22.h, SS22_REFRESH_COST) */
             const int stale = fresh < 0 && f->waste >= SS22_REFRESH_COST;
             /* below the tolerance, not bounding the error: increments (cheaper than a matrix) while within reach */
-            const double aged = aged_rate(rate), left = pow(rate, s->max_iterations - 1 - it);
-            const int near = err <= s->tolerance && rate < 0.9 && aged / (1.0 - aged) * err * left <= s->tolerance;
+            const int near = err <= s->tolerance && rate < 0.9 && aged_rate(rate) / (1.0 - aged_rate(rate)) * err
+                             * pow(rate, s->max_iterations - 1 - it) <= s->tolerance;     /* pow: only when below */
             if ((rate <= 0.5 || near) && !too_slow && !stale) {
                 fresh = -1;      /* contracting: judged as an older matrix from here on */
                 continue;
