@@ -21,8 +21,10 @@ import casadi as ca
 import numpy as np
 
 from flexlink.errors import FlexlinkError
+from flexlink.mechanics.composite import composite_mass_matrix
 from flexlink.mechanics.kane import KaneLink, kane_forces, takes_kane_form
 from flexlink.mechanics.kinematics import (
+    BASE_FRAME,
     LinkDeformation,
     RateGram,
     TipKinematics,
@@ -181,6 +183,7 @@ class ChainAssembly:
     rate_grams: list[tuple[ca.MX, RateGram, list[int]]] = field(default_factory=list)
     # per second-order link whose foreshortening enters the equations in Kane's form: what that form needs
     kane_links: list[KaneLink] = field(default_factory=list)
+    linear_mask: ca.DM | None = None   # 0 on the linear links' η, 1 elsewhere (None: no linear link)
     # the walk's cursor (add_energies): the current joint's or tip's origin, and the last link's tip rotation
     origin: ca.MX | ca.DM = field(init=False, repr=False, compare=False)
     Rdef: ca.MX | ca.DM = field(init=False, repr=False, compare=False)
@@ -587,6 +590,38 @@ class ChainAssembly:
         self.origin = self.origin + ca.mtimes(R, offset)
         return ca.mtimes(R, Ro), ca.mtimes(R_dot, Ro), ca.mtimes(Ro.T, w), V + ca.mtimes(R_dot, offset)
 
+    def body_step(self, i: int, parent: tuple) -> tuple:
+        """Joint i, its rotor, link i and its payload on the parent's tip frame: T, T less Kane's share, V_g, tip.
+
+        ``parent`` is the tip frame's (R, Ṙ, ω, V), its origin in ``self.origin``; returns the energies, the
+        link's :class:`Frame` and the joint's rotation in the world.  Moves ``self.origin`` to the joint.
+        """
+        joint, link, part = self.scene.joints[i], self.scene.links[i], self.parts[i]
+        qa, va = self.qa, self.va
+        a = np.asarray(joint.axis, float) / np.linalg.norm(joint.axis)
+        R0, R0_dot, w0, VL = self.joint_frame(joint, parent)
+        th, thd = qa[self.joint_coord[i]], va[self.joint_coord[i]]
+        Rj = rotation(a, th)
+        Rj_dot = ca.mtimes(Rj, skew(ca.DM(a))) * thd
+        B = ca.DM.eye(3) if part.rigid else ca.DM(link_basis(a))   # a rigid link's frame is the joint's
+        part.axis = tuple(np.asarray(B.T @ ca.DM(a)).ravel())
+        RL = ca.mtimes(ca.mtimes(R0, Rj), B)
+        RL_dot = ca.mtimes(ca.mtimes(R0_dot, Rj) + ca.mtimes(R0, Rj_dot), B)
+        wL = ca.mtimes(B.T, ca.mtimes(Rj.T, w0) + ca.DM(a) * thd)
+        motor_rate = va[self.driven(i)]
+        # the rotor spins about the joint axis with the shaft: angular momentum only (it sits at the joint)
+        rotor_rate = ca.dot(ca.DM(a), w0) + motor_rate
+        T_rotor = 0.5 * self.P(self.i_Ih[i]) * rotor_rate ** 2
+        self.bodies.append(dict(joint=i, mass=0, moment=ca.DM.zeros(3), momentum=ca.DM.zeros(3),
+                                spin=self.P(self.i_Ih[i]) * rotor_rate * ca.mtimes(R0, ca.DM(a))))
+        T_link, Vg, T_rest_link = self.link_energy(i, link, part, VL, RL, wL, RL_dot)
+        frame = self.link_tip(link, part, VL, RL, RL_dot, wL)
+        T, T_rest = T_rotor + T_link, T_rotor + T_rest_link
+        if part.i_pm is not None:
+            T_pay, Vg_pay = self.payload_energy(i, link, part, VL, frame)
+            T, Vg, T_rest = T + T_pay, Vg + Vg_pay, T_rest + T_pay
+        return T, T_rest, Vg, frame, ca.mtimes(R0, Rj)
+
     def add_energies(self) -> None:
         """T and V_gravity of the whole chain, walking the frames from the base."""
         qa, va = self.qa, self.va
@@ -594,33 +629,12 @@ class ChainAssembly:
         T_rest: ca.MX | float = 0
         Vg: ca.MX | float = 0
         self.origin = ca.DM.zeros(3)
-        parent: tuple[ca.MX | ca.DM, ...] = (ca.DM.eye(3), ca.DM.zeros(3, 3), ca.DM.zeros(3), ca.DM.zeros(3))
+        parent: tuple[ca.MX | ca.DM, ...] = BASE_FRAME
         # (R, Ṙ, ω, V of the base, then of each tip frame in turn)
-        for i, (joint, link, part) in enumerate(zip(self.scene.joints, self.scene.links, self.parts, strict=True)):
-            a = np.asarray(joint.axis, float) / np.linalg.norm(joint.axis)
-            R0, R0_dot, w0, VL = self.joint_frame(joint, parent)
-            th, thd = qa[self.joint_coord[i]], va[self.joint_coord[i]]
-            Rj = rotation(a, th)
-            Rj_dot = ca.mtimes(Rj, skew(ca.DM(a))) * thd
-            B = ca.DM.eye(3) if part.rigid else ca.DM(link_basis(a))   # a rigid link's frame is the joint's
-            part.axis = tuple(np.asarray(B.T @ ca.DM(a)).ravel())
-            RL = ca.mtimes(ca.mtimes(R0, Rj), B)
-            RL_dot = ca.mtimes(ca.mtimes(R0_dot, Rj) + ca.mtimes(R0, Rj_dot), B)
-            wL = ca.mtimes(B.T, ca.mtimes(Rj.T, w0) + ca.DM(a) * thd)
-            motor_rate = va[self.driven(i)]
-            # the rotor spins about the joint axis with the shaft: angular momentum only (it sits at the joint)
-            rotor_rate = ca.dot(ca.DM(a), w0) + motor_rate
-            T_rotor = 0.5 * self.P(self.i_Ih[i]) * rotor_rate ** 2
-            T, T_rest = T + T_rotor, T_rest + T_rotor
-            self.bodies.append(dict(joint=i, mass=0, moment=ca.DM.zeros(3), momentum=ca.DM.zeros(3),
-                                    spin=self.P(self.i_Ih[i]) * rotor_rate * ca.mtimes(R0, ca.DM(a))))
-            T_link, Vg_link, T_rest_link = self.link_energy(i, link, part, VL, RL, wL, RL_dot)
-            frame = self.link_tip(link, part, VL, RL, RL_dot, wL)
-            T, Vg, T_rest = T + T_link, Vg + Vg_link, T_rest + T_rest_link
-            if part.i_pm is not None:
-                T_pay, Vg_pay = self.payload_energy(i, link, part, VL, frame)
-                T, Vg, T_rest = T + T_pay, Vg + Vg_pay, T_rest + T_pay
-            self.joint_frames.append((self.origin, ca.mtimes(R0, Rj)))
+        for i in range(len(self.parts)):
+            T_body, T_rest_body, Vg_body, frame, joint_rotation = self.body_step(i, parent)
+            T, T_rest, Vg = T + T_body, T_rest + T_rest_body, Vg + Vg_body
+            self.joint_frames.append((self.origin, joint_rotation))
             self.frames.append(frame)
             self.origin = frame.tip_origin
             parent = (frame.tip_rotation, frame.tip_rotation_rate, frame.tip_omega, frame.tip_velocity)
@@ -629,6 +643,7 @@ class ChainAssembly:
         if linear:
             # T at η = 0 for the linear links, the rates kept (seed 000 eq. 3.7)
             mask = ca.DM([0.0 if k in linear else 1.0 for k in range(len(self.coordinates))])
+            self.linear_mask = mask
             T = ca.Function("T", [qa, va, self.p], [T])(qa * mask, va, self.p)
         # T without the foreshortening rates' Σ w u̇² (whose Hessian the mass matrix forms as a Gram product), then
         # the whole T; a linear link has none, so the mask above does not touch them
@@ -747,12 +762,14 @@ class ChainAssembly:
     def mass_matrix_all(self) -> ca.MX:
         """∂²T/∂q̇² of every coordinate, an expression in qa, u, p (T is quadratic in q̇: no q̇ left in it).
 
-        CasADi's Hessian of T less the foreshortening rates' Σ w u̇², plus their Gram forms ρ Aᵀ W A placed on
-        their links' rate coordinates (:class:`~flexlink.mechanics.kinematics.RateGram`): the same matrix in
-        a quarter of the operations on point sums (tests/test_mass_matrix_gram.py).
+        The Hessian of T less the foreshortening rates' Σ w u̇², by composite inertia along the chain
+        (:mod:`flexlink.mechanics.composite`), plus their Gram forms ρ Aᵀ W A placed on their links' rate
+        coordinates (:class:`~flexlink.mechanics.kinematics.RateGram`): the same matrix as CasADi's Hessian of
+        the whole T, in a quarter of the operations on point sums (tests/test_mass_matrix_gram.py).
         """
-        H = ca.hessian(self.T_without_grams, self.va)[0]
-        H = ca.substitute(H, self.va, ca.DM.zeros(self.va.numel()))
+        H = composite_mass_matrix(self)
+        if self.linear_mask is not None:        # T at η = 0 for the linear links (add_energies)
+            H = ca.substitute(H, self.qa, self.qa * self.linear_mask)
         n = len(self.coordinates)
         for rho, gram, rates in self.rate_grams:
             place = ca.DM(ca.Sparsity.triplet(n, len(rates), rates, list(range(len(rates)))), 1.0)

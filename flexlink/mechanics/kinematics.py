@@ -38,6 +38,10 @@ Scalar = ca.MX | float
 Factor = ca.MX | ca.DM | str | None
 
 
+#: The base's frame as the first joint's parent (R, Ṙ, ω, V): fixed, at rest.
+BASE_FRAME = (ca.DM.eye(3), ca.DM.zeros(3, 3), ca.DM.zeros(3), ca.DM.zeros(3))
+
+
 def link_basis(axis: npt.ArrayLike) -> np.ndarray:
     """Columns e_x, e_v = axis × e_x, e_axis of a link's frame, in its joint's parent frame."""
     a = np.asarray(axis, dtype=float)
