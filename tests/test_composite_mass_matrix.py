@@ -17,6 +17,7 @@ import pytest
 
 from flexlink.mechanics.assembly import ChainAssembly
 from flexlink.mechanics.composite import body_forms
+from flexlink.mechanics.model import build_model
 from flexlink.scene.loader import load_scene, parse_scene
 
 EXAMPLES = sorted((Path(__file__).resolve().parent.parent / "examples").glob("*.toml"))
@@ -71,6 +72,14 @@ def test_the_mixed_chain_cuts_at_every_body():
     assert forms[1].rates[:2] == [chain.motor_coord[1], chain.joint_coord[1]]
     assert forms[3].rates == [chain.joint_coord[3]]
     _check(chain, states=6)
+
+
+def test_explain_names_the_recursion():
+    """`flexlink explain` lists the model's terms: the mass matrix's recursion is one of them (and not on one body)."""
+    model = build_model(parse_scene(_mixed()))
+    assert any("composite inertia over the 5 bodies" in term for term in model.terms)
+    single = build_model(load_scene(EXAMPLES[0].parent / "rotating_link.toml"))
+    assert not any("composite inertia" in term for term in single.terms)
 
 
 def test_the_second_walk_leaves_the_chain_as_it_was():

@@ -741,6 +741,9 @@ class ChainAssembly:
         if any(part.second_order for part in self.parts if not part.rigid and part.eta):
             self.terms.append("second-order kinematics: foreshortening; each body's energy to second order in its "
                               "own elastic coordinates, the chain composed exactly (a Lagrangian: M symmetric)")
+        if len(self.parts) > 1:
+            self.terms.append(f"mass matrix by composite inertia over the {len(self.parts)} bodies: each body's "
+                              "kinetic energy a quadratic form in its parent tip's velocity, folded from the tip")
         n_all = len(self.coordinates)
         self.free = [k for k in range(n_all) if k not in self.prescribed]
         if not self.free:
