@@ -4,7 +4,8 @@
 
 The second-order link of ``benchmarks/scaling.py`` (one link of 16 Hermite elements reduced to ``--modes``
 modes) is assembled once; its mass matrix is formed two ways from the same kinetic energy: as the build makes
-it (``ChainAssembly.mass_matrix_all``: CasADi's Hessian of T less Σ w u̇², plus 2 Aᵀ W A) and as CasADi's Hessian
+it (``ChainAssembly.mass_matrix_all``: on one body its composite-inertia form is CasADi's Hessian of T less
+Σ w u̇²; plus 2 Aᵀ W A) and as CasADi's Hessian
 of the whole T through the point sums (the form before issue 15's change).  Each is prepared as the build
 prepares an off-step function (scalar code, or the matrix graph past REFRESH_EXPAND_MAX_OPERATIONS), written by
 CasADi's code generator, compiled at -O2 with a loop that calls it, and timed in the same run: the median of

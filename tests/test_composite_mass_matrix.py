@@ -68,8 +68,10 @@ def test_the_mixed_chain_cuts_at_every_body():
     chain = _chain(parse_scene(_mixed()))
     forms = body_forms(chain)
     assert [f.cut for f in forms] == [False, True, True, True, True]
-    # the elastic joint's two angles and the position-driven joint's angle are their bodies' own rates
+    # the elastic joint's two angles, the position-driven elbow's angle (with its linear link's η) and the
+    # wrist's angle (a massless connector) are their bodies' own rates
     assert forms[1].rates[:2] == [chain.motor_coord[1], chain.joint_coord[1]]
+    assert forms[2].rates == [chain.joint_coord[2], *chain.parts[2].eta]
     assert forms[3].rates == [chain.joint_coord[3]]
     _check(chain, states=6)
 
@@ -83,12 +85,66 @@ def test_explain_names_the_recursion():
 
 
 def test_the_second_walk_leaves_the_chain_as_it_was():
+    """The chain's own records are the same objects with the same entries, and every link keeps its tip."""
     chain = _chain(parse_scene(_mixed()))
-    before = (len(chain.bodies), len(chain.rate_grams), len(chain.kane_links), str(chain.origin))
+    lists = {name: getattr(chain, name) for name in ("bodies", "rate_grams", "kane_links")}
+    before = {name: list(value) for name, value in lists.items()}
+    tips, origin = [part.tip for part in chain.parts], chain.origin
     body_forms(chain)
-    assert (len(chain.bodies), len(chain.rate_grams), len(chain.kane_links), str(chain.origin)) == before
+    for name, value in lists.items():
+        assert getattr(chain, name) is value
+        assert len(value) == len(before[name]) and all(a is b for a, b in zip(value, before[name], strict=True))
+    assert all(part.tip is tip for part, tip in zip(chain.parts, tips, strict=True))
+    assert chain.origin is origin
+
+
+def _kane_chain() -> dict:
+    """Three second-order links past the tensors' threshold (8 modes: Kane's form, rate grams), a torsion-only
+    link between them, an elastic and a position-driven joint: cross blocks travel several bodies."""
+    joints = [dict(name="j1", axis=[0.0, 0.0, 1.0], inertia=0.05),
+              dict(name="j2", axis=[0.0, 1.0, 0.0], inertia=0.02, stiffness=500.0),
+              dict(name="j3", axis=[0.0, 1.0, 0.0], inertia=0.01, rpy=[0.4, 0.0, 0.0]),
+              dict(name="j4", axis=[0.0, 0.0, 1.0], inertia=0.01, drive="position")]
+    bend = dict(linear_density=1.0, EI=120.0, deformation=["v"], shapes=dict(kind="clamped-free", count=8),
+                kinematics="second-order")
+    links = [dict(name="l1", length=0.5, **bend),
+             dict(name="l2", length=0.4, **bend),
+             dict(name="shaft", length=0.3, linear_density=0.8, EI=100.0, GJ=60.0, polar_inertia=2e-4,
+                  deformation=["alpha"], shapes=dict(kind="clamped-free", count=2)),
+             dict(name="l4", length=0.3, **{**bend, "shapes": dict(kind="fe", count=6, modes=8)},
+                  payload=dict(mass=0.2, inertia=0.001))]
+    return dict(name="kane_chain", gravity=[0.0, 0.0, -9.81], joint=joints, link=links)
+
+
+def test_kane_links_and_a_torsion_only_link_across_several_bodies():
+    chain = _chain(parse_scene(_kane_chain()))
+    assert len(chain.kane_links) == 3 and len(chain.rate_grams) == 3
+    _check(chain)
 
 
 @pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.stem)
 def test_every_example(path):
     _check(_chain(load_scene(path)))
+
+
+def test_a_torsion_only_link_builds():
+    """A link that only twists (deformation = ["alpha"]) builds: its energy was a crash (None + MX) before."""
+    scene = dict(name="twist", gravity=[0.0, 0.0, -9.81], joint=[dict(name="j", axis=[0.0, 0.0, 1.0], inertia=0.01)],
+                 link=[dict(name="shaft", length=0.3, linear_density=0.8, EI=100.0, GJ=60.0, polar_inertia=2e-4,
+                            deformation=["alpha"], shapes=dict(kind="clamped-free", count=2))])
+    model = build_model(parse_scene(scene))
+    assert model.coordinates == ["j.theta", "shaft.eta[1]", "shaft.eta[2]"]
+
+
+def test_a_body_step_that_breaks_the_premise_stops_the_build(monkeypatch):
+    """A body whose energy held another body's rate would give a wrong M silently: the recursion refuses it."""
+    chain = _chain(parse_scene(_mixed()))
+    step = chain.body_step
+
+    def leaky(i, parent):
+        energy, *rest = step(i, parent)
+        return (energy + chain.va[0] * chain.va[-1] if i == 1 else energy, *rest)
+
+    monkeypatch.setattr(chain, "body_step", leaky)
+    with pytest.raises(RuntimeError, match="body 1: .*does not apply"):
+        body_forms(chain)
