@@ -21,7 +21,7 @@ import casadi as ca
 import numpy as np
 
 from flexlink.errors import FlexlinkError
-from flexlink.mechanics.composite import composite_mass_matrix
+from flexlink.mechanics.composite import composite_mass_matrix, placement
 from flexlink.mechanics.kane import KaneLink, kane_forces, takes_kane_form
 from flexlink.mechanics.kinematics import (
     BASE_FRAME,
@@ -777,7 +777,7 @@ class ChainAssembly:
             H = ca.substitute(H, self.qa, self.qa * self.linear_mask)
         n = len(self.coordinates)
         for rho, gram, rates in self.rate_grams:
-            place = ca.DM(ca.Sparsity.triplet(n, len(rates), rates, list(range(len(rates)))), 1.0)
+            place = placement(n, rates)
             H = H + ca.mtimes(place, ca.mtimes(0.5 * rho * gram.hessian(), place.T))
         return H
 

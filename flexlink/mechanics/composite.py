@@ -147,7 +147,7 @@ def _check_premise(chain: CutChain, i: int, exact: ca.MX, own: ca.MX, rates: lis
                            "parent's velocity and its own rates: the composite-inertia recursion does not apply")
 
 
-def _place(n: int, rows: list[int]) -> ca.DM:
+def placement(n: int, rows: list[int]) -> ca.DM:
     """The n × len(rows) matrix that puts a block's rows at ``rows`` of an n-vector."""
     return ca.DM(ca.Sparsity.triplet(n, len(rows), rows, list(range(len(rows)))), 1.0)
 
@@ -168,12 +168,12 @@ def composite_mass_matrix(chain: CutChain) -> ca.MX:
         if composite is not None:
             H = H + ca.mtimes(A.T, ca.mtimes(composite, A))
         s = TWIST_SIZE if form.cut else 0
-        here = _place(n, form.rates)
+        here = placement(n, form.rates)
         M = M + ca.mtimes(here, ca.mtimes(H[s:, s:], here.T))
         travelled: dict[int, ca.MX] = {}
         for j, F in crossing.items():
             G = ca.mtimes(A.T, F)            # z_b against q̇_j
-            block = ca.mtimes(here, ca.mtimes(G[s:, :], _place(n, forms[j].rates).T))
+            block = ca.mtimes(here, ca.mtimes(G[s:, :], placement(n, forms[j].rates).T))
             M = M + block + block.T
             if form.cut:
                 travelled[j] = G[:s, :]
