@@ -141,8 +141,10 @@ def _check_premise(chain: CutChain, i: int, exact: ca.MX, own: ca.MX, rates: lis
     values += [rng.normal(size=sigma.numel())] if sigma is not None else []
     check = ca.Function("premise", symbols + [own], [exact, folded])
     got_exact, got_folded = (np.array(x).ravel() for x in check(*values, values[1][rates]))
+    if not np.all(np.isfinite(got_exact)):
+        return                  # a degenerate scene (overflowing shapes): the model's own checks name it
     scale = max(1.0, float(np.max(np.abs(got_exact))))
-    if not np.all(np.abs(got_exact - got_folded) <= 1e-9 * scale):
+    if not np.all(np.abs(got_exact - got_folded) <= 1e-6 * scale):     # a broken premise is O(1) off
         raise RuntimeError(f"body {i}: its energy and tip velocity are not a quadratic and a linear form in its "
                            "parent's velocity and its own rates: the composite-inertia recursion does not apply")
 
