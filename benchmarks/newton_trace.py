@@ -146,12 +146,12 @@ static void trace_step(SS22 *s, double dt, const double *q, const double *v, con
 
 # (anchor in fmu_src/ss22.c, text to put after it); each anchor must be there exactly once
 PATCHES = [
-    ('#include "ss22.h"\n', HEAD),
+    ('#include "predictor.h"\n', HEAD),
     ("    s->factorisations++;\n",
      "    { const int k_ = (int)(f - s->cache); memcpy(OLD_qb[k_], s->q_bar, sizeof(OLD_qb[k_]));\n"
      "      memcpy(OLD_vb[k_], s->v_bar, sizeof(OLD_vb[k_])); memcpy(OLD_a[k_], alpha, sizeof(OLD_a[k_]));\n"
      "      memcpy(OLD_u[k_], s->u_bar, sizeof(OLD_u[k_])); OLD_step[k_] = s->steps; }\n"),
-    ("        if (predicted == 2) memcpy(s->start, a, sizeof(a));\n",
+    ("        const int below_tolerance_ends = !(predicted == 2 && s->parabola) && recurrence != 2;\n",
      "        TR_n = 0; memcpy(TR_start, a, sizeof(TR_start));\n"),
     ("            s->newton_iterations++;\n", "            if (TR_n < 64) TR_err[TR_n++] = err;\n"),
     ("        if (!converged) return SS22_NOT_CONVERGED;\n", "        trace_step(s, dt, q, v, a, p, work, f);\n"),

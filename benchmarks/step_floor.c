@@ -36,7 +36,7 @@ typedef struct { int n_set, n_seg; unsigned set_vr[MAX_TOKENS]; double set_val[M
                  double host; int n_out; unsigned out_vr[MAX_OUTPUTS]; long communication_steps; } Plan;
 
 typedef struct { unsigned long steps, newton_iterations, factorisations, residual_evaluations, mass_refreshes,
-                 mass_iterations; } Counters;
+                 mass_iterations, recurrences; } Counters;
 
 /* one segment from t to until: one fmi2DoStep, or the host's equal steps of at most plan->host */
 static void walk(fmi2Component c, Plan *plan, double t, double until) {
@@ -81,6 +81,9 @@ static double run(fmi2Component c, Plan *plan, Counters *cnt) {
     cnt->newton_iterations = s->newton_iterations - before.newton_iterations;
     cnt->factorisations = s->factorisations - before.factorisations;
     cnt->residual_evaluations = s->residual_evaluations - before.residual_evaluations;
+#ifdef SS22_RECURRENCE_COST     /* the recurrence start's matrices formed (fmu_src/predictor.c; not before 2026-11-28) */
+    cnt->recurrences = s->recurrences - before.recurrences;
+#endif
     cnt->mass_refreshes = inst->d.mass_refreshes - refreshes;
     cnt->mass_iterations = inst->d.mass_iterations - iterations;
     return cpu;
@@ -181,7 +184,7 @@ int main(int argc, char **argv) {
     if (!c) { fprintf(stderr, "instantiate failed\n"); return 1; }
     Instance *inst = (Instance *)c;
 
-    Counters cnt;
+    Counters cnt = {0};
     double *runs = malloc((size_t)repeats * sizeof(double));
     run(c, &plan, &cnt);                                   /* warm-up */
     for (int k = 0; k < repeats; k++) runs[k] = run(c, &plan, &cnt);
@@ -203,11 +206,11 @@ int main(int argc, char **argv) {
            "\"run_cpu_s\": %.9g, \"simulated_s\": %.9g, \"ss22_steps\": %lu, \"internal_steps\": %.9g, "
            "\"newton_iterations\": %lu, \"factorisations\": %lu, \"residual_evaluations\": %lu, "
            "\"step_s\": %.9g, \"ss22_step_s\": %.9g, \"communication_steps\": %ld, "
-           "\"mass_refreshes\": %lu, \"mass_iterations\": %lu",
+           "\"mass_refreshes\": %lu, \"mass_iterations\": %lu, \"recurrences\": %lu",
            N_Q, MODEL_LINEAR_IN_STATE, MODEL_JACOBIAN_CONSTANT, order, repeats, run_cpu,
            plan.until[plan.n_seg - 1], cnt.steps, internal, cnt.newton_iterations, cnt.factorisations,
            cnt.residual_evaluations, run_cpu / internal, run_cpu / (double)(cnt.steps ? cnt.steps : 1),
-           plan.communication_steps, cnt.mass_refreshes, cnt.mass_iterations);
+           plan.communication_steps, cnt.mass_refreshes, cnt.mass_iterations, cnt.recurrences);
     for (int p = 0; p < N_PARTS; p++) printf(", \"%s_s\": %.9g", PART_NAMES[p], part_s[p]);
     printf("}\n");
     free(runs);

@@ -117,6 +117,20 @@ fmi2Status fmu_serialize(Instance *inst, fmi2FMUstate state, fmi2Byte buffer[], 
 }
 
 /* Beyond the checksum: nothing in a state may lead to an out-of-bounds access. */
+/* The recurrence start's data (ss22.h, SS22Recurrence): what a corrupted state could make it read or write. */
+static int invalid_recurrence(const SS22 *s) {
+    const SS22Recurrence *r = &s->rec;
+    if ((r->valid & ~1) || r->depth < 0 || r->depth > SS22_RECURRENCE_ORDER + 1 || r->u_depth < 0 || r->u_depth > 2 ||
+        r->order < 0 || r->order > SS22_RECURRENCE_ORDER ||
+        !fmu_all_finite(r->order_score, SS22_RECURRENCE_ORDER + 1) ||
+        r->judged < 0 || r->judged > SS22_RECURRENCE_FRESH || !isfinite(r->log_fresh) || !isfinite(r->log_miss) ||
+        !(fabs(r->bias) <= 1.0) || r->made > s->steps + 1 || !fmu_all_finite(r->u_last, N_U > 0 ? N_U : 1) ||
+        !fmu_all_finite(r->u_before, N_U > 0 ? N_U : 1) || !fmu_all_finite(r->misses, N_Q * (SS22_RECURRENCE_ORDER + 1)))
+        return 1;
+    return r->valid && !(r->dt > 0.0 && isfinite(r->dt) && fmu_all_finite(r->P, N_Q * N_Q) &&
+                         fmu_all_finite(r->G, N_Q * N_Q));
+}
+
 static const char *invalid_data(const FmuData *d) {
     const int phases[] = {PHASE_INSTANTIATED, PHASE_INITIALIZATION, PHASE_STEP, PHASE_TERMINATED, PHASE_ERROR,
                           PHASE_FATAL, PHASE_EVENT, PHASE_CONTINUOUS};
@@ -145,12 +159,15 @@ static const char *invalid_data(const FmuData *d) {
         if (f->valid && !((f->rate == -1.0 || (f->rate >= 0.0 && isfinite(f->rate))) &&
                           f->confirmed >= 0 && f->confirmed <= SS22_RATE_CONFIRMATIONS && f->estimated >= 0 &&
                           f->estimated <= SS22_RATE_MEASURE_EVERY << f->confirmed && f->waste >= 0.0 && isfinite(f->waste) &&
-                          (f->first == -1.0 || (f->first >= 0.0 && isfinite(f->first))) && f->made <= d->ss22.steps))
+                          (f->first[0] == -1.0 || (f->first[0] >= 0.0 && isfinite(f->first[0]))) &&
+                          (f->first[1] == -1.0 || (f->first[1] >= 0.0 && isfinite(f->first[1]))) &&
+                          f->made <= d->ss22.steps))
             return "solver cache";
         for (int i = 0; i < N_Q && f->valid; i++) {
             if (f->piv[i] < i || f->piv[i] >= N_Q) return "solver cache";
         }
     }
+    if (invalid_recurrence(&d->ss22)) return "solver recurrence";
     if (d->mass.valid & ~1) return "kept mass matrix";
     for (int i = 0; i < N_Q && d->mass.valid; i++) {
         if (d->mass.piv[i] < i || d->mass.piv[i] >= N_Q) return "kept mass matrix";

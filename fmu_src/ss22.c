@@ -2,7 +2,7 @@
 #include <math.h>
 #include <string.h>
 #include "linalg.h"
-#include "ss22.h"
+#include "predictor.h"
 
 void ss22_init(SS22 *s, double theta1, double theta2, double tolerance) {
     memset(s, 0, sizeof(*s));
@@ -14,6 +14,7 @@ void ss22_init(SS22 *s, double theta1, double theta2, double tolerance) {
 
 void ss22_invalidate(SS22 *s) {
     for (int k = 0; k < SS22_CACHE; k++) s->cache[k].valid = 0;
+    memset(&s->rec, 0, sizeof(s->rec));     /* its C and K, its misses and votes were the old parameters' */
 }
 
 const char *ss22_status_message(SS22Status status) {
@@ -95,8 +96,8 @@ static SS22Status step_matrix(SS22 *s, double dt, const double *alpha, const dou
     f->confirmed = 0;
     f->waste = 0.0;
     f->made = s->steps;
-    f->first = -1.0;
-    f->first_age = 0;
+    f->first[0] = f->first[1] = -1.0;
+    f->first_age[0] = f->first_age[1] = 0;
     if (!all_finite(f->LU, N_Q * N_Q)) { f->valid = 0; return SS22_NOT_FINITE; }
     if (lu_factor(f->LU, N_Q, f->piv)) { f->valid = 0; return SS22_SINGULAR; }
     f->dt = dt; f->theta1 = s->theta1; f->theta2 = s->theta2;
@@ -114,57 +115,7 @@ static void weighted_state(SS22 *s, double dt, const double *q, const double *v,
     }
 }
 
-/* The Newton iteration's start: the caller's acceleration alpha, moved along the line through the last two
- * steps' (constant) accelerations, each taken at its step's middle; returns whether it did.  Only when alpha
- * is the one this solver returned last: the order-4 option's re-step from the start of a step and the
- * sub-steps after a failed step start from the given alpha.  (An FMU state carries the history with it: a
- * restored state continues exactly as the original did.)
- * After three consecutive steps the parabola through their accelerations is formed too (into parabola; it
- * returns 2: every step while it leads, every SS22_PREDICTOR_PROBE-th while the line does, so that a chain
- * whose line leads pays little for the comparison), and starts the iteration while it has missed the steps'
- * solutions by less than the line (a running vote: s->parabola, set by choose_predictor).  Where the motion
- * is smooth and resolved it is the better extrapolation (fewer increments, and a kept matrix's age costs
- * less); where a step leaves modes unresolved they ring near its Nyquist frequency, which the parabola's
- * weights 3, -3, 1 amplify more than the line's 2, -1: the line keeps those (docs/integrator.md). */
 #if !MODEL_LINEAR_IN_STATE
-static int predict(const SS22 *s, double dt, const double *alpha, double *a, double *parabola) {
-    if (s->depth == 0 || memcmp(alpha, s->alpha_last, sizeof(double) * N_Q) != 0) return 0;
-    const double ratio = (dt + s->dt_last) / (s->dt_last + s->dt_before);
-    for (int i = 0; i < N_Q; i++) a[i] = alpha[i] + ratio * (alpha[i] - s->alpha_before[i]);
-    if (s->depth < 3 || (!s->parabola && s->steps % SS22_PREDICTOR_PROBE != 0)) return 1;
-    /* Lagrange's parabola through the step middles tl = 0, tb, to, at the next step's middle tn */
-    const double tb = -0.5 * (s->dt_last + s->dt_before), to = tb - 0.5 * (s->dt_before + s->dt_older);
-    const double tn = 0.5 * (s->dt_last + dt);
-    const double wl = (tn - tb) * (tn - to) / (tb * to), wb = tn * (tn - to) / (tb * (tb - to));
-    const double wo = tn * (tn - tb) / (to * (to - tb));
-    for (int i = 0; i < N_Q; i++) parabola[i] = wl * alpha[i] + wb * s->alpha_before[i] + wo * s->alpha_older[i];
-    if (!all_finite(parabola, N_Q)) return 1;
-    if (s->parabola) {
-        double line[N_Q];
-        memcpy(line, a, sizeof(line));
-        memcpy(a, parabola, sizeof(line));
-        memcpy(parabola, line, sizeof(line));      /* the other one, for choose_predictor */
-    }
-    return 2;
-}
-
-/* After a step started from one of two predictions (start) with the other one at hand (other): the parabola
- * starts the next steps while it has missed the solutions by less than the line more often than not, over
- * about the last SS22_PREDICTOR_MEMORY steps (s->predictor_bias, a running mean of +1 for the line's wins and
- * -1 for the parabola's; < 0: the parabola).  One step's comparison is noise where modes ring unresolved
- * (planar_chain_5: choosing on the last step alone made the start 1.54e-3 off on average, worse than the
- * line's 1.24e-3). */
-static void choose_predictor(SS22 *s, const double *a, const double *start, const double *other) {
-    double miss_start = 0.0, miss_other = 0.0;
-    for (int i = 0; i < N_Q; i++) {
-        miss_start = fmax(miss_start, fabs(a[i] - start[i]) / MODEL_NOMINAL_Q[i]);
-        miss_other = fmax(miss_other, fabs(a[i] - other[i]) / MODEL_NOMINAL_Q[i]);
-    }
-    const int parabola_won = s->parabola ? miss_start < miss_other : miss_other < miss_start;
-    s->predictor_bias += ((parabola_won ? -1.0 : 1.0) - s->predictor_bias) / SS22_PREDICTOR_MEMORY;
-    s->parabola = s->predictor_bias < 0.0;
-}
-
 /* The rate a step is accepted on without measuring it, from the kept or seen one: at least SS22_RATE_FLOOR,
  * raised once to the power 0.8 (ss22.h). */
 static double aged_rate(double rate) {
@@ -186,16 +137,22 @@ static double record_rate(SS22Factor *f, double rate, int raise_only) {
     return f->rate;
 }
 
-/* A step's third increment with a matrix from an earlier step measures its rate, once a step: did the rate
- * the steps since its last measure were accepted on (aged_rate of the kept one) allow for it?  Called before
- * the rate is recorded.  A ratio to a second increment within SS22_ROUNDING_FACTOR tolerances (noisy: its
- * third is near the rounding floor) confirms but does not undo, as such ratios only raise the kept rate. */
-static void confirm_rate(SS22Factor *f, double rate, double second, double tolerance) {
-    if (f->rate >= 0.0 && rate <= aged_rate(f->rate)) {
+/* A measure of a matrix from an earlier step against the rate the steps since the last one were accepted on
+ * (bound): within it, the measures in a row that held (f->confirmed) grow; beyond, they start again, unless the
+ * ratio's denominator is within SS22_ROUNDING_FACTOR tolerances (noisy: it confirms but does not undo). */
+static void confirm(SS22Factor *f, double ratio, double bound, double denominator, double tolerance) {
+    if (ratio <= bound) {
         if (f->confirmed < SS22_RATE_CONFIRMATIONS) f->confirmed++;
-    } else if (second > SS22_ROUNDING_FACTOR * tolerance) {
+    } else if (denominator > SS22_ROUNDING_FACTOR * tolerance) {
         f->confirmed = 0;
     }
+}
+
+/* A step's third increment measures the kept rate (aged_rate of it: what two-increment stops are accepted on),
+ * once a step; called before the rate is recorded.  Such ratios to a second increment near the rounding floor
+ * only raise the kept rate. */
+static void confirm_rate(SS22Factor *f, double rate, double second, double tolerance) {
+    confirm(f, rate, f->rate >= 0.0 ? aged_rate(f->rate) : -1.0, second, tolerance);
 }
 
 /* What a step's own ratios of increments say of the next one: within a step an older matrix's ratios rise
@@ -232,11 +189,32 @@ static int measure_interval(const SS22Factor *f) {
  * six-axis arm the first ratio is 3.1e-3 at age 1, 0.019 at 6, 0.026 at 8 (its ratio to the age 0.012 +-
  * 0.002 over the first 0.25 s, benchmarks/newton_trace.py), and a rate measured at age 1 accepted the steps of
  * ages 2-5 after one increment up to 2 tolerances off (benchmarks/step_audit.py).  A ratio measured in the
- * matrix's own step says nothing of its growth: no one-increment stop before one is measured at age >= 1. */
-static double one_increment_rate(const SS22 *s, const SS22Factor *f) {
-    if (f->first < 0.0 || f->first_age == 0) return INFINITY;
-    const double grown = f->first * fmax(1.0, (double)(s->steps - f->made) / (double)f->first_age);
+ * matrix's own step says nothing of its growth: no one-increment stop before one is measured at age >= 1.
+ * kind: the start the step took, 0 the line or parabola, 1 the recurrence (predictor.c), each judged on the
+ * first ratios of its own kind: the recurrence leaves the errors the old matrix misses most (six_axis_arm_torque
+ * at 0.5 ms under 5 N m: 110 of 2000 steps beyond their tolerance, the worst 4.97, judged on the line's). */
+static double one_increment_rate(const SS22 *s, const SS22Factor *f, int kind) {
+    if (f->first[kind] < 0.0 || f->first_age[kind] == 0) return INFINITY;
+    const double grown = f->first[kind] * fmax(1.0, (double)(s->steps - f->made) / (double)f->first_age[kind]);
     return SS22_DIRECTION_MARGIN * fmax(f->rate, grown);
+}
+#endif
+
+#if !MODEL_LINEAR_IN_STATE
+/* The recurrence's start where it applies (predictor.c), formed first with the kept matrix when that has paid
+ * for it (ss22.h, SS22_RECURRENCE_COST): 0 none, 1 formed but the vote keeps the line or parabola, 2 it starts. */
+static int recurrence_start(SS22 *s, double dt, const double *q, const double *v, const double *alpha,
+                            const double *p, ModelWork *work, double *a) {
+    const SS22Factor *f = cached_factor(s, dt);
+    /* not on a matrix that contracts slowly (its kept rate): ratios of increments judge the steps, and from a
+     * start this close they see only the directions it contracts fast in (six_axis_arm_torque at 0.5 ms under
+     * 5 N m, rates 0.03-0.06: a step 5 tolerances off after increments of 3.8e3, 116, 5.7 tolerances) */
+    if (f == NULL || f->rate > SS22_RECURRENCE_MAX_RATE || !ss22_recurrence_applies(s, dt, alpha)) return 0;
+    if (ss22_recurrence_due(s, f, dt)) {
+        weighted_state(s, dt, q, v, alpha);
+        if (ss22_recurrence_form(s, f, dt, alpha, p, work) == SS22_OK) s->recurrences++;
+    }
+    return ss22_recurrence_predict(s, dt, alpha, a);
 }
 #endif
 
@@ -251,12 +229,13 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
     SS22Factor *f = NULL;
     SS22Status st;
 
-    int predicted = 0;
+    int predicted = 0, recurrence = 0;
 
     ss22_weighted_inputs(s, dt, u0, u1, s->u_bar);
     memcpy(a, alpha, sizeof(a));
 #if MODEL_LINEAR_IN_STATE
     (void)start;
+    (void)recurrence;
     /* r is affine in (q, v, a): r(alpha) = r(0) + J alpha, one solve, no iteration. */
     memset(a, 0, sizeof(a));
     weighted_state(s, dt, q, v, a);
@@ -271,11 +250,13 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
         double delta[N_Q];
         const uint64_t used = s->factorisations;
         if (start != NULL) { memcpy(a, start, sizeof(a)); predicted = 1; }
-        else predicted = predict(s, dt, alpha, a, s->other_start);
+        else predicted = ss22_predict(s, dt, alpha, a, s->other_start);
         if (predicted == 2) memcpy(s->start, a, sizeof(a));
-        /* a parabola's first increment below the tolerance does not by itself end a step with an older matrix
-         * (below; the one-increment stop on the matrix's rate still may) */
-        const int below_tolerance_ends = !(predicted == 2 && s->parabola);
+        recurrence = start == NULL && predicted ? recurrence_start(s, dt, q, v, alpha, p, work, a) : 0;
+        /* a parabola's or the recurrence's first increment below the tolerance does not by itself end a step with
+         * an older matrix (below; the one-increment stop on the matrix's rate still may) */
+        const int below_tolerance_ends = !(predicted == 2 && s->parabola) && recurrence != 2;
+        const int kind = recurrence == 2;       /* which start's first ratios judge a one-increment stop */
         int converged = 0;
         int fresh = -1;          /* increments made with a matrix evaluated in this step; -1: an older one */
         double previous = INFINITY;
@@ -306,14 +287,25 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             if (fresh >= 0) fresh++;
             if (!isfinite(err)) return SS22_NOT_FINITE;
             const int older = f->made != s->steps;   /* a matrix from an earlier step */
-            if (it == 1 && fresh < 0) { f->first = err / previous; f->first_age = s->steps - f->made; }
+            /* a first increment at the rounding floor (a start as close as the recurrence's on a linear model):
+             * the ratio to it is noise, and would only raise the rates (0.375 on tests/c/predictor_check.c) */
+            const int noise = it == 1 && previous <= s->tolerance / SS22_ROUNDING_FACTOR;
+            if (it == 1 && fresh < 0 && !noise) {
+                /* the first ratio measures what the one-increment stops since the last measure were accepted on
+                 * (a close start, the recurrence's, leaves few steps a third increment to measure the kept rate) */
+                const double in_force = one_increment_rate(s, f, kind);
+                if (isfinite(in_force)) confirm(f, err / previous, aged_rate(in_force), previous, s->tolerance);
+                f->first[kind] = err / previous;
+                f->first_age[kind] = s->steps - f->made;
+            }
+            /* (a first increment of exactly zero: the start solves the step's equation to the last bit) */
             if (err <= s->tolerance && bounds_error(s, err, previous, it > 0 && older)
-                && (it > 0 || fresh >= 0 || below_tolerance_ends)) {
+                && (it > 0 || fresh >= 0 || below_tolerance_ends || err == 0.0)) {
                 /* a ratio to an increment below the tolerance, perhaps at the rounding floor: it only raises.
                  * (Not on a parabola's first increment with an older matrix: what that leaves is not bounded by
                  * its size; docs/integrator.md) */
                 if (it == 2 && older) confirm_rate(f, err / previous, previous, s->tolerance);
-                if (it > 0 && fresh < 0) record_rate(f, err / previous, 1);
+                if (it > 0 && fresh < 0 && !noise) record_rate(f, err / previous, 1);
                 converged = 1;
                 break;
             }
@@ -321,7 +313,7 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
                 /* an earlier step's matrix and its last measured rate: what is left is about
                  * rate/(1-rate) times this increment, the first or the second (ss22.h,
                  * SS22_RATE_MEASURE_EVERY); the second's ratio to the first still raises the kept rate */
-                const double seen = it == 1 ? fmax(f->rate, err / previous) : one_increment_rate(s, f);
+                const double seen = it == 1 ? fmax(f->rate, err / previous) : one_increment_rate(s, f, kind);
                 const double aged = aged_rate(seen);
                 if (aged < 0.5 && aged / (1.0 - aged) * err <= s->tolerance) {
                     if (it == 1) f->rate = seen;
@@ -380,7 +372,8 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
         v[i] += dt * a[i];
     }
 #if !MODEL_LINEAR_IN_STATE
-    if (predicted == 2) choose_predictor(s, a, s->start, s->other_start);
+    if (predicted == 2) ss22_choose_predictor(s, a, s->start, s->other_start);
+    ss22_recurrence_after_step(s, a, recurrence, predicted && start == NULL);
 #endif
     /* three consecutive steps' own accelerations for the parabola: only along predictions from the last one */
     if (predicted && start == NULL) {

@@ -69,6 +69,25 @@
  * (docs/integrator.md), while only a rate above 0.5 refreshed it; its steps iterated 7 times. */
 #define SS22_REFRESH_COST (2.0 * N_Q)
 
+/* The recurrence start (predictor.c) is formed with a kept matrix once that has been kept for as many steps as
+ * forming it costs residuals (the velocity and position Jacobians by differences, N_Q + 1 residuals each):
+ * it saves at most about one residual a step, so forming it then costs at most twice what the best choice
+ * made with hindsight would (rent-or-buy, as SS22_REFRESH_COST); a matrix refreshed every few steps (a
+ * whipping chain) never pays for one. */
+#define SS22_RECURRENCE_COST (2 * (N_Q + 1))
+/* It is formed again, with a newer kept matrix, once its misses (a running mean of their logarithms over about
+ * SS22_PREDICTOR_MEMORY steps) have grown this many times over those of its first SS22_RECURRENCE_FRESH steps:
+ * where the motion turns the model away from the state it was formed at (fast_two_link at 0.1 ms: 46 forms in
+ * 20 000 steps, against 139 when every newer matrix formed it; planar_chain_5 at 1 ms: 2, where forming it
+ * again brought nothing).  docs/integrator.md. */
+#define SS22_RECURRENCE_FRESH 8
+/* ... and it starts no step whose kept matrix contracts slower than this (its kept rate, ss22.c: from a close
+ * start the ratios of increments see only the directions a matrix contracts fast in) */
+#define SS22_RECURRENCE_MAX_RATE 1e-3
+/* The highest order of the extrapolation of its misses that is fed back (predictor.c, fed_back). */
+#define SS22_RECURRENCE_ORDER 2
+#define SS22_RECURRENCE_GROWTH 8.0
+
 #define SS22_CACHE 4     /* factorisations kept: the regular step, a shortened last one, and the Δt/2 of the
                             order-4 option with their rounding variants (2 entries thrashed: 1800 LUs in 15000 steps) */
 
@@ -89,12 +108,40 @@ typedef struct {
     int estimated;               /* steps accepted since on that rate without measuring it again */
     int confirmed;               /* steps' measures in a row that found the rate within the one accepted on */
     uint64_t made;               /* SS22.steps when it was evaluated: its age is SS22.steps - made */
-    double first;                /* the last ratio of a step's second increment to its first with it, or -1 */
-    uint64_t first_age;          /* its age at that step */
+    /* the last ratio of a step's second increment to its first with it, or -1, and its age at that step: [0] for
+     * steps started from the line or parabola, [1] from the recurrence (predictor.c), whose misses lie in other
+     * directions (what a stale matrix misses of a start depends on the start's error: ss22.c, one_increment_rate) */
+    double first[2];
+    uint64_t first_age[2];
     double waste;                /* iterations spent beyond two a step since it was evaluated */
     double LU[N_Q * N_Q];
     int piv[N_Q];
 } SS22Factor;
+
+/* SS22's own linear recurrence as the Newton start (predictor.c).  For M a + C v + K q + B u = 0, three
+ * consecutive steps of dt obey exactly
+ *     J (a+ - 2a + a-) = -dt C d - dt^2 K (a- + (1/2 + theta1) d) - B (u+ - 2u + u-),   d = a - a-,
+ * with J the Newton matrix (u: the weighted inputs), so a+ = 2a - a- - P d - G a- where the inputs' second
+ * difference is zero.  P and G come from the kept matrix's factors and C, K at the state where they are formed;
+ * what the nonlinear model adds is fed back as an extrapolation of the recurrence's last misses. */
+typedef struct {
+    int valid;                   /* P and G formed, for steps of dt */
+    double dt;
+    uint64_t made;               /* SS22Factor.made of the matrix they were formed with (or tried with) */
+    int depth;                   /* consecutive steps it predicted (0 to SS22_RECURRENCE_ORDER + 1): misses kept */
+    double bias;                 /* running mean of its wins (+1) and losses (-1) against the line or parabola */
+    int judged;                  /* steps it predicted since formed, up to SS22_RECURRENCE_FRESH */
+    double log_fresh, log_miss;  /* mean log2 of its misses over those first steps; running mean since */
+    int u_depth;                 /* consecutive steps' weighted inputs in u_last, u_before (0 to 2) */
+    double u_last[N_U > 0 ? N_U : 1], u_before[N_U > 0 ? N_U : 1];
+    int order;                   /* the order its misses are fed back at (predictor.c, fed_back) */
+    double order_score[SS22_RECURRENCE_ORDER + 1];     /* running means of log2 of each order's misses */
+    double misses[N_Q * (SS22_RECURRENCE_ORDER + 1)];  /* a - its prediction before the feedback, last steps */
+    double raw[N_Q], start[N_Q], other[N_Q];     /* this step's prediction before and after the feedback, and
+                                                    the line's or parabola's start */
+    double P[N_Q * N_Q], G[N_Q * N_Q];           /* J^-1 (dt C + (1/2 + theta1) dt^2 K) and J^-1 dt^2 K,
+                                                    column-major */
+} SS22Recurrence;
 
 typedef struct {
     double theta1, theta2, tolerance;
@@ -109,10 +156,11 @@ typedef struct {
     int depth, parabola;
     double alpha_last[N_Q], alpha_before[N_Q], alpha_older[N_Q], dt_last, dt_before, dt_older;
     double predictor_bias;       /* running mean of the line's (+1) and the parabola's (-1) wins */
+    SS22Recurrence rec;
     /* scratch, kept here so that a step allocates nothing (start, other_start: the two predictions) */
     double q_bar[N_Q], v_bar[N_Q], r[N_Q], u_bar[N_U > 0 ? N_U : 1], start[N_Q], other_start[N_Q];
     /* counters, for benchmarks and logging */
-    uint64_t steps, newton_iterations, factorisations, residual_evaluations;
+    uint64_t steps, newton_iterations, factorisations, residual_evaluations, recurrences;
 } SS22;
 
 void ss22_init(SS22 *s, double theta1, double theta2, double tolerance);

@@ -537,13 +537,19 @@ def base_rings(fmus):
 def test_tunable_parameter_changed_in_step_mode_takes_effect(new_slave, fmus, base_rings, tmp_path, scene, name,
                                                              factor):
     """The first vibration frequency measured after the change equals natural_frequencies of the changed
-    model (shifted by SS22's known period elongation), and the run equals bit for bit that of an instance
-    started with the new value: for the linear model (Newton matrix factorised once, solver.step a power of
-    two so that the cache always hits) this needs the factorisation to be rebuilt when the parameter changes."""
+    model (shifted by SS22's known period elongation), and the run equals that of an instance started with the
+    new value: bit for bit for the linear model (Newton matrix factorised once, solver.step a power of two so
+    that the cache always hits: this needs the factorisation to be rebuilt when the parameter changes); within
+    what the Newton tolerance lets two runs differ for the nonlinear one, whose kept matrix and recurrence start
+    (fmu_src/ss22.c, predictor.c) are formed at other steps in the two runs (after the change, at the start)
+    and whose stops judge the matrix's rate by its age."""
     value = fmus[scene].start[name] * factor
     t, x = _ring(new_slave(scene), {name: value})
     t_fresh, x_fresh = _ring(new_slave(scene), None, start={name: value})
-    assert np.array_equal(x, x_fresh)
+    if build_model(load_scene(EXAMPLES / f"{scene}.toml")).linear_in_state:
+        assert np.array_equal(x, x_fresh)
+    else:
+        assert np.max(np.abs(x - x_fresh)) <= 1e-6 * np.max(np.abs(x_fresh))
 
     if name == "arm.EI":                     # rebuilt from a scene with the new EI
         model = build_model(load_scene(_scaled_scene(scene, "EI", factor, tmp_path)))

@@ -1,10 +1,11 @@
-/* predictor_check.c -- SS22's Newton start (fmu_src/ss22.c: predict, choose_predictor) against closed forms,
- * and the cadence of its rate measures (confirm_rate, measure_interval), for tests/test_ss22_predictor.py.  It includes ss22.c itself, to reach its static functions, and links the
+/* predictor_check.c -- SS22's Newton start (fmu_src/predictor.c: ss22_predict, ss22_choose_predictor) against closed forms,
+ * and the cadence of its rate measures (confirm_rate, measure_interval), for tests/test_ss22_predictor.py.  It includes ss22.c and predictor.c themselves, to reach their static functions, and links the
  * hand-written nonlinear model (tests/c/nonlinear) for N_Q and the nominal scales.
  * Prints one line per check ("ok ..." or "FAIL ...") and exits 1 if any failed. */
 #include <math.h>
 #include <stdio.h>
 #include "ss22.c"
+#include "predictor.c"
 
 static int failures;
 
@@ -46,7 +47,7 @@ static double sol[N_Q], near[N_Q], far[N_Q];
 
 /* One step's choice, the parabola having predicted parabola and the line line (start: the one s used) */
 static void compare(SS22 *s, const double *parabola, const double *line) {
-    choose_predictor(s, sol, s->parabola ? parabola : line, s->parabola ? line : parabola);
+    ss22_choose_predictor(s, sol, s->parabola ? parabola : line, s->parabola ? line : parabola);
 }
 
 static double P[N_P] = {1.0, 0.5, 100.0, 1e4, 9.81, 1e300, 1e300};   /* m c k k3 g limit max_cv */
@@ -76,6 +77,8 @@ static void step_solution(const SS22 *s0, double dt, const double *q, const doub
         for (int i = 0; i < N_Q; i++) a[i] += d[i];
     }
 }
+
+static int model_formed;   /* recurrences formed in run_model */
 
 static void run_model(int steps, int *mismatches, int *parabola_steps, int *beyond, int *longest) {
     static SS22 s;
@@ -116,6 +119,49 @@ static void run_model(int steps, int *mismatches, int *parabola_steps, int *beyo
         for (int c = 0; c < SS22_CACHE; c++)
             if (s.cache[c].valid && s.cache[c].estimated > *longest) *longest = s.cache[c].estimated;
     }
+    model_formed = (int)s.recurrences;
+}
+
+
+/* SS22's own recurrence (predictor.c) on the test model with its inputs held (F constant, supports at rest):
+ * linear when k3 = 0, with an unresolved mode when k is large.  Returns, over the steps after it is formed:
+ * the largest miss of its prediction before feedback (raw), of its start (fed), of the line (line), each
+ * relative to the largest acceleration; steps beyond their tolerance (against full Newton); whether it was
+ * formed at all, and the steps it predicted. */
+typedef struct { double raw, fed, line; int beyond, formed, predicted; } RecurrenceRun;
+
+static RecurrenceRun run_recurrence(double k, double k3, double tolerance, int steps) {
+    static SS22 s;
+    static ModelWork work;
+    const double dt = 1e-3, saved_k = P[2], saved_k3 = P[3];   /* k, k3 */
+    double q[N_Q] = {0.03, 0.05}, v[N_Q] = {0.0}, alpha[N_Q] = {0.0}, u[N_U] = {0.4}, exact[N_Q], line[N_Q];
+    RecurrenceRun out = {0};
+    P[2] = k;
+    P[3] = k3;
+    ss22_init(&s, 0.5, 0.5, tolerance);
+    for (int n = 0; n < steps; n++) {
+        double scale = 0.0;
+        const int formed = s.recurrences > 0 && s.depth >= 2;
+        for (int i = 0; i < N_Q; i++) line[i] = 2.0 * s.alpha_last[i] - s.alpha_before[i];
+        memcpy(exact, alpha, sizeof(exact));
+        step_solution(&s, dt, q, v, u, u, exact);
+        if (ss22_step(&s, dt, q, v, alpha, u, u, P, &work) != SS22_OK) { out.beyond++; break; }
+        for (int i = 0; i < N_Q; i++) {
+            if (fabs(alpha[i] - exact[i]) * dt / MODEL_NOMINAL_Q[i] > s.tolerance) { out.beyond++; break; }
+        }
+        if (!formed || s.rec.depth == 0) continue;
+        for (int i = 0; i < N_Q; i++) scale = fmax(scale, fabs(alpha[i]));
+        for (int i = 0; i < N_Q; i++) {
+            out.raw = fmax(out.raw, fabs(s.rec.misses[i]) / scale);
+            out.fed = fmax(out.fed, fabs(alpha[i] - s.rec.start[i]) / scale);
+            out.line = fmax(out.line, fabs(alpha[i] - line[i]) / scale);
+        }
+        out.predicted++;
+    }
+    out.formed = s.recurrences > 0;
+    P[2] = saved_k;
+    P[3] = saved_k3;
+    return out;
 }
 
 int main(void) {
@@ -126,7 +172,7 @@ int main(void) {
     /* 1. unequal steps, a quadratic law: the parabola is exact, the line misses by c2 (tn - tl)(tn - tb) */
     history(&s, quadratic, dto, dtb, dtl);
     s.parabola = 1;
-    int r = predict(&s, dt, s.alpha_last, a, other);
+    int r = ss22_predict(&s, dt, s.alpha_last, a, other);
     check(r == 2, "three steps give both predictions", r);
     check(worst(a, quadratic, tn) <= 1e-13, "the parabola is exact on a quadratic", worst(a, quadratic, tn));
     double line_error = 0.0;
@@ -136,27 +182,27 @@ int main(void) {
     }
     check(line_error <= 1e-13, "the line misses by c2 (tn - tl)(tn - tb)", line_error);
     s.parabola = 0;
-    predict(&s, dt, s.alpha_last, a, other);
+    ss22_predict(&s, dt, s.alpha_last, a, other);
     check(worst(other, quadratic, tn) <= 1e-13 && worst(a, quadratic, tn) > 1e-6,
           "the line starts unless chosen, the parabola at hand", worst(other, quadratic, tn));
     for (power = 0; power <= 2; power++) {           /* the weights' three moment conditions, one at a time */
         history(&s, monomial, dto, dtb, dtl);
         s.parabola = 1;
-        predict(&s, dt, s.alpha_last, a, other);
+        ss22_predict(&s, dt, s.alpha_last, a, other);
         check(fabs(a[0] - pow(tn, power)) <= 1e-14, "the parabola reproduces t^power", a[0] - pow(tn, power));
     }
     history(&s, quadratic, dto, dtb, dtl);
     s.parabola = 0;
     s.steps = 5;
-    check(predict(&s, dt, s.alpha_last, a, other) == 1, "the line leads: no parabola between probes", 0.0);
+    check(ss22_predict(&s, dt, s.alpha_last, a, other) == 1, "the line leads: no parabola between probes", 0.0);
     s.steps = 8;
-    check(predict(&s, dt, s.alpha_last, a, other) == 2, "the line leads: the parabola every 4th step", 0.0);
+    check(ss22_predict(&s, dt, s.alpha_last, a, other) == 2, "the line leads: the parabola every 4th step", 0.0);
     s.depth = 2;
-    check(predict(&s, dt, s.alpha_last, a, other) == 1, "two steps: the line only", 0.0);
+    check(ss22_predict(&s, dt, s.alpha_last, a, other) == 1, "two steps: the line only", 0.0);
     double moved[N_Q];
     memcpy(moved, s.alpha_last, sizeof(moved));
     moved[0] += 1e-9;
-    check(predict(&s, dt, moved, a, other) == 0, "an acceleration not the last one returned: no prediction", 0.0);
+    check(ss22_predict(&s, dt, moved, a, other) == 0, "an acceleration not the last one returned: no prediction", 0.0);
 
     /* 2. a smooth law at equal steps h and h/2: the parabola's error falls like h^3, the line's like h^2 */
     double e_line[2], e_parabola[2];
@@ -164,7 +210,7 @@ int main(void) {
         const double h = 0.02 / (1 << k);
         history(&s, omega_t, h, h, h);
         s.parabola = 1;
-        predict(&s, h, s.alpha_last, a, other);
+        ss22_predict(&s, h, s.alpha_last, a, other);
         e_parabola[k] = worst(a, omega_t, 0.5 * h);
         e_line[k] = worst(other, omega_t, 0.5 * h);
     }
@@ -198,6 +244,23 @@ int main(void) {
     check(beyond == 0, "every step within its tolerance", beyond);
     /* with the rate measures that find it held, the steps between them grow past SS22_RATE_MEASURE_EVERY */
     check(longest > SS22_RATE_MEASURE_EVERY, "measures grow apart while the kept rate holds", longest);
+    check(model_formed == 0, "laws that move: no recurrence", model_formed);
+
+    /* 6. the recurrence: exact on a linear model (to the Newton tolerance of the steps it starts from), formed
+     * once a kept matrix has paid for it, and never while the supports' laws move (their second difference) */
+    RecurrenceRun lin = run_recurrence(100.0, 0.0, 1e-13, 400);
+    check(lin.formed && lin.predicted > 300, "the recurrence is formed and predicts", lin.predicted);
+    check(lin.raw <= 1e-9 * lin.line, "linear model: the recurrence is exact", lin.raw / lin.line);
+    check(lin.beyond == 0, "linear model: every step within its tolerance", lin.beyond);
+    /* an unresolved stiff mode (k = 1e8: w dt = 10): the line misses by the mode's whole swing, the recurrence
+     * follows it to rounding */
+    RecurrenceRun stiff = run_recurrence(1e8, 0.0, 1e-10, 600);
+    check(stiff.fed <= 1e-6 * stiff.line, "unresolved mode: the recurrence follows it", stiff.fed / stiff.line);
+    check(stiff.beyond == 0, "unresolved mode: every step within its tolerance", stiff.beyond);
+    /* the hardening spring (k3 d^3 up to a quarter of k d): the misses fed back keep the start ahead of the line */
+    RecurrenceRun hard = run_recurrence(100.0, 1e4, 1e-10, 600);
+    check(hard.fed < 0.1 * hard.line && hard.fed < hard.raw, "nonlinear model: its misses fed back", hard.fed / hard.line);
+    check(hard.beyond == 0, "nonlinear model: every step within its tolerance", hard.beyond);
 
     /* 5. the cadence: 4 steps on a kept rate, doubled by each step's measure in a row within the rate they are
      * accepted on (aged_rate of the kept one), up to SS22_RATE_CONFIRMATIONS doublings; a measure above it
