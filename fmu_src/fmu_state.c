@@ -158,7 +158,10 @@ static const char *invalid_data(const FmuData *d) {
         if (f->valid & ~1) return "solver cache";
         if (f->valid && !((f->rate == -1.0 || (f->rate >= 0.0 && isfinite(f->rate))) &&
                           f->confirmed >= 0 && f->confirmed <= SS22_RATE_CONFIRMATIONS && f->estimated >= 0 &&
-                          f->estimated <= SS22_RATE_MEASURE_EVERY << f->confirmed && f->waste >= 0.0 && isfinite(f->waste) &&
+                          f->confirmed_first >= 0 && f->confirmed_first <= SS22_RATE_CONFIRMATIONS &&
+                          f->estimated <= SS22_RATE_MEASURE_EVERY << (f->confirmed > f->confirmed_first ?
+                                                                      f->confirmed : f->confirmed_first) &&
+                          f->waste >= 0.0 && isfinite(f->waste) &&
                           (f->first[0] == -1.0 || (f->first[0] >= 0.0 && isfinite(f->first[0]))) &&
                           (f->first[1] == -1.0 || (f->first[1] >= 0.0 && isfinite(f->first[1]))) &&
                           f->made <= d->ss22.steps))

@@ -94,6 +94,7 @@ static SS22Status step_matrix(SS22 *s, double dt, const double *alpha, const dou
     f->rate = -1.0;
     f->estimated = 0;
     f->confirmed = 0;
+    f->confirmed_first = 0;
     f->waste = 0.0;
     f->made = s->steps;
     f->first[0] = f->first[1] = -1.0;
@@ -138,13 +139,13 @@ static double record_rate(SS22Factor *f, double rate, int raise_only) {
 }
 
 /* A measure of a matrix from an earlier step against the rate the steps since the last one were accepted on
- * (bound): within it, the measures in a row that held (f->confirmed) grow; beyond, they start again, unless the
+ * (bound): within it, the measures in a row that held (*confirmed) grow; beyond, they start again, unless the
  * ratio's denominator is within SS22_ROUNDING_FACTOR tolerances (noisy: it confirms but does not undo). */
-static void confirm(SS22Factor *f, double ratio, double bound, double denominator, double tolerance) {
+static void confirm(int *confirmed, double ratio, double bound, double denominator, double tolerance) {
     if (ratio <= bound) {
-        if (f->confirmed < SS22_RATE_CONFIRMATIONS) f->confirmed++;
+        if (*confirmed < SS22_RATE_CONFIRMATIONS) (*confirmed)++;
     } else if (denominator > SS22_ROUNDING_FACTOR * tolerance) {
-        f->confirmed = 0;
+        *confirmed = 0;
     }
 }
 
@@ -152,7 +153,7 @@ static void confirm(SS22Factor *f, double ratio, double bound, double denominato
  * once a step; called before the rate is recorded.  Such ratios to a second increment near the rounding floor
  * only raise the kept rate. */
 static void confirm_rate(SS22Factor *f, double rate, double second, double tolerance) {
-    confirm(f, rate, f->rate >= 0.0 ? aged_rate(f->rate) : -1.0, second, tolerance);
+    confirm(&f->confirmed, rate, f->rate >= 0.0 ? aged_rate(f->rate) : -1.0, second, tolerance);
 }
 
 /* What a step's own ratios of increments say of the next one: within a step an older matrix's ratios rise
@@ -176,10 +177,14 @@ static int bounds_error(const SS22 *s, double err, double previous, int judged) 
 }
 
 /* Steps accepted on f's kept rate before one more iteration measures it again: SS22_RATE_MEASURE_EVERY, doubled
- * for each measure in a row that found the rate held (ss22.h). */
-static int measure_interval(const SS22Factor *f) {
-    return SS22_RATE_MEASURE_EVERY << f->confirmed;
+ * for each measure in a row that found the rate held (ss22.h).  For a one-increment stop (first) also the
+ * measures of the first ratio that held (confirmed_first) count; they never lengthen the interval of the
+ * two-increment stops, which only a third increment measures. */
+static int measure_interval_of(const SS22Factor *f, int first) {
+    const int held = first && f->confirmed_first > f->confirmed ? f->confirmed_first : f->confirmed;
+    return SS22_RATE_MEASURE_EVERY << held;
 }
+
 
 /* What one increment with f leaves of this step's error, per unit of that increment: its last first ratio of
  * increments grown to this step's age (or its kept rate, if larger), times SS22_DIRECTION_MARGIN (ss22.h).  The
@@ -201,15 +206,13 @@ static double one_increment_rate(const SS22 *s, const SS22Factor *f, int kind) {
 #endif
 
 #if !MODEL_LINEAR_IN_STATE
-/* The recurrence's start where it applies (predictor.c), formed first with the kept matrix when that has paid
- * for it (ss22.h, SS22_RECURRENCE_COST): 0 none, 1 formed but the vote keeps the line or parabola, 2 it starts. */
+/* The recurrence's start (predictor.c), formed first when due: 0 none, 1 the vote keeps the line, 2 it starts. */
 static int recurrence_start(SS22 *s, double dt, const double *q, const double *v, const double *alpha,
                             const double *p, ModelWork *work, double *a) {
     const SS22Factor *f = cached_factor(s, dt);
-    /* not on a matrix that contracts slowly (its kept rate): ratios of increments judge the steps, and from a
-     * start this close they see only the directions it contracts fast in (six_axis_arm_torque at 0.5 ms under
-     * 5 N m, rates 0.03-0.06: a step 5 tolerances off after increments of 3.8e3, 116, 5.7 tolerances) */
-    if (f == NULL || f->rate > SS22_RECURRENCE_MAX_RATE || !ss22_recurrence_applies(s, dt, alpha)) return 0;
+    /* only on a matrix measured to contract fast: from a start this close the ratios see no other (ss22.h) */
+    if (f == NULL || !(f->rate >= 0.0 && f->rate <= SS22_RECURRENCE_MAX_RATE) ||
+        !ss22_recurrence_applies(s, dt, alpha)) return 0;
     if (ss22_recurrence_due(s, f, dt)) {
         weighted_state(s, dt, q, v, alpha);
         if (ss22_recurrence_form(s, f, dt, alpha, p, work) == SS22_OK) s->recurrences++;
@@ -281,35 +284,37 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             for (int i = 0; i < N_Q; i++) {
                 a[i] += delta[i];
                 const double e = fabs(delta[i]) * dt / MODEL_NOMINAL_Q[i];
-                if (e > err) err = e;
+                if (!(e <= err)) err = e;        /* a NaN increment makes err NaN: refused below */
             }
             s->newton_iterations++;
             if (fresh >= 0) fresh++;
             if (!isfinite(err)) return SS22_NOT_FINITE;
             const int older = f->made != s->steps;   /* a matrix from an earlier step */
-            /* a first increment at the rounding floor (a start as close as the recurrence's on a linear model):
-             * the ratio to it is noise, and would only raise the rates (0.375 on tests/c/predictor_check.c) */
-            const int noise = it == 1 && previous <= s->tolerance / SS22_ROUNDING_FACTOR;
+            /* a ratio to the recurrence's first increment at the rounding floor is noise (on a linear model) */
+            const int noise = it == 1 && kind && previous <= s->tolerance / SS22_ROUNDING_FACTOR;
+            double in_force = INFINITY;    /* the rate this step's one-increment stop would have used */
             if (it == 1 && fresh < 0 && !noise) {
-                /* the first ratio measures what the one-increment stops since the last measure were accepted on
-                 * (a close start, the recurrence's, leaves few steps a third increment to measure the kept rate) */
-                const double in_force = one_increment_rate(s, f, kind);
-                if (isfinite(in_force)) confirm(f, err / previous, aged_rate(in_force), previous, s->tolerance);
+                in_force = one_increment_rate(s, f, kind);
                 f->first[kind] = err / previous;
                 f->first_age[kind] = s->steps - f->made;
             }
-            /* (a first increment of exactly zero: the start solves the step's equation to the last bit) */
+            /* (a first increment of zero, or the recurrence's within a hundredth of the tolerance on a matrix that
+             * contracts at the rate floor: the start is the solution, to rounding) */
             if (err <= s->tolerance && bounds_error(s, err, previous, it > 0 && older)
-                && (it > 0 || fresh >= 0 || below_tolerance_ends || err == 0.0)) {
+                && (it > 0 || fresh >= 0 || below_tolerance_ends || err == 0.0 ||
+                    (kind && err <= s->tolerance / SS22_ROUNDING_FACTOR))) {
                 /* a ratio to an increment below the tolerance, perhaps at the rounding floor: it only raises.
                  * (Not on a parabola's first increment with an older matrix: what that leaves is not bounded by
                  * its size; docs/integrator.md) */
                 if (it == 2 && older) confirm_rate(f, err / previous, previous, s->tolerance);
+                /* a second increment measures what one-increment stops are accepted on (few reach a third) */
+                if (isfinite(in_force))
+                    confirm(&f->confirmed_first, err / previous, aged_rate(in_force), previous, s->tolerance);
                 if (it > 0 && fresh < 0 && !noise) record_rate(f, err / previous, 1);
                 converged = 1;
                 break;
             }
-            if (it <= 1 && fresh < 0 && f->rate >= 0.0 && f->estimated < measure_interval(f)) {
+            if (it <= 1 && fresh < 0 && f->rate >= 0.0 && f->estimated < measure_interval_of(f, it == 0)) {
                 /* an earlier step's matrix and its last measured rate: what is left is about
                  * rate/(1-rate) times this increment, the first or the second (ss22.h,
                  * SS22_RATE_MEASURE_EVERY); the second's ratio to the first still raises the kept rate */

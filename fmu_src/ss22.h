@@ -75,14 +75,17 @@
  * made with hindsight would (rent-or-buy, as SS22_REFRESH_COST); a matrix refreshed every few steps (a
  * whipping chain) never pays for one. */
 #define SS22_RECURRENCE_COST (2 * (N_Q + 1))
-/* It is formed again, with a newer kept matrix, once its misses (a running mean of their logarithms over about
- * SS22_PREDICTOR_MEMORY steps) have grown this many times over those of its first SS22_RECURRENCE_FRESH steps:
+/* It is formed again, with a newer kept matrix, once its misses (the running mean of their logarithms over about
+ * SS22_PREDICTOR_MEMORY steps: their geometric mean) have grown SS22_RECURRENCE_GROWTH-fold over those of its
+ * first SS22_RECURRENCE_FRESH steps:
  * where the motion turns the model away from the state it was formed at (fast_two_link at 0.1 ms: 46 forms in
  * 20 000 steps, against 139 when every newer matrix formed it; planar_chain_5 at 1 ms: 2, where forming it
  * again brought nothing).  docs/integrator.md. */
 #define SS22_RECURRENCE_FRESH 8
-/* ... and it starts no step whose kept matrix contracts slower than this (its kept rate, ss22.c: from a close
- * start the ratios of increments see only the directions a matrix contracts fast in) */
+/* ... and it starts no step whose kept matrix has no measured rate or contracts slower than this: ratios of
+ * increments judge the steps, and from a start this close they see only the directions the matrix contracts fast
+ * in (six_axis_arm_torque at 0.5 ms under 5 N m, rates 0.03-0.06: a step 5 tolerances off after increments of
+ * 3.8e3, 116, 5.7 tolerances; docs/integrator.md).  The rate floor. */
 #define SS22_RECURRENCE_MAX_RATE 1e-3
 /* The highest order of the extrapolation of its misses that is fed back (predictor.c, fed_back). */
 #define SS22_RECURRENCE_ORDER 2
@@ -107,6 +110,7 @@ typedef struct {
                                     (ss22.c, record_rate), or -1 before a measure */
     int estimated;               /* steps accepted since on that rate without measuring it again */
     int confirmed;               /* steps' measures in a row that found the rate within the one accepted on */
+    int confirmed_first;         /* the same for first ratios, against what one-increment stops were accepted on */
     uint64_t made;               /* SS22.steps when it was evaluated: its age is SS22.steps - made */
     /* the last ratio of a step's second increment to its first with it, or -1, and its age at that step: [0] for
      * steps started from the line or parabola, [1] from the recurrence (predictor.c), whose misses lie in other

@@ -41,9 +41,9 @@ def layout(tmp_path_factory):
     src, exe = work / "sources", work / "state_offsets"
     subprocess.run([*compiler(), "-std=c99", f"-I{src}", *(str(src / f) for f in files), str(PROBE),
                     "-o", str(exe), "-lm"], check=True, capture_output=True, text=True)
-    valid, estimated, confirmed, every = (int(x) for x in subprocess.run(
+    valid, estimated, confirmed, confirmed_first, every = (int(x) for x in subprocess.run(
         [str(exe)], check=True, capture_output=True, text=True).stdout.split())
-    return fmu, valid, estimated, confirmed, every
+    return fmu, valid, estimated, confirmed, confirmed_first, every
 
 
 @pytest.mark.parametrize("confirmed, estimated, accepted", [
@@ -53,7 +53,7 @@ def layout(tmp_path_factory):
     (0, 5, False),        # more steps on the kept rate than its cadence allows
 ])
 def test_a_forged_rate_cadence_is_refused(layout, confirmed, estimated, accepted):
-    fmu, at_valid, at_estimated, at_confirmed, every = layout
+    fmu, at_valid, at_estimated, at_confirmed, at_confirmed_first, every = layout
     assert every == 4
     with FmuHost(fmu) as host:
         host.initialize({"hub.tau": 0.5})
@@ -64,6 +64,7 @@ def test_a_forged_rate_cadence_is_refused(layout, confirmed, estimated, accepted
         header = payload_start(guid)
         assert struct.unpack_from("<i", blob, header + at_valid)[0] == 1, "the first factorisation is kept"
         struct.pack_into("<i", blob, header + at_confirmed, confirmed)
+        struct.pack_into("<i", blob, header + at_confirmed_first, 0)   # the one-increment stops' cadence
         struct.pack_into("<i", blob, header + at_estimated, estimated)
         reseal(blob, guid)
         if accepted:

@@ -268,23 +268,23 @@ int main(void) {
      * ratio may be noise), and so does a new matrix */
     const double tol = 1e-10, clear = 1e3 * tol, noisy = 10.0 * tol;
     SS22Factor f = {.rate = 1e-4};
-    check(measure_interval(&f) == SS22_RATE_MEASURE_EVERY, "a new rate: measured again after 4 steps",
-          measure_interval(&f));
+    check(measure_interval_of(&f, 0) == SS22_RATE_MEASURE_EVERY, "a new rate: measured again after 4 steps",
+          measure_interval_of(&f, 0));
     const int expected[] = {8, 16, 32, 32};
     int doubled = 1;
     for (int k = 0; k < 4; k++) {
         confirm_rate(&f, 0.99 * aged_rate(f.rate), clear, tol);
         record_rate(&f, 0.99 * aged_rate(f.rate), 0);
         f.rate = 1e-4;
-        doubled = doubled && measure_interval(&f) == expected[k];
+        doubled = doubled && measure_interval_of(&f, 0) == expected[k];
     }
-    check(doubled, "measures that hold double the interval to 32", measure_interval(&f));
+    check(doubled, "measures that hold double the interval to 32", measure_interval_of(&f, 0));
     confirm_rate(&f, 1.01 * aged_rate(f.rate), noisy, tol);
-    check(measure_interval(&f) == 32, "a ratio to a second increment near the rounding floor does not undo",
-          measure_interval(&f));
+    check(measure_interval_of(&f, 0) == 32, "a ratio to a second increment near the rounding floor does not undo",
+          measure_interval_of(&f, 0));
     confirm_rate(&f, 1.01 * aged_rate(f.rate), clear, tol);
-    check(measure_interval(&f) == SS22_RATE_MEASURE_EVERY, "a measure beyond the rate accepted on: back to 4",
-          measure_interval(&f));
+    check(measure_interval_of(&f, 0) == SS22_RATE_MEASURE_EVERY, "a measure beyond the rate accepted on: back to 4",
+          measure_interval_of(&f, 0));
     f.rate = -1.0;
     f.confirmed = 2;
     confirm_rate(&f, 1e-9, clear, tol);
