@@ -82,14 +82,14 @@
  * 20 000 steps, against 139 when every newer matrix formed it; planar_chain_5 at 1 ms: 2, where forming it
  * again brought nothing).  docs/integrator.md. */
 #define SS22_RECURRENCE_FRESH 8
+#define SS22_RECURRENCE_GROWTH 8.0
 /* ... and it starts no step whose kept matrix has no measured rate or contracts slower than this: ratios of
  * increments judge the steps, and from a start this close they see only the directions the matrix contracts fast
- * in (six_axis_arm_torque at 0.5 ms under 5 N m, rates 0.03-0.06: a step 5 tolerances off after increments of
+ * in (six_axis_arm_torque at 0.5 ms under 5 N m, rates 0.007-0.06: a step 5 tolerances off after increments of
  * 3.8e3, 116, 5.7 tolerances; docs/integrator.md).  The rate floor. */
 #define SS22_RECURRENCE_MAX_RATE 1e-3
 /* The highest order of the extrapolation of its misses that is fed back (predictor.c, fed_back). */
 #define SS22_RECURRENCE_ORDER 2
-#define SS22_RECURRENCE_GROWTH 8.0
 
 #define SS22_CACHE 4     /* factorisations kept: the regular step, a shortened last one, and the Δt/2 of the
                             order-4 option with their rounding variants (2 entries thrashed: 1800 LUs in 15000 steps) */
