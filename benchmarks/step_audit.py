@@ -1,6 +1,7 @@
 """Every SS22 step's Newton error, audited from outside the FMU, on scenes with built-in joint laws too.
 
     python benchmarks/step_audit.py SCENE.toml [--stop T] [--tolerance TOL] [--set NAME=VALUE ...] [--worst N]
+                                               [--pd KP KD REF [--sample N]]
 
 The Co-Simulation FMU is stepped one internal step per ``fmi2DoStep`` (a communication step of
 ``solver.step``); its states before and after each step give the step's constant acceleration
@@ -15,7 +16,9 @@ for the host's inputs, and for a built-in law — its (θ, θ̇) taken exactly a
 scene's trajectory (``Trajectory.evaluate``) — the mean acceleration ᾱ = (θ̇₁ − θ̇₀)/Δt, the weighted rate
 θ̇₀ + Θ₁Δt ᾱ and the weighted angle θ₀ + Θ₁Δt θ̇₀ + Θ₂Δt²/2 ᾱ + Θ₂(θ₁ − θ₀ − Δt(θ̇₀ + θ̇₁)/2).  The error is what
 ``solver.tolerance`` bounds: max over i of Δt |α_i − α*_i| / nominal_i, printed in tolerances.  Host-driven laws
-(``<joint>.theta_ref``) are not followed: the audit refuses them.
+(``<joint>.theta_ref``) are not followed: the audit refuses them.  ``--pd`` drives the torque-driven joints by a
+sampled PD instead of holding their torques, every ``--sample`` steps: a closed loop's inputs, which jump at
+every sample.
 
 ``tests/test_ss22_numerics.py`` runs ``step_errors`` on scenes with laws; its Model Exchange audit covers the
 law-free ones with the FMU's own derivatives.
@@ -59,9 +62,31 @@ def _weighted_inputs(model, u0: np.ndarray, u1: np.ndarray, h: float, t1: float,
     return u
 
 
-def step_errors(scene_path: str | Path, stop: float, start: dict[str, float] | None = None) -> Audit:
+@dataclass
+class SampledPD:
+    """A host's sampled PD on every torque-driven joint: τ = kp (ref − θ) − kd θ̇ (ref for the first such joint,
+    0 for the others), set every ``every`` steps from the FMU's outputs: the host inputs then jump at every
+    sample, as under a controller in closed loop."""
+
+    kp: float
+    kd: float
+    ref: float
+    every: int = 1
+
+
+def _pd_torques(cs, joints: list[str], pd: SampledPD) -> list[float]:
+    """The PD's torques from the joints' present angles and rates."""
+    theta = cs.get_real([f"{j}.theta" for j in joints])
+    omega = cs.get_real([f"{j}.omega" for j in joints])
+    return [pd.kp * ((pd.ref if k == 0 else 0.0) - th) - pd.kd * w
+            for k, (th, w) in enumerate(zip(theta, omega, strict=True))]
+
+
+def step_errors(scene_path: str | Path, stop: float, start: dict[str, float] | None = None,
+                pd: SampledPD | None = None) -> Audit:
     """Each step's Newton error over [0, stop] of the scene at its ``solver.step`` (``start``: start values,
-    parameters, inputs held from t = 0 and solver settings alike)."""
+    parameters, inputs held from t = 0 and solver settings alike; ``pd``: the torques from a sampled PD
+    instead)."""
     from flexlink.export.cache import cached_fmu
     from flexlink.mechanics.model import build_model
     from flexlink.run.host import FmuHost
@@ -88,8 +113,15 @@ def step_errors(scene_path: str | Path, stop: float, start: dict[str, float] | N
         held = [i for i, s in enumerate(model.inputs) if i not in law_slots]
         u_host = np.array([s.start for s in model.inputs], dtype=float)
         u_host[held] = cs.get_real([model.inputs[i].name for i in held])
-        x = [cs.get_real(states)]
+        names = [s.name for s in model.inputs]
+        joints = [n[:-len(".tau")] for n in names if n.endswith(".tau")] if pd else []
+        if pd and not joints:
+            raise FlexlinkError(f"{scene_path}: --pd needs a torque-driven joint (an input <joint>.tau)")
+        x, u_steps = [cs.get_real(states)], []
         for k in range(steps):
+            if pd and k % pd.every == 0:
+                cs.set_values(dict(zip([f"{j}.tau" for j in joints], _pd_torques(cs, joints, pd), strict=True)))
+            u_steps.append(np.array(cs.get_real([model.inputs[i].name for i in held])))
             cs.call("fmi2DoStep", cs.instance.doStep, k * h, h)
             x.append(cs.get_real(states))
     x = np.array(x)
@@ -101,8 +133,9 @@ def step_errors(scene_path: str | Path, stop: float, start: dict[str, float] | N
     r = residual(q0 + t1 * d * v0 + t2 * d * d / 2 * a, v0 + t1 * d * a, a, ub, pp)
     newton = ca.Function("newton", [a, q0, v0, ub, pp, d], [r, ca.jacobian(r, a)])
 
-    def inputs_at(t: float) -> np.ndarray:
+    def inputs_at(t: float, k: int) -> np.ndarray:
         u = u_host.copy()
+        u[held] = u_steps[k]                # the host's inputs held over step k
         for law in model.laws:
             u[law.u_offset:law.u_offset + 3] = law.trajectory.evaluate(t)
         return u
@@ -116,7 +149,7 @@ def step_errors(scene_path: str | Path, stop: float, start: dict[str, float] | N
         q, v = x[k, :n], x[k, n:]
         dt = ends[k + 1] - ends[k]
         alpha = (x[k + 1, n:] - v) / dt
-        u = _weighted_inputs(model, inputs_at(ends[k]), inputs_at(ends[k + 1]), dt, t1, t2)
+        u = _weighted_inputs(model, inputs_at(ends[k], k), inputs_at(ends[k + 1], k), dt, t1, t2)
         exact = alpha.copy()
         for _ in range(4):                 # full Newton from the accepted α (near α*: quadratic)
             res, jac = newton(exact, q, v, u, p, dt)
@@ -132,7 +165,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tolerance", type=float, help="solver.tolerance (default: the scene's)")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="a start value")
     ap.add_argument("--worst", type=int, default=10, help="list the N worst steps")
+    ap.add_argument("--pd", nargs=3, type=float, metavar=("KP", "KD", "REF"),
+                    help="torques from a sampled PD on every torque-driven joint (the first one to REF rad)")
+    ap.add_argument("--sample", type=int, default=1, metavar="N", help="the PD's sample: every N steps")
     args = ap.parse_args(argv)
+    if args.sample < 1:
+        ap.error(f"--sample must be >= 1, got {args.sample}")
     try:
         start = {k: float(v) for k, v in (s.split("=", 1) for s in args.set)}
     except ValueError:
@@ -140,7 +178,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.tolerance is not None:
         start["solver.tolerance"] = args.tolerance
     try:
-        audit = step_errors(args.scene, args.stop, start)
+        pd = SampledPD(*args.pd, every=args.sample) if args.pd else None
+        audit = step_errors(args.scene, args.stop, start, pd)
     except FlexlinkError as exc:    # a bad scene or start value, or a step the FMU refused: exit status 2
         print(f"step_audit: {exc}", file=sys.stderr)
         return 2

@@ -14,7 +14,8 @@ int ss22_predict(const SS22 *s, double dt, const double *alpha, double *a, doubl
 void ss22_choose_predictor(SS22 *s, const double *a, const double *start, const double *other);
 
 /* Whether the recurrence can predict the next step of dt from alpha: two consecutive steps of the same size
- * behind it and weighted inputs whose second difference over the three steps is zero. */
+ * behind it, and their weighted inputs (the inputs' term, U times their second difference, follows a host's
+ * input that changes at every communication point and a built-in law that moves). */
 int ss22_recurrence_applies(const SS22 *s, double dt, const double *alpha);
 
 /* Whether to form the recurrence's matrices now with the kept matrix f of the step dt: once f has been kept for
@@ -22,9 +23,10 @@ int ss22_recurrence_applies(const SS22 *s, double dt, const double *alpha);
  * was formed with and its misses have grown SS22_RECURRENCE_GROWTH-fold since its first steps. */
 int ss22_recurrence_due(const SS22 *s, const SS22Factor *f, double dt);
 
-/* Forms them from f's factors and the model's velocity and position Jacobians at the weighted state
- * (s->q_bar, s->v_bar, alpha, s->u_bar), evaluated by model_newton_matrix.  Anything but SS22_OK leaves the
- * recurrence unformed until a newer matrix (a start is only a start: the step goes on without it). */
+/* Forms them from f's factors, the model's velocity and position Jacobians at the weighted state (s->q_bar,
+ * s->v_bar, alpha, s->u_bar), evaluated by model_newton_matrix, and its input columns (residual differences).
+ * Anything but SS22_OK leaves the recurrence unformed until a newer matrix (a start is only a start: the step
+ * goes on without it). */
 SS22Status ss22_recurrence_form(SS22 *s, const SS22Factor *f, double dt, const double *alpha, const double *p,
                                 ModelWork *work);
 
@@ -32,6 +34,14 @@ SS22Status ss22_recurrence_form(SS22 *s, const SS22Factor *f, double dt, const d
  * is not formed for dt, 1 when the vote keeps the line or parabola in a, 2 when it replaced a (the line or
  * parabola kept in s->rec.other for the vote). */
 int ss22_recurrence_predict(SS22 *s, double dt, const double *alpha, double *a);
+
+/* The size, in the Newton increments' measure (ss22.c: |delta| dt / nominal), below which the recurrence's first
+ * increment is noise: a hundredth of the tolerance, or SS22_ROUNDING_FACTOR roundings of the largest acceleration
+ * in that measure, of the start and of the last two steps' (the size of its products), whichever is larger.  Such
+ * an increment ends the step, and a ratio to it is no rate.  The second matters where accelerations are huge
+ * against the nominal rates: the test model's unresolved w dt = 10 mode leaves first increments of 3e-12 at the
+ * tolerance 1e-10, whose ratios had raised the kept rate past the rate floor and kept the recurrence out. */
+double ss22_recurrence_floor(const SS22 *s, double dt, const double *start);
 
 /* After an accepted step of acceleration a: the recurrence's misses and vote (predicted: it was formed and
  * predicted this step), and the weighted inputs' history (continued: the step extrapolated this solver's own

@@ -54,14 +54,14 @@ static int all_finite(const double *x, int n) {
     return 1;
 }
 
-/* The cache entry of (dt, theta), or NULL.  There is at most one: a refreshed matrix replaces the entry
- * of its own step size (below), so simplified Newton always continues from the newest matrix, never
- * from an older one of the same step left in another slot. */
+/* The cache entry of (dt, theta), or NULL.  There is at most one: a refreshed matrix replaces the entry of its
+ * own step size (below), so simplified Newton always continues from the newest matrix.  dt comes from differences
+ * of absolute times: equal steps differ by their rounding (1e-9 of 0.1 ms at t = 1000 s; 1e-12 split them into
+ * entries measured apart: fast_two_link under a sampled PD, a step 1.14 tolerances off on one's stale rate). */
 static SS22Factor *cached_factor(SS22 *s, double dt) {
     for (int k = 0; k < SS22_CACHE; k++) {
         SS22Factor *c = &s->cache[k];
-        /* dt comes from differences of absolute times: equal steps may differ in the last bits */
-        if (c->valid && fabs(c->dt - dt) <= 1e-12 * dt && c->theta1 == s->theta1 && c->theta2 == s->theta2)
+        if (c->valid && fabs(c->dt - dt) <= 1e-6 * dt && c->theta1 == s->theta1 && c->theta2 == s->theta2)
             return c;
     }
     return NULL;
@@ -78,6 +78,8 @@ static SS22Status step_matrix(SS22 *s, double dt, const double *alpha, const dou
     reuse = 1;
 #endif
     if (reuse && f != NULL) {
+        /* its kept rate ages with the steps other matrices took since its last use too (a shortened last step's) */
+        f->estimated += (int)fmin((double)(s->clock - f->stamp), 1e6);
         f->stamp = ++s->clock;
         *out = f;
         return SS22_OK;
@@ -185,7 +187,6 @@ static int measure_interval_of(const SS22Factor *f, int first) {
     return SS22_RATE_MEASURE_EVERY << held;
 }
 
-
 /* What one increment with f leaves of this step's error, per unit of that increment: its last first ratio of
  * increments grown to this step's age (or its kept rate, if larger), times SS22_DIRECTION_MARGIN (ss22.h).  The
  * first ratio says how much of the predictor's error the old matrix misses, and so how much it leaves after
@@ -231,7 +232,6 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
     double a[N_Q];
     SS22Factor *f = NULL;
     SS22Status st;
-
     int predicted = 0, recurrence = 0;
 
     ss22_weighted_inputs(s, dt, u0, u1, s->u_bar);
@@ -260,6 +260,7 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
          * an older matrix (below; the one-increment stop on the matrix's rate still may) */
         const int below_tolerance_ends = !(predicted == 2 && s->parabola) && recurrence != 2;
         const int kind = recurrence == 2;       /* which start's first ratios judge a one-increment stop */
+        const double rounding = kind ? ss22_recurrence_floor(s, dt, a) : 0.0;   /* its first increment's noise floor */
         int converged = 0;
         int fresh = -1;          /* increments made with a matrix evaluated in this step; -1: an older one */
         double previous = INFINITY;
@@ -290,19 +291,19 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             if (fresh >= 0) fresh++;
             if (!isfinite(err)) return SS22_NOT_FINITE;
             const int older = f->made != s->steps;   /* a matrix from an earlier step */
-            /* a ratio to the recurrence's first increment at the rounding floor is noise (on a linear model) */
-            const int noise = it == 1 && kind && previous <= s->tolerance / SS22_ROUNDING_FACTOR;
+            /* a ratio to the recurrence's first increment at its noise floor is noise (on a linear model) */
+            const int noise = it == 1 && kind && previous <= rounding;
             double in_force = INFINITY;    /* the rate this step's one-increment stop would have used */
             if (it == 1 && fresh < 0 && !noise) {
                 in_force = one_increment_rate(s, f, kind);
                 f->first[kind] = err / previous;
                 f->first_age[kind] = s->steps - f->made;
             }
-            /* (a first increment of zero, or the recurrence's within a hundredth of the tolerance on a matrix that
-             * contracts at the rate floor: the start is the solution, to rounding) */
+            /* (a first increment of zero, or the recurrence's at its noise floor on a matrix that contracts at
+             * the rate floor: the start is the solution, to rounding) */
             if (err <= s->tolerance && bounds_error(s, err, previous, it > 0 && older)
                 && (it > 0 || fresh >= 0 || below_tolerance_ends || err == 0.0 ||
-                    (kind && err <= s->tolerance / SS22_ROUNDING_FACTOR))) {
+                    (kind && err <= rounding))) {
                 /* a ratio to an increment below the tolerance, perhaps at the rounding floor: it only raises.
                  * (Not on a parabola's first increment with an older matrix: what that leaves is not bounded by
                  * its size; docs/integrator.md) */
@@ -314,7 +315,7 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
                 converged = 1;
                 break;
             }
-            if (it <= 1 && fresh < 0 && f->rate >= 0.0 && f->estimated < measure_interval_of(f, it == 0)) {
+            if (it <= 1 && fresh < 0 && f->rate >= 0.0 && f->estimated < measure_interval_of(f, it == 0 && kind)) {
                 /* an earlier step's matrix and its last measured rate: what is left is about
                  * rate/(1-rate) times this increment, the first or the second (ss22.h,
                  * SS22_RATE_MEASURE_EVERY); the second's ratio to the first still raises the kept rate */

@@ -70,11 +70,14 @@
 #define SS22_REFRESH_COST (2.0 * N_Q)
 
 /* The recurrence start (predictor.c) is formed with a kept matrix once that has been kept for as many steps as
- * forming it costs residuals (the velocity and position Jacobians by differences, N_Q + 1 residuals each):
+ * forming it costs residuals (the velocity and position Jacobians by differences, N_Q + 1 residuals each, and
+ * the inputs' columns by central differences, two residuals each):
  * it saves at most about one residual a step, so forming it then costs at most twice what the best choice
  * made with hindsight would (rent-or-buy, as SS22_REFRESH_COST); a matrix refreshed every few steps (a
  * whipping chain) never pays for one. */
-#define SS22_RECURRENCE_COST (2 * (N_Q + 1))
+#define SS22_RECURRENCE_COST (2 * (N_Q + 1 + N_U))
+/* The relative step of the central differences that give its input columns B (predictor.c, input_columns). */
+#define SS22_INPUT_DIFFERENCE 1e-6
 /* It is formed again, with a newer kept matrix, once its misses (the running mean of their logarithms over about
  * SS22_PREDICTOR_MEMORY steps: their geometric mean) have grown SS22_RECURRENCE_GROWTH-fold over those of its
  * first SS22_RECURRENCE_FRESH steps:
@@ -92,7 +95,8 @@
 #define SS22_RECURRENCE_ORDER 2
 
 #define SS22_CACHE 4     /* factorisations kept: the regular step, a shortened last one, and the Δt/2 of the
-                            order-4 option with their rounding variants (2 entries thrashed: 1800 LUs in 15000 steps) */
+                            order-4 option (2 entries thrashed: 1800 LUs in 15000 steps); steps within 1e-6 of
+                            one size share its entry (ss22.c, cached_factor) */
 
 typedef enum {
     SS22_OK = 0,
@@ -125,9 +129,9 @@ typedef struct {
 /* SS22's own linear recurrence as the Newton start (predictor.c).  For M a + C v + K q + B u = 0, three
  * consecutive steps of dt obey exactly
  *     J (a+ - 2a + a-) = -dt C d - dt^2 K (a- + (1/2 + theta1) d) - B (u+ - 2u + u-),   d = a - a-,
- * with J the Newton matrix (u: the weighted inputs), so a+ = 2a - a- - P d - G a- where the inputs' second
- * difference is zero.  P and G come from the kept matrix's factors and C, K at the state where they are formed;
- * what the nonlinear model adds is fed back as an extrapolation of the recurrence's last misses. */
+ * with J the Newton matrix (u: the weighted inputs), so a+ = 2a - a- - P d - G a- - U (u+ - 2u + u-).  P, G
+ * and U come from the kept matrix's factors and C, K, B at the state where they are formed; what the nonlinear
+ * model adds is fed back as an extrapolation of the recurrence's last misses. */
 typedef struct {
     int valid;                   /* P and G formed, for steps of dt */
     double dt;
@@ -145,6 +149,7 @@ typedef struct {
                                                     the line's or parabola's start */
     double P[N_Q * N_Q], G[N_Q * N_Q];           /* J^-1 (dt C + (1/2 + theta1) dt^2 K) and J^-1 dt^2 K,
                                                     column-major */
+    double U[N_Q * (N_U > 0 ? N_U : 1)];         /* J^-1 B, column-major: a host's or a law's input that moves */
 } SS22Recurrence;
 
 typedef struct {

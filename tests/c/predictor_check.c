@@ -123,37 +123,47 @@ static void run_model(int steps, int *mismatches, int *parabola_steps, int *beyo
 }
 
 
-/* SS22's own recurrence (predictor.c) on the test model with its inputs held (F constant, supports at rest):
- * linear when k3 = 0, with an unresolved mode when k is large.  Returns, over the steps after it is formed:
+/* SS22's own recurrence (predictor.c) on the test model, the supports at rest and F held or moving (a host's
+ * sampled input, a new value at every step): linear when k3 = 0, with an unresolved mode when k is large.
+ * Returns, over the steps after it is formed:
  * the largest miss of its prediction before feedback (raw), of its start (fed), of the line (line), each
  * relative to the largest acceleration; steps beyond their tolerance (against full Newton); whether it was
  * formed at all, and the steps it predicted. */
 typedef struct { double raw, fed, line; int beyond, formed, predicted; } RecurrenceRun;
 
-static RecurrenceRun run_recurrence(double k, double k3, double tolerance, int steps) {
+static RecurrenceRun run_recurrence(double k, double k3, double tolerance, int steps, int moving) {
     static SS22 s;
     static ModelWork work;
     const double dt = 1e-3, saved_k = P[2], saved_k3 = P[3];   /* k, k3 */
-    double q[N_Q] = {0.03, 0.05}, v[N_Q] = {0.0}, alpha[N_Q] = {0.0}, u[N_U] = {0.4}, exact[N_Q], line[N_Q];
+    double q[N_Q] = {0.03, 0.05}, v[N_Q] = {0.0}, alpha[N_Q] = {0.0}, u0[N_U] = {0.4}, u1[N_U] = {0.4};
+    double exact[N_Q], line[N_Q];
     RecurrenceRun out = {0};
     P[2] = k;
     P[3] = k3;
     ss22_init(&s, 0.5, 0.5, tolerance);
     for (int n = 0; n < steps; n++) {
-        double scale = 0.0;
-        const int formed = s.recurrences > 0 && s.depth >= 2;
+        static SS22 probe;       /* the step's start from the recurrence, seen on a copy before the step */
+        double scale = 0.0, guess[N_Q];
+        if (moving) u0[0] = u1[0] = 0.4 + 0.3 * sin(0.7 * n);
+        probe = s;
+        ss22_weighted_inputs(&probe, dt, u0, u1, probe.u_bar);
+        const SS22Factor *kept = cached_factor(&probe, dt);
+        memcpy(guess, alpha, sizeof(guess));
+        const int started = kept != NULL && kept->rate >= 0.0 && kept->rate <= SS22_RECURRENCE_MAX_RATE &&
+                            ss22_recurrence_applies(&probe, dt, alpha) &&
+                            ss22_recurrence_predict(&probe, dt, alpha, guess) == 2;
         for (int i = 0; i < N_Q; i++) line[i] = 2.0 * s.alpha_last[i] - s.alpha_before[i];
         memcpy(exact, alpha, sizeof(exact));
-        step_solution(&s, dt, q, v, u, u, exact);
-        if (ss22_step(&s, dt, q, v, alpha, u, u, P, &work) != SS22_OK) { out.beyond++; break; }
+        step_solution(&s, dt, q, v, u0, u1, exact);
+        if (ss22_step(&s, dt, q, v, alpha, u0, u1, P, &work) != SS22_OK) { out.beyond++; break; }
         for (int i = 0; i < N_Q; i++) {
             if (fabs(alpha[i] - exact[i]) * dt / MODEL_NOMINAL_Q[i] > s.tolerance) { out.beyond++; break; }
         }
-        if (!formed || s.rec.depth == 0) continue;
+        if (!started) continue;
         for (int i = 0; i < N_Q; i++) scale = fmax(scale, fabs(alpha[i]));
         for (int i = 0; i < N_Q; i++) {
-            out.raw = fmax(out.raw, fabs(s.rec.misses[i]) / scale);
-            out.fed = fmax(out.fed, fabs(alpha[i] - s.rec.start[i]) / scale);
+            out.raw = fmax(out.raw, fabs(alpha[i] - probe.rec.raw[i]) / scale);
+            out.fed = fmax(out.fed, fabs(alpha[i] - probe.rec.start[i]) / scale);
             out.line = fmax(out.line, fabs(alpha[i] - line[i]) / scale);
         }
         out.predicted++;
@@ -247,20 +257,34 @@ int main(void) {
     check(model_formed == 0, "laws that move: no recurrence", model_formed);
 
     /* 6. the recurrence: exact on a linear model (to the Newton tolerance of the steps it starts from), formed
-     * once a kept matrix has paid for it, and never while the supports' laws move (their second difference) */
-    RecurrenceRun lin = run_recurrence(100.0, 0.0, 1e-13, 400);
+     * once a kept matrix has paid for it, and never while the supports' laws move (above); exact too while a
+     * host's input jumps at every step (its inputs' term U) */
+    RecurrenceRun lin = run_recurrence(100.0, 0.0, 1e-13, 400, 0);
     check(lin.formed && lin.predicted > 300, "the recurrence is formed and predicts", lin.predicted);
     check(lin.raw <= 1e-9 * lin.line, "linear model: the recurrence is exact", lin.raw / lin.line);
     check(lin.beyond == 0, "linear model: every step within its tolerance", lin.beyond);
+    /* (at 1e-12: at 1e-13 the second increments' rounding raises the kept rate past the rate floor after 170
+     * steps, and the recurrence stops, exact as it is) */
+    RecurrenceRun driven = run_recurrence(100.0, 0.0, 1e-12, 400, 1);
+    check(driven.formed && driven.predicted > 300, "moving inputs: the recurrence is formed and predicts",
+          driven.predicted);
+    check(driven.raw <= 1e-9 * driven.line, "moving inputs: the recurrence is exact", driven.raw / driven.line);
+    check(driven.beyond == 0, "moving inputs: every step within its tolerance", driven.beyond);
     /* an unresolved stiff mode (k = 1e8: w dt = 10): the line misses by the mode's whole swing, the recurrence
      * follows it to rounding */
-    RecurrenceRun stiff = run_recurrence(1e8, 0.0, 1e-10, 600);
+    RecurrenceRun stiff = run_recurrence(1e8, 0.0, 1e-10, 600, 0);
+    check(stiff.predicted > 500, "unresolved mode: the recurrence predicts", stiff.predicted);
     check(stiff.fed <= 1e-6 * stiff.line, "unresolved mode: the recurrence follows it", stiff.fed / stiff.line);
     check(stiff.beyond == 0, "unresolved mode: every step within its tolerance", stiff.beyond);
     /* the hardening spring (k3 d^3 up to a quarter of k d): the misses fed back keep the start ahead of the line */
-    RecurrenceRun hard = run_recurrence(100.0, 1e4, 1e-10, 600);
+    RecurrenceRun hard = run_recurrence(100.0, 1e4, 1e-10, 600, 0);
     check(hard.fed < 0.1 * hard.line && hard.fed < hard.raw, "nonlinear model: its misses fed back", hard.fed / hard.line);
     check(hard.beyond == 0, "nonlinear model: every step within its tolerance", hard.beyond);
+    /* ... and F jumping at every step: no misses fed back (each step's inputs bend), its start still ahead */
+    RecurrenceRun jumps = run_recurrence(100.0, 1e4, 1e-10, 600, 1);
+    check(jumps.predicted > 300 && jumps.fed < 0.1 * jumps.line, "nonlinear model, moving inputs: ahead of the line",
+          jumps.fed / jumps.line);
+    check(jumps.beyond == 0, "nonlinear model, moving inputs: every step within its tolerance", jumps.beyond);
 
     /* 5. the cadence: 4 steps on a kept rate, doubled by each step's measure in a row within the rate they are
      * accepted on (aged_rate of the kept one), up to SS22_RATE_CONFIRMATIONS doublings; a measure above it
@@ -289,5 +313,26 @@ int main(void) {
     f.confirmed = 2;
     confirm_rate(&f, 1e-9, clear, tol);
     check(f.confirmed == 0, "no kept rate yet: a measure confirms nothing", f.confirmed);
+
+    /* 7. the factorisation cache: steps from differences of absolute times (at t = 1000 s a step of 1e-4 s differs
+     * from 1e-4 by 1e-9 of it) share one matrix; a shortened last step (dt/3) has its own, and the steps it
+     * takes meanwhile age the first one's kept rate */
+    static SS22 c;
+    static ModelWork cache_work;
+    double q0[N_Q] = {0.0, 0.05}, alpha0[N_Q] = {0.0};
+    SS22Factor *first = NULL, *again = NULL, *short_step = NULL;
+    const double h = (1000.0 + 1e-4) - 1000.0;    /* 1e-4 within 1.1e-9 of it */
+    ss22_init(&c, 0.5, 0.5, 1e-10);
+    weighted_state(&c, h, q0, q0, alpha0);
+    step_matrix(&c, 1e-4, alpha0, P, &cache_work, 0, &first);
+    step_matrix(&c, h, alpha0, P, &cache_work, 1, &again);
+    check(first == again && c.factorisations == 1, "rounding variants of a step share its matrix",
+          fabs(h - 1e-4) / 1e-4);
+    first->rate = 1e-4;
+    first->estimated = 0;
+    for (int k = 0; k < 5; k++) step_matrix(&c, 1e-4 / 3.0, alpha0, P, &cache_work, 1, &short_step);
+    step_matrix(&c, 1e-4, alpha0, P, &cache_work, 1, &again);
+    check(short_step != first && again == first && first->estimated == 5,
+          "a matrix's kept rate ages with the steps taken with others", first->estimated);
     return failures != 0;
 }
