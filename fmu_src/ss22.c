@@ -56,13 +56,14 @@ static int all_finite(const double *x, int n) {
 
 /* The cache entry of (dt, theta), or NULL.  There is at most one: a refreshed matrix replaces the entry of its
  * own step size (below), so simplified Newton always continues from the newest matrix.  dt comes from differences
- * of absolute times: equal steps differ by their rounding (1e-9 of 0.1 ms at t = 1000 s; 1e-12 split them into
- * entries measured apart: fast_two_link under a sampled PD, a step 1.14 tolerances off on one's stale rate). */
+ * of absolute times: equal steps differ by their rounding (1e-9 of 0.1 ms at t = 1000 s; 1e-12 split them: one
+ * rate went stale, fast_two_link under a sampled PD).  Newton's iterates end at the step's own solution from a
+ * matrix 1e-6 off; a linear model's one solve needs its own matrix. */
 static SS22Factor *cached_factor(SS22 *s, double dt) {
+    const double window = (MODEL_LINEAR_IN_STATE ? 1e-12 : 1e-6) * dt;
     for (int k = 0; k < SS22_CACHE; k++) {
         SS22Factor *c = &s->cache[k];
-        if (c->valid && fabs(c->dt - dt) <= 1e-6 * dt && c->theta1 == s->theta1 && c->theta2 == s->theta2)
-            return c;
+        if (c->valid && fabs(c->dt - dt) <= window && c->theta1 == s->theta1 && c->theta2 == s->theta2) return c;
     }
     return NULL;
 }
@@ -78,8 +79,9 @@ static SS22Status step_matrix(SS22 *s, double dt, const double *alpha, const dou
     reuse = 1;
 #endif
     if (reuse && f != NULL) {
-        /* its kept rate ages with the steps other matrices took since its last use too (a shortened last step's) */
-        f->estimated += (int)fmin((double)(s->clock - f->stamp), 1e6);
+        /* its rate ages by the steps taken with other matrices since its last use, up to a measure's being due */
+        const int held = f->confirmed > f->confirmed_first ? f->confirmed : f->confirmed_first;  /* (fmu_state.c) */
+        f->estimated = (int)fmin((double)f->estimated + (double)(s->clock - f->stamp), SS22_RATE_MEASURE_EVERY << held);
         f->stamp = ++s->clock;
         *out = f;
         return SS22_OK;
@@ -299,8 +301,7 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
                 f->first[kind] = err / previous;
                 f->first_age[kind] = s->steps - f->made;
             }
-            /* (a first increment of zero, or the recurrence's at its noise floor on a matrix that contracts at
-             * the rate floor: the start is the solution, to rounding) */
+            /* (a first increment of zero, or the recurrence's at its noise floor: the start is the solution) */
             if (err <= s->tolerance && bounds_error(s, err, previous, it > 0 && older)
                 && (it > 0 || fresh >= 0 || below_tolerance_ends || err == 0.0 ||
                     (kind && err <= rounding))) {
@@ -308,8 +309,8 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
                  * (Not on a parabola's first increment with an older matrix: what that leaves is not bounded by
                  * its size; docs/integrator.md) */
                 if (it == 2 && older) confirm_rate(f, err / previous, previous, s->tolerance);
-                /* a second increment measures what one-increment stops are accepted on (few reach a third) */
-                if (isfinite(in_force))
+                /* a second increment measures what the recurrence's one-increment stops are accepted on */
+                if (kind && isfinite(in_force))
                     confirm(&f->confirmed_first, err / previous, aged_rate(in_force), previous, s->tolerance);
                 if (it > 0 && fresh < 0 && !noise) record_rate(f, err / previous, 1);
                 converged = 1;

@@ -71,11 +71,11 @@
 
 /* The recurrence start (predictor.c) is formed with a kept matrix once that has been kept for as many steps as
  * forming it costs residuals (the velocity and position Jacobians by differences, N_Q + 1 residuals each, and
- * the inputs' columns by central differences, two residuals each):
+ * the host inputs' columns by central differences, two residuals each; a law's three slots have none):
  * it saves at most about one residual a step, so forming it then costs at most twice what the best choice
  * made with hindsight would (rent-or-buy, as SS22_REFRESH_COST); a matrix refreshed every few steps (a
  * whipping chain) never pays for one. */
-#define SS22_RECURRENCE_COST (2 * (N_Q + 1 + N_U))
+#define SS22_RECURRENCE_COST (2 * (N_Q + 1 + N_U - 3 * N_LAWS))
 /* The relative step of the central differences that give its input columns B (predictor.c, input_columns). */
 #define SS22_INPUT_DIFFERENCE 1e-6
 /* It is formed again, with a newer kept matrix, once its misses (the running mean of their logarithms over about

@@ -129,7 +129,7 @@ static void run_model(int steps, int *mismatches, int *parabola_steps, int *beyo
  * the largest miss of its prediction before feedback (raw), of its start (fed), of the line (line), each
  * relative to the largest acceleration; steps beyond their tolerance (against full Newton); whether it was
  * formed at all, and the steps it predicted. */
-typedef struct { double raw, fed, line; int beyond, formed, predicted; } RecurrenceRun;
+typedef struct { double raw, fed, line; int beyond, formed, predicted; long iterations; } RecurrenceRun;
 
 static RecurrenceRun run_recurrence(double k, double k3, double tolerance, int steps, int moving) {
     static SS22 s;
@@ -155,11 +155,13 @@ static RecurrenceRun run_recurrence(double k, double k3, double tolerance, int s
         for (int i = 0; i < N_Q; i++) line[i] = 2.0 * s.alpha_last[i] - s.alpha_before[i];
         memcpy(exact, alpha, sizeof(exact));
         step_solution(&s, dt, q, v, u0, u1, exact);
+        const uint64_t iterations = s.newton_iterations;
         if (ss22_step(&s, dt, q, v, alpha, u0, u1, P, &work) != SS22_OK) { out.beyond++; break; }
         for (int i = 0; i < N_Q; i++) {
             if (fabs(alpha[i] - exact[i]) * dt / MODEL_NOMINAL_Q[i] > s.tolerance) { out.beyond++; break; }
         }
         if (!started) continue;
+        out.iterations += (long)(s.newton_iterations - iterations);
         for (int i = 0; i < N_Q; i++) scale = fmax(scale, fabs(alpha[i]));
         for (int i = 0; i < N_Q; i++) {
             out.raw = fmax(out.raw, fabs(alpha[i] - probe.rec.raw[i]) / scale);
@@ -270,6 +272,8 @@ int main(void) {
           driven.predicted);
     check(driven.raw <= 1e-9 * driven.line, "moving inputs: the recurrence is exact", driven.raw / driven.line);
     check(driven.beyond == 0, "moving inputs: every step within its tolerance", driven.beyond);
+    check(driven.iterations == driven.predicted, "moving inputs: the steps it starts take one residual",
+          (double)driven.iterations / driven.predicted);
     /* an unresolved stiff mode (k = 1e8: w dt = 10): the line misses by the mode's whole swing, the recurrence
      * follows it to rounding */
     RecurrenceRun stiff = run_recurrence(1e8, 0.0, 1e-10, 600, 0);
@@ -330,9 +334,14 @@ int main(void) {
           fabs(h - 1e-4) / 1e-4);
     first->rate = 1e-4;
     first->estimated = 0;
+    first->confirmed = 1;                          /* measured again after 8 steps */
     for (int k = 0; k < 5; k++) step_matrix(&c, 1e-4 / 3.0, alpha0, P, &cache_work, 1, &short_step);
     step_matrix(&c, 1e-4, alpha0, P, &cache_work, 1, &again);
     check(short_step != first && again == first && first->estimated == 5,
           "a matrix's kept rate ages with the steps taken with others", first->estimated);
+    for (int k = 0; k < 50; k++) step_matrix(&c, 1e-4 / 3.0, alpha0, P, &cache_work, 1, &short_step);
+    step_matrix(&c, 1e-4, alpha0, P, &cache_work, 1, &again);
+    check(first->estimated == measure_interval_of(first, 1), "... up to a measure's being due (an FMU state's bound)",
+          first->estimated);
     return failures != 0;
 }
