@@ -91,12 +91,16 @@ static int law_slot(int k) {
     return 0;
 }
 
+/* The second difference of weighted input k over this step and the last two (u_depth >= 2). */
+static double input_bend(const SS22 *s, int k) {
+    return s->u_bar[k] - 2.0 * s->rec.u_last[k] + s->rec.u_before[k];
+}
+
 int ss22_recurrence_applies(const SS22 *s, double dt, const double *alpha) {
     const SS22Recurrence *r = &s->rec;
     if (s->depth < 2 || r->u_depth < 2 || memcmp(alpha, s->alpha_last, sizeof(double) * N_Q) != 0) return 0;
     if (!same_step(s->dt_last, dt) || !same_step(s->dt_before, dt)) return 0;
-    for (int k = 0; k < N_U; k++)       /* a law's slots: held (its U term is not formed, below) */
-        if (law_slot(k) && s->u_bar[k] - 2.0 * r->u_last[k] + r->u_before[k] != 0.0) return 0;
+    for (int k = 0; k < N_U; k++) if (law_slot(k) && input_bend(s, k) != 0.0) return 0;   /* (no U column, below) */
     return 1;
 }
 
@@ -198,7 +202,7 @@ int ss22_recurrence_predict(SS22 *s, double dt, const double *alpha, double *a) 
         for (int i = 0; i < N_Q; i++) r->raw[i] -= Pj[i] * dj + Gj[i] * bj;
     }
     for (int k = 0; k < N_U; k++) {                     /* - U (u+ - 2u + u-): nothing for held inputs */
-        const double d2u = s->u_bar[k] - 2.0 * r->u_last[k] + r->u_before[k];
+        const double d2u = input_bend(s, k);
         const double *Uk = r->U + (size_t)k * N_Q;
         if (d2u != 0.0) for (int i = 0; i < N_Q; i++) r->raw[i] -= Uk[i] * d2u;
     }
@@ -212,11 +216,10 @@ int ss22_recurrence_predict(SS22 *s, double dt, const double *alpha, double *a) 
     return 2;
 }
 
-/* Whether the weighted inputs bent at this step (their second difference is not zero): a host's new input at a
- * communication point, in the two steps that follow it, or a moving law */
+/* Whether the weighted inputs bent at this step: a host's new input at a communication point, in the two steps
+ * that follow it */
 static int inputs_bent(const SS22 *s) {
-    const SS22Recurrence *r = &s->rec;
-    for (int k = 0; k < N_U; k++) if (s->u_bar[k] - 2.0 * r->u_last[k] + r->u_before[k] != 0.0) return 1;
+    for (int k = 0; k < N_U; k++) if (input_bend(s, k) != 0.0) return 1;
     return 0;
 }
 

@@ -14,8 +14,8 @@ int ss22_predict(const SS22 *s, double dt, const double *alpha, double *a, doubl
 void ss22_choose_predictor(SS22 *s, const double *a, const double *start, const double *other);
 
 /* Whether the recurrence can predict the next step of dt from alpha: two consecutive steps of the same size
- * behind it, and their weighted inputs (the inputs' term, U times their second difference, follows a host's
- * input that changes at every communication point and a built-in law that moves). */
+ * behind it, their weighted inputs, and no built-in law moving over the three (the inputs' term, U times their
+ * second difference, follows a host's input that changes at every communication point; a law has no column). */
 int ss22_recurrence_applies(const SS22 *s, double dt, const double *alpha);
 
 /* Whether to form the recurrence's matrices now with the kept matrix f of the step dt: once f has been kept for

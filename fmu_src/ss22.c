@@ -68,6 +68,15 @@ static SS22Factor *cached_factor(SS22 *s, double dt) {
     return NULL;
 }
 
+/* Steps accepted on f's kept rate before one more iteration measures it again: SS22_RATE_MEASURE_EVERY, doubled
+ * for each measure in a row that found the rate held (ss22.h).  For a one-increment stop (first) also the
+ * measures of the first ratio that held (confirmed_first) count; they never lengthen the interval of the
+ * two-increment stops, which only a third increment measures. */
+static int measure_interval_of(const SS22Factor *f, int first) {
+    const int held = first && f->confirmed_first > f->confirmed ? f->confirmed_first : f->confirmed;
+    return SS22_RATE_MEASURE_EVERY << held;
+}
+
 /* The factorised step matrix for (dt, theta): from the cache when the model's Newton matrix is
  * constant or when simplified Newton reuses the latest one (reuse), else evaluated at the current
  * iterate into the entry of this step size (or the least recently used one). */
@@ -79,9 +88,9 @@ static SS22Status step_matrix(SS22 *s, double dt, const double *alpha, const dou
     reuse = 1;
 #endif
     if (reuse && f != NULL) {
-        /* its rate ages by the steps taken with other matrices since its last use, up to a measure's being due */
-        const int held = f->confirmed > f->confirmed_first ? f->confirmed : f->confirmed_first;  /* (fmu_state.c) */
-        f->estimated = (int)fmin((double)f->estimated + (double)(s->clock - f->stamp), SS22_RATE_MEASURE_EVERY << held);
+        /* its rate ages by the steps taken with other matrices since its last use, up to a measure's being due
+         * (the longest interval: what an FMU state may hold, fmu_state.c) */
+        f->estimated = (int)fmin((double)f->estimated + (double)(s->clock - f->stamp), measure_interval_of(f, 1));
         f->stamp = ++s->clock;
         *out = f;
         return SS22_OK;
@@ -178,15 +187,6 @@ static int bounds_error(const SS22 *s, double err, double previous, int judged) 
     if (!judged || previous <= s->tolerance / SS22_ROUNDING_FACTOR) return 1;
     const double rate = aged_rate(err / previous);
     return rate < 1.0 && rate / (1.0 - rate) * err <= s->tolerance;
-}
-
-/* Steps accepted on f's kept rate before one more iteration measures it again: SS22_RATE_MEASURE_EVERY, doubled
- * for each measure in a row that found the rate held (ss22.h).  For a one-increment stop (first) also the
- * measures of the first ratio that held (confirmed_first) count; they never lengthen the interval of the
- * two-increment stops, which only a third increment measures. */
-static int measure_interval_of(const SS22Factor *f, int first) {
-    const int held = first && f->confirmed_first > f->confirmed ? f->confirmed_first : f->confirmed;
-    return SS22_RATE_MEASURE_EVERY << held;
 }
 
 /* What one increment with f leaves of this step's error, per unit of that increment: its last first ratio of

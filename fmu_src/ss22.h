@@ -149,7 +149,8 @@ typedef struct {
                                                     the line's or parabola's start */
     double P[N_Q * N_Q], G[N_Q * N_Q];           /* J^-1 (dt C + (1/2 + theta1) dt^2 K) and J^-1 dt^2 K,
                                                     column-major */
-    double U[N_Q * (N_U > 0 ? N_U : 1)];         /* J^-1 B, column-major: a host's or a law's input that moves */
+    double U[N_Q * (N_U > 0 ? N_U : 1)];         /* J^-1 B, column-major: a host's input that moves (a law's
+                                                    columns are zero) */
 } SS22Recurrence;
 
 typedef struct {
