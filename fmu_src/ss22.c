@@ -104,19 +104,14 @@ static SS22Status step_matrix(SS22 *s, double dt, const double *alpha, const dou
         return SS22_MODEL_FAILED;
     }
     s->factorisations++;
-    f->rate = -1.0;
-    f->estimated = 0;
-    f->confirmed = 0;
-    f->confirmed_first = 0;
-    f->waste = 0.0;
-    f->made = s->steps;
-    f->first[0] = f->first[1] = -1.0;
+    f->rate = -1.0; f->waste = 0.0;
+    f->estimated = f->confirmed = f->confirmed_first = 0;
+    f->made = s->steps; f->first[0] = f->first[1] = -1.0;
     f->first_age[0] = f->first_age[1] = 0;
     if (!all_finite(f->LU, N_Q * N_Q)) { f->valid = 0; return SS22_NOT_FINITE; }
     if (lu_factor(f->LU, N_Q, f->piv)) { f->valid = 0; return SS22_SINGULAR; }
     f->dt = dt; f->theta1 = s->theta1; f->theta2 = s->theta2;
-    f->valid = 1;
-    f->stamp = ++s->clock;
+    f->valid = 1; f->stamp = ++s->clock;
     *out = f;
     return SS22_OK;
 }
@@ -263,10 +258,9 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
         const int below_tolerance_ends = !(predicted == 2 && s->parabola) && recurrence != 2;
         const int kind = recurrence == 2;       /* which start's first ratios judge a one-increment stop */
         const double rounding = kind ? ss22_recurrence_floor(s, dt, a) : 0.0;   /* its first increment's noise floor */
-        int converged = 0;
+        int converged = 0, far = 0;    /* far: the start was more than SS22_FAR_START tolerances off (ss22.h) */
         int fresh = -1;          /* increments made with a matrix evaluated in this step; -1: an older one */
-        double previous = INFINITY;
-        double ratio_before = -1.0;  /* the last ratio of two increments with f in this step (-1: none yet) */
+        double previous = INFINITY, ratio_before = -1.0;  /* ratio_before: last ratio with f here, -1 none */
         int with_f = 0;          /* iterations made with the current matrix f */
         for (int it = 0; it < s->max_iterations; it++) {
             weighted_state(s, dt, q, v, a);
@@ -293,6 +287,9 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             if (fresh >= 0) fresh++;
             if (!isfinite(err)) return SS22_NOT_FINITE;
             const int older = f->made != s->steps;   /* a matrix from an earlier step */
+            if (it == 0) far = err > SS22_FAR_START * s->tolerance;
+            /* after a far start (ss22.h) such a matrix's ratios end the step only on an increment within this */
+            const double within = far && older ? s->tolerance : INFINITY;
             /* a ratio to the recurrence's first increment at its noise floor is noise (on a linear model) */
             const int noise = it == 1 && kind && previous <= rounding;
             double in_force = INFINITY;    /* the rate this step's one-increment stop would have used */
@@ -302,9 +299,9 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
                 f->first_age[kind] = s->steps - f->made;
             }
             /* (a first increment of zero, or the recurrence's at its noise floor: the start is the solution) */
-            if (err <= s->tolerance && bounds_error(s, err, previous, it > 0 && older)
-                && (it > 0 || fresh >= 0 || below_tolerance_ends || err == 0.0 ||
-                    (kind && err <= rounding))) {
+            if (err <= s->tolerance && SS22_DIRECTION_MARGIN * err <= within &&
+                bounds_error(s, err, previous, it > 0 && older) &&
+                (it > 0 || fresh >= 0 || below_tolerance_ends || err == 0.0 || (kind && err <= rounding))) {
                 /* a ratio to an increment below the tolerance, perhaps at the rounding floor: it only raises.
                  * (Not on a parabola's first increment with an older matrix: what that leaves is not bounded by
                  * its size; docs/integrator.md) */
@@ -316,7 +313,8 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
                 converged = 1;
                 break;
             }
-            if (it <= 1 && fresh < 0 && f->rate >= 0.0 && f->estimated < measure_interval_of(f, it == 0 && kind)) {
+            if (it <= 1 && fresh < 0 && err <= within && f->rate >= 0.0 &&
+                f->estimated < measure_interval_of(f, it == 0 && kind)) {
                 /* an earlier step's matrix and its last measured rate: what is left is about
                  * rate/(1-rate) times this increment, the first or the second (ss22.h,
                  * SS22_RATE_MEASURE_EVERY); the second's ratio to the first still raises the kept rate */
@@ -331,8 +329,7 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             }
             if (it == 0 || fresh == 1) {
                 /* no rate yet, or a new matrix's first increment: a ratio to the old matrix's says nothing */
-                previous = err;
-                ratio_before = -1.0;
+                previous = err, ratio_before = -1.0;
                 continue;
             }
             const double rate = err / previous, second = previous;
@@ -350,7 +347,10 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             const double kept = fresh < 0 ? record_rate(f, rate, first) : rate;
             const double judged = first ? INFINITY : aged_rate(fmax(kept, rising));
             /* linear convergence at rate < 1: what is left is about rate/(1-rate) times this increment */
-            if (judged < 0.5 && judged / (1.0 - judged) * err <= s->tolerance) { converged = 1; break; }
+            if (err <= within && judged < 0.5 && judged / (1.0 - judged) * err <= s->tolerance) {
+                converged = 1;
+                break;
+            }
             /* at this rate an older matrix cannot reach the tolerance within the iterations left */
             const int too_slow = fresh < 0 && err * pow(rate, s->max_iterations - 1 - it) > s->tolerance;
             /* an old matrix whose extra iterations have paid for a new one (ss22.h, SS22_REFRESH_COST) */

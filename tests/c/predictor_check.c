@@ -176,6 +176,31 @@ static RecurrenceRun run_recurrence(double k, double k3, double tolerance, int s
     return out;
 }
 
+/* A start far off (1e5 tolerances in q1) with a kept matrix whose q0 entry is 2.5 times J's: it contracts q0's
+ * error only by 0.6 an iteration, and q0 holds 2e-4 of the start's error (20 tolerances), the share the six-axis
+ * arm under a PD at 0.5 ms hid in such a direction.  The second increment (4.8 tolerances) is then 5e-5 of the
+ * first, a ratio that says nothing of q0's rate.  Returns the step's error in tolerances against full Newton. */
+static double far_start_error(void) {
+    static SS22 s;
+    static ModelWork work;
+    const double dt = 1e-3;
+    double q[N_Q] = {0.03, 0.05}, v[N_Q] = {0.0}, alpha[N_Q] = {0.0}, u[N_U] = {0.4}, exact[N_Q], start[N_Q];
+    double e = 0.0;
+    ss22_init(&s, 0.5, 0.5, 1e-10);
+    for (int n = 0; n < 12; n++)                    /* a kept matrix whose rate is measured */
+        if (ss22_step(&s, dt, q, v, alpha, u, u, P, &work) != SS22_OK) return INFINITY;
+    SS22Factor *f = cached_factor(&s, dt);
+    if (f == NULL || f->rate < 0.0 || f->made == s.steps) return INFINITY;
+    f->LU[0] *= 2.5;                                /* diagonal J: its LU is J itself */
+    memcpy(exact, alpha, sizeof(exact));
+    step_solution(&s, dt, q, v, u, u, exact);
+    start[0] = exact[0] + 20.0 * s.tolerance * MODEL_NOMINAL_Q[0] / dt;
+    start[1] = exact[1] + 1e5 * s.tolerance * MODEL_NOMINAL_Q[1] / dt;
+    if (ss22_step_from(&s, dt, q, v, alpha, start, u, u, P, &work) != SS22_OK) return INFINITY;
+    for (int i = 0; i < N_Q; i++) e = fmax(e, fabs(alpha[i] - exact[i]) * dt / MODEL_NOMINAL_Q[i] / s.tolerance);
+    return e;
+}
+
 int main(void) {
     static SS22 s;
     double a[N_Q], other[N_Q];
@@ -343,5 +368,9 @@ int main(void) {
     step_matrix(&c, 1e-4, alpha0, P, &cache_work, 1, &again);
     check(first->estimated == measure_interval_of(first, 1), "... up to a measure's being due (an FMU state's bound)",
           first->estimated);
+
+    /* 8. a start far off: a rate measured on increments far above the tolerance ends no step (ss22.h) */
+    const double far_error = far_start_error();
+    check(far_error <= 1.0, "a start 1e5 tolerances off, 2e-4 of it where the matrix contracts slowly", far_error);
     return failures != 0;
 }
