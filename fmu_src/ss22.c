@@ -288,8 +288,8 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             if (!isfinite(err)) return SS22_NOT_FINITE;
             const int older = f->made != s->steps;   /* a matrix from an earlier step */
             if (it == 0) far = err > SS22_FAR_START * s->tolerance;
-            /* after a far start (ss22.h) such a matrix's ratios end the step only on an increment within this */
-            const double within = far && older ? s->tolerance : INFINITY;
+            /* after a far start (ss22.h) such a matrix ends the step only on an increment within this */
+            const double within = far && older ? s->tolerance / SS22_DIRECTION_MARGIN : INFINITY;
             /* a ratio to the recurrence's first increment at its noise floor is noise (on a linear model) */
             const int noise = it == 1 && kind && previous <= rounding;
             double in_force = INFINITY;    /* the rate this step's one-increment stop would have used */
@@ -299,7 +299,7 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
                 f->first_age[kind] = s->steps - f->made;
             }
             /* (a first increment of zero, or the recurrence's at its noise floor: the start is the solution) */
-            if (err <= s->tolerance && SS22_DIRECTION_MARGIN * err <= within &&
+            if (err <= s->tolerance && err <= within &&
                 bounds_error(s, err, previous, it > 0 && older) &&
                 (it > 0 || fresh >= 0 || below_tolerance_ends || err == 0.0 || (kind && err <= rounding))) {
                 /* a ratio to an increment below the tolerance, perhaps at the rounding floor: it only raises.
@@ -351,8 +351,8 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
                 converged = 1;
                 break;
             }
-            /* at this rate an older matrix cannot reach the tolerance within the iterations left */
-            const int too_slow = fresh < 0 && err * pow(rate, s->max_iterations - 1 - it) > s->tolerance;
+            /* at this rate an older matrix cannot reach the tolerance (or within) in the iterations left */
+            const int too_slow = fresh < 0 && err * pow(rate, s->max_iterations - 1 - it) > fmin(s->tolerance, within);
             /* an old matrix whose extra iterations have paid for a new one (ss22.h, SS22_REFRESH_COST) */
             const int stale = fresh < 0 && f->waste >= SS22_REFRESH_COST;
             /* below the tolerance, not bounding the error: increments (cheaper than a matrix) while within reach */

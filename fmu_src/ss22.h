@@ -46,18 +46,20 @@
  * --every 25, its M part): 2 is what those steps needed, not a bound.  At other tolerances 2 was not enough even with
  * ss22.c's bounds_error (the arm at 1e-9: 5 of 8000 beyond, at 1e-8: 383; with 3 none; docs/integrator.md). */
 #define SS22_DIRECTION_MARGIN 3.0
-/* A matrix from an earlier step ends a step whose first increment was more than SS22_FAR_START tolerances
- * (a start far off) only on an increment within the tolerance, whatever its ratios say, and on one whose own
- * ratio bounds what is left (ss22.c, bounds_error) only within 1/SS22_DIRECTION_MARGIN of it.  Ratios measured on increments far above the tolerance describe the directions that hold most of the
- * start's error; a direction the old matrix contracts slowly can hold a small share of it that shows only once
- * the increments fall to its size.  six_axis_arm_torque under a PD at every 0.5 ms step (unresolved modes, a
- * start 1e5-1e8 tolerances off after each torque): 7e-7 to 2e-4 of the first increment stayed in such
- * directions; a step ended on ratios of 3.1e-4 and 2.9e-3 had 63 tolerances left (163 of 2000 steps beyond; 0
- * with this rule, benchmarks/step_audit.py --pd; tests/c/predictor_check.c builds such a direction).  Starts
- * this far are common: planar_chain_5 at its recommended step under a PD every 1 ms (84 % of its steps) had 28
- * of 2414 steps beyond (worst 6.73; none now, at 2.34 -> 2.80 iterations a step); at the recommended step under
- * the bench manoeuvre (a third of planar_chain_3's steps) the rule saves iterations, refreshing a matrix that
- * contracts slowly sooner (docs/integrator.md, "A start far off"). */
+/* A matrix from an earlier step ends a step whose first increment was more than SS22_FAR_START tolerances off
+ * (a start far off) only on an increment within 1/SS22_DIRECTION_MARGIN of the tolerance, whatever its ratios
+ * say (and is refreshed when it cannot reach that in the iterations left).  Ratios measured on increments far
+ * above the tolerance describe the directions that hold most of the start's error; a direction the old matrix
+ * contracts slowly can hold a small share of it that shows only once the increments fall to its size.  A
+ * margin, not a bound: in tests/c/predictor_check.c's setting a direction at rate 0.8-0.98 that holds 2-5
+ * tolerances of a start 1e5 off still ends 1.3-4.8 tolerances off.  six_axis_arm_torque under a PD at every 0.5 ms step
+ * (unresolved modes, a start 1e5-1e8 tolerances off after each torque): 7e-7 to 2e-4 of the first increment
+ * stayed in such directions; a step ended on ratios of 3.1e-4 and 2.9e-3 had 63 tolerances left (163 of 2000
+ * steps beyond; 0 with this rule, the worst 0.38, benchmarks/step_audit.py --pd; tests/c/predictor_check.c
+ * builds such directions).  Starts this far are common: planar_chain_5 at its recommended step under a PD every
+ * 1 ms (84 % of its steps) had 28 of 2414 steps beyond (worst 6.73; none now, at 2.34 -> 2.92 iterations); at the
+ * recommended step under the bench manoeuvre (a third of planar_chain_3's steps) the rule saves iterations,
+ * refreshing a matrix that contracts slowly sooner (docs/integrator.md, "A start far off"). */
 #define SS22_FAR_START 1e3
 #define SS22_RATE_FLOOR 1e-3
 /* The kept contraction rate of a matrix falls by at most this factor per measured ratio of increments (ss22.c,
