@@ -110,8 +110,7 @@ static SS22Status step_matrix(SS22 *s, double dt, const double *alpha, const dou
     f->first_age[0] = f->first_age[1] = 0;
     if (!all_finite(f->LU, N_Q * N_Q)) { f->valid = 0; return SS22_NOT_FINITE; }
     if (lu_factor(f->LU, N_Q, f->piv)) { f->valid = 0; return SS22_SINGULAR; }
-    f->dt = dt; f->theta1 = s->theta1; f->theta2 = s->theta2;
-    f->valid = 1; f->stamp = ++s->clock;
+    f->dt = dt; f->theta1 = s->theta1; f->theta2 = s->theta2; f->valid = 1; f->stamp = ++s->clock;
     *out = f;
     return SS22_OK;
 }
@@ -258,7 +257,7 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
         const int below_tolerance_ends = !(predicted == 2 && s->parabola) && recurrence != 2;
         const int kind = recurrence == 2;       /* which start's first ratios judge a one-increment stop */
         const double rounding = kind ? ss22_recurrence_floor(s, dt, a) : 0.0;   /* its first increment's noise floor */
-        int converged = 0, far = 0;    /* far: the start was more than SS22_FAR_START tolerances off (ss22.h) */
+        int converged = 0, far = 0;    /* far: the start more than SS22_FAR_START tolerances off (ss22.h) */
         int fresh = -1;          /* increments made with a matrix evaluated in this step; -1: an older one */
         double previous = INFINITY, ratio_before = -1.0;  /* ratio_before: last ratio with f here, -1 none */
         int with_f = 0;          /* iterations made with the current matrix f */
@@ -351,8 +350,9 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
                 converged = 1;
                 break;
             }
-            /* at this rate an older matrix cannot reach the tolerance (or within) in the iterations left */
-            const int too_slow = fresh < 0 && err * pow(rate, s->max_iterations - 1 - it) > fmin(s->tolerance, within);
+            /* an older matrix that at this rate cannot reach the tolerance (or within) in time, or in its last three */
+            const int too_slow = fresh < 0 && (it + 3 >= s->max_iterations ||
+                                 err * pow(rate, s->max_iterations - 1 - it) > fmin(s->tolerance, within));
             /* an old matrix whose extra iterations have paid for a new one (ss22.h, SS22_REFRESH_COST) */
             const int stale = fresh < 0 && f->waste >= SS22_REFRESH_COST;
             /* below the tolerance, not bounding the error: increments (cheaper than a matrix) while within reach */

@@ -387,5 +387,10 @@ int main(void) {
     int failed = 0;
     for (double far = 1.3e6; far <= 6.6e6; far *= 1.1) failed += !(far_start_error(1.9, 1.9, far, far) <= 1.0);
     check(failed == 0, "far start, every direction slow: a new matrix in time", failed);
+    /* rates 0.32 and 0.52 (q0 holds 3e-4 of a start 5.7e8 off): the ratio rises to q0's only in the last
+     * iterations, after the projection on the step's ratio had said the target was within reach (the review's
+     * case: the 20th iteration ended a third of a tolerance short) */
+    far_error = far_start_error(1.0 / (1.0 - 0.52), 1.0 / (1.0 - 0.32), 1.8e5, 5.7e8);
+    check(far_error <= 1.0, "far start, a ratio rising at the end: a new matrix for the last iterations", far_error);
     return failures != 0;
 }
