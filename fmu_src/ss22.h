@@ -52,14 +52,14 @@
  * above the tolerance describe the directions that hold most of the start's error; a direction the old matrix
  * contracts slowly can hold a small share of it that shows only once the increments fall to its size.  A
  * margin, not a bound: in tests/c/predictor_check.c's setting a direction at rate 0.8-0.98 that holds 2-5
- * tolerances of a start 1e5 off still ends 1.3-4.8 tolerances off.  six_axis_arm_torque under a PD at every 0.5 ms step
- * (unresolved modes, a start 1e5-1e8 tolerances off after each torque): 7e-7 to 2e-4 of the first increment
- * stayed in such directions; a step ended on ratios of 3.1e-4 and 2.9e-3 had 63 tolerances left (163 of 2000
- * steps beyond; 0 with this rule, the worst 0.38, benchmarks/step_audit.py --pd; tests/c/predictor_check.c
- * builds such directions).  Starts this far are common: planar_chain_5 at its recommended step under a PD every
- * 1 ms (84 % of its steps) had 28 of 2414 steps beyond (worst 6.73; none now, at 2.34 -> 2.92 iterations); at the
- * recommended step under the bench manoeuvre (a third of planar_chain_3's steps) the rule saves iterations,
- * refreshing a matrix that contracts slowly sooner (docs/integrator.md, "A start far off"). */
+ * tolerances of a start 1e5 off still ends 1.3-4.8 tolerances off.  six_axis_arm_torque under a PD at every
+ * 0.5 ms step (unresolved modes, a start 1e5-1e8 tolerances off after each torque): 7e-7 to 2e-4 of the first
+ * increment stayed in such directions; a step ended on ratios of 3.1e-4 and 2.9e-3 had 63 tolerances left (163
+ * of 2000 steps beyond; 0 with this rule, the worst 0.38, benchmarks/step_audit.py --pd).  Starts this far are
+ * common: planar_chain_5 at its recommended step under a PD every 1 ms (84 % of its steps) had 28 of 2414 steps
+ * beyond (worst 6.73; none now, at 2.34 -> 2.92 iterations); at the recommended step under the bench manoeuvre
+ * (a third of planar_chain_3's steps) the rule saves iterations, refreshing a matrix that contracts slowly
+ * sooner (docs/integrator.md, "A start far off"). */
 #define SS22_FAR_START 1e3
 #define SS22_RATE_FLOOR 1e-3
 /* The kept contraction rate of a matrix falls by at most this factor per measured ratio of increments (ss22.c,

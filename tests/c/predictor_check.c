@@ -374,7 +374,7 @@ int main(void) {
 
     /* 8. a start far off: a rate measured on increments far above the tolerance ends no step (ss22.h).  Each
      * case left the step beyond its tolerance without one part of the rule: the one-increment stop on the kept
-     * rate (7.2 tolerances left), the stop on the step's own ratios at 2.9e-4 then 1.2e-3 (2.2), an increment
+     * rate (7.2 tolerances left), the stop on the step's own ratios at 2.9e-4 then 1.2e-3 (21.6), an increment
      * within the tolerance on its ratio 0.009 to the last (1.35) */
     double far_error = far_start_error(2.5, 1.0, 20.0, 1e5);
     check(far_error <= 1.0, "far start, 2e-4 of it at rate 0.6: not on the kept rate", far_error);
