@@ -6,7 +6,8 @@
 For each scene (default: the four examples of ``benchmarks/newton_tolerance.py`` that iterate), the FMU's
 sources (``sources/``, the generated model and the generic ``fmu_src``) are compiled twice with
 ``benchmarks/step_floor.c``: as they are, and with ``fmu_src/ss22.c``, ``ss22.h``, ``predictor.c``,
-``predictor.h``, ``fmu_state.c`` and ``cs_step.c`` taken from git revision REV (a file REV does not have
+``predictor.h``, ``fmu_state.c``, ``cs_step.c``, ``cosimulation.h`` and ``instance.c`` (the FMU's state, with
+order 4's starts) taken from git revision REV (a file REV does not have
 compiles to nothing).  Both run the scene's bench manoeuvre
 (``flexlink.tools.bench.default_case``, 2 s) at the scene's step (with ``--order 4``: the order-4 option at the
 step where ω_max Δt = ``--omega-step``, ω_max the highest natural frequency at the start), alternately for
@@ -34,7 +35,7 @@ sys.path.insert(0, str(HERE))
 
 import step_floor  # noqa: E402
 
-SWAPPED = ("ss22.c", "ss22.h", "predictor.c", "predictor.h", "fmu_state.c", "cs_step.c")
+SWAPPED = ("ss22.c", "ss22.h", "predictor.c", "predictor.h", "fmu_state.c", "cs_step.c", "cosimulation.h", "instance.c")
 DEFAULT = ["fast_two_link.toml", "planar_chain_5.toml", "six_axis_arm.toml", "rotating_link.toml"]
 
 

@@ -73,6 +73,21 @@ typedef struct {
     int piv[N_Q];
 } KeptMass;
 
+/* The order-4 option's Newton starts (cs_step.c, richardson_step).  Each internal step is one SS22 step of dt
+ * (started from the line through the last two half steps' accelerations) and two of dt/2 (started from the full
+ * step's).  Those bases miss in the same direction from one internal step to the next: the half steps' mean
+ * differs from the full step's by what the extrapolation corrects, and the line by the motion's curvature, both
+ * smooth while every mode is resolved (w_max dt <= 0.3).  So each of the three starts may add its own last miss,
+ * where a running vote says that missed less than the base alone (docs/integrator.md, "Order 4's starts"). */
+typedef struct {
+    int valid;                        /* misses of the internal step of dt that ended at SS22 step `steps` */
+    double dt;
+    uint64_t steps;
+    double alpha_half[N_Q];           /* the first half step's acceleration: the full step's line starts there */
+    double miss[3][N_Q];              /* accepted acceleration minus base: full step, first half, second half */
+    double bias[3];                   /* running mean of +1 (the base missed less) and -1 (base + miss did)    */
+} RichardsonStarts;
+
 /* Everything numeric: an FMU state is a copy of this struct. */
 typedef struct {
     int phase;                        /* Phase                                                  */
@@ -100,6 +115,7 @@ typedef struct {
     double y[FMU_SZ(N_Y)];                /* outputs at time                                         */
     double law_time[FMU_SZ(N_LAWS)];      /* host-driven law k: time at which u[offset..+2] hold      */
     SS22 ss22;                        /* integrator, with its factorisations and counters        */
+    RichardsonStarts richardson;      /* order 4's starts (cs_step.c)                             */
     KeptMass mass;                    /* consistent acceleration's kept factorisation (consistent.c) */
     uint64_t mass_refreshes, mass_iterations;   /* its counters: mass matrices evaluated, residuals iterated */
 } FmuData;

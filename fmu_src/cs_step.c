@@ -22,41 +22,88 @@ static SS22Status ss22_from(Instance *inst, double t0, double t1, const double *
                           &inst->work);
 }
 
-/* One internal step [t0, t1]; if SS22 fails, again as 2, 4, ... SUBSTEP_MAX sub-steps. */
+/* 0 starts order 4's steps from their bases alone (tests/test_richardson.py measures what the misses save). */
+#ifndef RICHARDSON_FEEDBACK
+#define RICHARDSON_FEEDBACK 1
+#endif
+
+/* Order 4's starts (cosimulation.h, RichardsonStarts): whether the misses kept are those of the internal step
+ * just before this one, of the same size, on the acceleration SS22 left (no step, reset or restart between). */
+static int misses_apply(const FmuData *d, double dt) {
+    const RichardsonStarts *r = &d->richardson;
+    return RICHARDSON_FEEDBACK && r->valid && r->steps == d->ss22.steps && fabs(r->dt - dt) <= 1e-9 * dt && d->ss22.depth > 0 &&
+           memcmp(d->alpha, d->ss22.alpha_last, sizeof(d->alpha)) == 0;
+}
+
+/* Step k's start: its base, plus its last miss where the vote favours that. */
+static void fed_back(const RichardsonStarts *r, int k, int apply, const double *base, double *start) {
+    const int add = apply && r->bias[k] < 0.0;
+    for (int i = 0; i < N_Q; i++) start[i] = base[i] + (add ? r->miss[k][i] : 0.0);
+}
+
+/* After step k accepted a: the vote between base and base + miss (when the miss was the last step's), and the
+ * new miss.  Misses in the Newton increments' measure (ss22.c: |delta| dt / nominal). */
+static void record_miss(RichardsonStarts *r, int k, int apply, const double *base, const double *a) {
+    if (apply) {
+        double alone = 0.0, added = 0.0;
+        for (int i = 0; i < N_Q; i++) {
+            alone = fmax(alone, fabs(a[i] - base[i]) / MODEL_NOMINAL_Q[i]);
+            added = fmax(added, fabs(a[i] - base[i] - r->miss[k][i]) / MODEL_NOMINAL_Q[i]);
+        }
+        r->bias[k] += ((added < alone ? -1.0 : 1.0) - r->bias[k]) / SS22_PREDICTOR_MEMORY;
+    }
+    for (int i = 0; i < N_Q; i++) r->miss[k][i] = a[i] - base[i];
+}
+
 /* Order 4: the symmetric SS22 (Θ = ½) has an error expansion in even powers of Δt, so one step of Δt and
- * two of Δt/2 combine into q = q_half + (q_half − q_full)/3, fourth-order accurate (Richardson). */
+ * two of Δt/2 combine into q = q_half + (q_half − q_full)/3, fourth-order accurate (Richardson).  On failure
+ * q, v and alpha are left as they were. */
 static SS22Status richardson_step(Instance *inst, double t0, double t1) {
     FmuData *d = &inst->d;
-    double q0[N_Q], v0[N_Q], a0[N_Q], q1[N_Q], v1[N_Q], a1[N_Q], start[N_Q];
-    SS22Status status;
+    RichardsonStarts *r = &d->richardson;
+    double q0[N_Q], v0[N_Q], a0[N_Q], q1[N_Q], v1[N_Q], a1[N_Q], base[N_Q], start[N_Q];
+    const double dt = t1 - t0, tm = t0 + 0.5 * dt;
+    const int apply = misses_apply(d, dt);
     memcpy(q0, d->q, sizeof(q0));
     memcpy(v0, d->v, sizeof(v0));
     memcpy(a0, d->alpha, sizeof(a0));
-    status = ss22_from(inst, t0, t1, NULL);
+    /* the full step: SS22's line through the last two half steps (centred dt/2 and dt/4 before t0) */
+    for (int i = 0; i < N_Q; i++) base[i] = a0[i] + 1.5 * (a0[i] - r->alpha_half[i]);
+    fed_back(r, 0, apply, base, start);
+    SS22Status status = ss22_from(inst, t0, t1, apply && r->bias[0] < 0.0 ? start : NULL);
     if (status == SS22_OK) {
+        if (apply) record_miss(r, 0, 1, base, d->alpha);
+        else memset(r->miss[0], 0, sizeof(r->miss[0]));
         memcpy(q1, d->q, sizeof(q1));
         memcpy(v1, d->v, sizeof(v1));
         memcpy(a1, d->alpha, sizeof(a1));
         memcpy(d->q, q0, sizeof(q0));
         memcpy(d->v, v0, sizeof(v0));
         memcpy(d->alpha, a0, sizeof(a0));
-        /* the half steps' Newton starts from the full step's acceleration a1 (the mean over [t0, t1]): the
-         * first half's on the line from a0 (the last half step's, centred at t0 - dt/4) to a1 (at t0 + dt/2),
-         * the second half's so that the two halves average to a1 (docs/integrator.md) */
-        for (int i = 0; i < N_Q; i++) start[i] = a0[i] + (2.0 / 3.0) * (a1[i] - a0[i]);
-        const double tm = t0 + 0.5 * (t1 - t0);
+        /* the half steps start from the full step's acceleration a1 (the mean over [t0, t1]): the first half's
+         * on the line from a0 (the last half step's, centred at t0 - dt/4) to a1 (at t0 + dt/2), the second
+         * half's so that the two halves average to a1 (docs/integrator.md) */
+        for (int i = 0; i < N_Q; i++) base[i] = a0[i] + (2.0 / 3.0) * (a1[i] - a0[i]);
+        fed_back(r, 1, apply, base, start);
         status = ss22_from(inst, t0, tm, start);
         if (status == SS22_OK) {
-            for (int i = 0; i < N_Q; i++) start[i] = 2.0 * a1[i] - d->alpha[i];
+            record_miss(r, 1, apply, base, d->alpha);
+            memcpy(r->alpha_half, d->alpha, sizeof(r->alpha_half));
+            for (int i = 0; i < N_Q; i++) base[i] = 2.0 * a1[i] - d->alpha[i];
+            fed_back(r, 2, apply, base, start);
             status = ss22_from(inst, tm, t1, start);
+            if (status == SS22_OK) record_miss(r, 2, apply, base, d->alpha);
         }
     }
+    r->valid = status == SS22_OK;
     if (status != SS22_OK) {
         memcpy(d->q, q0, sizeof(q0));
         memcpy(d->v, v0, sizeof(v0));
         memcpy(d->alpha, a0, sizeof(a0));
         return status;
     }
+    r->dt = dt;
+    r->steps = d->ss22.steps;
     for (int i = 0; i < N_Q; i++) {
         d->q[i] += (d->q[i] - q1[i]) / 3.0;
         d->v[i] += (d->v[i] - v1[i]) / 3.0;
@@ -68,6 +115,7 @@ static SS22Status one_step(Instance *inst, double t0, double t1) {
     return inst->d.solver[SOLVER_ORDER] == 4 ? richardson_step(inst, t0, t1) : ss22_from(inst, t0, t1, NULL);
 }
 
+/* One internal step [t0, t1]; if SS22 fails, again as 2, 4, ... SUBSTEP_MAX sub-steps. */
 static SS22Status internal_step(Instance *inst, double t0, double t1) {
     FmuData *d = &inst->d;
     SS22Status status = one_step(inst, t0, t1);        /* leaves q, v, alpha alone on failure */

@@ -171,6 +171,11 @@ static const char *invalid_data(const FmuData *d) {
         }
     }
     if (invalid_recurrence(&d->ss22)) return "solver recurrence";
+    if ((d->richardson.valid & ~1) || !fmu_all_finite(d->richardson.miss[0], 3 * N_Q) ||
+        !fmu_all_finite(d->richardson.alpha_half, N_Q) || !isfinite(d->richardson.dt) ||
+        !(fabs(d->richardson.bias[0]) <= 1.0 && fabs(d->richardson.bias[1]) <= 1.0 &&
+          fabs(d->richardson.bias[2]) <= 1.0))
+        return "order-4 starts";
     if (d->mass.valid & ~1) return "kept mass matrix";
     for (int i = 0; i < N_Q && d->mass.valid; i++) {
         if (d->mass.piv[i] < i || d->mass.piv[i] >= N_Q) return "kept mass matrix";

@@ -277,6 +277,7 @@ fmi2Status fmu_exit_initialization(Instance *inst) {
     if (static_equilibrium(inst, tolerance) != fmi2OK) return fmi2Error;
 #endif
     ss22_init(&d->ss22, theta1, theta2, tolerance);
+    memset(&d->richardson, 0, sizeof(d->richardson));
     d->omega_max_known = 0;
     memset(d->alpha, 0, sizeof(d->alpha));
     fmu_model_inputs(d, d->time, inst->u1);

@@ -264,6 +264,28 @@ def test_logging_callbacks_of_two_runners_stay_separate(fmus, tmp_path):
 # ------------------------------------------------------------------------------------------------ FMU state
 
 
+def test_order_four_state_carries_its_starts_bit_for_bit(new_slave):
+    """The order-4 option starts each SS22 step from its last miss (fmu_src/cs_step.c, RichardsonStarts in
+    FmuData): a state restored, or deserialised into a second instance, continues to the last bit as the first
+    run did, which it would not if those misses lived outside the state."""
+    plan = Plan(0.01, {"solver.order": 4.0, "solver.step": 1e-3}, _bang_bang)
+    s = new_slave("rotating_link")
+    s.initialize(plan.start)
+    plan.advance(s, 0, 30)
+    saved_t = s.t
+    state = s.fmu.getFMUstate()
+    blob = s.fmu.serializeFMUstate(state)
+    first = plan.advance(s, 30, 60)
+    s.fmu.setFMUstate(state)
+    s.t = saved_t
+    assert np.array_equal(plan.advance(s, 30, 60), first)
+    other = new_slave("rotating_link")
+    other.fmu.setFMUstate(other.fmu.deSerializeFMUstate(blob))
+    other.t = saved_t
+    assert np.array_equal(plan.advance(other, 30, 60), first)
+    s.fmu.freeFMUstate(state)
+
+
 @pytest.mark.parametrize("scene", SCENES)
 def test_fmu_state_get_set_and_serialize_reproduce_bit_for_bit(new_slave, scene):
     plan = PLANS[scene]

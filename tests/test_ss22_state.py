@@ -41,9 +41,9 @@ def layout(tmp_path_factory):
     src, exe = work / "sources", work / "state_offsets"
     subprocess.run([*compiler(), "-std=c99", f"-I{src}", *(str(src / f) for f in files), str(PROBE),
                     "-o", str(exe), "-lm"], check=True, capture_output=True, text=True)
-    valid, estimated, confirmed, confirmed_first, every = (int(x) for x in subprocess.run(
+    valid, estimated, confirmed, confirmed_first, every, bias, miss = (int(x) for x in subprocess.run(
         [str(exe)], check=True, capture_output=True, text=True).stdout.split())
-    return fmu, valid, estimated, confirmed, confirmed_first, every
+    return fmu, valid, estimated, confirmed, confirmed_first, every, bias, miss
 
 
 @pytest.mark.parametrize("confirmed, estimated, accepted", [
@@ -53,7 +53,7 @@ def layout(tmp_path_factory):
     (0, 5, False),        # more steps on the kept rate than its cadence allows
 ])
 def test_a_forged_rate_cadence_is_refused(layout, confirmed, estimated, accepted):
-    fmu, at_valid, at_estimated, at_confirmed, at_confirmed_first, every = layout
+    fmu, at_valid, at_estimated, at_confirmed, at_confirmed_first, every, _, _ = layout
     assert every == 4
     with FmuHost(fmu) as host:
         host.initialize({"hub.tau": 0.5})
@@ -73,3 +73,30 @@ def test_a_forged_rate_cadence_is_refused(layout, confirmed, estimated, accepted
         with pytest.raises(FMICallException):
             host.instance.deSerializeFMUstate(bytes(blob))
         assert "solver cache" in " ".join(host.messages)
+
+
+@pytest.mark.parametrize("field, value, accepted", [
+    ("bias", -1.0, True),           # the vote at its end: restored
+    ("bias", 2.0, False),           # a running mean of +-1 beyond 1
+    ("miss", float("nan"), False),  # a start that would be NaN
+])
+def test_a_forged_order_four_start_is_refused(layout, field, value, accepted):
+    """The order-4 option's starts come back with the state (fmu_src/cosimulation.h, RichardsonStarts): a vote
+    beyond +-1 or a non-finite miss is refused on deserialisation, nothing restored."""
+    fmu, *_, at_bias, at_miss = layout
+    with FmuHost(fmu) as host:
+        host.initialize({"hub.tau": 0.5, "solver.order": 4.0, "solver.step": 1e-3})
+        for k in range(20):
+            host.instance.doStep(k * 1e-3, 1e-3)
+        blob = bytearray(host.instance.serializeFMUstate(host.instance.getFMUstate()))
+        guid = fmpy.read_model_description(str(fmu)).guid
+        at = payload_start(guid) + (at_bias if field == "bias" else at_miss)
+        assert struct.unpack_from("<d", blob, at)[0] != 0.0, "the run voted and missed"
+        struct.pack_into("<d", blob, at, value)
+        reseal(blob, guid)
+        if accepted:
+            host.instance.deSerializeFMUstate(bytes(blob))
+            return
+        with pytest.raises(FMICallException):
+            host.instance.deSerializeFMUstate(bytes(blob))
+        assert "order-4 starts" in " ".join(host.messages)
