@@ -46,6 +46,25 @@ def layout(tmp_path_factory):
     return fmu, valid, estimated, confirmed, confirmed_first, every, bias, miss
 
 
+def _state_after_20_steps(host, fmu) -> tuple[bytearray, str]:
+    """The serialised state after 20 steps of 1 ms, and the FMU's GUID."""
+    for k in range(20):
+        host.instance.doStep(k * 1e-3, 1e-3)
+    blob = bytearray(host.instance.serializeFMUstate(host.instance.getFMUstate()))
+    return blob, fmpy.read_model_description(str(fmu)).guid
+
+
+def _restore_forged(host, blob: bytearray, guid: str, accepted: bool, reason: str) -> None:
+    """Deserialise the forged state with a right checksum: restored, or refused naming ``reason``."""
+    reseal(blob, guid)
+    if accepted:
+        host.instance.deSerializeFMUstate(bytes(blob))
+        return
+    with pytest.raises(FMICallException):
+        host.instance.deSerializeFMUstate(bytes(blob))
+    assert reason in " ".join(host.messages)
+
+
 @pytest.mark.parametrize("confirmed, estimated, accepted", [
     (3, 32, True),        # the largest cadence: restored
     (4, 0, False),        # beyond SS22_RATE_CONFIRMATIONS
@@ -57,22 +76,13 @@ def test_a_forged_rate_cadence_is_refused(layout, confirmed, estimated, accepted
     assert every == 4
     with FmuHost(fmu) as host:
         host.initialize({"hub.tau": 0.5})
-        for k in range(20):
-            host.instance.doStep(k * 1e-3, 1e-3)
-        blob = bytearray(host.instance.serializeFMUstate(host.instance.getFMUstate()))
-        guid = fmpy.read_model_description(str(fmu)).guid
+        blob, guid = _state_after_20_steps(host, fmu)
         header = payload_start(guid)
         assert struct.unpack_from("<i", blob, header + at_valid)[0] == 1, "the first factorisation is kept"
         struct.pack_into("<i", blob, header + at_confirmed, confirmed)
         struct.pack_into("<i", blob, header + at_confirmed_first, 0)   # the one-increment stops' cadence
         struct.pack_into("<i", blob, header + at_estimated, estimated)
-        reseal(blob, guid)
-        if accepted:
-            host.instance.deSerializeFMUstate(bytes(blob))
-            return
-        with pytest.raises(FMICallException):
-            host.instance.deSerializeFMUstate(bytes(blob))
-        assert "solver cache" in " ".join(host.messages)
+        _restore_forged(host, blob, guid, accepted, "solver cache")
 
 
 @pytest.mark.parametrize("field, value, accepted", [
@@ -86,17 +96,8 @@ def test_a_forged_order_four_start_is_refused(layout, field, value, accepted):
     fmu, *_, at_bias, at_miss = layout
     with FmuHost(fmu) as host:
         host.initialize({"hub.tau": 0.5, "solver.order": 4.0, "solver.step": 1e-3})
-        for k in range(20):
-            host.instance.doStep(k * 1e-3, 1e-3)
-        blob = bytearray(host.instance.serializeFMUstate(host.instance.getFMUstate()))
-        guid = fmpy.read_model_description(str(fmu)).guid
+        blob, guid = _state_after_20_steps(host, fmu)
         at = payload_start(guid) + (at_bias if field == "bias" else at_miss)
         assert struct.unpack_from("<d", blob, at)[0] != 0.0, "the run voted and missed"
         struct.pack_into("<d", blob, at, value)
-        reseal(blob, guid)
-        if accepted:
-            host.instance.deSerializeFMUstate(bytes(blob))
-            return
-        with pytest.raises(FMICallException):
-            host.instance.deSerializeFMUstate(bytes(blob))
-        assert "order-4 starts" in " ".join(host.messages)
+        _restore_forged(host, blob, guid, accepted, "order-4 starts")
