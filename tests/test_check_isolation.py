@@ -82,3 +82,40 @@ import json
 from flexlink.tools.check.findings import CheckResult
 print("RESULT " + json.dumps(CheckResult(%r, "-", "-", "done", seconds=0.0).as_dict()))
 """
+
+
+# a child that reports its result, then aborts at its exit (an FMU library's exit handler, as PythonFMU's)
+CHILD_DONE_THEN_ABORT = """
+import atexit, json, os, signal, sys
+from flexlink.tools.check import isolation
+from flexlink.tools.check.findings import CheckResult
+isolation.install(%r)
+isolation._enter("fmi2FreeInstance()")
+isolation._leave()
+atexit.register(lambda: (sys.stderr.write("corrupted double-linked list\\n"), sys.stderr.flush(),
+                         os.kill(os.getpid(), signal.SIGABRT)))
+print("RESULT " + json.dumps(CheckResult(%r, "-", "-", "done", seconds=0.0).as_dict()), flush=True)
+"""
+
+
+def test_a_crash_at_the_exit_keeps_the_finished_checks_result(monkeypatch):
+    """A child that printed its result and then died at its exit: the result is kept (nothing is lost), the
+    crash is one no-crash finding that says so, with the child's last words, and the check is not resumed."""
+    launches = []
+
+    def launch(name, fmu, options, trace, out, err):
+        launches.append(options)
+        with open(trace, "wb") as fh:
+            fh.write(isolation._HEADER.pack(0.0, -1, 0) + bytes(isolation.SIZE - isolation._HEADER.size))
+        return subprocess.Popen([sys.executable, "-c", CHILD_DONE_THEN_ABORT % (trace, name)], stdout=out,
+                                stderr=err, text=True)
+
+    monkeypatch.setattr(isolation, "_launch", launch)
+    result = isolation.run_isolated("fmu-state", "x.fmu", {}, call_limit=30.0, limit=120.0, item="sequence")
+    assert len(launches) == 1
+    assert result.result == "done; its process crashed at the exit"
+    (bad,) = result.findings
+    assert bad.rule == "no-crash" and bad.message == (
+        "the process died of SIGABRT after fmi2FreeInstance() returned, at its exit (the check had finished); "
+        "its last words on stderr: corrupted double-linked list")
+    assert bad.reproduce == "flexlink check x.fmu --only fmu-state --call-timeout 30"

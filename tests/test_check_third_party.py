@@ -61,13 +61,22 @@ def test_the_pythonfmu_fixture_is_a_correct_fmu(pythonfmu_fmus):
 def test_a_correct_pythonfmu_fmu_passes_with_no_false_alarm(pythonfmu_fmus, capsys):
     """Exit 0 and not one error: model description, fuzz, FMU state (PythonFMU serializes its variables as
     JSON), libcosim and fmutool pass; what the FMU does not declare (Model Exchange, directional derivatives)
-    is skipped.  The warnings are accepted forbidden calls only, which FMI 2.0 leaves undefined; one of them is
-    shown with a direct fmpy call (PythonFMU steps by a negative step size)."""
+    is skipped.  One error is true, not false, and comes now and then: PythonFMU's exit handler reads memory an
+    earlier one freed (the valgrind test below; PythonFMU issue 229), and a check's process has died of it at
+    its exit (SIGABRT, "corrupted double-linked list": once in CI under load, not in 52 runs by hand), which
+    the harness reports as that check's one finding, its verdict kept.  The warnings are accepted forbidden
+    calls only, which FMI 2.0 leaves undefined; one of them is shown with a direct fmpy call (PythonFMU steps
+    by a negative step size)."""
     code, data = _check_json(pythonfmu_fmus["declared"], capsys)
-    assert code == 0 and data["passed"] and data["errors"] == 0, json.dumps(_findings(data, "error"), indent=1)
+    errors = _findings(data, "error")
+    at_exit = [x for x in errors if x["rule"] == "no-crash" and "at its exit (the check had finished)" in x["message"]]
+    assert errors == at_exit, json.dumps(errors, indent=1)
+    assert (code, data["passed"], data["errors"]) == ((0, True, 0) if not at_exit else (1, False, len(at_exit)))
     status = {c["name"]: c["status"] for c in data["checks"]}
-    assert {n: status[n] for n in ("model-description", "fuzz", "fmu-state", "libcosim", "fmutool")} == dict.fromkeys(
-        ("model-description", "fuzz", "fmu-state", "libcosim", "fmutool"), "pass")
+    crashed_at_exit = {x["check"] for x in at_exit}
+    assert {n: status[n] for n in ("model-description", "fuzz", "fmu-state", "libcosim", "fmutool")} == {
+        n: "fail" if n in crashed_at_exit else "pass" for n in ("model-description", "fuzz", "fmu-state", "libcosim",
+                                                               "fmutool")}
     assert status["me-vs-cs"] == status["directional-derivatives"] == "skip"
     warnings = _findings(data, "warning")
     assert {x["rule"] for x in warnings} <= UNDEFINED_BY_FMI2 and {x["check"] for x in warnings} == {"illegal-calls"}
@@ -85,6 +94,39 @@ def test_a_correct_pythonfmu_fmu_passes_with_no_false_alarm(pythonfmu_fmus, caps
     slave.doStep(0.0, -0.01)                    # fmpy raises on fmi2Error: PythonFMU returns fmi2OK
     slave.terminate()
     slave.freeInstance()
+
+
+VALGRIND_RUN = """
+import sys
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+md = read_model_description(sys.argv[1])
+s = FMU2Slave(guid=md.guid, unzipDirectory=extract(sys.argv[1]), modelIdentifier=md.coSimulation.modelIdentifier,
+              instanceName="valgrind")
+s.instantiate()
+s.setupExperiment(startTime=0.0)
+s.enterInitializationMode()
+s.exitInitializationMode()
+s.doStep(0.0, 0.01)
+s.terminate()
+s.freeInstance()
+"""
+
+
+def test_pythonfmu_exit_handler_reads_freed_memory(pythonfmu_fmus, tmp_path):
+    """Why a crash at the exit is a true finding: under valgrind, one instance run and freed through fmpy,
+    the FMU's own exit handler (finalizePythonInterpreter, run by _dl_fini) reads a block that an earlier exit
+    handler deleted.  Whether the heap survives that read depends on its layout (PythonFMU issue 229)."""
+    import shutil
+
+    if shutil.which("valgrind") is None:
+        pytest.skip("valgrind is not installed (apt-get install valgrind)")
+    log = tmp_path / "valgrind.log"
+    subprocess.run(["valgrind", f"--log-file={log}", sys.executable, "-c", VALGRIND_RUN,
+                    str(pythonfmu_fmus["declared"])], check=False, timeout=600, capture_output=True)
+    reads = log.read_text().split("Invalid read")[1:]
+    in_handler = [b for b in reads if "finalizePythonInterpreter" in b.split("Address")[0]]
+    assert len(in_handler) == 1 and "free'd" in in_handler[0] and "_dl_fini" in in_handler[0]
 
 
 def test_pythonfmu_default_declarations_are_a_real_defect(pythonfmu_fmus, capsys):

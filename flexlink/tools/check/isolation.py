@@ -15,7 +15,8 @@ The parent polls it: a call older than the per-call limit is a finding (rule ``r
 seconds and the calls before it; a child killed by a signal is a finding (``no-crash``) naming the call
 in progress.  A check that marks its progress (the illegal-call catalogue item by item, the fuzz sequence
 by sequence) is then resumed after that item in a fresh child, so one bad call ends one item, not the
-check; the finding names the item.
+check; the finding names the item.  A child that reported its result and then died at its exit (an FMU
+library's exit handler) keeps its result, with the crash as one more finding.
 """
 
 from __future__ import annotations
@@ -190,6 +191,7 @@ def run_isolated(name: str, fmu: str, options: dict, *, call_limit: float, limit
     bad_items: list[str] = []
     resumable = item is not None
     result = None
+    died_at_exit = False
     with tempfile.TemporaryDirectory(prefix="flexlink-check-child-") as tmp:
         trace = os.path.join(tmp, "trace")
         first = 0
@@ -202,8 +204,16 @@ def run_isolated(name: str, fmu: str, options: dict, *, call_limit: float, limit
                 err.seek(0)
                 stdout, stderr = out.read(), err.read()
             lines = [x for x in stdout.splitlines() if x.startswith("RESULT ")]
-            if bad is None and lines:
+            if lines and (bad is None or bad.rule == "no-crash"):
                 result = CheckResult.from_dict(json.loads(lines[-1][len("RESULT "):]))
+            if result is not None and bad is not None:
+                # the check had finished and reported; the process died at its exit (an FMU library's exit
+                # handlers: PythonFMU's reads memory an earlier handler freed, valgrind): kept, and a finding
+                bad.message += f", at its exit (the check had finished){_last_words(stderr)}"
+                bad.reproduce = f"flexlink check {fmu} --only {name} --call-timeout {call_limit:g}"
+                found.append(bad)
+                died_at_exit = True
+            if result is not None:
                 break
             if bad is None:
                 tail = (stdout + stderr).strip().splitlines()[-1:] or ["no output"]
@@ -231,6 +241,9 @@ def run_isolated(name: str, fmu: str, options: dict, *, call_limit: float, limit
         result.details = [x.message for x in found] + result.details
         result.status = result.judged()
         where = f" ({item} {', '.join(bad_items)}; resumed after each)" if resumable and bad_items else ""
-        result.result = f"{result.result}; {len(bad_items)} call(s) that hang or crash{where}"
+        if bad_items:
+            result.result = f"{result.result}; {len(bad_items)} call(s) that hang or crash{where}"
+        if died_at_exit:
+            result.result = f"{result.result}; its process crashed at the exit"
     result.seconds = time.monotonic() - t0
     return result
