@@ -1,5 +1,6 @@
 /* cs_step.c -- the Co-Simulation communication step: equal internal SS22 steps, Richardson extrapolation
  * for order 4, sub-steps when SS22 fails, and a discarded step undone.  See cosimulation.h. */
+#include <float.h>
 #include <math.h>
 #include <string.h>
 #include "internal.h"
@@ -13,12 +14,13 @@
 
 /* ====================================================================== doStep */
 
-/* One SS22 step [t0, t1]; its Newton iteration starts from start, or from SS22's predictor if NULL. */
-static SS22Status ss22_from(Instance *inst, double t0, double t1, const double *start) {
+/* One SS22 step [t0, t1]; its Newton iteration starts from start (corrected: with a miss added, ss22.h), or
+ * from SS22's predictor if NULL. */
+static SS22Status ss22_from(Instance *inst, double t0, double t1, const double *start, int corrected) {
     FmuData *d = &inst->d;
     fmu_model_inputs(d, t0, inst->u0);
     fmu_model_inputs(d, t1, inst->u1);
-    return ss22_step_from(&d->ss22, t1 - t0, d->q, d->v, d->alpha, start, inst->u0, inst->u1, d->p,
+    return ss22_step_from(&d->ss22, t1 - t0, d->q, d->v, d->alpha, start, corrected, inst->u0, inst->u1, d->p,
                           &inst->work);
 }
 
@@ -28,17 +30,20 @@ static SS22Status ss22_from(Instance *inst, double t0, double t1, const double *
 #endif
 
 /* Order 4's starts (cosimulation.h, RichardsonStarts): whether the misses kept are those of the internal step
- * just before this one, of the same size, on the acceleration SS22 left (no step, reset or restart between). */
-static int misses_apply(const FmuData *d, double dt) {
+ * just before this one, of the same size, on the acceleration SS22 left (no step, reset or restart between).
+ * "The same size" up to the rounding of t1 - t0, which grows with t (1e4 s: 1.8e-12 s). */
+static int misses_apply(const FmuData *d, double t1, double dt) {
     const RichardsonStarts *r = &d->richardson;
-    return RICHARDSON_FEEDBACK && r->valid && r->steps == d->ss22.steps && fabs(r->dt - dt) <= 1e-9 * dt && d->ss22.depth > 0 &&
-           memcmp(d->alpha, d->ss22.alpha_last, sizeof(d->alpha)) == 0;
+    const double same = 1e-9 * dt + 4.0 * DBL_EPSILON * fabs(t1);
+    return RICHARDSON_FEEDBACK && r->valid && r->steps == d->ss22.steps && fabs(r->dt - dt) <= same &&
+           d->ss22.depth > 0 && memcmp(d->alpha, d->ss22.alpha_last, sizeof(d->alpha)) == 0;
 }
 
-/* Step k's start: its base, plus its last miss where the vote favours that. */
-static void fed_back(const RichardsonStarts *r, int k, int apply, const double *base, double *start) {
+/* Step k's start: its base, plus its last miss where the vote favours that (returned: whether it added). */
+static int fed_back(const RichardsonStarts *r, int k, int apply, const double *base, double *start) {
     const int add = apply && r->bias[k] < 0.0;
     for (int i = 0; i < N_Q; i++) start[i] = base[i] + (add ? r->miss[k][i] : 0.0);
+    return add;
 }
 
 /* After step k accepted a: the vote between base and base + miss (when the miss was the last step's), and the
@@ -63,14 +68,14 @@ static SS22Status richardson_step(Instance *inst, double t0, double t1) {
     RichardsonStarts *r = &d->richardson;
     double q0[N_Q], v0[N_Q], a0[N_Q], q1[N_Q], v1[N_Q], a1[N_Q], base[N_Q], start[N_Q];
     const double dt = t1 - t0, tm = t0 + 0.5 * dt;
-    const int apply = misses_apply(d, dt);
+    const int apply = misses_apply(d, t1, dt);
     memcpy(q0, d->q, sizeof(q0));
     memcpy(v0, d->v, sizeof(v0));
     memcpy(a0, d->alpha, sizeof(a0));
     /* the full step: SS22's line through the last two half steps (centred dt/2 and dt/4 before t0) */
     for (int i = 0; i < N_Q; i++) base[i] = a0[i] + 1.5 * (a0[i] - r->alpha_half[i]);
-    fed_back(r, 0, apply, base, start);
-    SS22Status status = ss22_from(inst, t0, t1, apply && r->bias[0] < 0.0 ? start : NULL);
+    const int corrected = fed_back(r, 0, apply, base, start);
+    SS22Status status = ss22_from(inst, t0, t1, corrected ? start : NULL, corrected);
     if (status == SS22_OK) {
         if (apply) record_miss(r, 0, 1, base, d->alpha);
         else memset(r->miss[0], 0, sizeof(r->miss[0]));
@@ -84,14 +89,14 @@ static SS22Status richardson_step(Instance *inst, double t0, double t1) {
          * on the line from a0 (the last half step's, centred at t0 - dt/4) to a1 (at t0 + dt/2), the second
          * half's so that the two halves average to a1 (docs/integrator.md) */
         for (int i = 0; i < N_Q; i++) base[i] = a0[i] + (2.0 / 3.0) * (a1[i] - a0[i]);
-        fed_back(r, 1, apply, base, start);
-        status = ss22_from(inst, t0, tm, start);
+        const int corrected_1 = fed_back(r, 1, apply, base, start);
+        status = ss22_from(inst, t0, tm, start, corrected_1);
         if (status == SS22_OK) {
             record_miss(r, 1, apply, base, d->alpha);
             memcpy(r->alpha_half, d->alpha, sizeof(r->alpha_half));
             for (int i = 0; i < N_Q; i++) base[i] = 2.0 * a1[i] - d->alpha[i];
-            fed_back(r, 2, apply, base, start);
-            status = ss22_from(inst, tm, t1, start);
+            const int corrected_2 = fed_back(r, 2, apply, base, start);
+            status = ss22_from(inst, tm, t1, start, corrected_2);
             if (status == SS22_OK) record_miss(r, 2, apply, base, d->alpha);
         }
     }
@@ -112,7 +117,7 @@ static SS22Status richardson_step(Instance *inst, double t0, double t1) {
 }
 
 static SS22Status one_step(Instance *inst, double t0, double t1) {
-    return inst->d.solver[SOLVER_ORDER] == 4 ? richardson_step(inst, t0, t1) : ss22_from(inst, t0, t1, NULL);
+    return inst->d.solver[SOLVER_ORDER] == 4 ? richardson_step(inst, t0, t1) : ss22_from(inst, t0, t1, NULL, 0);
 }
 
 /* One internal step [t0, t1]; if SS22 fails, again as 2, 4, ... SUBSTEP_MAX sub-steps. */

@@ -131,6 +131,14 @@ static int invalid_recurrence(const SS22 *s) {
                          fmu_all_finite(r->G, N_Q * N_Q) && fmu_all_finite(r->U, N_Q * (N_U > 0 ? N_U : 1)));
 }
 
+/* Order 4's starts (cs_step.c): a vote is a running mean of +-1, a kept size is positive, a miss finite. */
+static int invalid_richardson(const RichardsonStarts *r) {
+    int bad = (r->valid & ~1) || (r->valid && !(r->dt > 0.0)) || !isfinite(r->dt) ||
+              !fmu_all_finite(r->alpha_half, N_Q);
+    for (int k = 0; k < 3; k++) bad = bad || !fmu_all_finite(r->miss[k], N_Q) || !(fabs(r->bias[k]) <= 1.0);
+    return bad;
+}
+
 static const char *invalid_data(const FmuData *d) {
     const int phases[] = {PHASE_INSTANTIATED, PHASE_INITIALIZATION, PHASE_STEP, PHASE_TERMINATED, PHASE_ERROR,
                           PHASE_FATAL, PHASE_EVENT, PHASE_CONTINUOUS};
@@ -171,11 +179,7 @@ static const char *invalid_data(const FmuData *d) {
         }
     }
     if (invalid_recurrence(&d->ss22)) return "solver recurrence";
-    if ((d->richardson.valid & ~1) || !fmu_all_finite(d->richardson.miss[0], 3 * N_Q) ||
-        !fmu_all_finite(d->richardson.alpha_half, N_Q) || !isfinite(d->richardson.dt) ||
-        !(fabs(d->richardson.bias[0]) <= 1.0 && fabs(d->richardson.bias[1]) <= 1.0 &&
-          fabs(d->richardson.bias[2]) <= 1.0))
-        return "order-4 starts";
+    if (invalid_richardson(&d->richardson)) return "order-4 starts";
     if (d->mass.valid & ~1) return "kept mass matrix";
     for (int i = 0; i < N_Q && d->mass.valid; i++) {
         if (d->mass.piv[i] < i || d->mass.piv[i] >= N_Q) return "kept mass matrix";

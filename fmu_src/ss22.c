@@ -220,11 +220,11 @@ static int recurrence_start(SS22 *s, double dt, const double *q, const double *v
 
 SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
                      const double *u0, const double *u1, const double *p, ModelWork *work) {
-    return ss22_step_from(s, dt, q, v, alpha, NULL, u0, u1, p, work);
+    return ss22_step_from(s, dt, q, v, alpha, NULL, 0, u0, u1, p, work);
 }
 
 SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alpha, const double *start,
-                          const double *u0, const double *u1, const double *p, ModelWork *work) {
+                          int corrected, const double *u0, const double *u1, const double *p, ModelWork *work) {
     double a[N_Q];
     SS22Factor *f = NULL;
     SS22Status st;
@@ -234,6 +234,7 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
     memcpy(a, alpha, sizeof(a));
 #if MODEL_LINEAR_IN_STATE
     (void)start;
+    (void)corrected;
     (void)recurrence;
     /* r is affine in (q, v, a): r(alpha) = r(0) + J alpha, one solve, no iteration. */
     memset(a, 0, sizeof(a));
@@ -253,8 +254,10 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
         if (predicted == 2) memcpy(s->start, a, sizeof(a));
         recurrence = start == NULL && predicted ? recurrence_start(s, dt, q, v, alpha, p, work, a) : 0;
         /* a parabola's or the recurrence's first increment below the tolerance does not by itself end a step with
-         * an older matrix (below; the one-increment stop on the matrix's rate still may) */
+         * an older matrix (below; the one-increment stop on the matrix's rate still may), a corrected start's
+         * only within 1/SS22_DIRECTION_MARGIN of it (ss22.h) */
         const int below_tolerance_ends = !(predicted == 2 && s->parabola) && recurrence != 2;
+        const double first_within = corrected ? s->tolerance / SS22_DIRECTION_MARGIN : INFINITY;
         const int kind = recurrence == 2;       /* which start's first ratios judge a one-increment stop */
         const double rounding = kind ? ss22_recurrence_floor(s, dt, a) : 0.0;   /* its first increment's noise floor */
         int converged = 0, far = 0;    /* far: the start more than SS22_FAR_START tolerances off (ss22.h) */
@@ -300,7 +303,8 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             /* (a first increment of zero, or the recurrence's at its noise floor: the start is the solution) */
             if (err <= s->tolerance && err <= within &&
                 bounds_error(s, err, previous, it > 0 && older) &&
-                (it > 0 || fresh >= 0 || below_tolerance_ends || err == 0.0 || (kind && err <= rounding))) {
+                (it > 0 || fresh >= 0 || (below_tolerance_ends && err <= first_within) || err == 0.0 ||
+                 (kind && err <= rounding))) {
                 /* a ratio to an increment below the tolerance, perhaps at the rounding floor: it only raises.
                  * (Not on a parabola's first increment with an older matrix: what that leaves is not bounded by
                  * its size; docs/integrator.md) */

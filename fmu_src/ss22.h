@@ -208,10 +208,13 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
                      const double *u0, const double *u1, const double *p, ModelWork *work);
 
 /* ss22_step with the Newton iteration started from start instead of the predictor (the order-4 option's
- * half steps, which know the full step's acceleration: cs_step.c); alpha is the last step's acceleration, as
- * for ss22_step, and the predictor's line continues through it. */
+ * steps, which know the full step's acceleration: cs_step.c); alpha is the last step's acceleration, as
+ * for ss22_step, and the predictor's line continues through it.  corrected: the start adds a miss measured
+ * on the step before, a closer start than an extrapolation, whose first increment can undercut what is left
+ * where the old matrix's error cancels it (as the parabola's did): with an older matrix that increment ends
+ * the step on its own only within 1/SS22_DIRECTION_MARGIN of the tolerance (ss22.c). */
 SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alpha, const double *start,
-                          const double *u0, const double *u1, const double *p, ModelWork *work);
+                          int corrected, const double *u0, const double *u1, const double *p, ModelWork *work);
 
 const char *ss22_status_message(SS22Status status);
 

@@ -315,7 +315,10 @@ static fmi2Status set_values(Instance *inst, const char *function, int is_intege
         if (v->kind == VAR_PARAMETER) d->omega_max_known = 0;   /* order 4's check looks again */
         if (v->kind == VAR_PARAMETER) any_parameter = 1;
     }
-    if (invalidate) ss22_invalidate(&d->ss22);
+    if (invalidate) {
+        ss22_invalidate(&d->ss22);
+        d->richardson.valid = 0;      /* order 4's misses, like SS22's own, were the old parameters' */
+    }
     if (any_parameter) fmu_consistent_forget(d);
     if (nvr > 0) d->outputs_valid = 0;
     return fmi2OK;

@@ -5,7 +5,8 @@ cadence: ``confirmed`` measures in a row (0 … SS22_RATE_CONFIRMATIONS = 3) and
 the last one (at most SS22_RATE_MEASURE_EVERY << confirmed).  ``confirmed`` is a shift count: out of range it
 would be undefined behaviour, so deserialisation checks it like the cache's pivots.  The offsets come from the
 FMU's own FmuData (tests/c/state_offsets.c compiled with its sources); the forged states carry a right checksum,
-so only the range check can refuse them.
+so only the range check can refuse them.  The order-4 option's starts (RichardsonStarts) are checked the same
+way, and what they keep is followed through a parameter change and late in a run.
 """
 
 from __future__ import annotations
@@ -41,9 +42,10 @@ def layout(tmp_path_factory):
     src, exe = work / "sources", work / "state_offsets"
     subprocess.run([*compiler(), "-std=c99", f"-I{src}", *(str(src / f) for f in files), str(PROBE),
                     "-o", str(exe), "-lm"], check=True, capture_output=True, text=True)
-    valid, estimated, confirmed, confirmed_first, every, bias, miss = (int(x) for x in subprocess.run(
-        [str(exe)], check=True, capture_output=True, text=True).stdout.split())
-    return fmu, valid, estimated, confirmed, confirmed_first, every, bias, miss
+    offsets = [int(x) for x in subprocess.run([str(exe)], check=True, capture_output=True, text=True).stdout.split()]
+    names = ("bias", "miss", "valid", "dt", "alpha_half", "miss2")
+    cadence, starts = offsets[:5], dict(zip(names, offsets[5:], strict=True))
+    return fmu, *cadence, starts
 
 
 def _state_after_20_steps(host, fmu) -> tuple[bytearray, str]:
@@ -72,7 +74,7 @@ def _restore_forged(host, blob: bytearray, guid: str, accepted: bool, reason: st
     (0, 5, False),        # more steps on the kept rate than its cadence allows
 ])
 def test_a_forged_rate_cadence_is_refused(layout, confirmed, estimated, accepted):
-    fmu, at_valid, at_estimated, at_confirmed, at_confirmed_first, every, _, _ = layout
+    fmu, at_valid, at_estimated, at_confirmed, at_confirmed_first, every, _ = layout
     assert every == 4
     with FmuHost(fmu) as host:
         host.initialize({"hub.tau": 0.5})
@@ -85,19 +87,59 @@ def test_a_forged_rate_cadence_is_refused(layout, confirmed, estimated, accepted
         _restore_forged(host, blob, guid, accepted, "solver cache")
 
 
+ORDER_FOUR = {"hub.tau": 0.5, "solver.order": 4.0, "solver.step": 1e-3}
+
+
 @pytest.mark.parametrize("field, value, accepted", [
-    ("bias", -1.0, True),           # the vote at its end: restored
-    ("bias", 2.0, False),           # a running mean of +-1 beyond 1
-    ("miss", float("nan"), False),  # a start that would be NaN
+    ("bias", -1.0, True),               # the vote at its end: restored
+    ("bias", 2.0, False),               # a running mean of +-1 beyond 1
+    ("miss", float("nan"), False),      # a start that would be NaN
+    ("miss2", float("nan"), False),     # the second half step's, the last of the three
+    ("alpha_half", float("inf"), False),
+    ("valid", 2, False),                # a flag is 0 or 1
+    ("dt", 0.0, False),                 # kept misses of a step of no size
 ])
 def test_a_forged_order_four_start_is_refused(layout, field, value, accepted):
     """The order-4 option's starts come back with the state (fmu_src/cosimulation.h, RichardsonStarts): a vote
-    beyond +-1 or a non-finite miss is refused on deserialisation, nothing restored."""
-    fmu, *_, at_bias, at_miss = layout
+    beyond +-1, a non-finite miss or base, a flag that is not 0 or 1, or misses said to be of a step of no size
+    are refused on deserialisation, nothing restored."""
+    fmu, *_, at = layout
     with FmuHost(fmu) as host:
-        host.initialize({"hub.tau": 0.5, "solver.order": 4.0, "solver.step": 1e-3})
+        host.initialize(ORDER_FOUR)
         blob, guid = _state_after_20_steps(host, fmu)
-        at = payload_start(guid) + (at_bias if field == "bias" else at_miss)
-        assert struct.unpack_from("<d", blob, at)[0] != 0.0, "the run voted and missed"
-        struct.pack_into("<d", blob, at, value)
+        where = payload_start(guid) + at[field]
+        kind = "<i" if field == "valid" else "<d"
+        assert struct.unpack_from(kind, blob, where)[0] != 0, "the run voted, missed and kept its misses"
+        struct.pack_into(kind, blob, where, value)
         _restore_forged(host, blob, guid, accepted, "order-4 starts")
+
+
+@pytest.mark.parametrize("change", [False, True])
+def test_a_parameter_change_forgets_order_fours_misses(layout, change):
+    """The misses order 4's starts add were measured on the parameters of their step: a tunable parameter set
+    between steps (the hub's inertia, to a value it does not have) forgets them, as SS22 forgets its own."""
+    fmu, *_, at = layout
+    with FmuHost(fmu) as host:
+        host.initialize(ORDER_FOUR)
+        for k in range(20):
+            host.instance.doStep(k * 1e-3, 1e-3)
+        if change:
+            host.instance.setReal([host.vr["hub.inertia"]], [0.12])
+        blob = host.instance.serializeFMUstate(host.instance.getFMUstate())
+        guid = fmpy.read_model_description(str(fmu)).guid
+        assert struct.unpack_from("<i", blob, payload_start(guid) + at["valid"])[0] == (0 if change else 1)
+
+
+@pytest.mark.parametrize("start_time", [0.0, 1e6])
+def test_order_fours_misses_are_kept_late_in_a_run(layout, start_time):
+    """Order 4 applies its kept misses to a step of the same size.  1e6 s into a run, t1 - t0 of a 1 ms step is
+    off by up to 1.2e-10 s (the spacing of doubles there), 1.2e-7 of the step: still "the same size", so the full
+    step's miss is measured (not zero) as at the start."""
+    fmu, *_, at = layout
+    with FmuHost(fmu) as host:
+        host.initialize(ORDER_FOUR, start_time=start_time)
+        for k in range(20):
+            host.instance.doStep(start_time + k * 1e-3, 1e-3)
+        blob = host.instance.serializeFMUstate(host.instance.getFMUstate())
+        where = payload_start(fmpy.read_model_description(str(fmu)).guid) + at["miss"]
+        assert struct.unpack_from("<d", blob, where)[0] != 0.0

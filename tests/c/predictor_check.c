@@ -98,7 +98,7 @@ static void run_model(int steps, int *mismatches, int *parabola_steps, int *beyo
         memcpy(exact, alpha, sizeof(exact));
         step_solution(&s, h, q, v, u0, u1, exact);
         for (int i = 0; i < N_Q; i++) given[i] = alpha[i] + 1e-9;
-        if (ss22_step_from(&s, h, q, v, alpha, from_start ? given : NULL, u0, u1, P, &work) != SS22_OK) {
+        if (ss22_step_from(&s, h, q, v, alpha, from_start ? given : NULL, 0, u0, u1, P, &work) != SS22_OK) {
             (*beyond)++;
             return;
         }
@@ -199,7 +199,7 @@ static double far_start_error(double scale0, double scale1, double hidden, doubl
     step_solution(&s, dt, q, v, u, u, exact);
     start[0] = exact[0] + hidden * s.tolerance * MODEL_NOMINAL_Q[0] / dt;
     start[1] = exact[1] + far * s.tolerance * MODEL_NOMINAL_Q[1] / dt;
-    if (ss22_step_from(&s, dt, q, v, alpha, start, u, u, P, &work) != SS22_OK) return INFINITY;
+    if (ss22_step_from(&s, dt, q, v, alpha, start, 0, u, u, P, &work) != SS22_OK) return INFINITY;
     for (int i = 0; i < N_Q; i++) e = fmax(e, fabs(alpha[i] - exact[i]) * dt / MODEL_NOMINAL_Q[i] / s.tolerance);
     return e;
 }
