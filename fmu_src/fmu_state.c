@@ -172,6 +172,7 @@ static const char *invalid_data(const FmuData *d) {
                           f->waste >= 0.0 && isfinite(f->waste) &&
                           (f->first[0] == -1.0 || (f->first[0] >= 0.0 && isfinite(f->first[0]))) &&
                           (f->first[1] == -1.0 || (f->first[1] >= 0.0 && isfinite(f->first[1]))) &&
+                          (f->first[2] == -1.0 || (f->first[2] >= 0.0 && isfinite(f->first[2]))) &&
                           f->made <= d->ss22.steps))
             return "solver cache";
         for (int i = 0; i < N_Q && f->valid; i++) {

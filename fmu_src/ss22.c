@@ -106,8 +106,8 @@ static SS22Status step_matrix(SS22 *s, double dt, const double *alpha, const dou
     s->factorisations++;
     f->rate = -1.0; f->waste = 0.0;
     f->estimated = f->confirmed = f->confirmed_first = 0;
-    f->made = s->steps; f->first[0] = f->first[1] = -1.0;
-    f->first_age[0] = f->first_age[1] = 0;
+    f->made = s->steps; f->first[0] = f->first[1] = f->first[2] = -1.0;
+    f->first_age[0] = f->first_age[1] = f->first_age[2] = 0;
     if (!all_finite(f->LU, N_Q * N_Q)) { f->valid = 0; return SS22_NOT_FINITE; }
     if (lu_factor(f->LU, N_Q, f->piv)) { f->valid = 0; return SS22_SINGULAR; }
     f->dt = dt; f->theta1 = s->theta1; f->theta2 = s->theta2; f->valid = 1; f->stamp = ++s->clock;
@@ -192,12 +192,13 @@ static int bounds_error(const SS22 *s, double err, double previous, int judged) 
  * 0.002 over the first 0.25 s, benchmarks/newton_trace.py), and a rate measured at age 1 accepted the steps of
  * ages 2-5 after one increment up to 2 tolerances off (benchmarks/step_audit.py).  A ratio measured in the
  * matrix's own step says nothing of its growth: no one-increment stop before one is measured at age >= 1.
- * kind: the start the step took, 0 the line or parabola, 1 the recurrence (predictor.c), each judged on the
- * first ratios of its own kind: the recurrence leaves the errors the old matrix misses most (six_axis_arm_torque
- * at 0.5 ms under 5 N m: 110 of 2000 steps beyond their tolerance, the worst 4.97, judged on the line's). */
-static double one_increment_rate(const SS22 *s, const SS22Factor *f, int kind) {
-    if (f->first[kind] < 0.0 || f->first_age[kind] == 0) return INFINITY;
-    const double grown = f->first[kind] * fmax(1.0, (double)(s->steps - f->made) / (double)f->first_age[kind]);
+ * slot: the start the step took, 0 the line or parabola, 1 the recurrence (predictor.c), 2 a corrected start
+ * (ss22.h), each judged on the first ratios of its own kind: the recurrence leaves the errors the old matrix
+ * misses most (six_axis_arm_torque at 0.5 ms under 5 N m: 110 of 2000 steps beyond their tolerance, the worst
+ * 4.97, judged on the line's). */
+static double one_increment_rate(const SS22 *s, const SS22Factor *f, int slot) {
+    if (f->first[slot] < 0.0 || f->first_age[slot] == 0) return INFINITY;
+    const double grown = f->first[slot] * fmax(1.0, (double)(s->steps - f->made) / (double)f->first_age[slot]);
     return SS22_DIRECTION_MARGIN * fmax(f->rate, grown);
 }
 #endif
@@ -258,7 +259,8 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
          * only within 1/SS22_DIRECTION_MARGIN of it (ss22.h) */
         const int below_tolerance_ends = !(predicted == 2 && s->parabola) && recurrence != 2;
         const double first_within = corrected ? s->tolerance / SS22_DIRECTION_MARGIN : INFINITY;
-        const int kind = recurrence == 2;       /* which start's first ratios judge a one-increment stop */
+        const int kind = recurrence == 2;       /* the recurrence's start */
+        const int slot = kind ? 1 : corrected ? 2 : 0;   /* which start's first ratios judge a one-increment stop */
         const double rounding = kind ? ss22_recurrence_floor(s, dt, a) : 0.0;   /* its first increment's noise floor */
         int converged = 0, far = 0;    /* far: the start more than SS22_FAR_START tolerances off (ss22.h) */
         int fresh = -1;          /* increments made with a matrix evaluated in this step; -1: an older one */
@@ -296,9 +298,9 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             const int noise = it == 1 && kind && previous <= rounding;
             double in_force = INFINITY;    /* the rate this step's one-increment stop would have used */
             if (it == 1 && fresh < 0 && !noise) {
-                in_force = one_increment_rate(s, f, kind);
-                f->first[kind] = err / previous;
-                f->first_age[kind] = s->steps - f->made;
+                in_force = one_increment_rate(s, f, slot);
+                f->first[slot] = err / previous;
+                f->first_age[slot] = s->steps - f->made;
             }
             /* (a first increment of zero, or the recurrence's at its noise floor: the start is the solution) */
             if (err <= s->tolerance && err <= within &&
@@ -321,7 +323,7 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
                 /* an earlier step's matrix and its last measured rate: what is left is about
                  * rate/(1-rate) times this increment, the first or the second (ss22.h,
                  * SS22_RATE_MEASURE_EVERY); the second's ratio to the first still raises the kept rate */
-                const double seen = it == 1 ? fmax(f->rate, err / previous) : one_increment_rate(s, f, kind);
+                const double seen = it == 1 ? fmax(f->rate, err / previous) : one_increment_rate(s, f, slot);
                 const double aged = aged_rate(seen);
                 if (aged < 0.5 && aged / (1.0 - aged) * err <= s->tolerance) {
                     if (it == 1) f->rate = seen;

@@ -132,10 +132,11 @@ typedef struct {
     int confirmed_first;         /* the same for first ratios, against what one-increment stops were accepted on */
     uint64_t made;               /* SS22.steps when it was evaluated: its age is SS22.steps - made */
     /* the last ratio of a step's second increment to its first with it, or -1, and its age at that step: [0] for
-     * steps started from the line or parabola, [1] from the recurrence (predictor.c), whose misses lie in other
-     * directions (what a stale matrix misses of a start depends on the start's error: ss22.c, one_increment_rate) */
-    double first[2];
-    uint64_t first_age[2];
+     * steps started from the line or parabola, [1] from the recurrence (predictor.c), [2] from a corrected start
+     * (order 4's, ss22_step_from), whose misses lie in other directions (what a stale matrix misses of a start
+     * depends on the start's error: ss22.c, one_increment_rate) */
+    double first[3];
+    uint64_t first_age[3];
     double waste;                /* iterations spent beyond two a step since it was evaluated */
     double LU[N_Q * N_Q];
     int piv[N_Q];
@@ -212,7 +213,8 @@ SS22Status ss22_step(SS22 *s, double dt, double *q, double *v, double *alpha,
  * for ss22_step, and the predictor's line continues through it.  corrected: the start adds a miss measured
  * on the step before, a closer start than an extrapolation, whose first increment can undercut what is left
  * where the old matrix's error cancels it (as the parabola's did): with an older matrix that increment ends
- * the step on its own only within 1/SS22_DIRECTION_MARGIN of the tolerance (ss22.c). */
+ * the step by its size only within 1/SS22_DIRECTION_MARGIN of the tolerance, and by the matrix's rate only on
+ * the first ratios of corrected starts (SS22Factor.first[2]; ss22.c). */
 SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alpha, const double *start,
                           int corrected, const double *u0, const double *u1, const double *p, ModelWork *work);
 

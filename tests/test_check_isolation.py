@@ -86,32 +86,42 @@ print("RESULT " + json.dumps(CheckResult(%r, "-", "-", "done", seconds=0.0).as_d
 
 # a child that reports its result, then aborts at its exit (an FMU library's exit handler, as PythonFMU's)
 CHILD_DONE_THEN_ABORT = """
-import atexit, json, os, signal, sys
+import atexit, json, os, signal, sys, time
 from flexlink.tools.check import isolation
 from flexlink.tools.check.findings import CheckResult
 isolation.install(%r)
 isolation._enter("fmi2FreeInstance()")
 isolation._leave()
-atexit.register(lambda: (sys.stderr.write("corrupted double-linked list\\n"), sys.stderr.flush(),
-                         os.kill(os.getpid(), signal.SIGABRT)))
+if sys.argv[1] == "abort":
+    atexit.register(lambda: (sys.stderr.write("corrupted double-linked list\\n"), sys.stderr.flush(),
+                             os.kill(os.getpid(), signal.SIGABRT)))
+else:
+    atexit.register(lambda: time.sleep(60))
 print("RESULT " + json.dumps(CheckResult(%r, "-", "-", "done", seconds=0.0).as_dict()), flush=True)
+isolation.finished()
 """
 
 
-def test_a_crash_at_the_exit_keeps_the_finished_checks_result(monkeypatch):
-    """A child that printed its result and then died at its exit: the result is kept (nothing is lost), the
-    crash is one no-crash finding that says so, with the child's last words, and the check is not resumed."""
+def _finished_then(monkeypatch, how: str, call_limit: float):
+    """run_isolated on a child that reports its result and then aborts or hangs at its exit; its launches."""
     launches = []
 
     def launch(name, fmu, options, trace, out, err):
         launches.append(options)
         with open(trace, "wb") as fh:
             fh.write(isolation._HEADER.pack(0.0, -1, 0) + bytes(isolation.SIZE - isolation._HEADER.size))
-        return subprocess.Popen([sys.executable, "-c", CHILD_DONE_THEN_ABORT % (trace, name)], stdout=out,
+        return subprocess.Popen([sys.executable, "-c", CHILD_DONE_THEN_ABORT % (trace, name), how], stdout=out,
                                 stderr=err, text=True)
 
     monkeypatch.setattr(isolation, "_launch", launch)
-    result = isolation.run_isolated("fmu-state", "x.fmu", {}, call_limit=30.0, limit=120.0, item="sequence")
+    result = isolation.run_isolated("fmu-state", "x.fmu", {}, call_limit=call_limit, limit=120.0, item="sequence")
+    return result, launches
+
+
+def test_a_crash_at_the_exit_keeps_the_finished_checks_result(monkeypatch):
+    """A child that printed its result and then died at its exit: the result is kept (nothing is lost), the
+    crash is one no-crash finding that says so, with the child's last words, and the check is not resumed."""
+    result, launches = _finished_then(monkeypatch, "abort", 30.0)
     assert len(launches) == 1
     assert result.result == "done; its process crashed at the exit"
     (bad,) = result.findings
@@ -119,3 +129,16 @@ def test_a_crash_at_the_exit_keeps_the_finished_checks_result(monkeypatch):
         "the process died of SIGABRT after fmi2FreeInstance() returned, at its exit (the check had finished); "
         "its last words on stderr: corrupted double-linked list")
     assert bad.reproduce == "flexlink check x.fmu --only fmu-state --call-timeout 30"
+
+
+def test_a_hang_at_the_exit_keeps_the_finished_checks_result(monkeypatch):
+    """A child that printed its result and then does not exit (an exit handler that waits, here 60 s): killed
+    after the per-call limit, not the check's, its result kept and the hang one finding (the review of
+    2026-11-29)."""
+    t0 = time.monotonic()
+    result, launches = _finished_then(monkeypatch, "hang", 1.0)
+    assert time.monotonic() - t0 < 30.0 and len(launches) == 1
+    assert result.result == "done; its process hung at the exit"
+    (bad,) = result.findings
+    assert bad.rule == "returns" and bad.message.startswith("the process did not exit within 1.")
+    assert bad.message.endswith("of reporting its result (an exit handler; last call: fmi2FreeInstance())")

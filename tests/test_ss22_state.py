@@ -125,9 +125,12 @@ def test_a_parameter_change_forgets_order_fours_misses(layout, change):
             host.instance.doStep(k * 1e-3, 1e-3)
         if change:
             host.instance.setReal([host.vr["hub.inertia"]], [0.12])
+        header = payload_start(fmpy.read_model_description(str(fmu)).guid)
         blob = host.instance.serializeFMUstate(host.instance.getFMUstate())
-        guid = fmpy.read_model_description(str(fmu)).guid
-        assert struct.unpack_from("<i", blob, payload_start(guid) + at["valid"])[0] == (0 if change else 1)
+        assert struct.unpack_from("<i", blob, header + at["valid"])[0] == (0 if change else 1)
+        host.instance.doStep(20e-3, 1e-3)       # the next step starts from its base alone: no miss measured
+        blob = host.instance.serializeFMUstate(host.instance.getFMUstate())
+        assert (struct.unpack_from("<d", blob, header + at["miss"])[0] == 0.0) == change
 
 
 @pytest.mark.parametrize("start_time", [0.0, 1e6])

@@ -14,6 +14,7 @@ if len(sys.argv) == 6 and sys.argv[1] == "--child":
     isolation.install(sys.argv[4])
     result = run_child(sys.argv[2], sys.argv[3], json.loads(sys.argv[5]))
     print("RESULT " + json.dumps(result.as_dict()), flush=True)
+    isolation.finished()
     sys.exit(0)
 
 from flexlink.cli import main  # noqa: E402

@@ -15,8 +15,8 @@ The parent polls it: a call older than the per-call limit is a finding (rule ``r
 seconds and the calls before it; a child killed by a signal is a finding (``no-crash``) naming the call
 in progress.  A check that marks its progress (the illegal-call catalogue item by item, the fuzz sequence
 by sequence) is then resumed after that item in a fresh child, so one bad call ends one item, not the
-check; the finding names the item.  A child that reported its result and then died at its exit (an FMU
-library's exit handler) keeps its result, with the crash as one more finding.
+check; the finding names the item.  A child that reported its result and then died at its exit, or did not
+exit within the per-call limit (an FMU library's exit handler), keeps its result, with that as one more finding.
 """
 
 from __future__ import annotations
@@ -39,6 +39,7 @@ _HEADER = struct.Struct("<dii")
 _map: mmap.mmap | None = None
 _recent: collections.deque[str] = collections.deque(maxlen=60)
 _NO_COMPONENT = ("fmi2Instantiate", "fmi2GetTypesPlatform", "fmi2GetVersion")
+FINISHED = -2               # the progress marker of a child that has reported its result (then only exits)
 
 
 # ================================================================ in the child
@@ -111,6 +112,13 @@ def emit(found: list[Finding]) -> None:
         print("FINDING " + json.dumps(x.as_dict()), flush=True)
 
 
+def finished() -> None:
+    """Mark the check as reported: from now on the child only exits, and must within the per-call limit."""
+    if _map is not None:
+        struct.pack_into("<d", _map, 0, time.monotonic())
+        struct.pack_into("<i", _map, 8, FINISHED)
+
+
 def progress(k: int) -> None:
     """Mark item k of a resumable check as begun (the parent resumes after it if it hangs or crashes)."""
     _recent.clear()
@@ -141,8 +149,14 @@ def _launch(name: str, fmu: str, options: dict, trace: str, out, err) -> subproc
 def _watch(p: subprocess.Popen, trace: str, call_limit: float, deadline: float) -> Finding | None:
     """Wait for the child; kill it on a call older than call_limit or at the deadline."""
     while p.poll() is None:
-        began, _, calls = _read(trace)
+        began, marker, calls = _read(trace)
         now = time.monotonic()
+        if marker == FINISHED and now - began > call_limit:
+            p.kill()
+            p.wait()
+            return Finding("returns", f"the process did not exit within {now - began:.1f} s of reporting its "
+                                      f"result (an exit handler; last call: {calls[-1] if calls else 'none'})",
+                           sequence=calls)
         if began > 0.0 and now - began > call_limit:
             p.kill()
             p.wait()
@@ -155,11 +169,11 @@ def _watch(p: subprocess.Popen, trace: str, call_limit: float, deadline: float) 
                                       f"{calls[-1] if calls else 'none'})", sequence=calls)
         time.sleep(0.05)
     if p.returncode < 0:
-        began, _, calls = _read(trace)
+        began, marker, calls = _read(trace)
         sig = signal.Signals(-p.returncode).name if -p.returncode in signal.valid_signals() else p.returncode
         if not calls:
             where = "before any FMI call"
-        elif began > 0.0:
+        elif began > 0.0 and marker != FINISHED:
             where = f"in {calls[-1]}"
         else:                   # between calls: in Python, or at the exit (an FMU's library destructors)
             where = f"after {calls[-1]} returned"
@@ -191,7 +205,7 @@ def run_isolated(name: str, fmu: str, options: dict, *, call_limit: float, limit
     bad_items: list[str] = []
     resumable = item is not None
     result = None
-    died_at_exit = False
+    at_exit = ""               # "crashed" or "hung": what the process did after reporting its result
     with tempfile.TemporaryDirectory(prefix="flexlink-check-child-") as tmp:
         trace = os.path.join(tmp, "trace")
         first = 0
@@ -204,15 +218,17 @@ def run_isolated(name: str, fmu: str, options: dict, *, call_limit: float, limit
                 err.seek(0)
                 stdout, stderr = out.read(), err.read()
             lines = [x for x in stdout.splitlines() if x.startswith("RESULT ")]
-            if lines and (bad is None or bad.rule == "no-crash"):
+            reported = _read(trace)[1] == FINISHED
+            if lines and (bad is None or bad.rule == "no-crash" or reported):
                 result = CheckResult.from_dict(json.loads(lines[-1][len("RESULT "):]))
             if result is not None and bad is not None:
-                # the check had finished and reported; the process died at its exit (an FMU library's exit
-                # handlers: PythonFMU's reads memory an earlier handler freed, valgrind): kept, and a finding
-                bad.message += f", at its exit (the check had finished){_last_words(stderr)}"
+                # the check had finished and reported; the process died or hung at its exit (an FMU library's
+                # exit handlers: PythonFMU's reads memory an earlier handler freed, valgrind): kept, and a finding
+                if bad.rule == "no-crash":
+                    bad.message += f", at its exit (the check had finished){_last_words(stderr)}"
                 bad.reproduce = f"flexlink check {fmu} --only {name} --call-timeout {call_limit:g}"
                 found.append(bad)
-                died_at_exit = True
+                at_exit = "crashed" if bad.rule == "no-crash" else "hung"
             if result is not None:
                 break
             if bad is None:
@@ -243,7 +259,7 @@ def run_isolated(name: str, fmu: str, options: dict, *, call_limit: float, limit
         where = f" ({item} {', '.join(bad_items)}; resumed after each)" if resumable and bad_items else ""
         if bad_items:
             result.result = f"{result.result}; {len(bad_items)} call(s) that hang or crash{where}"
-        if died_at_exit:
-            result.result = f"{result.result}; its process crashed at the exit"
+        if at_exit:
+            result.result = f"{result.result}; its process {at_exit} at the exit"
     result.seconds = time.monotonic() - t0
     return result
