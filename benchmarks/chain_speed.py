@@ -84,8 +84,9 @@ def levels(rows: list[dict]) -> list[dict]:
         order4 = cost_at([r for r in rows if r["method"] == ORDER4], level)
         # each looser tolerance is its own curve of settings; the cheapest of them at this level
         curves = sorted({r["method"] for r in rows if r["method"].startswith(ORDER4_LOOSE)})
-        costs = [c for c in (cost_at([r for r in rows if r["method"] == m], level) for m in curves) if c is not None]
-        loose = min(costs) if costs else None
+        costs = [(c, m) for c, m in ((cost_at([r for r in rows if r["method"] == m], level), m) for m in curves)
+                 if c is not None]
+        loose, loose_method = min(costs) if costs else (None, "")
         sundials = sorted({r["method"] for r in rows if r["method"].split()[0] in ("cvodes", "idas")})
         best = [c for c in (cost_at([r for r in rows if r["method"] == m], level) for m in sundials)
                 if c is not None]
@@ -93,7 +94,8 @@ def levels(rows: list[dict]) -> list[dict]:
         out.append({"error": level, "ss22_cpu": ss22, "order4_cpu": order4, "sundials_cpu": sundials,
                     "ratio": sundials / ss22 if sundials and ss22 else None,
                     "ratio_order4": sundials / order4 if sundials and order4 else None,
-                    "order4_loose_cpu": loose, "ratio_order4_loose": sundials / loose if sundials and loose else None})
+                    "order4_loose_cpu": loose, "ratio_order4_loose": sundials / loose if sundials and loose else None,
+                    "order4_loose_tolerance": loose_method.removeprefix(ORDER4_LOOSE).strip()})
     return out
 
 
@@ -192,6 +194,8 @@ def markdown(data: dict) -> str:
         cells = [f"{x:.3g}" if x is not None else "–"
                  for x in (lv["ss22_cpu"], lv["order4_cpu"], lv["sundials_cpu"], lv["ratio"], lv["ratio_order4"],
                            lv.get("order4_loose_cpu"), lv.get("ratio_order4_loose"))]
+        if len(tolerances) > 1 and lv.get("order4_loose_tolerance"):          # which curve it read
+            cells[5] += f" (at {lv['order4_loose_tolerance']})"
         out.append(f"| {lv['error']:g} | " + " | ".join(cells) + " |")
     out += ["", "| SS22 step | µs/step | residual µs | Newton matrix µs | LU µs | solve µs | iterations/step | "
             "LU/step | (it × (residual + solve) + LU/step × (matrix + LU)) / step |",

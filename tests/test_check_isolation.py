@@ -140,5 +140,5 @@ def test_a_hang_at_the_exit_keeps_the_finished_checks_result(monkeypatch):
     assert time.monotonic() - t0 < 30.0 and len(launches) == 1
     assert result.result == "done; its process hung at the exit"
     (bad,) = result.findings
-    assert bad.rule == "returns" and bad.message.startswith("the process did not exit within 1.")
-    assert bad.message.endswith("of reporting its result (an exit handler; last call: fmi2FreeInstance())")
+    assert bad.rule == "returns" and bad.message.startswith("the process did not exit within ")
+    assert bad.message.endswith(" s of reporting its result (an exit handler; last call: fmi2FreeInstance())")

@@ -193,6 +193,8 @@ static double start_error(double scale0, double scale1, double hidden, double fa
         if (ss22_step(&s, dt, q, v, alpha, u, u, P, &work) != SS22_OK) return INFINITY;
     SS22Factor *f = cached_factor(&s, dt);
     if (f == NULL || f->rate < 0.0 || f->made == s.steps || f->piv[0] != 0) return INFINITY;
+    /* a corrected start's case is only a case if the line's first ratios could have judged it */
+    if (corrected && !(f->first[0] >= 0.0 && f->first_age[0] > 0 && f->first[2] < 0.0)) return INFINITY;
     f->LU[0] *= scale0;
     f->LU[3] *= scale1;
     memcpy(exact, alpha, sizeof(exact));
@@ -395,7 +397,8 @@ int main(void) {
     /* 9. a corrected start (order 4's, a miss added: ss22.h) two tolerances off in a direction the kept matrix
      * contracts at 0.6: its first increment is 0.8 of the tolerance.  A line's start ends there, 1.2 tolerances
      * left (the case the rule is for); a corrected one goes on: not within a third of the tolerance, and no
-     * first ratio of a corrected start measured yet (the line's, measured on this matrix, do not judge it) */
+     * first ratio of a corrected start measured yet (the line's, measured on this matrix, do not judge it;
+     * start_error returns INFINITY, a failure, unless the line's are there) */
     const double line_left = start_error(2.5, 1.0, 2.0, 0.0, 0);
     check(line_left > 1.0, "a line's start 2 tolerances off: its first increment ends the step short", line_left);
     const double corrected_left = start_error(2.5, 1.0, 2.0, 0.0, 1);

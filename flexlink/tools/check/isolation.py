@@ -113,9 +113,11 @@ def emit(found: list[Finding]) -> None:
 
 
 def finished() -> None:
-    """Mark the check as reported: from now on the child only exits, and must within the per-call limit."""
+    """Mark the check as reported: from now on the child only exits, and must within the per-call limit.
+
+    The parent times that from when it sees the mark; a call made during the exit is timed as any call.
+    """
     if _map is not None:
-        struct.pack_into("<d", _map, 0, time.monotonic())
         struct.pack_into("<i", _map, 8, FINISHED)
 
 
@@ -148,14 +150,17 @@ def _launch(name: str, fmu: str, options: dict, trace: str, out, err) -> subproc
 
 def _watch(p: subprocess.Popen, trace: str, call_limit: float, deadline: float) -> Finding | None:
     """Wait for the child; kill it on a call older than call_limit or at the deadline."""
+    reported_at = None          # when the child was first seen to have reported its result
     while p.poll() is None:
         began, marker, calls = _read(trace)
         now = time.monotonic()
-        if marker == FINISHED and now - began > call_limit:
+        if marker == FINISHED and reported_at is None:
+            reported_at = now
+        if reported_at is not None and began == 0.0 and (now - reported_at > call_limit or now > deadline):
             p.kill()
             p.wait()
-            return Finding("returns", f"the process did not exit within {now - began:.1f} s of reporting its "
-                                      f"result (an exit handler; last call: {calls[-1] if calls else 'none'})",
+            return Finding("returns", f"the process did not exit within {now - reported_at:.1f} s of reporting "
+                                      f"its result (an exit handler; last call: {calls[-1] if calls else 'none'})",
                            sequence=calls)
         if began > 0.0 and now - began > call_limit:
             p.kill()
@@ -169,11 +174,11 @@ def _watch(p: subprocess.Popen, trace: str, call_limit: float, deadline: float) 
                                       f"{calls[-1] if calls else 'none'})", sequence=calls)
         time.sleep(0.05)
     if p.returncode < 0:
-        began, marker, calls = _read(trace)
+        began, _, calls = _read(trace)
         sig = signal.Signals(-p.returncode).name if -p.returncode in signal.valid_signals() else p.returncode
         if not calls:
             where = "before any FMI call"
-        elif began > 0.0 and marker != FINISHED:
+        elif began > 0.0:
             where = f"in {calls[-1]}"
         else:                   # between calls: in Python, or at the exit (an FMU's library destructors)
             where = f"after {calls[-1]} returned"
