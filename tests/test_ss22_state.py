@@ -43,7 +43,7 @@ def layout(tmp_path_factory):
     subprocess.run([*compiler(), "-std=c99", f"-I{src}", *(str(src / f) for f in files), str(PROBE),
                     "-o", str(exe), "-lm"], check=True, capture_output=True, text=True)
     offsets = [int(x) for x in subprocess.run([str(exe)], check=True, capture_output=True, text=True).stdout.split()]
-    names = ("bias", "miss", "valid", "dt", "alpha_half", "miss2")
+    names = ("bias", "miss", "valid", "dt", "alpha_half", "miss2", "first2")
     cadence, starts = offsets[:5], dict(zip(names, offsets[5:], strict=True))
     return fmu, *cadence, starts
 
@@ -98,11 +98,16 @@ ORDER_FOUR = {"hub.tau": 0.5, "solver.order": 4.0, "solver.step": 1e-3}
     ("alpha_half", float("inf"), False),
     ("valid", 2, False),                # a flag is 0 or 1
     ("dt", 0.0, False),                 # kept misses of a step of no size
+    ("first2", -1.0, True),             # no corrected start's first ratio yet: restored
+    ("first2", 0.5, True),              # a ratio
+    ("first2", -0.5, False),            # a ratio is >= 0, or -1 for none
+    ("first2", float("inf"), False),
 ])
 def test_a_forged_order_four_start_is_refused(layout, field, value, accepted):
     """The order-4 option's starts come back with the state (fmu_src/cosimulation.h, RichardsonStarts): a vote
     beyond +-1, a non-finite miss or base, a flag that is not 0 or 1, or misses said to be of a step of no size
-    are refused on deserialisation, nothing restored."""
+    are refused on deserialisation, nothing restored; so is a kept factorisation's first ratio of corrected
+    starts (SS22Factor.first[2]) that is neither -1 nor a finite ratio >= 0."""
     fmu, *_, at = layout
     with FmuHost(fmu) as host:
         host.initialize(ORDER_FOUR)
@@ -111,7 +116,7 @@ def test_a_forged_order_four_start_is_refused(layout, field, value, accepted):
         kind = "<i" if field == "valid" else "<d"
         assert struct.unpack_from(kind, blob, where)[0] != 0, "the run voted, missed and kept its misses"
         struct.pack_into(kind, blob, where, value)
-        _restore_forged(host, blob, guid, accepted, "order-4 starts")
+        _restore_forged(host, blob, guid, accepted, "solver cache" if field == "first2" else "order-4 starts")
 
 
 @pytest.mark.parametrize("change", [False, True])

@@ -2,7 +2,7 @@
  * tests/test_ss22_state.py: compiled with an FMU's own sources (its FmuData layout), prints the byte offsets
  * within FmuData of cache[0].valid, .estimated, .confirmed and .confirmed_first, SS22_RATE_MEASURE_EVERY, and the
  * offsets of the order-4 starts' richardson.bias[0], .miss[0][0], .valid, .dt, .alpha_half[0] and .miss[2][0],
- * one per line. */
+ * and of cache[0].first[2] (corrected starts' first ratio), one per line. */
 #include <stddef.h>
 #include <stdio.h>
 #include "cosimulation.h"
@@ -14,5 +14,6 @@ int main(void) {
     printf("%zu\n%zu\n%zu\n%zu\n%zu\n%zu\n", offsetof(FmuData, richardson.bias), offsetof(FmuData, richardson.miss),
            offsetof(FmuData, richardson.valid), offsetof(FmuData, richardson.dt),
            offsetof(FmuData, richardson.alpha_half), offsetof(FmuData, richardson.miss[2]));
+    printf("%zu\n", offsetof(FmuData, ss22.cache[0].first[2]));
     return 0;
 }
