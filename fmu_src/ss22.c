@@ -106,8 +106,7 @@ static SS22Status step_matrix(SS22 *s, double dt, const double *alpha, const dou
     s->factorisations++;
     f->rate = -1.0; f->waste = 0.0;
     f->estimated = f->confirmed = f->confirmed_first = 0;
-    f->made = s->steps; f->first[0] = f->first[1] = f->first[2] = -1.0;
-    f->first_age[0] = f->first_age[1] = f->first_age[2] = 0;
+    f->made = s->steps; for (int k = 0; k < 3; k++) f->first[k] = -1.0, f->first_age[k] = 0;
     if (!all_finite(f->LU, N_Q * N_Q)) { f->valid = 0; return SS22_NOT_FINITE; }
     if (lu_factor(f->LU, N_Q, f->piv)) { f->valid = 0; return SS22_SINGULAR; }
     f->dt = dt; f->theta1 = s->theta1; f->theta2 = s->theta2; f->valid = 1; f->stamp = ++s->clock;
@@ -192,10 +191,9 @@ static int bounds_error(const SS22 *s, double err, double previous, int judged) 
  * 0.002 over the first 0.25 s, benchmarks/newton_trace.py), and a rate measured at age 1 accepted the steps of
  * ages 2-5 after one increment up to 2 tolerances off (benchmarks/step_audit.py).  A ratio measured in the
  * matrix's own step says nothing of its growth: no one-increment stop before one is measured at age >= 1.
- * slot: the start the step took, 0 the line or parabola, 1 the recurrence (predictor.c), 2 a corrected start
- * (ss22.h), each judged on the first ratios of its own kind: the recurrence leaves the errors the old matrix
- * misses most (six_axis_arm_torque at 0.5 ms under 5 N m: 110 of 2000 steps beyond their tolerance, the worst
- * 4.97, judged on the line's). */
+ * slot: the start's kind, judged on its own first ratios: 0 the line or parabola, 1 the recurrence (predictor.c),
+ * 2 a corrected start (ss22.h); the recurrence leaves the errors the old matrix misses most (six_axis_arm_torque
+ * at 0.5 ms under 5 N m: 110 of 2000 steps beyond their tolerance, the worst 4.97, judged on the line's). */
 static double one_increment_rate(const SS22 *s, const SS22Factor *f, int slot) {
     if (f->first[slot] < 0.0 || f->first_age[slot] == 0) return INFINITY;
     const double grown = f->first[slot] * fmax(1.0, (double)(s->steps - f->made) / (double)f->first_age[slot]);
@@ -234,9 +232,7 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
     ss22_weighted_inputs(s, dt, u0, u1, s->u_bar);
     memcpy(a, alpha, sizeof(a));
 #if MODEL_LINEAR_IN_STATE
-    (void)start;
-    (void)corrected;
-    (void)recurrence;
+    (void)start, (void)corrected, (void)recurrence;
     /* r is affine in (q, v, a): r(alpha) = r(0) + J alpha, one solve, no iteration. */
     memset(a, 0, sizeof(a));
     weighted_state(s, dt, q, v, a);
@@ -254,11 +250,10 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
         else predicted = ss22_predict(s, dt, alpha, a, s->other_start);
         if (predicted == 2) memcpy(s->start, a, sizeof(a));
         recurrence = start == NULL && predicted ? recurrence_start(s, dt, q, v, alpha, p, work, a) : 0;
-        /* a parabola's or the recurrence's first increment below the tolerance does not by itself end a step with
-         * an older matrix (below; the one-increment stop on the matrix's rate still may), a corrected start's
-         * only within 1/SS22_DIRECTION_MARGIN of it (ss22.h) */
-        const int below_tolerance_ends = !(predicted == 2 && s->parabola) && recurrence != 2;
-        const double first_within = corrected ? s->tolerance / SS22_DIRECTION_MARGIN : INFINITY;
+        /* below what a first increment with an older matrix ends the step by its size: a parabola's or the
+         * recurrence's never (the rate's one-increment stop, below, still may), a corrected start's (ss22.h) */
+        const double first_ends = (predicted == 2 && s->parabola) || recurrence == 2 ? -1.0
+                                  : corrected ? s->tolerance / SS22_DIRECTION_MARGIN : INFINITY;
         const int kind = recurrence == 2;       /* the recurrence's start */
         const int slot = kind ? 1 : corrected ? 2 : 0;   /* which start's first ratios judge a one-increment stop */
         const double rounding = kind ? ss22_recurrence_floor(s, dt, a) : 0.0;   /* its first increment's noise floor */
@@ -305,8 +300,7 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             /* (a first increment of zero, or the recurrence's at its noise floor: the start is the solution) */
             if (err <= s->tolerance && err <= within &&
                 bounds_error(s, err, previous, it > 0 && older) &&
-                (it > 0 || fresh >= 0 || (below_tolerance_ends && err <= first_within) || err == 0.0 ||
-                 (kind && err <= rounding))) {
+                (it > 0 || fresh >= 0 || err <= first_ends || err == 0.0 || (kind && err <= rounding))) {
                 /* a ratio to an increment below the tolerance, perhaps at the rounding floor: it only raises.
                  * (Not on a parabola's first increment with an older matrix: what that leaves is not bounded by
                  * its size; docs/integrator.md) */
