@@ -151,7 +151,7 @@ PATCHES = [
      "    { const int k_ = (int)(f - s->cache); memcpy(OLD_qb[k_], s->q_bar, sizeof(OLD_qb[k_]));\n"
      "      memcpy(OLD_vb[k_], s->v_bar, sizeof(OLD_vb[k_])); memcpy(OLD_a[k_], alpha, sizeof(OLD_a[k_]));\n"
      "      memcpy(OLD_u[k_], s->u_bar, sizeof(OLD_u[k_])); OLD_step[k_] = s->steps; }\n"),
-    ("        const int below_tolerance_ends = !(predicted == 2 && s->parabola) && recurrence != 2;\n",
+    ("                                  : corrected ? s->tolerance / SS22_DIRECTION_MARGIN : INFINITY;\n",
      "        TR_n = 0; memcpy(TR_start, a, sizeof(TR_start));\n"),
     ("            s->newton_iterations++;\n", "            if (TR_n < 64) TR_err[TR_n++] = err;\n"),
     ("        if (!converged) return SS22_NOT_CONVERGED;\n", "        trace_step(s, dt, q, v, a, p, work, f);\n"),
