@@ -106,6 +106,18 @@ def test_roots_against_published_values():
     np.testing.assert_allclose(clamped_free_roots(5), PUBLISHED_ROOTS, rtol=0, atol=1e-6)
 
 
+def test_roots_equal_scipys_brentq():
+    """The bisection to adjacent floats lands where scipy's Brent solver does, at its tightest tolerance."""
+    from scipy.optimize import brentq
+
+    def f(lam):
+        return math.cos(lam) + 1.0 / math.cosh(lam)
+
+    reference = [brentq(f, (i - 1) * math.pi, i * math.pi, xtol=1e-300, rtol=4 * np.finfo(float).eps)
+                 for i in range(1, 41)]
+    np.testing.assert_allclose(clamped_free_roots(40), reference, rtol=4 * np.finfo(float).eps, atol=0)
+
+
 def test_roots_follow_the_asymptote():
     roots = clamped_free_roots(40)
     for i in range(6, 41):

@@ -75,11 +75,22 @@ def test_help_and_estimates_import_no_model_builder(tmp_path, args):
 
 
 def test_linearize_imports_no_python_control(tmp_path):
-    """The matrices come from the model (CasADi, and SciPy for the clamped-free shapes' roots); python-control's
-    system is never built (tests/test_control_linearize.py: what it prints is python-control's all the same)."""
+    """The matrices come from the model (CasADi, and SciPy's linear algebra); python-control's system is never
+    built (tests/test_control_linearize.py: what it prints is python-control's all the same)."""
     mods = imported(tmp_path, ["linearize", SCENE, "--output", "hub.theta", "--json"])
     assert {"casadi", "numpy"} <= mods
     assert not mods & {"control", "matplotlib", "dask", "pandas"}
+
+
+@pytest.mark.parametrize("args", [["modes", SCENE], ["linearize", SCENE, "--output", "hub.theta", "--json"]],
+                         ids=lambda a: a[0])
+def test_a_model_build_imports_no_scipy_optimize(tmp_path, args):
+    """The clamped-free shapes' roots are bisected in flexlink (tests/test_shapes.py: to scipy's brentq's
+    roots): importing ``scipy.optimize`` (special functions, spatial transforms, FFT) cost such a command
+    0.2 s of its start-up (docs/performance.md, start-up)."""
+    modules = set(run_imports(tmp_path, args)["modules"])
+    assert "casadi" in modules
+    assert "scipy.optimize" not in modules
 
 
 def test_a_run_of_a_built_fmu_imports_no_model_builder(tmp_path, example_fmu):
