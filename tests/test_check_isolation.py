@@ -95,6 +95,8 @@ isolation._leave()
 if sys.argv[1] == "abort":
     atexit.register(lambda: (sys.stderr.write("corrupted double-linked list\\n"), sys.stderr.flush(),
                              os.kill(os.getpid(), signal.SIGABRT)))
+elif sys.argv[1] == "exit":
+    atexit.register(lambda: (sys.stderr.write("library: shutting down\\n"), sys.stderr.flush(), os._exit(3)))
 else:
     atexit.register(lambda: time.sleep(60))
 print("RESULT " + json.dumps(CheckResult(%r, "-", "-", "done", seconds=0.0).as_dict()), flush=True)
@@ -129,6 +131,18 @@ def test_a_crash_at_the_exit_keeps_the_finished_checks_result(monkeypatch):
         "the process died of SIGABRT after fmi2FreeInstance() returned, at its exit (the check had finished); "
         "its last words on stderr: corrupted double-linked list")
     assert bad.reproduce == "flexlink check x.fmu --only fmu-state --call-timeout 30"
+
+
+def test_a_non_zero_exit_status_after_the_result_is_a_finding(monkeypatch):
+    """A child that printed its result and then exited with status 3 (an exit handler calling exit(3), no
+    signal): the result is kept, and the status, which a clean exit would not have, is a finding."""
+    result, launches = _finished_then(monkeypatch, "exit", 30.0)
+    assert len(launches) == 1
+    assert result.result == "done; its process exited with status 3 at the exit"
+    (bad,) = result.findings
+    assert bad.rule == "no-crash" and bad.message == (
+        "the process exited with status 3 after fmi2FreeInstance() returned, at its exit (the check had "
+        "finished); its last words on stderr: library: shutting down")
 
 
 def test_a_hang_at_the_exit_keeps_the_finished_checks_result(monkeypatch):

@@ -15,8 +15,9 @@ The parent polls it: a call older than the per-call limit is a finding (rule ``r
 seconds and the calls before it; a child killed by a signal is a finding (``no-crash``) naming the call
 in progress.  A check that marks its progress (the illegal-call catalogue item by item, the fuzz sequence
 by sequence) is then resumed after that item in a fresh child, so one bad call ends one item, not the
-check; the finding names the item.  A child that reported its result and then died at its exit, or did not
-exit within the per-call limit (an FMU library's exit handler), keeps its result, with that as one more finding.
+check; the finding names the item.  A child that reported its result and then died at its exit, exited with a
+non-zero status, or did not exit within the per-call limit (an FMU library's exit handler), keeps its result, with
+that as one more finding.
 """
 
 from __future__ import annotations
@@ -183,6 +184,12 @@ def _watch(p: subprocess.Popen, trace: str, call_limit: float, deadline: float) 
         else:                   # between calls: in Python, or at the exit (an FMU's library destructors)
             where = f"after {calls[-1]} returned"
         return Finding("no-crash", f"the process died of {sig} {where}", sequence=calls)
+    if p.returncode > 0 and _read(trace)[1] == FINISHED:
+        # it reported, then something at its exit (an FMU library's exit handler calling exit()) changed the
+        # status the harness would otherwise have taken for a clean exit
+        _, _, calls = _read(trace)
+        return Finding("no-crash", f"the process exited with status {p.returncode} after "
+                                   f"{calls[-1] + ' returned' if calls else 'reporting its result'}", sequence=calls)
     return None
 
 
@@ -233,7 +240,8 @@ def run_isolated(name: str, fmu: str, options: dict, *, call_limit: float, limit
                     bad.message += f", at its exit (the check had finished){_last_words(stderr)}"
                 bad.reproduce = f"flexlink check {fmu} --only {name} --call-timeout {call_limit:g}"
                 found.append(bad)
-                at_exit = "crashed" if bad.rule == "no-crash" else "hung"
+                at_exit = "hung" if bad.rule == "returns" else "crashed" if p.returncode < 0 else \
+                    f"exited with status {p.returncode}"
             if result is not None:
                 break
             if bad is None:
