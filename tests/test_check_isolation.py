@@ -120,29 +120,22 @@ def _finished_then(monkeypatch, how: str, call_limit: float):
     return result, launches
 
 
-def test_a_crash_at_the_exit_keeps_the_finished_checks_result(monkeypatch):
-    """A child that printed its result and then died at its exit: the result is kept (nothing is lost), the
-    crash is one no-crash finding that says so, with the child's last words, and the check is not resumed."""
-    result, launches = _finished_then(monkeypatch, "abort", 30.0)
+@pytest.mark.parametrize("how, ended, message", [
+    ("abort", "crashed", "the process died of SIGABRT after fmi2FreeInstance() returned, at its exit (the check "
+                         "had finished); its last words on stderr: corrupted double-linked list"),
+    ("exit", "exited with status 3", "the process exited with status 3 after fmi2FreeInstance() returned, at its "
+                                     "exit (the check had finished); its last words on stderr: library: shutting down"),
+], ids=["signal", "exit-status"])
+def test_an_end_at_the_exit_keeps_the_finished_checks_result(monkeypatch, how, ended, message):
+    """A child that printed its result and then died at its exit (SIGABRT) or exited with status 3 (an exit
+    handler calling exit(3), no signal; the review of 2026-11-29): the result is kept (nothing is lost), the
+    end is one no-crash finding that says so, with the child's last words, and the check is not resumed."""
+    result, launches = _finished_then(monkeypatch, how, 30.0)
     assert len(launches) == 1
-    assert result.result == "done; its process crashed at the exit"
+    assert result.result == f"done; its process {ended} at the exit"
     (bad,) = result.findings
-    assert bad.rule == "no-crash" and bad.message == (
-        "the process died of SIGABRT after fmi2FreeInstance() returned, at its exit (the check had finished); "
-        "its last words on stderr: corrupted double-linked list")
+    assert bad.rule == "no-crash" and bad.message == message
     assert bad.reproduce == "flexlink check x.fmu --only fmu-state --call-timeout 30"
-
-
-def test_a_non_zero_exit_status_after_the_result_is_a_finding(monkeypatch):
-    """A child that printed its result and then exited with status 3 (an exit handler calling exit(3), no
-    signal): the result is kept, and the status, which a clean exit would not have, is a finding."""
-    result, launches = _finished_then(monkeypatch, "exit", 30.0)
-    assert len(launches) == 1
-    assert result.result == "done; its process exited with status 3 at the exit"
-    (bad,) = result.findings
-    assert bad.rule == "no-crash" and bad.message == (
-        "the process exited with status 3 after fmi2FreeInstance() returned, at its exit (the check had "
-        "finished); its last words on stderr: library: shutting down")
 
 
 def test_a_hang_at_the_exit_keeps_the_finished_checks_result(monkeypatch):
