@@ -8,23 +8,13 @@ command: ``controllers.cli`` registers ``flexlink sweep``, and the sweep's ``--t
 from __future__ import annotations
 
 import argparse
-import math
+
+from flexlink.options import finite
 
 __all__ = ["SENSORS", "add_weight_options", "angles", "finite", "limits", "positive"]
 
 #: The Kalman sensors besides the joint encoders (``--sensors`` of ``flexlink control`` and ``sweep``).
 SENSORS = ("strain", "accelerometer")
-
-
-def finite(text: str) -> float:
-    """A finite number: argparse reports anything else as a usage error naming the option."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return v
 
 
 def angles(text: str) -> list[float]:

@@ -204,6 +204,8 @@ def _closed_loop_case(job: _WorkerJob, params: dict[str, float]) -> tuple[dict, 
 def _open_loop_case(job: _WorkerJob, params: dict[str, float]) -> tuple[dict, dict]:
     from fmpy.fmi1 import FMICallException
 
+    from flexlink.run.host import FmuCallError
+
     s = job.spec.settings
     runner = job.instance()
     outputs = list(dict.fromkeys([*s["record"], *job.spec.series]))
@@ -211,6 +213,8 @@ def _open_loop_case(job: _WorkerJob, params: dict[str, float]) -> tuple[dict, di
     t0 = time.perf_counter()
     try:
         res = runner.run(s["stop_time"], s["sample_time"], start=params, outputs=outputs)
+    except FmuCallError:
+        raise              # it names the FMU, the call and the FMU's logged reason already
     except FMICallException as e:
         detail = "; ".join(m.replace("%%", "%") for m in runner.messages[n_msg:][-3:]) or "no message from the FMU"
         raise FlexlinkError(f"{job.spec.fmu_name}: {e}: {detail}") from None

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
 from flexlink.errors import FlexlinkError
+from flexlink.options import finite
 from flexlink.paths import SCENE_HELP, check_output_paths, film_file, output_file, plot_file, stream_file
 
 if TYPE_CHECKING:                      # the commands import numpy and fmpy only when they run
@@ -283,7 +284,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("modes", help="natural frequencies about an equilibrium")
     p.add_argument("scene", help=SCENE_HELP)
-    p.add_argument("--rate", type=float, default=0.0, help="steady rate of the first joint, rad/s")
+    p.add_argument("--rate", type=finite, default=0.0, help="steady rate of the first joint, rad/s")
     p.add_argument("--json", action="store_true", help="print the frequencies (Hz) as JSON")
     p.set_defaults(func=_cmd_modes)
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import tempfile
 from pathlib import Path
 
 from flexlink.errors import FlexlinkError
@@ -116,11 +117,17 @@ def _check_place(path: OutputPath, option: str) -> None:
     p = Path(path)
     if p.is_dir():
         raise FlexlinkError(f"{option} {path}: is a folder; expected a file name")
+    if path.endswith(("/", os.sep)):
+        raise FlexlinkError(f"{option} {path}: ends in a separator, so names a folder; expected a file name")
     parent = p.parent
     if not parent.is_dir():
         raise FlexlinkError(f"{option} {path}: the folder {parent} does not exist; create it first")
     if not os.access(parent, os.W_OK):
         raise FlexlinkError(f"{option} {path}: the folder {parent} is not writable")
+    # what the folder's permission bits do not tell (root writes everywhere by them; /proc, /sys and a
+    # read-only mount refuse all the same): a file made and removed there
+    with tempfile.TemporaryFile(dir=parent):
+        pass
     if path.plot:
         suffix = p.suffix.lower().lstrip(".")
         formats = _plot_formats()

@@ -73,6 +73,8 @@ def test_the_parser_has_the_output_options_we_expect():
 def test_output_into_a_missing_folder_is_refused_before_the_work(tmp_path, command, option):
     p = _subparsers(build_parser())[command]
     args = [command] + ([SCENE] if any(a.dest == "scene" for a in p._actions) else [])
+    if any(a.dest == "fmu" for a in p._actions):          # flexlink check: an FMU, which is never opened
+        args.append(str(tmp_path / "some.fmu"))
     for a in p._actions:
         flag = max(a.option_strings, key=len) if a.option_strings else None
         if a.required and flag and flag != option:
@@ -84,6 +86,27 @@ def test_output_into_a_missing_folder_is_refused_before_the_work(tmp_path, comma
     # refused before the work: no FMU built into the private cache, nothing written
     assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").rglob("*.fmu"))
     assert not any(tmp_path.glob("ok.*"))
+
+
+@pytest.mark.parametrize(("option", "value", "words"), [
+    ("--plot", "{tmp}/x.png/", ["--plot", "names a folder"]),
+    ("--csv", "{tmp}", ["--csv", "is a folder"]),
+    ("--csv", "/proc/x.csv", ["--csv", "cannot be written"]),
+], ids=["trailing-slash", "folder", "proc"])
+def test_an_output_that_cannot_be_a_file_is_refused_before_the_run(tmp_path, option, value, words):
+    """A name ending in a separator (matplotlib would write ``x.png/.png`` after the run), a folder, and a
+    folder whose permission bits let root write but which takes no file (/proc): one line, before the work
+    (the walk of 2026-11-29 found the first and the last ending in a traceback after the simulation)."""
+    if value.startswith("/proc") and not Path("/proc").is_dir():
+        pytest.skip("no /proc here")
+    one_line(run(["simulate", SCENE, "--stop-time", "0.01", option, value.format(tmp=tmp_path)], tmp_path), *words)
+    assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").rglob("*.fmu"))
+
+
+def test_check_junit_into_a_folder_is_refused_before_the_checks(tmp_path):
+    """``flexlink check F --junit DIR`` ran every check, then failed in a traceback writing DIR."""
+    one_line(run(["check", str(tmp_path / "some.fmu"), "--junit", str(tmp_path)], tmp_path), "--junit",
+             "is a folder")
 
 
 def test_plot_in_an_unknown_format_is_refused(tmp_path):
@@ -155,7 +178,8 @@ def test_build_output_with_a_trailing_slash_is_a_folder(tmp_path):
 
 
 @pytest.mark.parametrize("args", [[], ["nosuchcommand"], ["control", SCENE, "--target"], ["sweep", SCENE],
-                                  ["modes", SCENE, "--rate", "abc"], ["linearize", SCENE, "--no-such-option"]])
+                                  ["modes", SCENE, "--rate", "abc"], ["modes", SCENE, "--rate", "nan"],
+                                  ["modes", SCENE, "--rate", "inf"], ["linearize", SCENE, "--no-such-option"]])
 def test_usage_errors_are_one_line(tmp_path, args):
     """argparse's own errors too: one line naming the problem and where the help is, not the usage."""
     one_line(run(args, tmp_path), "error:", "--help")

@@ -379,6 +379,20 @@ def test_cli_open_loop_grid_on_the_local_cluster(tmp_path, cache):
     assert light[0] > light[-1] > 0
 
 
+def test_an_open_loop_case_the_fmu_refuses_says_so_once(tmp_path, cache):
+    """A refused open-loop case's ``error`` names the FMU, the call and the FMU's reason once each (the walk of
+    2026-11-29 found them twice: the refusal already carried them, and the case wrapped it again)."""
+    out = tmp_path / "refused.csv"
+    r = _flexlink(["sweep", str(SCENE), "--param", "arm.EI=-1,93.72", "--stop-time", "0.05", "--scheduler",
+                   "serial", "--out", str(out), "--no-progress"], cache)
+    assert r.returncode == 0, r.stderr
+    df = pd.read_csv(out, keep_default_na=False)
+    (error,) = df[df["arm.EI"] == -1]["error"]
+    assert error.count("arm.EI = -1: must be > 0") == 1 and error.count(".fmu") == 1, error
+    assert "fmi2SetReal failed with status 3 (error)" in error
+    assert df[df["arm.EI"] != -1]["error"].tolist() == [""]
+
+
 def test_cli_monte_carlo_serial_parquet_and_bad_input(tmp_path, cache, capsys, monkeypatch):
     out, png = tmp_path / "mc.parquet", tmp_path / "mc.png"
     args = ["sweep", "examples/rotating_link_payload.toml", "--samples", "6", "--seed", "2",

@@ -21,6 +21,7 @@ vector signal ``arm_eta``).  :class:`LinearPlant` keeps the FMU names beside the
 from __future__ import annotations
 
 import functools
+import math
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -138,13 +139,26 @@ def _model_of(scene_or_model) -> SymbolicModel:
 
 
 def _parameter_vector(model: SymbolicModel, parameters: Mapping[str, float] | None) -> np.ndarray:
+    """The model's parameter vector with ``parameters`` changed, each in the range its FMU variable declares.
+
+    The same refusals as the FMU's ``fmi2SetReal`` (``arm.EI = -1: must be > 0``): a linearisation of a plant
+    the FMU would refuse (a negative stiffness: unstable poles; a zero one: a singular static deflection) is
+    no answer.
+    """
     p = model.p0.copy()
     for name, value in (parameters or {}).items():
         try:
-            p[model.parameter_index(name)] = float(value)
+            k = model.parameter_index(name)
         except KeyError:
             known = [par.name for par in model.parameters]
             raise FlexlinkError(f"{name}: not a tunable parameter of this model; its parameters are {known}") from None
+        value = float(value)
+        par = model.parameters[k]
+        if not math.isfinite(value):
+            raise FlexlinkError(f"{name} = {value:g}: expected a finite number")
+        if value < par.min or (par.min_exclusive and value == par.min):
+            raise FlexlinkError(f"{name} = {value:.15g}: must be {'>' if par.min_exclusive else '>='} {par.min:.15g}")
+        p[k] = value
     return p
 
 

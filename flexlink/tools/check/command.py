@@ -16,6 +16,7 @@ import os
 import zipfile
 
 from flexlink.errors import FlexlinkError
+from flexlink.paths import output_file
 from flexlink.tools.check.driver import CALL_LIMIT, CI_FUZZ, NAMES, check_fmu
 from flexlink.tools.check.report import as_json, passed, totals, write_junit, write_report
 
@@ -128,7 +129,8 @@ def add_parser(sub) -> None:
     p.add_argument("fmu", metavar="FMU", help="the FMU file to check")
     p.add_argument("--report", metavar="DIR", help="write report.md and report.json to DIR")
     p.add_argument("--json", action="store_true", help="print the results as JSON instead of text")
-    p.add_argument("--junit", metavar="FILE", help="write JUnit XML (one test case per check) to FILE")
+    p.add_argument("--junit", metavar="FILE", type=output_file,
+                   help="write JUnit XML (one test case per check) to FILE")
     p.add_argument("--only", metavar="CHECKS", help="comma-separated checks to run: " + ", ".join(NAMES))
     p.add_argument("--skip", metavar="CHECKS", help="comma-separated checks not to run")
     p.add_argument("--interface", choices=["cs", "me", "both"], default="both",
