@@ -10,6 +10,7 @@ before it runs the command, so that a bad path is one line and exit status 2, wh
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import tempfile
 from pathlib import Path
@@ -117,17 +118,15 @@ def _check_place(path: OutputPath, option: str) -> None:
     p = Path(path)
     if p.is_dir():
         raise FlexlinkError(f"{option} {path}: is a folder; expected a file name")
-    if path.endswith(("/", os.sep)):
-        raise FlexlinkError(f"{option} {path}: ends in a separator, so names a folder; expected a file name")
+    if path.endswith(("/", os.sep)) or os.path.basename(path) in ("", ".", ".."):
+        raise FlexlinkError(f"{option} {path}: names a folder (it ends in a separator, . or ..); expected a "
+                            "file name")
     parent = p.parent
     if not parent.is_dir():
         raise FlexlinkError(f"{option} {path}: the folder {parent} does not exist; create it first")
     if not os.access(parent, os.W_OK):
         raise FlexlinkError(f"{option} {path}: the folder {parent} is not writable")
-    # what the folder's permission bits do not tell (root writes everywhere by them; /proc, /sys and a
-    # read-only mount refuse all the same): a file made and removed there
-    with tempfile.TemporaryFile(dir=parent):
-        pass
+    _probe(parent, path, option)
     if path.plot:
         suffix = p.suffix.lower().lstrip(".")
         formats = _plot_formats()
@@ -136,6 +135,22 @@ def _check_place(path: OutputPath, option: str) -> None:
                                 f"{', '.join('.' + f for f in sorted(formats))}")
     if path.film:
         film_writer(p, option)
+
+
+def _probe(parent: Path, path: str, option: str) -> None:
+    """Make and remove a file in ``parent``, to know what its permission bits do not tell.
+
+    Root writes everywhere by them, while /proc, /sys and a read-only mount refuse all the same.
+    Only a file that cannot be made refuses the path; one that cannot be removed (a folder that only takes
+    appends) is left, named ``.flexlink-probe-*``, since the real write will work.
+    """
+    try:
+        fd, name = tempfile.mkstemp(prefix=".flexlink-probe-", dir=parent)
+    except OSError as e:
+        raise FlexlinkError(f"{option} {path}: the folder {parent} takes no new file ({e.strerror})") from None
+    os.close(fd)
+    with contextlib.suppress(OSError):
+        os.remove(name)
 
 
 def film_writer(path: str | os.PathLike, option: str = "-o") -> str:

@@ -23,6 +23,7 @@ from __future__ import annotations
 import functools
 import math
 import os
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -31,6 +32,7 @@ import casadi as ca
 import numpy as np
 
 from flexlink.errors import FlexlinkError
+from flexlink.export.variables import BIG
 from flexlink.mechanics.analysis import Linearisation, OperatingPoint, linearise, operating_point, static_deflection
 from flexlink.mechanics.model import SymbolicModel, build_model
 from flexlink.scene.loader import Scene, load_scene
@@ -139,11 +141,10 @@ def _model_of(scene_or_model) -> SymbolicModel:
 
 
 def _parameter_vector(model: SymbolicModel, parameters: Mapping[str, float] | None) -> np.ndarray:
-    """The model's parameter vector with ``parameters`` changed, each in the range its FMU variable declares.
+    """The model's parameter vector with ``parameters`` changed, each refused where the FMU refuses it.
 
-    The same refusals as the FMU's ``fmi2SetReal`` (``arm.EI = -1: must be > 0``): a linearisation of a plant
-    the FMU would refuse (a negative stiffness: unstable poles; a zero one: a singular static deflection) is
-    no answer.
+    A linearisation of a plant the FMU would refuse (a negative stiffness: unstable poles; a zero one: a
+    singular static deflection; a subnormal one: poles of 1e-154) is no answer; the message is the FMU's.
     """
     p = model.p0.copy()
     for name, value in (parameters or {}).items():
@@ -152,14 +153,29 @@ def _parameter_vector(model: SymbolicModel, parameters: Mapping[str, float] | No
         except KeyError:
             known = [par.name for par in model.parameters]
             raise FlexlinkError(f"{name}: not a tunable parameter of this model; its parameters are {known}") from None
-        value = float(value)
         par = model.parameters[k]
-        if not math.isfinite(value):
-            raise FlexlinkError(f"{name} = {value:g}: expected a finite number")
-        if value < par.min or (par.min_exclusive and value == par.min):
-            raise FlexlinkError(f"{name} = {value:.15g}: must be {'>' if par.min_exclusive else '>='} {par.min:.15g}")
-        p[k] = value
+        why = outside_domain(name, float(value), par.min if math.isfinite(par.min) else -BIG, par.min_exclusive)
+        if why:
+            raise FlexlinkError(why)
+        p[k] = float(value)
     return p
+
+
+def outside_domain(name: str, x: float, lo: float, lo_exclusive: bool, hi: float = BIG) -> str | None:
+    """Why a parameter's value ``x`` is refused, in the FMU's words, or None.
+
+    The rule of the FMU's ``fmi2SetReal`` (``outside_domain`` in fmu_src/variables.c): finite, not subnormal,
+    within its bounds (``BIG``, the C tables' "no bound", where it has none).
+    """
+    if not math.isfinite(x):
+        return f"{name} = {x:g}: NaN and infinite values are refused"
+    if x != 0.0 and abs(x) < sys.float_info.min:
+        return f"{name} = {x:g}: subnormal values are refused (0 or magnitude >= {sys.float_info.min:g})"
+    if not (x > lo if lo_exclusive else x >= lo):
+        return f"{name} = {x:.15g}: must be {'>' if lo_exclusive else '>='} {lo:.15g}"
+    if not x <= hi:
+        return f"{name} = {x:.15g}: must be <= {hi:.15g}"
+    return None
 
 
 def operating_point_at(model: SymbolicModel, *, angle: float | None = None, rate: float = 0.0,

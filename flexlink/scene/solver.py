@@ -174,7 +174,7 @@ SETTINGS: tuple[SolverSetting, ...] = (
     SolverSetting("order", "SOLVER_ORDER", "",
                   f"{ORDER_SS22} or {ORDER_RICHARDSON} (3 is refused): {ORDER_SS22}: SS22; {ORDER_RICHARDSON}: "
                   "SS22 (Theta = 1/2) with Richardson extrapolation, for resolved scenes: a step with "
-                  f"omega_max * dt > {RICHARDSON_MAX_OMEGA_STEP:g} is refused (fmi2Discard); pair it with "
+                  f"omega_max * dt > {RICHARDSON_MAX_OMEGA_STEP:g} is refused (fmi2Discard); pair order 4 with "
                   "solver.tolerance 1e-4 to 1e-6 where errors above 1e-6 suffice (the default 1e-10 took 2-3 times "
                   "the CPU time for the same error on a 3-link chain)",
                   min=float(ORDER_SS22), max=float(ORDER_RICHARDSON), integer=True),

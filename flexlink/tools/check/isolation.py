@@ -174,22 +174,20 @@ def _watch(p: subprocess.Popen, trace: str, call_limit: float, deadline: float) 
             return Finding("returns", f"the check did not finish within its limit (last call: "
                                       f"{calls[-1] if calls else 'none'})", sequence=calls)
         time.sleep(0.05)
+    began, marker, calls = _read(trace)
+    if not calls:
+        where = "before any FMI call"
+    elif began > 0.0:
+        where = f"in {calls[-1]}"
+    else:                       # between calls: in Python, or at the exit (an FMU's library destructors)
+        where = f"after {calls[-1]} returned"
     if p.returncode < 0:
-        began, _, calls = _read(trace)
         sig = signal.Signals(-p.returncode).name if -p.returncode in signal.valid_signals() else p.returncode
-        if not calls:
-            where = "before any FMI call"
-        elif began > 0.0:
-            where = f"in {calls[-1]}"
-        else:                   # between calls: in Python, or at the exit (an FMU's library destructors)
-            where = f"after {calls[-1]} returned"
         return Finding("no-crash", f"the process died of {sig} {where}", sequence=calls)
-    if p.returncode > 0 and _read(trace)[1] == FINISHED:
+    if p.returncode > 0 and marker == FINISHED:
         # it reported, then something at its exit (an FMU library's exit handler calling exit()) changed the
         # status the harness would otherwise have taken for a clean exit
-        _, _, calls = _read(trace)
-        return Finding("no-crash", f"the process exited with status {p.returncode} after "
-                                   f"{calls[-1] + ' returned' if calls else 'reporting its result'}", sequence=calls)
+        return Finding("no-crash", f"the process exited with status {p.returncode} {where}", sequence=calls)
     return None
 
 
@@ -217,7 +215,7 @@ def run_isolated(name: str, fmu: str, options: dict, *, call_limit: float, limit
     bad_items: list[str] = []
     resumable = item is not None
     result = None
-    at_exit = ""               # "crashed" or "hung": what the process did after reporting its result
+    at_exit = ""               # "crashed", "hung" or "exited with status N": what the process did after reporting
     with tempfile.TemporaryDirectory(prefix="flexlink-check-child-") as tmp:
         trace = os.path.join(tmp, "trace")
         first = 0
