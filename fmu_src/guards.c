@@ -126,9 +126,7 @@ void fmu_guard_init(Instance *inst, const double *u) {
 
 static int is_law_slot(int i) {
 #if N_LAWS > 0
-    for (int k = 0; k < N_LAWS; k++) {
-        if (i >= MODEL_LAWS[k].u_offset && i < MODEL_LAWS[k].u_offset + 3) return 1;
-    }
+    for (int k = 0; k < N_LAWS; k++) if (i >= MODEL_LAWS[k].u_offset && i < MODEL_LAWS[k].u_offset + 3) return 1;
 #endif
     (void)i;
     return 0;
@@ -169,7 +167,7 @@ static void energy_init(Instance *inst) {
  * work through the inertia), so Q = r(q, v, a, u without force inputs) - r(q, v, a, u) is the same at every a:
  * both are taken at a = 0, where r_fresh says inst->r already holds r(q, v, 0, u) (fmu_update_outputs has
  * just computed it for the consistent acceleration).  inst->energy_r keeps r(q, v, 0, u without force
- * inputs), which fmu_energy_point_keep remembers. */
+ * inputs), which fmu_energy_point_keep remembers.  Where B = dr/du is a constant, Q = -B u (model.h): no residual. */
 static int input_forces(Instance *inst, EnergyPoint *e, int r_fresh) {
     FmuData *d = &inst->d;
     const double *y = d->y;
@@ -177,7 +175,7 @@ static int input_forces(Instance *inst, EnergyPoint *e, int r_fresh) {
     memcpy(e->q, d->q, sizeof(d->q));
     memcpy(e->v, d->v, sizeof(d->v));
     fmu_model_inputs(d, d->time, inst->u0);
-    if (inst->n_force_inputs > 0) {
+    if (inst->n_force_inputs > 0 && !model_input_forces(inst->u0, e->force)) {
         memcpy(inst->energy_u, inst->u0, sizeof(inst->energy_u));
         for (int i = 0; i < N_U; i++) {
             if (!is_law_slot(i)) inst->energy_u[i] = 0.0;
@@ -321,6 +319,7 @@ fmi2Status fmu_energy_point_start(Instance *inst, EnergyPoint *e, const char *fu
     }
     if (N_LAWS > 0) return fmu_energy_point(inst, e, function);
     *e = inst->energy_end;
+    if (model_input_forces(inst->u0, e->force)) return fmi2OK;
     if (model_residual(d->q, d->v, inst->zero, inst->u0, d->p, inst->r, &inst->work)) {
         return fmu_error(inst, "%s: the model failed to evaluate at t = %.17g", function, d->time);
     }

@@ -114,6 +114,10 @@ typedef struct {
 int model_residual(const double *q, const double *v, const double *a, const double *u,
                    const double *p, double *r, ModelWork *work);
 
+/* The inputs' generalized forces Q = -B u (N_Q) where B = dr/du is a constant (mechanics.assembly.structure:
+ * joint torques; never with kinematic laws): returns 1.  Else 0 and Q untouched: r(u = 0) - r(u) gives them. */
+int model_input_forces(const double *u, double *force);
+
 /* J = ca dr/da + cv dr/dv + cq dr/dq at (q, v, a, u, p)  (N_Q x N_Q).
  * SS22 uses ca = 1, cv = theta1 dt, cq = theta2 dt^2/2; (1, 0, 0) gives M(q). */
 int model_newton_matrix(const double *q, const double *v, const double *a, const double *u,

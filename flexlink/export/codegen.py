@@ -403,7 +403,7 @@ def _model_c(model: SymbolicModel, variables: list[FmuVariable], units: list[str
         .rstrip("\n"),
         validity_names="\n".join(f"    {_c_string(name)}," for name in model.validity_names) or '    ""',
         parameter_check_names="\n".join(f"    {_c_string(n)}," for n in model.parameter_check_names) or '    ""',
-        parameter_check_body=_parameter_check_body(model),
+        parameter_check_body=_parameter_check_body(model), input_forces_body=_input_forces_body(model),
         forward_body=_forward_body(model, "forward", ("q", "v", "a", "u", "p", "dq", "dv", "da", "du", "dp"),
                                    ("dr", "dy"), complex_step),
         outputs_acceleration_forward_body=_forward_body(model, "outputs_acceleration_forward",
@@ -430,6 +430,23 @@ def _forward_body(model: SymbolicModel, function: str, arguments: tuple[str, ...
     lines += [f"    work->res[{i}] = {x};" for i, x in enumerate(results)]
     lines.append(f"    return {ident}_{function}(work->arg, work->res, work->iw, work->w, 0);")
     return "\n".join(lines)
+
+
+def _input_forces_body(model: SymbolicModel) -> str:
+    """model_input_forces' body: Q = −B u, one sum per coordinate over B's non-zero entries.
+
+    Where B = ∂r/∂u is a constant (a joint torque: −1 on its joint); ``return 0`` where not (the energy guard
+    then takes residual differences, fmu_src/guards.c).
+    """
+    B = model.input_matrix
+    if B is None or B.size == 0:
+        return "    (void)u;\n    (void)force;\n    return 0;"
+    lines = []
+    for i, row in enumerate(B):
+        terms = [f"{'' if b == -1.0 else '-' if b == 1.0 else _c(-b) + ' * '}u[{k}]" for k, b in enumerate(row)
+                 if b != 0.0]
+        lines.append(f"    force[{i}] = {' + '.join(terms) if terms else '0.0'};")
+    return "\n".join([*lines, "    return 1;"])
 
 
 def _parameter_check_body(model: SymbolicModel) -> str:

@@ -835,14 +835,21 @@ class ChainAssembly:
         return start, sorted(static)
 
 
-def structure(residual: ca.Function) -> tuple[bool, bool]:
-    """(linear in the state, Newton matrix constant) of a residual.
+def structure(residual: ca.Function) -> tuple[bool, bool, np.ndarray | None]:
+    """(linear in the state, Newton matrix constant, input matrix) of a residual.
 
-    Decided on the scalar expansion, where CasADi folds structural zeros that the matrix graph keeps.
+    The input matrix is B = ∂r/∂u where it is a constant (no coordinate, rate, acceleration, input or
+    parameter in it), else None: the generalized forces of the inputs are then −B u, which the FMU's energy
+    guard takes without the two residuals a difference r(u = 0) − r(u) costs at every communication point
+    (fmu_src/guards.c; a joint torque's column is −1 on its joint, whatever the arm's pose).  Decided on the
+    scalar expansion, where CasADi folds structural zeros that the matrix graph keeps.
     """
     f = residual.expand()
     q, v, a, u, p = (ca.SX.sym(n, *f.size_in(i)) for i, n in enumerate("qvaup"))
     state = ca.vertcat(q, v, a)
-    J = ca.jacobian(f(q, v, a, u, p), state)
+    r = f(q, v, a, u, p)
+    J = ca.jacobian(r, state)
     linear = not ca.depends_on(J, state)
-    return linear, linear and not ca.depends_on(J, u)
+    B = ca.jacobian(r, u)
+    constant_inputs = not ca.depends_on(B, ca.vertcat(state, u, p))
+    return linear, linear and not ca.depends_on(J, u), np.array(ca.evalf(B)) if constant_inputs else None

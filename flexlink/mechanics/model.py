@@ -97,7 +97,7 @@ def _build(scene: Scene) -> SymbolicModel:
     validity_function, validity_names = validity(chain)
     check_function, check_names = parameter_checks(chain)
     start_values, static = chain.start_values()
-    linear, constant = structure(chain.residual)
+    linear, constant, inputs = structure(chain.residual)
     free = chain.free
     return SymbolicModel(
         scene=scene, coordinates=[chain.coordinates[k] for k in free],
@@ -105,5 +105,6 @@ def _build(scene: Scene) -> SymbolicModel:
         laws=chain.laws, outputs=signals, start_values=start_values, static_coordinates=static,
         residual=chain.residual, outputs_function=chain.free_function("outputs", expressions),
         linear_in_state=linear, jacobian_constant=constant, terms=chain.terms,
+        input_matrix=None if chain.laws else inputs,
         coordinate_kinds=[chain.kinds[k] for k in free], validity=validity_function, validity_names=validity_names,
         mass_matrix=chain.free_mass_matrix(), parameter_check=check_function, parameter_check_names=check_names)

@@ -84,6 +84,9 @@ class SymbolicModel:
     mass_matrix: ca.Function | None = None   # (q, u, p) -> M, if the builder forms it more cheaply than ∂r/∂a
     parameter_check: ca.Function | None = None   # p -> h: the parameters are physical while every h >= 0
     parameter_check_names: list[str] = field(default_factory=list)
+    # B = ∂r/∂u where constant (mechanics.assembly.structure; None with kinematic laws, whose slots are not
+    # forces): the inputs' generalized forces are −B u
+    input_matrix: np.ndarray | None = None
 
     @property
     def n_q(self) -> int:

@@ -79,6 +79,7 @@ def explain(scene_path) -> dict:
         "outputs": len(model.outputs),
         "linear_in_state": model.linear_in_state,
         "jacobian_constant": model.jacobian_constant,
+        "input_matrix_constant": model.input_matrix is not None,
         "operations": {"residual": int(model.residual.expand().n_instructions()),
                        "outputs": int(model.outputs_function.expand().n_instructions())},
         "generated_operations": {name: ops for name, (_, ops) in functions.items()},
@@ -118,6 +119,11 @@ def format_explanation(info: dict) -> str:
     lines += [f"  - {t}" for t in info["terms"]]
     lines.append("tunable parameters: " + ", ".join(info["parameters"]))
     lines.append("inputs: " + (", ".join(info["inputs"]) or "none") + f"; {info['outputs']} outputs")
+    if info["inputs"]:
+        lines.append("  their generalized forces: " + (
+            "a constant matrix times the inputs (the energy guard evaluates no residual for them)"
+            if info.get("input_matrix_constant") else
+            "residual differences in the energy guard (they depend on the state, or the model has laws)"))
     eq = ("linear in the state, constant step matrix (factorised once)" if info["jacobian_constant"] else
           "linear in the state (one solve per step)" if info["linear_in_state"] else
           "nonlinear (Newton iterations in every SS22 step)")

@@ -126,6 +126,12 @@ int model_validity(const double *q, const double *u, const double *p, double *g,
 /* No relations between parameters to check. */
 const char *const MODEL_PARAMETER_CHECK_NAMES[1] = {""};
 
+/* the guard's residual differences, as for a model whose input matrix is not constant */
+int model_input_forces(const double *u, double *force) {
+    (void)u; (void)force;
+    return 0;
+}
+
 int model_parameter_check(const double *p, double *h, ModelWork *work) {
     (void)p; (void)h; (void)work;
     return 0;
