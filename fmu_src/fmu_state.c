@@ -145,8 +145,8 @@ static const char *invalid_data(const FmuData *d) {
     int phase_ok = 0;
     for (size_t k = 0; k < sizeof(phases) / sizeof(phases[0]); k++) phase_ok |= d->phase == phases[k];
     if (!phase_ok) return "state machine";
-    if ((d->outputs_valid | d->acceleration_ok | d->stop_time_defined | d->experiment_tolerance_defined |
-         d->model_exchange | d->mass_matrix_guarded | d->omega_max_known) & ~1)
+    if ((d->acceleration_ok | d->stop_time_defined | d->experiment_tolerance_defined | d->model_exchange |
+         d->mass_matrix_guarded | d->omega_max_known) & ~1 || d->outputs_valid < 0 || d->outputs_valid > 2)
         return "flags";
     if (d->ss22.max_iterations < 0 || d->ss22.max_iterations > 1000) return "solver settings";
     if (!(d->energy_scale >= 0.0 && isfinite(d->energy_scale)) || (d->energy_last.available & ~1) ||

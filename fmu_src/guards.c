@@ -244,8 +244,9 @@ fmi2Status fmu_energy_point(Instance *inst, EnergyPoint *e, const char *function
     e->available = 0;
     if (!inst->energy_known) energy_init(inst);
     if (inst->energy_kinetic < 0) return fmi2OK;
-    const int r_fresh = !d->outputs_valid;          /* fmu_update_outputs evaluates r(q, v, 0, u) below */
-    const fmi2Status status = fmu_update_outputs(inst, function);
+    /* T(q, v), V(q) need no acceleration; a law's torque (a reaction) does: the full update, with r(q, v, 0, u) */
+    const int r_fresh = N_LAWS > 0 && d->outputs_valid != 1;
+    const fmi2Status status = (N_LAWS > 0 ? fmu_update_outputs : fmu_update_static_outputs)(inst, function);
     if (status > fmi2Warning) return status;
     e->time = d->time;
     e->kinetic = d->y[inst->energy_kinetic];

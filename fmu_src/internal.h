@@ -34,6 +34,8 @@ void fmu_model_inputs(const FmuData *d, double t, double *u);
 /* The consistent acceleration M(q) a = -r(q, v, 0, u, p) at d->time, then the outputs, unless they are
  * up to date; function names the FMI function in messages. */
 fmi2Status fmu_update_outputs(Instance *inst, const char *function);
+/* The outputs without the acceleration only (d->outputs_valid 2), unless the outputs are up to date. */
+fmi2Status fmu_update_static_outputs(Instance *inst, const char *function);
 /* Why the values of d (parameters, solver settings, start values, inputs) are outside what fmi2SetReal
  * accepts, in why; NULL if they are all acceptable.  A deserialised FMU state passes the same gate as the
  * values a host sets one by one (inst lends its work memory to the parameter relations). */

@@ -92,6 +92,10 @@ extern const KinematicLaw MODEL_LAWS[N_LAWS];
 extern const int MODEL_STATIC_COORDS[N_STATIC];
 #endif
 
+/* 1 where output y[i] depends on the acceleration (reactions, accelerations, a law's torque), structurally:
+ * the others are read without the consistent acceleration (variables.c, fmu_update_static_outputs). */
+extern const unsigned char MODEL_OUTPUT_USES_ACCELERATION[N_Y > 0 ? N_Y : 1];
+
 /* Nominal magnitude of each free coordinate (Newton convergence test, ME nominals). */
 extern const double MODEL_NOMINAL_Q[N_Q];
 

@@ -113,7 +113,7 @@ int fmu_all_finite(const double *x, int n) {
 fmi2Status fmu_update_outputs(Instance *inst, const char *function) {
     FmuData *d = &inst->d;
     fmi2Status status = fmi2OK;
-    if (d->outputs_valid) return fmi2OK;
+    if (d->outputs_valid == 1) return fmi2OK;
     fmu_model_inputs(d, d->time, inst->u0);
     if (model_residual(d->q, d->v, inst->zero, inst->u0, d->p, inst->r, &inst->work)) {
         return fmu_error(inst, "%s: the model failed to evaluate at t = %.17g", function, d->time);
@@ -134,6 +134,21 @@ fmi2Status fmu_update_outputs(Instance *inst, const char *function) {
     }
     d->outputs_valid = 1;
     return status;
+}
+
+/* The outputs that do not depend on the acceleration (MODEL_OUTPUT_USES_ACCELERATION), unless up to date:
+ * evaluated at a = 0, without the consistent acceleration, its mass matrix and LU (most of what a small model's
+ * communication point cost besides its step).  d->y's other entries are not valid until fmu_update_outputs
+ * (outputs_valid 2: get_values never returns them, and they are values at a = 0, not stale ones). */
+fmi2Status fmu_update_static_outputs(Instance *inst, const char *function) {
+    FmuData *d = &inst->d;
+    if (d->outputs_valid) return fmi2OK;
+    fmu_model_inputs(d, d->time, inst->u0);
+    if (model_outputs(d->q, d->v, inst->zero, inst->u0, d->p, d->y, &inst->work)) {
+        return fmu_error(inst, "%s: the model failed to evaluate its outputs at t = %.17g", function, d->time);
+    }
+    d->outputs_valid = 2;
+    return fmi2OK;
 }
 
 /* ================================================================ get and set */
@@ -158,14 +173,16 @@ static fmi2Status check_references(Instance *inst, const char *function, int int
 /* Get Real or Integer values (one of real, integer). */
 static fmi2Status get_values(Instance *inst, const char *function, int is_integer, const fmi2ValueReference vr[],
                              size_t nvr, fmi2Real real[], fmi2Integer integer[]) {
-    int need_outputs = 0;
+    int need = 0;        /* 1: outputs without the acceleration; 2: the consistent acceleration too */
     fmi2Status status = fmi2OK;
     if (check_references(inst, function, is_integer, vr, nvr) != fmi2OK) return fmi2Error;
     for (size_t i = 0; i < nvr; i++) {
-        if (MODEL_VARS[vr[i]].kind == VAR_OUTPUT || MODEL_VARS[vr[i]].kind == VAR_DER_V) need_outputs = 1;
+        const VarInfo *v = &MODEL_VARS[vr[i]];
+        if (v->kind == VAR_DER_V || (v->kind == VAR_OUTPUT && MODEL_OUTPUT_USES_ACCELERATION[v->index])) need = 2;
+        else if (v->kind == VAR_OUTPUT && need == 0) need = 1;
     }
-    if (need_outputs) {
-        status = fmu_update_outputs(inst, function);
+    if (need > 0) {
+        status = need == 2 ? fmu_update_outputs(inst, function) : fmu_update_static_outputs(inst, function);
         if (status > fmi2Warning) return status;
     }
     for (size_t i = 0; i < nvr; i++) {

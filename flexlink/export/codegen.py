@@ -399,6 +399,7 @@ def _model_c(model: SymbolicModel, variables: list[FmuVariable], units: list[str
         casadi_includes="\n".join(f'#include "{u}.h"' for u in units),
         variables=_variable_rows(variables), nominal_q=", ".join(_c(x) for x in model.nominal_q),
         static_coordinates=static, laws=_law_tables(model),
+        output_uses_acceleration=", ".join(str(int(x)) for x in outputs_using_acceleration(model)) or "0",
         newton_matrix=newton.substitute(identifier=ident, mass_matrix=mass.substitute(identifier=ident).rstrip("\n"))
         .rstrip("\n"),
         validity_names="\n".join(f"    {_c_string(name)}," for name in model.validity_names) or '    ""',
@@ -430,6 +431,19 @@ def _forward_body(model: SymbolicModel, function: str, arguments: tuple[str, ...
     lines += [f"    work->res[{i}] = {x};" for i, x in enumerate(results)]
     lines.append(f"    return {ident}_{function}(work->arg, work->res, work->iw, work->w, 0);")
     return "\n".join(lines)
+
+
+def outputs_using_acceleration(model: SymbolicModel) -> list[bool]:
+    """Which outputs depend on the acceleration (structurally: the Jacobian's sparsity, which is conservative).
+
+    MODEL_OUTPUT_USES_ACCELERATION: the FMU evaluates the others without the consistent acceleration, the
+    mass matrix and its LU a host's read of positions, rates, deflections or energies would otherwise cost.
+    """
+    rows = model.outputs_function.sparsity_jac(2, 0).get_triplet()[0]
+    uses = [False] * len(model.outputs)
+    for i in rows:
+        uses[i] = True
+    return uses
 
 
 def _input_forces_body(model: SymbolicModel) -> str:

@@ -56,6 +56,7 @@ const KinematicLaw MODEL_LAWS[N_LAWS] = {
 const int MODEL_STATIC_COORDS[N_STATIC] = {0};
 
 const double MODEL_NOMINAL_Q[N_Q] = {0.1, 0.1};
+const unsigned char MODEL_OUTPUT_USES_ACCELERATION[N_Y] = {0, 0, 0, 0, 1, 1, 0, 0, 0, 0, 0, 0};   /* a0, a1 */
 
 enum { M, C, K, K3, G, LIMIT, MAX_CV };
 

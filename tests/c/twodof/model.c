@@ -22,6 +22,7 @@ const VarInfo MODEL_VARS[N_VARS] = {
 };
 
 const double MODEL_NOMINAL_Q[N_Q] = {1.0, 1.0};
+const unsigned char MODEL_OUTPUT_USES_ACCELERATION[N_Y] = {0, 0, 0, 0};
 
 static const double M[4] = {1, 1, 1, 2};   /* column-major, symmetric */
 static const double K[4] = {1, 1, 1, 3};
