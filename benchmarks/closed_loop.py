@@ -6,13 +6,13 @@
 For each scene: the FMU is built (cached, not timed), the controllers designed (not timed), then a 90°
 rest-to-rest manoeuvre in 1.5 s plus 1.5 s settle is run ``--repeats`` times on one instance (``fmi2Reset``
 between runs) with the LQR + Kalman law and with the PD, each time by both loops of
-:class:`controllers.cosim.FmuLoop` in turn: the fast one (``fast=True``: the law's affine form, raw ctypes
+:class:`controllers.cosim.FmuLoop` in turn: the fast one (``fast=True``: the law's affine form, raw cffi
 calls) and the reference loop (``fast=False``: ``law.step`` per sample), whose runs must agree to 1e-9 of
 the torque's scale (the tests hold them to 1e-12 relative).  The realtime factor is simulated seconds per
 wall-clock second of the loop (reset, initialisation and every sample's getReal / law / setReal / doStep);
 each figure is the median over the repeats, the speed-up the median of the per-repeat ratios.  "CPU" is the
 same factor on the process's CPU time: on a loaded machine the wall clock also counts the time the loop
-waited for a core.  The per-sample split gives the FMU alone: the same three calls through ctypes with a
+waited for a core.  The per-sample split gives the FMU alone: the same three calls through cffi with a
 constant torque and no law; and "from C": ``benchmarks/sample_cost.c``, compiled with the FMU's own sources,
 replays the fast loop's recorded torques through the same three calls without Python.  ``--write`` puts the
 table into docs/performance.md between ``<!-- closed-loop:begin -->`` and ``<!-- closed-loop:end -->`` (or
@@ -65,18 +65,21 @@ def fmu_in_c(fmu, names: list[str], torque_name: str, torques: np.ndarray, dt: f
 
 def fmu_only(loop, names: list[str], torque: str, n_steps: int, dt: float, repeats: int) -> tuple[float, float]:
     """Median wall and CPU time per sample of getReal + setReal + doStep alone (constant torque, no law),
-    called as the fast loop calls them."""
+    called as the fast loop calls them (the host's raw functions through cffi, pointers made once)."""
+    from flexlink.run.host import pointer
+
     s = loop.slave
     get_real, set_real, do_step = (loop.host.raw(f) for f in ("fmi2GetReal", "fmi2SetReal", "fmi2DoStep"))
     vr_out = (ctypes.c_uint * len(names))(*[loop.vr(n) for n in names])
     val_out = (ctypes.c_double * len(names))()
     vr_in = (ctypes.c_uint * 1)(loop.vr(torque))
     val_in = (ctypes.c_double * 1)(0.1)
-    a_out, a_vr_out, a_in, a_vr_in = (ctypes.addressof(x) for x in (val_out, vr_out, val_in, vr_in))
+    a_out, a_in = pointer(ctypes.addressof(val_out), "double"), pointer(ctypes.addressof(val_in), "double")
+    a_vr_out, a_vr_in = (pointer(ctypes.addressof(x), "unsigned int") for x in (vr_out, vr_in))
     walls, cpus = [], []
     for _ in range(repeats):
         loop.host.initialize()
-        comp = s.component
+        comp = pointer(s.component, "void")
         t0, c0 = time.perf_counter(), time.process_time()
         for k in range(n_steps):
             get_real(comp, a_vr_out, len(names), a_out)
@@ -250,10 +253,10 @@ def markdown(rows: list[dict], info: dict) -> str:
              f"of {info['repeats']} runs, the fast loop and the reference loop (`law.step` per sample) alternated in "
              f"the same run; load average {info['load_start']:.1f} at the start, {info['load_end']:.1f} at the end "
              "(2 cores: on CPU time, the waits for a core are left out).", "",
-             "Times per 1 ms sample in µs, wall (CPU): the whole loop; the FMU's three calls through ctypes with a "
+             "Times per 1 ms sample in µs, wall (CPU): the whole loop; the FMU's three calls through cffi with a "
              "constant torque and no law; the same three calls from C on the loop's recorded torques.", "",
              "| scene | law | × real time (target ≥ 150) | × on CPU time | reference loop × | speed-up | "
-             "loop µs | FMU via ctypes µs | FMU from C µs |",
+             "loop µs | FMU via cffi µs | FMU from C µs |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in rows:
         lines.append(f"| {r['scene']} | {r['controller'].upper()} | {r['realtime_factor']:.0f} | "

@@ -12,13 +12,13 @@ run up to rounding (tests/test_control_fmu.py):
 
 * :meth:`FmuLoop._run_affine` — for a law with an :class:`~controllers.laws.AffineForm` (the LQG without a
   measurement schedule, the PD) and no sensor noise: one ``numpy.dot`` per sample and the FMU's own
-  functions called through ctypes on addresses (issue 22: fmpy's wrappers and numpy on tiny arrays were
-  most of a sample's time);
+  functions called through cffi on pointers made once (issue 22: fmpy's wrappers, numpy on tiny arrays and
+  then ctypes' per-call conversions were most of a sample's time);
 * :meth:`FmuLoop._run_stepped` — any law (multi-joint, scheduled, noisy): ``law.step`` per sample on fmpy's
   ctypes functions and value arrays allocated once.
 
 The instance lives on one :class:`flexlink.run.host.FmuHost` (extraction, the log router, initialisation,
-clean-up, the raw ctypes functions of the fast loop); errors the FMU reports reach the caller as
+clean-up, the raw functions of the fast loop); errors the FMU reports reach the caller as
 :class:`FmuLoopError` (the host's :class:`~flexlink.run.host.FmuCallError`) with the FMU's own log messages.
 """
 
@@ -36,7 +36,7 @@ from fmpy.fmi1 import FMICallException
 from controllers.laws import AffineForm, SampledLaw
 from controllers.trajectory import Reference
 from flexlink.errors import FlexlinkError
-from flexlink.run.host import FmuCallError, FmuHost
+from flexlink.run.host import FmuCallError, FmuHost, pointer
 
 __all__ = ["FmuLoop", "FmuLoopError", "LoopResult"]
 
@@ -235,12 +235,13 @@ class FmuLoop:
         return Y, U
 
     def _run_affine(self, form: AffineForm, sensor_idx: list[int], vr_out, vr_in, reference: Reference):
-        """The fast loop (issue 22): per sample three raw ctypes calls and one ``numpy.dot``.
+        """The fast loop (issue 22): per sample the FMU's three functions through cffi and one ``numpy.dot``.
 
         Everything of a sample lives in one row of ``H`` = (outputs y_k, law state s_k, u_{k−1}, 1):
         ``fmi2GetReal`` writes y_k straight into row k, ``G @ H[k]`` writes (s_{k+1}, v_k) into row k+1,
         the clipped torque overwrites v_k there and ``fmi2SetReal`` reads it from there.  The recorded
-        outputs and torques are columns of ``H``: nothing is copied or allocated per sample.
+        outputs and torques are columns of ``H``: nothing is copied or allocated per sample (the rows' views
+        and their C pointers are made once, before the first sample).
         """
         dt, n_out, ns = reference.dt, len(vr_out), form.n_state
         n_steps = len(reference.time) - 1
@@ -253,16 +254,19 @@ class FmuLoop:
         H[:, iu + 1] = 1.0
         H[0, iu] = form.u0
         get_real, set_real, do_step = (self.host.raw(f) for f in ("fmi2GetReal", "fmi2SetReal", "fmi2DoStep"))
-        comp, base, rb = self.slave.component, H.ctypes.data, H.strides[0]
-        u_addr = base + rb + 8 * iu                           # &H[k + 1, iu] = u_addr + k rb
-        n_vr_out, p_vr_out, p_vr_in = len(vr_out), ctypes.addressof(vr_out), ctypes.addressof(vr_in)
+        comp = pointer(self.slave.component, "void")
+        h = pointer(H.ctypes.data, "double")
+        y_at = [h + k * (iu + 2) for k in range(n_steps + 1)]           # &H[k, 0]
+        u_at = [h + (k + 1) * (iu + 2) + iu for k in range(n_steps)]    # &H[k + 1, iu]
+        p_vr_out, p_vr_in = pointer(ctypes.addressof(vr_out), "unsigned int"), pointer(ctypes.addressof(vr_in),
+                                                                                       "unsigned int")
         r, hi = form.r.tolist(), form.limit
         lo, dot = -hi, np.dot
         rows, outs = list(H), list(H[1:, n_out:iu + 1])      # views made in C once, not per sample
         k = 0
         try:
             for k in range(n_steps + 1):
-                st = get_real(comp, p_vr_out, n_vr_out, base + k * rb)
+                st = get_real(comp, p_vr_out, n_out, y_at[k])
                 if st > 1:
                     raise FMICallException("fmi2GetReal", st)
                 out = outs[k]
@@ -271,7 +275,7 @@ class FmuLoop:
                 out[ns] = hi if u > hi else (lo if u < lo else u)
                 if k == n_steps:
                     break
-                st = set_real(comp, p_vr_in, 1, u_addr + k * rb)
+                st = set_real(comp, p_vr_in, 1, u_at[k])
                 if st > 1:
                     raise FMICallException("fmi2SetReal", st)
                 st = do_step(comp, k * dt, dt, 1)
@@ -280,4 +284,3 @@ class FmuLoop:
         except FMICallException as e:
             raise self._step_failed(k, dt, e) from None
         return H[:-1, :n_out], H[1:, iu:iu + 1]
-

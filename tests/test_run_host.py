@@ -7,11 +7,12 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
 import pytest
 from fmpy.fmi1 import FMICallException
 
 from flexlink.errors import FlexlinkError
-from flexlink.run.host import FmuCallError, FmuHost
+from flexlink.run.host import FmuCallError, FmuHost, pointer
 from flexlink.scene import solver
 
 
@@ -70,22 +71,23 @@ def test_model_exchange_and_clean_up(fmu) -> None:
 
 
 def test_the_raw_calls_of_a_loop_and_their_refusal(fmu) -> None:
-    """The ctypes functions a closed loop calls each sample: the values fmpy's wrapper reads, the status the
-    FMU returns, and the refusal built from it carries the FMU's reason and the loop's place."""
+    """The functions a closed loop calls each sample (cffi, on pointers): the values fmpy's wrapper reads, the
+    status the FMU returns, and the refusal built from it carries the FMU's reason and the loop's place."""
     import ctypes
 
     step = 1e-9
     with FmuHost(fmu) as host:
         host.initialize({"solver.step": 1e-3})
         get_real, do_step = host.raw("fmi2GetReal"), host.raw("fmi2DoStep")
-        comp = host.instance.component
+        comp = pointer(host.instance.component, "void")
         assert do_step(comp, 0.0, 0.01, 1) == 0
         refs = (ctypes.c_uint * 2)(host.vr["hub.theta"], host.vr["hub.omega"])
-        values = (ctypes.c_double * 2)()
-        assert get_real(comp, ctypes.addressof(refs), 2, ctypes.addressof(values)) == 0
-        assert list(values) == host.get_real(["hub.theta", "hub.omega"])
+        values = np.zeros(3)
+        at = pointer(values.ctypes.data, "double")
+        assert get_real(comp, pointer(ctypes.addressof(refs), "unsigned int"), 2, at + 1) == 0
+        assert list(values) == [0.0, *host.get_real(["hub.theta", "hub.omega"])]
         host.initialize({"solver.step": step})
-        status = host.raw("fmi2DoStep")(host.instance.component, 0.0, 1e-2, 1)
+        status = host.raw("fmi2DoStep")(pointer(host.instance.component, "void"), 0.0, 1e-2, 1)
         assert status == 2
         e = host.refusal("fmi2DoStep", status, where="step 0 (t = 0 s)")
         assert f"at most {solver.DOSTEP_MAX_INTERNAL_STEPS}" in e.reason

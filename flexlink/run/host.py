@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import ctypes
 import difflib
+import functools
 import itertools
 import os
 import re
@@ -47,12 +48,32 @@ STATISTICS_KEYS = ("steps", "newton_iterations", "factorisations", "residual_eva
                    "consistent_iterations")
 
 
-#: The argument types of the functions :meth:`FmuHost.raw` returns (FMI 2.0, ``fmi2FunctionTypes.h``).
-RAW_PROTOTYPES: dict[str, tuple[Any, ...]] = {
-    **{f"fmi2{verb}{kind}": (ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p)
-       for verb in ("Get", "Set") for kind in ("Real", "Integer", "Boolean")},
-    "fmi2DoStep": (ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int),
-    "fmi2SetTime": (ctypes.c_void_p, ctypes.c_double)}
+#: The C types of the functions :meth:`FmuHost.raw` returns (FMI 2.0, ``fmi2FunctionTypes.h``: fmi2Component is
+#: ``void *``, fmi2ValueReference ``unsigned int``, fmi2Real ``double``, fmi2Boolean and fmi2Status ``int``).
+RAW_PROTOTYPES: dict[str, str] = {
+    **{f"fmi2{verb}{kind}": f"int (*)(void *, const unsigned int *, size_t, {const}{ctype} *)"
+       for verb, const in (("Get", ""), ("Set", "const ")) for kind, ctype in (("Real", "double"),
+                                                                                 ("Integer", "int"),
+                                                                                 ("Boolean", "int"))},
+    "fmi2DoStep": "int (*)(void *, double, double, int)",
+    "fmi2SetTime": "int (*)(void *, double)"}
+
+
+def pointer(address: int, ctype: str) -> Any:
+    """A ``ctype *`` at ``address`` for the functions of :meth:`FmuHost.raw`: cffi cdata, ``p + k`` the k-th's.
+
+    The caller keeps the memory alive: a ctypes array's ``ctypes.addressof``, a numpy array's
+    ``.ctypes.data``, an FMU's component.
+    """
+    return _ffi().cast(f"{ctype} *", address)
+
+
+@functools.cache
+def _ffi() -> Any:
+    """The FFI of cffi, made by the first closed loop (a command that runs none never imports cffi)."""
+    import cffi
+
+    return cffi.FFI()
 
 
 class FmuCallError(FlexlinkError, FMICallException):
@@ -197,17 +218,21 @@ class FmuHost:
         return "; ".join(logged) or fallback
 
     def raw(self, function: str) -> Any:
-        """The FMU's own FMI 2 ``function`` as a ctypes function on addresses (ints) that returns the status.
+        """The FMU's own FMI 2 ``function`` as a cffi function pointer of its C type, returning the status.
 
-        Without fmpy's Python wrapper, its status check and ctypes' conversion of arrays: the call a closed
-        loop makes every sample (issue 22: fmpy's wrappers were most of a sample's time).  The caller checks
-        the status (> 1: :meth:`refusal`).  Known: the get/set functions of Real, Integer and Boolean
-        (``component, vr*, size_t, values*``), ``fmi2DoStep`` and ``fmi2SetTime``.
+        Without fmpy's Python wrapper, its status check and ctypes' conversions: the call a closed loop makes
+        every sample (issue 22: fmpy's wrappers were most of a sample's time, then ctypes' own: it converts
+        each argument and prepares libffi's call at every call, where cffi's typed pointer did both once --
+        the fast loop ran 1.21 times as fast, in the same run, benchmarks/closed_loop.py).  Pointer arguments
+        are cdata (:func:`pointer`); the caller checks the status (> 1: :meth:`refusal`).  Known: the get/set
+        functions of Real, Integer and Boolean (``component, vr*, size_t, values*``), ``fmi2DoStep`` and
+        ``fmi2SetTime``.
         """
         proto = RAW_PROTOTYPES.get(function)
         if proto is None:
             raise ValueError(f"raw {function!r}: expected one of {sorted(RAW_PROTOTYPES)}")
-        return ctypes.CFUNCTYPE(ctypes.c_int, *proto)((function, self.instance.dll))
+        address = ctypes.cast(getattr(self.instance.dll, function), ctypes.c_void_p).value
+        return _ffi().cast(proto, address)
 
     # ------------------------------------------------------------------------------------ variables
 
