@@ -92,7 +92,8 @@ typedef struct {
 typedef struct {
     int phase;                        /* Phase                                                  */
     int model_exchange;               /* 1: instantiated as Model Exchange, 0: Co-Simulation    */
-    int outputs_valid;                /* y and acceleration are up to date                      */
+    int outputs_valid;                /* 1: y and acceleration up to date; 2: y's acceleration-free
+                                       * outputs only (variables.c); 0: none                   */
     int acceleration_ok;              /* acceleration is the consistent one (M(q) non-singular) */
     int stop_time_defined;
     int experiment_tolerance_defined;
@@ -211,6 +212,8 @@ void fmu_log_statistics(Instance *inst);
 fmi2Status fmu_set_debug_logging(Instance *inst, fmi2Boolean on, size_t n, const fmi2String categories[]);
 
 /* ------------------------------------------------------------ variable access */
+/* The outputs a read of the references vr[] needs, evaluated once for all of them (variables.c). */
+fmi2Status fmu_update_outputs_for(Instance *inst, const char *function, const fmi2ValueReference vr[], size_t nvr);
 fmi2Status fmu_get_real(Instance *inst, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]);
 fmi2Status fmu_set_real(Instance *inst, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]);
 /* Integer variables (solver.order): an Integer call on a Real is an error; the Real functions take Integer

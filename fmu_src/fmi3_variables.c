@@ -76,12 +76,13 @@ fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference valueR
     if (fmu3_expand(inst, "fmi3GetFloat64", valueReferences, nValueReferences, nValues, &refs) != fmi2OK) {
         return fmi3Error;
     }
-    for (size_t i = 0; i < refs.n; i++) {
+    status = fmu_update_outputs_for(inst, "fmi3GetFloat64", refs.vr, refs.n);    /* once for all references */
+    for (size_t i = 0; i < refs.n && status <= fmi2Warning; i++) {
         if (refs.vr[i] == TIME_VR) {
             values[i] = inst->d.time;
             continue;
         }
-        one = fmu_get_real(inst, &refs.vr[i], 1, &values[i]);   /* outputs are computed once */
+        one = fmu_get_real(inst, &refs.vr[i], 1, &values[i]);
         if (one > status) status = one;
         if (one > fmi2Warning) break;
     }

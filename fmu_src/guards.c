@@ -244,9 +244,11 @@ fmi2Status fmu_energy_point(Instance *inst, EnergyPoint *e, const char *function
     e->available = 0;
     if (!inst->energy_known) energy_init(inst);
     if (inst->energy_kinetic < 0) return fmi2OK;
-    /* T(q, v), V(q) need no acceleration; a law's torque (a reaction) does: the full update, with r(q, v, 0, u) */
-    const int r_fresh = N_LAWS > 0 && d->outputs_valid != 1;
-    const fmi2Status status = (N_LAWS > 0 ? fmu_update_outputs : fmu_update_static_outputs)(inst, function);
+    /* T(q, v), V(q) need no acceleration (unless the build marked them so); a law's torque, a reaction, does */
+    const int full = N_LAWS > 0 || MODEL_OUTPUT_USES_ACCELERATION[inst->energy_kinetic] ||
+                     MODEL_OUTPUT_USES_ACCELERATION[inst->energy_potential];
+    const int r_fresh = full && d->outputs_valid != 1;             /* the full update evaluates r(q, v, 0, u) */
+    const fmi2Status status = (full ? fmu_update_outputs : fmu_update_static_outputs)(inst, function);
     if (status > fmi2Warning) return status;
     e->time = d->time;
     e->kinetic = d->y[inst->energy_kinetic];
@@ -258,14 +260,12 @@ fmi2Status fmu_energy_point(Instance *inst, EnergyPoint *e, const char *function
     return fmi2OK;
 }
 
-/* An energy point inside a communication step, for a model without built-in laws: the energies are functions of
- * q, v, the parameters and the laws' slots, never of the acceleration (T(q, v), V(q): tests/test_energy_guard.py
- * checks every example's generated outputs), and the force inputs' generalized forces are residual differences
- * at a = 0, so nothing here needs the consistent acceleration -- the mass matrix and its LU that
- * fmu_update_outputs pays for the host's outputs.  The outputs are evaluated at the step's mean acceleration into
- * a scratch array; d->y and d->acceleration are left as they were (not valid here: the host reads them only at
- * the end of the step, from fmu_energy_point).  A law's torque is a reaction, a function of the acceleration:
- * with laws the full point is taken. */
+/* An energy point inside a communication step, for a model without built-in laws: the energies need no
+ * acceleration (T(q, v), V(q): tests/test_energy_guard.py checks every example's generated outputs) and the force
+ * inputs' forces are -B u or residual differences at a = 0, so the outputs are evaluated at the step's mean
+ * acceleration into a scratch array, without the consistent acceleration; d->y is left as it was (the step's end
+ * evaluates it, fmu_energy_point).  A law's torque is a reaction, a function of the acceleration: with laws the
+ * full point is taken. */
 fmi2Status fmu_energy_point_inside(Instance *inst, EnergyPoint *e, const char *function) {
     FmuData *d = &inst->d;
     if (N_LAWS > 0) return fmu_energy_point(inst, e, function);

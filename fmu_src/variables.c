@@ -151,6 +151,22 @@ fmi2Status fmu_update_static_outputs(Instance *inst, const char *function) {
     return fmi2OK;
 }
 
+/* The outputs a read of vr[] needs, once for all of them: none, those without the acceleration, or all with
+ * the consistent acceleration (der(v) or an output MODEL_OUTPUT_USES_ACCELERATION marks).  References past
+ * N_VARS (FMI 3's time) need none. */
+fmi2Status fmu_update_outputs_for(Instance *inst, const char *function, const fmi2ValueReference vr[],
+                                  size_t nvr) {
+    int need = 0;        /* 1: outputs without the acceleration; 2: the consistent acceleration too */
+    for (size_t i = 0; i < nvr; i++) {
+        const VarInfo *v = vr[i] < (fmi2ValueReference)N_VARS ? &MODEL_VARS[vr[i]] : NULL;
+        if (v == NULL) continue;
+        if (v->kind == VAR_DER_V || (v->kind == VAR_OUTPUT && MODEL_OUTPUT_USES_ACCELERATION[v->index])) need = 2;
+        else if (v->kind == VAR_OUTPUT && need == 0) need = 1;
+    }
+    if (need == 0) return fmi2OK;
+    return need == 2 ? fmu_update_outputs(inst, function) : fmu_update_static_outputs(inst, function);
+}
+
 /* ================================================================ get and set */
 
 /* Unknown value references are refused, and the Integer functions on a Real variable, naming the function to
@@ -173,18 +189,9 @@ static fmi2Status check_references(Instance *inst, const char *function, int int
 /* Get Real or Integer values (one of real, integer). */
 static fmi2Status get_values(Instance *inst, const char *function, int is_integer, const fmi2ValueReference vr[],
                              size_t nvr, fmi2Real real[], fmi2Integer integer[]) {
-    int need = 0;        /* 1: outputs without the acceleration; 2: the consistent acceleration too */
-    fmi2Status status = fmi2OK;
     if (check_references(inst, function, is_integer, vr, nvr) != fmi2OK) return fmi2Error;
-    for (size_t i = 0; i < nvr; i++) {
-        const VarInfo *v = &MODEL_VARS[vr[i]];
-        if (v->kind == VAR_DER_V || (v->kind == VAR_OUTPUT && MODEL_OUTPUT_USES_ACCELERATION[v->index])) need = 2;
-        else if (v->kind == VAR_OUTPUT && need == 0) need = 1;
-    }
-    if (need > 0) {
-        status = need == 2 ? fmu_update_outputs(inst, function) : fmu_update_static_outputs(inst, function);
-        if (status > fmi2Warning) return status;
-    }
+    const fmi2Status status = fmu_update_outputs_for(inst, function, vr, nvr);
+    if (status > fmi2Warning) return status;
     for (size_t i = 0; i < nvr; i++) {
         const double x = *fmu_slot(&inst->d, &MODEL_VARS[vr[i]]);
         if (is_integer) integer[i] = (fmi2Integer)x; else real[i] = x;

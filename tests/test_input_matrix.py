@@ -52,11 +52,11 @@ def test_explain_says_how_the_energy_guard_takes_the_inputs_forces(tmp_path):
     from flexlink.tools.explain import explain, format_explanation
 
     text = format_explanation(explain("examples/rotating_link.toml"))
-    assert "their generalized forces: a constant matrix times the inputs" in text
+    assert "the force inputs' generalized forces: a constant matrix times the inputs" in text
     scene = tmp_path / "tip_load.toml"
     scene.write_text('name = "tip_load"\n[fmu]\ntip_load_inputs = true\n'
                      '[[joint]]\nname = "hub"\ninertia = 0.1\n'
                      '[[link]]\nname = "arm"\nlength = 1.5\nlinear_density = 2.0\nEI = 300.0\n'
                      'shapes = { kind = "clamped-free", count = 2 }\n')
     text = format_explanation(explain(str(scene)))
-    assert "their generalized forces: residual differences in the energy guard" in text
+    assert "the force inputs' generalized forces: residual differences in the energy guard" in text

@@ -80,6 +80,9 @@ def explain(scene_path) -> dict:
         "linear_in_state": model.linear_in_state,
         "jacobian_constant": model.jacobian_constant,
         "input_matrix_constant": model.input_matrix is not None,
+        # the inputs that are forces (joint torques, tip loads), not a kinematic law's angle, rate, acceleration
+        "force_inputs": [s.name for i, s in enumerate(model.inputs)
+                         if not any(law.u_offset <= i < law.u_offset + 3 for law in model.laws)],
         "operations": {"residual": int(model.residual.expand().n_instructions()),
                        "outputs": int(model.outputs_function.expand().n_instructions())},
         "generated_operations": {name: ops for name, (_, ops) in functions.items()},
@@ -119,8 +122,8 @@ def format_explanation(info: dict) -> str:
     lines += [f"  - {t}" for t in info["terms"]]
     lines.append("tunable parameters: " + ", ".join(info["parameters"]))
     lines.append("inputs: " + (", ".join(info["inputs"]) or "none") + f"; {info['outputs']} outputs")
-    if info["inputs"]:
-        lines.append("  their generalized forces: " + (
+    if info.get("force_inputs"):
+        lines.append("  the force inputs' generalized forces: " + (
             "a constant matrix times the inputs (the energy guard evaluates no residual for them)"
             if info.get("input_matrix_constant") else
             "residual differences in the energy guard (they depend on the state, or the model has laws)"))
