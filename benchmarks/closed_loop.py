@@ -1,6 +1,7 @@
 """Realtime factor of the closed loop through fmpy (issue 22), at 1 ms sample time by default.
 
-    python benchmarks/closed_loop.py [SCENE.toml ...] [--sample-time S] [--repeats N] [--json] [--write [PAGE]]
+    python benchmarks/closed_loop.py [SCENE.toml ...] [--sample-time S] [--repeats N] [--rounds R] [--json]
+                                     [--write [PAGE]]
     python benchmarks/closed_loop.py --startup N [SCENE.toml]
 
 For each scene: the FMU is built (cached, not timed), the controllers designed (not timed), then a 90°
@@ -171,32 +172,8 @@ def compare_loops(loop, law, ref, repeats: int) -> dict:
             "torques": b[law.input][:-1]}
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("scenes", nargs="*")
-    ap.add_argument("--sample-time", type=float, default=1e-3)
-    ap.add_argument("--repeats", type=int, default=7)
-    ap.add_argument("--json", action="store_true")
-    ap.add_argument("--startup", type=int, metavar="N", help="measure the start-up of flexlink control instead")
-    ap.add_argument("--write", nargs="?", const=str(PAGE), metavar="PAGE",
-                    help="write the table into PAGE (default docs/performance.md) between its closed-loop markers")
-    args = ap.parse_args()
-    if args.startup:
-        scene = args.scenes[0] if args.scenes else str(ROOT / "examples" / DEFAULT[0])
-        res = startup(scene, args.startup)
-        if args.json:
-            print(json.dumps(res))
-            return
-        print(f"flexlink control {Path(scene).name} --target 90: process start to first FMU call, median of "
-              f"{res['cached']['runs']} (alternated in this run)")
-        for k in ("uncached", "cached"):
-            r = res[k]
-            print(f"  {k:9s} {r['median_s']:.2f} s ({r['min_s']:.2f}-{r['max_s']:.2f} s); heaviest imports "
-                  "(cumulative, one run, -X importtime): "
-                  + ", ".join(f"{m} {v:.2f} s" for m, v in r["imports_s"].items()))
-        print(f"  uncached / cached (median of the per-run ratios): {res['ratio']:.2f}")
-        return
-
+def measure(scenes: list[str], args) -> list[dict]:
+    """One round: every scene's LQR and PD rows (the loops alternated, the FMU alone, the FMU from C)."""
     from controllers.cosim import FmuLoop
     from controllers.manoeuvre import default_torque_limit, design, reference
     from flexlink.export.cache import cached_fmu
@@ -204,10 +181,8 @@ def main() -> None:
     from flexlink.run.linearize import linear_plant
     from flexlink.scene.loader import load_scene
 
-    scenes = args.scenes or [str(ROOT / "examples" / s) for s in DEFAULT]
     dt, target, duration, settle = args.sample_time, math.pi / 2, 1.5, 1.5
     rows = []
-    load0 = os.getloadavg()[0]
     for path in scenes:
         model = build_model(load_scene(path))
         fmu = cached_fmu(path)
@@ -230,8 +205,61 @@ def main() -> None:
                              "us_per_sample_fmu": 1e6 * per_fmu[0], "us_per_sample_fmu_cpu": 1e6 * per_fmu[1],
                              "us_per_sample_fmu_c": in_c["us_per_sample"],
                              "us_per_sample_fmu_c_cpu": in_c["us_per_sample_cpu"]})
+    return rows
+
+
+def combine(rounds: list[list[dict]]) -> list[dict]:
+    """Each row's figures as the median over the rounds, with the realtime factors of every round.
+
+    The rounds run one after the other over minutes: on a shared machine whose speed drifts between phases
+    that long, the median of several rounds says what one round's median cannot.
+    """
+    rows = []
+    for same in zip(*rounds, strict=True):
+        row = {k: (statistics.median(r[k] for r in same) if isinstance(v, float) else v)
+               for k, v in same[0].items()}
+        row["max_torque_difference_nm"] = max(r["max_torque_difference_nm"] for r in same)
+        row["realtime_factor_min"] = min(r["realtime_factor_min"] for r in same)
+        row["realtime_factor_rounds"] = [r["realtime_factor"] for r in same]
+        rows.append(row)
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("scenes", nargs="*")
+    ap.add_argument("--sample-time", type=float, default=1e-3)
+    ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--rounds", type=int, default=1,
+                    help="measure the whole table N times in a row and report each figure's median over them")
+    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--startup", type=int, metavar="N", help="measure the start-up of flexlink control instead")
+    ap.add_argument("--write", nargs="?", const=str(PAGE), metavar="PAGE",
+                    help="write the table into PAGE (default docs/performance.md) between its closed-loop markers")
+    args = ap.parse_args()
+    if args.startup:
+        scene = args.scenes[0] if args.scenes else str(ROOT / "examples" / DEFAULT[0])
+        res = startup(scene, args.startup)
+        if args.json:
+            print(json.dumps(res))
+            return
+        print(f"flexlink control {Path(scene).name} --target 90: process start to first FMU call, median of "
+              f"{res['cached']['runs']} (alternated in this run)")
+        for k in ("uncached", "cached"):
+            r = res[k]
+            print(f"  {k:9s} {r['median_s']:.2f} s ({r['min_s']:.2f}-{r['max_s']:.2f} s); heaviest imports "
+                  "(cumulative, one run, -X importtime): "
+                  + ", ".join(f"{m} {v:.2f} s" for m, v in r["imports_s"].items()))
+        print(f"  uncached / cached (median of the per-run ratios): {res['ratio']:.2f}")
+        return
+
+    scenes = args.scenes or [str(ROOT / "examples" / s) for s in DEFAULT]
+    load0 = os.getloadavg()[0]
+    rounds = [measure(scenes, args) for _ in range(args.rounds)]
+    rows = combine(rounds)
     info = {"date": time.strftime("%Y-%m-%d"), "machine": platform.machine(), "repeats": args.repeats,
-            "sample_time_s": dt, "simulated_s": duration + settle, "load_start": load0,
+            "rounds": args.rounds, "sample_time_s": args.sample_time, "simulated_s": rows[0]["simulated_s"],
+            "load_start": load0,
             "load_end": os.getloadavg()[0]}
     if args.json:
         print(json.dumps({"info": info, "rows": rows}))
@@ -246,20 +274,27 @@ def main() -> None:
 
 def markdown(rows: list[dict], info: dict) -> str:
     """The closed-loop table between the page's markers, with how and when it was measured."""
+    n = info.get("rounds", 1)
+    rounds_flag = f" --rounds {n}" if n > 1 else ""
+    rounds_text = (f"; the whole table measured {n} times in a row, each figure the median of the {n} "
+                   "(the realtime factor's range over them in brackets: the machine's speed drifts over minutes)"
+                   if n > 1 else "")
     lines = [BEGIN, "<!-- generated by `python benchmarks/closed_loop.py --write`: edit it, not this block -->", "",
              f"Measured {info['date']} on {info['machine']} (`python benchmarks/closed_loop.py --repeats "
-             f"{info['repeats']}`): a 90° rest-to-rest manoeuvre in 1.5 s + 1.5 s settle, sample time "
+             f"{info['repeats']}{rounds_flag}`): a 90° rest-to-rest manoeuvre in 1.5 s + 1.5 s settle, sample time "
              f"{info['sample_time_s'] * 1e3:g} ms, through fmpy on one instance (`fmi2Reset` between runs); medians "
              f"of {info['repeats']} runs, the fast loop and the reference loop (`law.step` per sample) alternated in "
-             f"the same run; load average {info['load_start']:.1f} at the start, {info['load_end']:.1f} at the end "
-             "(2 cores: on CPU time, the waits for a core are left out).", "",
+             f"the same run{rounds_text}; load average {info['load_start']:.1f} at the start, "
+             f"{info['load_end']:.1f} at the end (2 cores: on CPU time, the waits for a core are left out).", "",
              "Times per 1 ms sample in µs, wall (CPU): the whole loop; the FMU's three calls through cffi with a "
              "constant torque and no law; the same three calls from C on the loop's recorded torques.", "",
              "| scene | law | × real time (target ≥ 150) | × on CPU time | reference loop × | speed-up | "
              "loop µs | FMU via cffi µs | FMU from C µs |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in rows:
-        lines.append(f"| {r['scene']} | {r['controller'].upper()} | {r['realtime_factor']:.0f} | "
+        spread = r.get("realtime_factor_rounds", [])
+        factor = f"{r['realtime_factor']:.0f}" + (f" ({min(spread):.0f}–{max(spread):.0f})" if len(spread) > 1 else "")
+        lines.append(f"| {r['scene']} | {r['controller'].upper()} | {factor} | "
                      f"{r['realtime_factor_cpu']:.0f} | {r['realtime_factor_reference_loop']:.0f} | "
                      f"{r['speed_up']:.2f} | {r['us_per_sample']:.1f} ({r['us_per_sample_cpu']:.1f}) | "
                      f"{r['us_per_sample_fmu']:.1f} ({r['us_per_sample_fmu_cpu']:.1f}) | "
