@@ -46,6 +46,10 @@ static int TR_n;
 static double OLD_qb[SS22_CACHE][N_Q], OLD_vb[SS22_CACHE][N_Q], OLD_a[SS22_CACHE][N_Q];
 static double OLD_u[SS22_CACHE][N_U > 0 ? N_U : 1];
 static uint64_t OLD_step[SS22_CACHE];
+/* where the kept matrix's M part was taken: its full evaluation's state, or its last mass update's */
+static double OLDM_qb[SS22_CACHE][N_Q], OLDM_vb[SS22_CACHE][N_Q], OLDM_a[SS22_CACHE][N_Q];
+static double OLDM_u[SS22_CACHE][N_U > 0 ? N_U : 1];
+static uint64_t TR_updates;
 static double TR_start[N_Q];
 '''
 
@@ -133,7 +137,8 @@ static void trace_step(SS22 *s, double dt, const double *q, const double *v, con
         for (int m = 0; m < 3; m++) {
             const double *w = weights[m];
             model_newton_matrix(qb, vb, a, s->u_bar, p, w[0], w[1], w[2], Xn, work);
-            model_newton_matrix(OLD_qb[k], OLD_vb[k], OLD_a[k], OLD_u[k], p, w[0], w[1], w[2], Xo, work);
+            if (m == 0) model_newton_matrix(OLDM_qb[k], OLDM_vb[k], OLDM_a[k], OLDM_u[k], p, 1, 0, 0, Xo, work);
+            else model_newton_matrix(OLD_qb[k], OLD_vb[k], OLD_a[k], OLD_u[k], p, w[0], w[1], w[2], Xo, work);
             parts[m] = part_norm(f, Xn, Xo, G);
             for (int i = 0; i < N_Q * N_Q; i++) Gt[i] += G[i];
         }
@@ -144,13 +149,23 @@ static void trace_step(SS22 *s, double dt, const double *q, const double *v, con
 }
 '''
 
+# the state of the kept matrix's M part, after its full evaluation or a mass update (fmu_src/mass_update.c)
+MASS_STATE = ("    if ({condition}) {{ const int k_ = (int)(f - s->cache); TR_updates = s->mass_updates;\n"
+              "      memcpy(OLDM_qb[k_], s->q_bar, sizeof(OLDM_qb[k_]));\n"
+              "      memcpy(OLDM_vb[k_], s->v_bar, sizeof(OLDM_vb[k_]));\n"
+              "      memcpy(OLDM_a[k_], {acceleration}, sizeof(OLDM_a[k_]));\n"
+              "      memcpy(OLDM_u[k_], s->u_bar, sizeof(OLDM_u[k_])); }}\n")
+
 # (anchor in fmu_src/ss22.c, text to put after it); each anchor must be there exactly once
 PATCHES = [
     ('#include "predictor.h"\n', HEAD),
+    ("        if (ss22_mass_update_due(s, f)) ss22_mass_update(s, f, a, p, work);      /* for the next steps */\n",
+     MASS_STATE.format(condition="s->mass_updates != TR_updates", acceleration="a")),
     ("    s->factorisations++;\n",
      "    { const int k_ = (int)(f - s->cache); memcpy(OLD_qb[k_], s->q_bar, sizeof(OLD_qb[k_]));\n"
      "      memcpy(OLD_vb[k_], s->v_bar, sizeof(OLD_vb[k_])); memcpy(OLD_a[k_], alpha, sizeof(OLD_a[k_]));\n"
-     "      memcpy(OLD_u[k_], s->u_bar, sizeof(OLD_u[k_])); OLD_step[k_] = s->steps; }\n"),
+     "      memcpy(OLD_u[k_], s->u_bar, sizeof(OLD_u[k_])); OLD_step[k_] = s->steps; }\n"
+     + MASS_STATE.format(condition="1", acceleration="alpha")),
     ("                                  : corrected ? s->tolerance / SS22_DIRECTION_MARGIN : INFINITY;\n",
      "        TR_n = 0; memcpy(TR_start, a, sizeof(TR_start));\n"),
     ("            s->newton_iterations++;\n", "            if (TR_n < 64) TR_err[TR_n++] = err;\n"),

@@ -36,7 +36,7 @@ sys.path.insert(0, str(HERE))
 import step_floor  # noqa: E402
 
 SWAPPED = ("ss22.c", "ss22.h", "predictor.c", "predictor.h", "fmu_state.c", "cs_step.c", "cosimulation.h", "instance.c",
-           "variables.c")
+           "variables.c", "logging.c", "mass_update.c", "mass_update.h")
 DEFAULT = ["fast_two_link.toml", "planar_chain_5.toml", "six_axis_arm.toml", "rotating_link.toml"]
 
 

@@ -41,12 +41,14 @@ ROOT = Path(__file__).resolve().parent.parent
 
 @dataclass
 class Audit:
-    """A run's steps: their start times, each step's Newton error in tolerances, and the settings."""
+    """A run's steps: their start times, each step's Newton error in tolerances, the settings, and the FMU's own
+    counters of the run (``FmuHost.solver_statistics``: Newton iterations, factorisations, mass updates)."""
 
     time: np.ndarray
     errors: np.ndarray
     step: float
     tolerance: float
+    statistics: dict[str, int]
 
 
 def _weighted_inputs(model, u0: np.ndarray, u1: np.ndarray, h: float, t1: float, t2: float) -> np.ndarray:
@@ -124,6 +126,7 @@ def step_errors(scene_path: str | Path, stop: float, start: dict[str, float] | N
             u_steps.append(np.array(cs.get_real([model.inputs[i].name for i in held])))
             cs.call("fmi2DoStep", cs.instance.doStep, k * h, h)
             x.append(cs.get_real(states))
+        statistics = cs.solver_statistics()
     x = np.array(x)
 
     sym = ca.SX if n <= 24 else ca.MX
@@ -155,7 +158,7 @@ def step_errors(scene_path: str | Path, stop: float, start: dict[str, float] | N
             res, jac = newton(exact, q, v, u, p, dt)
             exact -= np.linalg.solve(np.asarray(jac), np.asarray(res).ravel())
         errors[k] = np.max(np.abs(alpha - exact) * dt / nominal) / tol
-    return Audit(np.array(ends[:-1]), errors, h, tol)
+    return Audit(np.array(ends[:-1]), errors, h, tol, statistics)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -187,6 +190,12 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{args.scene}: {len(e)} steps of {audit.step:g} s at tolerance {audit.tolerance:g}: worst "
           f"{e.max():.3g} tolerances (step at t = {audit.time[int(np.argmax(e))]:.6g} s), {int(np.sum(e > 1))} "
           f"beyond 1, median {np.median(e):.3g}")
+    st = audit.statistics
+    if st.get("steps"):
+        updates = st.get("mass_updates", 0)
+        print(f"  {st['newton_iterations'] / st['steps']:.2f} Newton iterations a step; "
+              f"{(st['factorisations'] - updates) / st['steps']:.3f} full Newton matrices and "
+              f"{updates / st['steps']:.3f} mass updates a step")
     for k in np.argsort(e)[::-1][:args.worst]:
         print(f"  t = {audit.time[k]:.6f}  {e[k]:.3g}")
     return 0

@@ -36,7 +36,7 @@ typedef struct { int n_set, n_seg; unsigned set_vr[MAX_TOKENS]; double set_val[M
                  double host; int n_out; unsigned out_vr[MAX_OUTPUTS]; long communication_steps; } Plan;
 
 typedef struct { unsigned long steps, newton_iterations, factorisations, residual_evaluations, mass_refreshes,
-                 mass_iterations, recurrences; } Counters;
+                 mass_iterations, recurrences, mass_updates; } Counters;
 
 /* one segment from t to until: one fmi2DoStep, or the host's equal steps of at most plan->host */
 static void walk(fmi2Component c, Plan *plan, double t, double until) {
@@ -80,6 +80,10 @@ static double run(fmi2Component c, Plan *plan, Counters *cnt) {
     cnt->steps = s->steps - before.steps;
     cnt->newton_iterations = s->newton_iterations - before.newton_iterations;
     cnt->factorisations = s->factorisations - before.factorisations;
+#ifdef SS22_MASS_UPDATE     /* a mass update's LU counts (fmu_src/mass_update.c; not before 2026-11-29) */
+    cnt->mass_updates = s->mass_updates - before.mass_updates;
+    cnt->factorisations += cnt->mass_updates;
+#endif
     cnt->residual_evaluations = s->residual_evaluations - before.residual_evaluations;
 #ifdef SS22_RECURRENCE_COST     /* the recurrence start's matrices formed (fmu_src/predictor.c; not before 2026-11-28) */
     cnt->recurrences = s->recurrences - before.recurrences;
@@ -206,11 +210,11 @@ int main(int argc, char **argv) {
            "\"run_cpu_s\": %.9g, \"simulated_s\": %.9g, \"ss22_steps\": %lu, \"internal_steps\": %.9g, "
            "\"newton_iterations\": %lu, \"factorisations\": %lu, \"residual_evaluations\": %lu, "
            "\"step_s\": %.9g, \"ss22_step_s\": %.9g, \"communication_steps\": %ld, "
-           "\"mass_refreshes\": %lu, \"mass_iterations\": %lu, \"recurrences\": %lu",
+           "\"mass_refreshes\": %lu, \"mass_iterations\": %lu, \"recurrences\": %lu, \"mass_updates\": %lu",
            N_Q, MODEL_LINEAR_IN_STATE, MODEL_JACOBIAN_CONSTANT, order, repeats, run_cpu,
            plan.until[plan.n_seg - 1], cnt.steps, internal, cnt.newton_iterations, cnt.factorisations,
            cnt.residual_evaluations, run_cpu / internal, run_cpu / (double)(cnt.steps ? cnt.steps : 1),
-           plan.communication_steps, cnt.mass_refreshes, cnt.mass_iterations, cnt.recurrences);
+           plan.communication_steps, cnt.mass_refreshes, cnt.mass_iterations, cnt.recurrences, cnt.mass_updates);
     for (int p = 0; p < N_PARTS; p++) printf(", \"%s_s\": %.9g", PART_NAMES[p], part_s[p]);
     printf("}\n");
     free(runs);

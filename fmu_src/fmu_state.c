@@ -169,7 +169,7 @@ static const char *invalid_data(const FmuData *d) {
                           f->confirmed_first >= 0 && f->confirmed_first <= SS22_RATE_CONFIRMATIONS &&
                           f->estimated <= SS22_RATE_MEASURE_EVERY << (f->confirmed > f->confirmed_first ?
                                                                       f->confirmed : f->confirmed_first) &&
-                          f->waste >= 0.0 && isfinite(f->waste) &&
+                          f->waste >= 0.0 && isfinite(f->waste) && f->waste_full >= 0.0 && isfinite(f->waste_full) &&
                           (f->first[0] == -1.0 || (f->first[0] >= 0.0 && isfinite(f->first[0]))) &&
                           (f->first[1] == -1.0 || (f->first[1] >= 0.0 && isfinite(f->first[1]))) &&
                           (f->first[2] == -1.0 || (f->first[2] >= 0.0 && isfinite(f->first[2]))) &&
@@ -178,6 +178,9 @@ static const char *invalid_data(const FmuData *d) {
         for (int i = 0; i < N_Q && f->valid; i++) {
             if (f->piv[i] < i || f->piv[i] >= N_Q) return "solver cache";
         }
+#if SS22_MASS_UPDATE
+        if (f->valid && !fmu_all_finite(f->rest, N_Q * N_Q)) return "solver cache";   /* J - M (mass_update.c) */
+#endif
     }
     if (invalid_recurrence(&d->ss22)) return "solver recurrence";
     if (invalid_richardson(&d->richardson)) return "order-4 starts";

@@ -1,6 +1,7 @@
 /* linalg.c -- see linalg.h.  Small and dependency-free: an FMU must not need LAPACK. */
 #include <math.h>
 #include "linalg.h"
+#include "pairs.h"
 
 int lu_factor(double *A, int n, int *piv) {
     for (int k = 0; k < n; k++) {
@@ -21,11 +22,7 @@ int lu_factor(double *A, int n, int *piv) {
         for (int i = k + 1; i < n; i++) A[i + k * n] *= inv;
         for (int j = k + 1; j < n; j++) {
             double akj = A[k + j * n];
-            if (akj != 0.0) {
-                double *colj = A + j * n;
-                const double *colk = A + k * n;
-                for (int i = k + 1; i < n; i++) colj[i] -= colk[i] * akj;
-            }
+            if (akj != 0.0) linalg_subtract_scaled(A + j * n + k + 1, A + k * n + k + 1, akj, n - k - 1);
         }
     }
     return 0;
@@ -38,12 +35,12 @@ void lu_solve(const double *LU, int n, const int *piv, double *b) {
     }
     for (int j = 0; j < n; j++) {           /* L y = P b, unit diagonal */
         double bj = b[j];
-        if (bj != 0.0) for (int i = j + 1; i < n; i++) b[i] -= LU[i + j * n] * bj;
+        if (bj != 0.0) linalg_subtract_scaled(b + j + 1, LU + j + 1 + j * n, bj, n - j - 1);
     }
     for (int j = n - 1; j >= 0; j--) {      /* U x = y */
         b[j] /= LU[j + j * n];
         double bj = b[j];
-        if (bj != 0.0) for (int i = 0; i < j; i++) b[i] -= LU[i + j * n] * bj;
+        if (bj != 0.0) linalg_subtract_scaled(b, LU + j * n, bj, j);
     }
 }
 

@@ -6,6 +6,7 @@
 #include <math.h>
 #include <string.h>
 #include "linalg.h"
+#include "pairs.h"
 #include "predictor.h"
 
 static int finite_all(const double *x, int n) {
@@ -199,12 +200,12 @@ int ss22_recurrence_predict(SS22 *s, double dt, const double *alpha, double *a) 
     for (int j = 0; j < N_Q; j++) {                     /* - P d - G a-, by columns */
         const double dj = alpha[j] - before[j], bj = before[j];
         const double *Pj = r->P + (size_t)j * N_Q, *Gj = r->G + (size_t)j * N_Q;
-        for (int i = 0; i < N_Q; i++) r->raw[i] -= Pj[i] * dj + Gj[i] * bj;
+        linalg_subtract_two_scaled(r->raw, Pj, dj, Gj, bj, N_Q);
     }
     for (int k = 0; k < N_U; k++) {                     /* - U (u+ - 2u + u-): nothing for held inputs */
         const double d2u = input_bend(s, k);
         const double *Uk = r->U + (size_t)k * N_Q;
-        if (d2u != 0.0) for (int i = 0; i < N_Q; i++) r->raw[i] -= Uk[i] * d2u;
+        if (d2u != 0.0) linalg_subtract_scaled(r->raw, Uk, d2u, N_Q);
     }
     int order = r->order;
     while (order > 0 && r->depth < order + 1) order--;     /* an order k needs k + 1 misses */

@@ -2,6 +2,7 @@
 #include <math.h>
 #include <string.h>
 #include "linalg.h"
+#include "mass_update.h"
 #include "predictor.h"
 
 void ss22_init(SS22 *s, double theta1, double theta2, double tolerance) {
@@ -18,14 +19,10 @@ void ss22_invalidate(SS22 *s) {
 }
 
 const char *ss22_status_message(SS22Status status) {
-    switch (status) {
-    case SS22_OK: return "ok";
-    case SS22_NOT_CONVERGED: return "the Newton iteration of the SS22 step did not converge";
-    case SS22_NOT_FINITE: return "the SS22 step produced a NaN or an infinite value";
-    case SS22_SINGULAR: return "the SS22 step matrix is singular";
-    case SS22_MODEL_FAILED: return "the generated model failed to evaluate";
-    }
-    return "unknown SS22 status";
+    static const char *const words[] = {"ok", "the Newton iteration of the SS22 step did not converge",
+        "the SS22 step produced a NaN or an infinite value", "the SS22 step matrix is singular",
+        "the generated model failed to evaluate"};
+    return (unsigned)status < sizeof(words) / sizeof(words[0]) ? words[status] : "unknown SS22 status";
 }
 
 void ss22_weighted_inputs(const SS22 *s, double dt, const double *u0, const double *u1, double *u_bar) {
@@ -99,12 +96,13 @@ static SS22Status step_matrix(SS22 *s, double dt, const double *alpha, const dou
         f = &s->cache[0];
         for (int k = 1; k < SS22_CACHE; k++) if (s->cache[k].stamp < f->stamp) f = &s->cache[k];
     }
-    if (model_newton_matrix(s->q_bar, s->v_bar, alpha, s->u_bar, p, 1.0, cv, cq, f->LU, work)) {
+    if (model_newton_matrix(s->q_bar, s->v_bar, alpha, s->u_bar, p, 1.0, cv, cq, f->LU, work) ||
+        ss22_keep_rest(s, f, alpha, p, work)) {
         f->valid = 0;
         return SS22_MODEL_FAILED;
     }
     s->factorisations++;
-    f->rate = -1.0; f->waste = 0.0;
+    f->rate = -1.0; f->waste = f->waste_full = 0.0;
     f->estimated = f->confirmed = f->confirmed_first = 0;
     f->made = s->steps; for (int k = 0; k < 3; k++) f->first[k] = -1.0, f->first_age[k] = 0;
     if (!all_finite(f->LU, N_Q * N_Q)) { f->valid = 0; return SS22_NOT_FINITE; }
@@ -354,7 +352,7 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
             const int too_slow = fresh < 0 && (it + 3 >= s->max_iterations ||
                                  err * pow(rate, s->max_iterations - 1 - it) > fmin(s->tolerance, within));
             /* an old matrix whose extra iterations have paid for a new one (ss22.h, SS22_REFRESH_COST) */
-            const int stale = fresh < 0 && f->waste >= SS22_REFRESH_COST;
+            const int stale = fresh < 0 && (SS22_MASS_UPDATE ? f->waste_full : f->waste) >= SS22_REFRESH_COST;
             /* below the tolerance, not bounding the error: increments (cheaper than a matrix) while within reach */
             const int near = err <= s->tolerance && rate < 0.9 && aged_rate(rate) / (1.0 - aged_rate(rate)) * err
                              * pow(rate, s->max_iterations - 1 - it) <= s->tolerance;     /* pow: only when below */
@@ -372,6 +370,8 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
         }
         if (!converged) return SS22_NOT_CONVERGED;
         if (with_f > 2) f->waste += with_f - 2;
+        if (with_f > SS22_MASS_UPDATE_FLOOR) f->waste_full += with_f - SS22_MASS_UPDATE_FLOOR;
+        if (ss22_mass_update_due(s, f)) ss22_mass_update(s, f, a, p, work);      /* for the next steps */
     }
 #endif
     for (int i = 0; i < N_Q; i++) {

@@ -84,6 +84,23 @@
  * (docs/integrator.md), while only a rate above 0.5 refreshed it; its steps iterated 7 times. */
 #define SS22_REFRESH_COST (2.0 * N_Q)
 
+/* The mass update (mass_update.c).  Where a chain's mass matrix M(q) turns with its motion, a kept matrix's
+ * error is mostly its M part: planar_chain_5 at its scene's 1 ms step (benchmarks/newton_trace.py) had the
+ * infinity-norms of J_old^-1 (J - J_old)'s M, C and K parts at 0.02-0.49, 8e-4-1.5e-2 and 1e-5-3e-3.  A model
+ * whose M is generated apart from the rest of J (config.h, MODEL_MASS_UPDATE; codegen.py, mass_update) keeps
+ * J - M of each full evaluation, and once the iterations a kept matrix wasted (beyond two a step) add up to
+ * what a new M and its LU cost (CONSISTENT_REFRESH_COST residuals, at least one) the next step starts with
+ * J = M(q_bar) + (J - M)_kept, factorised: a new matrix to the rates' bookkeeping (no rate measured yet), an
+ * older one to every stop rule, the far-start rule's included.  A full evaluation is then bought by the
+ * iterations beyond SS22_MASS_UPDATE_FLOOR a step, once they add up to SS22_REFRESH_COST (a start far off
+ * takes three even from a matrix that contracts at 1e-4: the far-start rule's last increment within a third
+ * of the tolerance), or by poor contraction, as before.  docs/integrator.md, "The mass update". */
+#ifndef MODEL_MASS_UPDATE
+#define MODEL_MASS_UPDATE 0          /* a hand-written model (tests/c/) */
+#endif
+#define SS22_MASS_UPDATE (MODEL_MASS_UPDATE && !MODEL_LINEAR_IN_STATE && !MODEL_JACOBIAN_CONSTANT)
+#define SS22_MASS_UPDATE_FLOOR 3
+
 /* The recurrence start (predictor.c) is formed with a kept matrix once that has been kept for as many steps as
  * forming it costs residuals (the velocity and position Jacobians by differences, N_Q + 1 residuals each, and
  * the host inputs' columns by central differences, two residuals each; a law's three slots have none):
@@ -137,9 +154,13 @@ typedef struct {
      * depends on the start's error: ss22.c, one_increment_rate) */
     double first[3];
     uint64_t first_age[3];
-    double waste;                /* iterations spent beyond two a step since it was evaluated */
+    double waste;                /* iterations spent beyond two a step since it was evaluated or updated */
+    double waste_full;           /* ... beyond SS22_MASS_UPDATE_FLOOR a step since it was evaluated */
     double LU[N_Q * N_Q];
     int piv[N_Q];
+#if SS22_MASS_UPDATE
+    double rest[N_Q * N_Q];      /* J - M at its last full evaluation: theta1 dt C + theta2 dt^2/2 K */
+#endif
 } SS22Factor;
 
 /* SS22's own linear recurrence as the Newton start (predictor.c).  For M a + C v + K q + B u = 0, three
@@ -187,6 +208,7 @@ typedef struct {
     double q_bar[N_Q], v_bar[N_Q], r[N_Q], u_bar[N_U > 0 ? N_U : 1], start[N_Q], other_start[N_Q];
     /* counters, for benchmarks and logging */
     uint64_t steps, newton_iterations, factorisations, residual_evaluations, recurrences;
+    uint64_t mass_updates;       /* factorisations of mass-updated matrices (not in factorisations) */
 } SS22;
 
 void ss22_init(SS22 *s, double theta1, double theta2, double tolerance);

@@ -104,9 +104,9 @@ def _shoulder_push(fmu: Path, tolerance: float | None = None) -> tuple[np.ndarra
 def test_a_newton_matrix_by_columns_without_derivatives_is_made_of_differences():
     """Without the residual's forward derivative the Newton matrix by columns is M plus forward differences of
     the residual (fmu_src/templates/newton_matrix_differences.c.in).  Judged on a whipping two-link arm whose
-    matrix is refreshed several times: SS22 needs the same iterations and factorisations as with the exact
-    columns, and its error against a tight run is the exact columns' and shrinks with the Newton tolerance: the
-    differences' error does not show beside the iteration's own."""
+    matrix is refreshed several times: SS22 needs the same iterations and full evaluations as with the exact
+    columns (and as many mass updates, to one), and its error against a tight run is the exact columns' and
+    shrinks with the Newton tolerance: the differences' error does not show beside the iteration's own."""
     exact = cached_fmu(_scene("two_link_payload", newton_matrix="columns"))
     differences = cached_fmu(_scene("two_link_payload", newton_matrix="columns", directional_derivatives=False))
     assert _generated(exact) - _generated(differences) == {"two_link_payload_residual_complex.c",
@@ -114,7 +114,15 @@ def test_a_newton_matrix_by_columns_without_derivatives_is_made_of_differences()
     y_exact, counts_exact = _shoulder_push(exact)
     y_differences, counts_differences = _shoulder_push(differences)
     assert counts_exact["factorisations"] > 3, counts_exact          # the matrix is refreshed as the arm moves
-    assert counts_differences == counts_exact
+    # the same iterations and full evaluations; the mass updates (fmu_src/mass_update.c: M new, the rest kept)
+    # are bought on the iterations wasted, which one of 1 700 decisions tells apart (1682 against 1681)
+    for key in ("steps", "newton_iterations", "residual_evaluations"):
+        assert counts_differences[key] == counts_exact[key], (key, counts_differences, counts_exact)
+    full = {k: c["factorisations"] - c.get("mass_updates", 0) for k, c in (("d", counts_differences),
+                                                                          ("e", counts_exact))}
+    assert full["d"] == full["e"], (counts_differences, counts_exact)
+    assert abs(counts_differences["mass_updates"] - counts_exact["mass_updates"]) <= 1, (counts_differences,
+                                                                                        counts_exact)
     # Newton on the differences' matrix converges to the same steps: against the exact columns at a Newton
     # tolerance of 1e-14, its error is the exact columns' and shrinks with the tolerance as theirs does.  Judged
     # on the outputs the tolerance resolves (exact runs at 1e-13 and 1e-14 within 1e-9 of the peak); that

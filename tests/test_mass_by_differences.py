@@ -12,15 +12,13 @@ by tests/c/mass_probe.c, compiled with the FMU's sources.
 from __future__ import annotations
 
 import subprocess
-import xml.etree.ElementTree as ET
-import zipfile
 from pathlib import Path
 
 import numpy as np
 import pytest
+from source_probe import compile_probe
 
 from flexlink.export.cache import cached_fmu
-from flexlink.export.cbuild import compiler
 from flexlink.mechanics.model import build_model
 from flexlink.scene.loader import parse_scene
 
@@ -40,15 +38,7 @@ def _build_probe(scene_data: dict, work: Path):
     """(model, FMU sources, the compiled probe) of a scene, built under "auto"."""
     scene = parse_scene(scene_data)
     model = build_model(scene)
-    fmu = cached_fmu(scene, model=model)
-    with zipfile.ZipFile(fmu) as z:
-        z.extractall(work)
-        files = [f.get("name") for f in ET.fromstring(z.read("modelDescription.xml")).findall(
-            "CoSimulation/SourceFiles/File")]
-    src = work / "sources"
-    exe = work / "mass_probe"
-    subprocess.run([*compiler(), "-O2", "-std=c99", f"-I{src}", *(str(src / f) for f in files), str(PROBE),
-                    "-o", str(exe), "-lm"], check=True, capture_output=True, text=True)
+    src, exe = compile_probe(cached_fmu(scene, model=model), PROBE, work)
     return model, src, exe
 
 

@@ -37,7 +37,7 @@ LOG_CATEGORIES: tuple[str, ...] = (
 GENERIC_SOURCES: tuple[str, ...] = (
     "fmi2Functions.c", "calls.c", "logging.c", "instance.c", "variables.c", "cs_step.c", "model_exchange.c",
     "derivatives.c", "complex_step.c", "fmu_state.c", "guards.c", "consistent.c", "richardson.c", "ss22.c",
-    "predictor.c", "linalg.c",
+    "predictor.c", "mass_update.c", "linalg.c",
 )
 #: The FMI API layer of each FMI version, by concern: an FMU carries one (the functions behind it are shared).
 API_SOURCES: dict[int, tuple[str, ...]] = {
@@ -76,7 +76,7 @@ def fmi_headers(fmi_version: int = 2) -> list[Path]:
 
 #: The generic headers they include (copied into an FMU's ``sources/`` with them).
 GENERIC_HEADERS: tuple[str, ...] = ("model.h", "solver_settings.h", "cosimulation.h", "internal.h", "ss22.h",
-                                    "predictor.h", "linalg.h")
+                                    "predictor.h", "mass_update.h", "linalg.h", "pairs.h")
 
 #: Flags of every FMU build (generated CasADi code included).
 CFLAGS: tuple[str, ...] = (

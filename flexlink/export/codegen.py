@@ -334,8 +334,22 @@ def consistent_refresh_cost(n_q: int, residual_operations: int, matrix_operation
     return (matrix_operations + 2.0 * n_q ** 3 / 3.0) / max(residual_operations, 1)
 
 
+def mass_update(model: SymbolicModel, plan: _Plan) -> bool:
+    """Whether SS22 may update the mass part of a kept iteration matrix alone (MODEL_MASS_UPDATE, fmu_src/ss22.h).
+
+    J = M + Θ₁Δt C + Θ₂Δt²/2 K; the update takes a new M(q) and keeps the velocity and position parts of the
+    matrix's last full evaluation.  It pays where M comes from a generated mass matrix and the rest from N_Q
+    columns, differences of the residual (``newton_matrix_differences.c.in``) or its forward derivatives
+    (``newton_matrix_columns.c.in``): M and its LU cost about a residual on the chains, a full evaluation N_Q
+    residuals or derivatives more.  Not where M itself comes from residuals (``mass_by_differences``), the
+    dense Newton matrix is generated whole, or the matrix never changes.
+    """
+    return (not model.linear_in_state and not model.jacobian_constant and not plan.mass_by_differences
+            and newton_matrix_template(model) in ("newton_matrix_differences.c.in", "newton_matrix_columns.c.in"))
+
+
 def _config_h(model: SymbolicModel, guid: str, variables: list[FmuVariable], sz: dict[str, int],
-              complex_step: bool, refresh_cost: float) -> str:
+              complex_step: bool, refresh_cost: float, update: bool) -> str:
     """``config.h``: sizes, GUID and flags of the model."""
     return _template("config.h.in").substitute(
         scene=model.scene.name, identifier=model.scene.model_identifier, guid=guid, n_q=model.n_q,
@@ -344,7 +358,7 @@ def _config_h(model: SymbolicModel, guid: str, variables: list[FmuVariable], sz:
         n_parameter_checks=len(model.parameter_check_names),
         linear_in_state=int(model.linear_in_state), jacobian_constant=int(model.jacobian_constant),
         directional_derivatives=int(model.scene.fmu.directional_derivatives), complex_step=int(complex_step),
-        consistent_refresh_cost=f"{refresh_cost:.3g}",
+        consistent_refresh_cost=f"{refresh_cost:.3g}", mass_update=int(update),
         **{f"sz_{k}": v for k, v in sz.items()},
     )
 
@@ -558,7 +572,8 @@ def generate(model: SymbolicModel, directory: Path) -> GeneratedModel:
     matrix_operations = (model.n_q + 1) * plan.residual.operations if plan.matrix is None else \
         plan.matrix.operations
     refresh = consistent_refresh_cost(model.n_q, plan.residual.operations, matrix_operations)
-    (directory / "config.h").write_text(_config_h(model, guid, variables, sz, plan.complex_step, refresh))
+    (directory / "config.h").write_text(_config_h(model, guid, variables, sz, plan.complex_step, refresh,
+                                                  mass_update(model, plan)))
     names = [f.name() for f in functions]
     (directory / "model.c").write_text(_model_c(model, variables, names, plan))
     twins = []

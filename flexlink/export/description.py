@@ -49,9 +49,9 @@ LOG_CATEGORIES = {
     "logStatusWarning": "warnings",
     "logStatusDiscard": "steps that could not be completed",
     "logStatusError": "errors",
-    "logStatistics": "at fmi2Terminate: SS22 steps, Newton iterations, factorisations and residual "
-                     "evaluations of the accepted steps since initialisation (a discarded step's work is "
-                     "rolled back with its state)",
+    "logStatistics": "at fmi2Terminate: SS22 steps, Newton iterations, factorisations (mass updates of the "
+                     "Newton matrix among them) and residual evaluations of the accepted steps since "
+                     "initialisation (a discarded step's work is rolled back with its state)",
     "logAll": "everything",
 }
 

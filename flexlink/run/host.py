@@ -41,11 +41,13 @@ INTERFACES = ("CoSimulation", "ModelExchange")
 STATUS_LABELS = ("ok", "warning", "discard", "error", "fatal", "pending")
 
 # fmu_src/logging.c's logStatistics message, and the counters it holds
-# the consistent accelerations' counters since 2026-11-27 (fmu_src/consistent.c); an older FMU logs without them
+# the consistent accelerations' counters since 2026-11-27 (fmu_src/consistent.c), the iteration matrices' mass
+# updates (fmu_src/mass_update.c, counted among the factorisations) since 2026-11-29; an older FMU logs without them
 STATISTICS = re.compile(r"(\d+) SS22 steps, (\d+) Newton iterations, (\d+) factorisations, (\d+) residual"
-                        r"(?:.*?consistent accelerations: (\d+) mass matrices, (\d+) residual iterations)?")
+                        r"(?:.*?consistent accelerations: (\d+) mass matrices, (\d+) residual iterations)?"
+                        r"(?:.*?mass updates among the factorisations: (\d+))?")
 STATISTICS_KEYS = ("steps", "newton_iterations", "factorisations", "residual_evaluations", "mass_matrices",
-                   "consistent_iterations")
+                   "consistent_iterations", "mass_updates")
 
 
 #: The C types of the functions :meth:`FmuHost.raw` returns (FMI 2.0, ``fmi2FunctionTypes.h``: fmi2Component is
@@ -277,8 +279,9 @@ class FmuHost:
     def solver_statistics(self) -> dict[str, int]:
         """Read the integrator's counters of the run just made from the FMU's ``logStatistics`` message.
 
-        SS22 steps, Newton iterations, factorisations and residual evaluations, logged at fmi2Terminate, and
-        the consistent accelerations' mass matrices and residual iterations (fmu_src/consistent.c).
+        SS22 steps, Newton iterations, factorisations and residual evaluations, logged at fmi2Terminate, the
+        consistent accelerations' mass matrices and residual iterations (fmu_src/consistent.c), and how many of
+        the factorisations were mass updates of the Newton matrix (``mass_updates``, fmu_src/mass_update.c).
 
         Ends the run (the next :meth:`initialize` resets the instance).  Empty for an FMU without that
         category.
