@@ -88,13 +88,14 @@
  * error is mostly its M part: planar_chain_5 at its scene's 1 ms step (benchmarks/newton_trace.py) had the
  * infinity-norms of J_old^-1 (J - J_old)'s M, C and K parts at 0.02-0.49, 8e-4-1.5e-2 and 1e-5-3e-3.  A model
  * whose M is generated apart from the rest of J (config.h, MODEL_MASS_UPDATE; codegen.py, mass_update) keeps
- * J - M of each full evaluation, and once the iterations a kept matrix wasted (beyond two a step) add up to
- * what a new M and its LU cost (CONSISTENT_REFRESH_COST residuals, at least one) the next step starts with
- * J = M(q_bar) + (J - M)_kept, factorised: a new matrix to the rates' bookkeeping (no rate measured yet), an
- * older one to every stop rule, the far-start rule's included.  A full evaluation is then bought by the
- * iterations beyond SS22_MASS_UPDATE_FLOOR a step, once they add up to SS22_REFRESH_COST (a start far off
- * takes three even from a matrix that contracts at 1e-4: the far-start rule's last increment within a third
- * of the tolerance), or by poor contraction, as before.  docs/integrator.md, "The mass update". */
+ * J - M of each full evaluation, and at the end of a step whose kept matrix has wasted (iterations beyond two a
+ * step) what a new M and its LU cost (CONSISTENT_REFRESH_COST residuals, at least one), unless it contracts at
+ * SS22_RECURRENCE_MAX_RATE or faster, the matrix becomes M(q_bar) + (J - M)_kept, factorised, made at that
+ * step: to every rule (its age, rates and first ratios, the far-start rule) a matrix evaluated there.  A full
+ * evaluation is then bought by the iterations beyond SS22_MASS_UPDATE_FLOOR a step, once they add up to
+ * SS22_REFRESH_COST (a start far off takes three even from a matrix that contracts at 1e-4: the far-start
+ * rule's last increment within a third of the tolerance), or by poor contraction, as before.
+ * docs/integrator.md, "The mass update". */
 #ifndef MODEL_MASS_UPDATE
 #define MODEL_MASS_UPDATE 0          /* a hand-written model (tests/c/) */
 #endif
