@@ -20,9 +20,10 @@ int ss22_keep_rest(SS22 *s, SS22Factor *f, const double *alpha, const double *p,
 /* What the matrix wasted pays for a new M and its LU (CONSISTENT_REFRESH_COST, config.h: in residuals, about an
  * iteration each; at least one), and it is not one the recurrence start may use (ss22.h,
  * SS22_RECURRENCE_MAX_RATE): a matrix measured to contract at 1e-3 or faster gains three digits an iteration,
- * and what it wastes is the start's distance, not its age.  Updated whenever it wasted, planar_chain_3 at its
- * recommended step under the bench manoeuvre never kept a matrix the SS22_RECURRENCE_COST steps its recurrence
- * start waits for: 1.66 -> 2.37 iterations a step; with this gate 1.29 (docs/integrator.md). */
+ * and what it wastes is the start's distance, not its age.  Updated whenever it wasted (on an earlier variant,
+ * docs/integrator.md), planar_chain_3 at its recommended step under the bench manoeuvre never kept a matrix the
+ * SS22_RECURRENCE_COST steps its recurrence start waits for: 1.66 -> 2.37 iterations a step; with this gate
+ * 1.30. */
 int ss22_mass_update_due(const SS22 *s, const SS22Factor *f) {
     return f->made != s->steps && f->waste >= fmax(1.0, CONSISTENT_REFRESH_COST) &&
            !(f->rate >= 0.0 && f->rate <= SS22_RECURRENCE_MAX_RATE);
