@@ -103,9 +103,9 @@ void fmu_log_statistics(Instance *inst) {
     fmu_log(inst, fmi2OK, LOG_STATISTICS,
             "statistics at t = %.17g: %.0f SS22 steps, %.0f Newton iterations, %.0f factorisations, "
             "%.0f residual evaluations; consistent accelerations: %.0f mass matrices, %.0f residual iterations; "
-            "mass updates among the factorisations: %.0f",
+            "mass updates among the factorisations: %.0f; the model's AVX code: %d",
             inst->d.time, (double)s->steps, (double)s->newton_iterations,
             (double)(s->factorisations + s->mass_updates), (double)s->residual_evaluations,
             (double)inst->d.mass_refreshes, (double)inst->d.mass_iterations,
-            (double)s->mass_updates);   /* %lu is 32 bits on win64 */
+            (double)s->mass_updates, model_avx_code());   /* %lu is 32 bits on win64 */
 }

@@ -76,7 +76,7 @@ def fmi_headers(fmi_version: int = 2) -> list[Path]:
 
 #: The generic headers they include (copied into an FMU's ``sources/`` with them).
 GENERIC_HEADERS: tuple[str, ...] = ("model.h", "solver_settings.h", "cosimulation.h", "internal.h", "ss22.h",
-                                    "predictor.h", "mass_update.h", "linalg.h", "pairs.h")
+                                    "predictor.h", "mass_update.h", "linalg.h", "pairs.h", "avx.h")
 
 #: Flags of every FMU build (generated CasADi code included).
 CFLAGS: tuple[str, ...] = (

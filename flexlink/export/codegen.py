@@ -410,7 +410,7 @@ def _model_c(model: SymbolicModel, variables: list[FmuVariable], units: list[str
     newton = _template(newton_matrix_template(model))
     return _template("model.c.in").substitute(
         scene=model.scene.name, identifier=ident, casadi_units=", ".join(f"{u}.c" for u in units),
-        casadi_includes="\n".join(f'#include "{u}.h"' for u in units),
+        casadi_includes="\n".join(f'#include "{u}.h"' for u in units) + "\n" + _avx_dispatch(avx_units(plan)),
         variables=_variable_rows(variables), nominal_q=", ".join(_c(x) for x in model.nominal_q),
         static_coordinates=static, laws=_law_tables(model),
         output_uses_acceleration=", ".join(str(int(x)) for x in outputs_using_acceleration(model)) or "0",
@@ -550,12 +550,43 @@ def _write_complex_unit(generated: _Generated, model: SymbolicModel, directory: 
     return path
 
 
+def avx_units(plan: _Plan) -> list[str]:
+    """The units of the Newton iteration, which get an AVX twin (fmu_src/avx.h).
+
+    The residual, and the mass matrix or dense Newton matrix where one is generated; not the outputs, which
+    run once a communication step.
+    """
+    return [g.function.name() for g in (plan.residual, plan.matrix) if g is not None]
+
+
+def _write_avx_unit(unit: str, model: SymbolicModel, directory: Path) -> Path:
+    """The AVX twin of one generated unit (avx_unit.c.in): it includes the unit, at the unit's own level."""
+    path = directory / f"{unit}_avx.c"
+    path.write_text(_template("avx_unit.c.in").substitute(unit=unit, scene=model.scene.name))
+    return path
+
+
+def _avx_dispatch(units: list[str]) -> str:
+    """model.c's calls of the AVX twins: each unit's name a macro that calls its twin where the processor has AVX.
+
+    A function-like macro does not expand its own name again, so the macro's body calls the unit itself; the
+    templates' calls stay as they are (fmu_src/avx.h).
+    """
+    lines = ['#include "avx.h"', "#if FLEXLINK_AVX   /* the Newton iteration's units in AVX (avx.h) */"]
+    for u in units:
+        lines += [f"int {u}_avx(const casadi_real **arg, casadi_real **res, casadi_int *iw, casadi_real *w, int mem);",
+                  f"#define {u}(arg, res, iw, w, mem) \\",
+                  f"    (flexlink_avx_processor() ? {u}_avx : {u})(arg, res, iw, w, mem)"]
+    return "\n".join([*lines, "#endif"])
+
+
 def generate(model: SymbolicModel, directory: Path) -> GeneratedModel:
     """Write the model half of the FMU's C sources into ``directory``.
 
     model.c, and one unit per generated function (compiled side by side,
-    :func:`flexlink.export.cbuild.compile_shared_library`), with the complex-step twins of the residual's
-    and the outputs' units where the forward derivatives are taken so.
+    :func:`flexlink.export.cbuild.compile_shared_library`), with the AVX twins of the Newton iteration's
+    units (:func:`avx_units`) and the complex-step twins of the residual's and the outputs' units where the
+    forward derivatives are taken so.
     """
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
@@ -576,10 +607,10 @@ def generate(model: SymbolicModel, directory: Path) -> GeneratedModel:
                                                   mass_update(model, plan)))
     names = [f.name() for f in functions]
     (directory / "model.c").write_text(_model_c(model, variables, names, plan))
-    twins = []
+    twins = [_write_avx_unit(u, model, directory) for u in avx_units(plan)]
     if plan.complex_step:
-        twins = [_write_complex_unit(plan.residual, model, directory, "model_residual_complex"),
-                 _write_complex_unit(plan.outputs, model, directory, "model_outputs_complex")]
+        twins += [_write_complex_unit(plan.residual, model, directory, "model_residual_complex"),
+                  _write_complex_unit(plan.outputs, model, directory, "model_outputs_complex")]
     sources = [directory / "model.c", *(path for path, _ in units), *twins]
     generated = [*sources, *(directory / f"{n}.h" for n in names)]
     matrix_graph = tuple(g.function.name().removeprefix(f"{ident}_") for g in prepared if g.matrix_graph)

@@ -45,9 +45,10 @@ STATUS_LABELS = ("ok", "warning", "discard", "error", "fatal", "pending")
 # updates (fmu_src/mass_update.c, counted among the factorisations) since 2026-11-29; an older FMU logs without them
 STATISTICS = re.compile(r"(\d+) SS22 steps, (\d+) Newton iterations, (\d+) factorisations, (\d+) residual"
                         r"(?:.*?consistent accelerations: (\d+) mass matrices, (\d+) residual iterations)?"
-                        r"(?:.*?mass updates among the factorisations: (\d+))?")
+                        r"(?:.*?mass updates among the factorisations: (\d+))?"
+                        r"(?:.*?the model's AVX code: (\d+))?")
 STATISTICS_KEYS = ("steps", "newton_iterations", "factorisations", "residual_evaluations", "mass_matrices",
-                   "consistent_iterations", "mass_updates")
+                   "consistent_iterations", "mass_updates", "avx_code")
 
 
 #: The C types of the functions :meth:`FmuHost.raw` returns (FMI 2.0, ``fmi2FunctionTypes.h``: fmi2Component is
@@ -281,7 +282,8 @@ class FmuHost:
 
         SS22 steps, Newton iterations, factorisations and residual evaluations, logged at fmi2Terminate, the
         consistent accelerations' mass matrices and residual iterations (fmu_src/consistent.c), and how many of
-        the factorisations were mass updates of the Newton matrix (``mass_updates``, fmu_src/mass_update.c).
+        the factorisations were mass updates of the Newton matrix (``mass_updates``, fmu_src/mass_update.c);
+        ``avx_code`` is 1 where the model's Newton-iteration units ran as their AVX twins (fmu_src/avx.h).
 
         Ends the run (the next :meth:`initialize` resets the instance).  Empty for an FMU without that
         category.

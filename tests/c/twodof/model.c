@@ -98,3 +98,7 @@ int model_parameter_check(const double *p, double *h, ModelWork *work) {
     (void)p; (void)h; (void)work;
     return 0;
 }
+
+int model_avx_code(void) {   /* hand-written: no AVX twins (fmu_src/avx.h) */
+    return 0;
+}
