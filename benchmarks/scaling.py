@@ -64,6 +64,15 @@ BEGIN, END = "<!-- scaling:begin -->", "<!-- scaling:end -->"
 README_BEGIN, README_END = "<!-- robot-scale:begin -->", "<!-- robot-scale:end -->"
 
 
+def _avx_twins() -> str:
+    """Which of the Newton iteration's units the steps ran: their AVX twins where the processor has AVX."""
+    try:
+        flags = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return "(processor's AVX unknown)"
+    return "in their AVX twins" if " avx " in flags.replace("\n", " ") else "without AVX (the baseline units)"
+
+
 def chain_scene(n_links: int, modes: int = 3) -> dict:
     """A planar chain hanging along x under gravity (so that it swings, not falls), joints damped."""
     joints = [dict(name=f"j{i + 1}", axis=[0.0, 0.0, 1.0], inertia=1e-3, damping=0.01) for i in range(n_links)]
@@ -259,9 +268,10 @@ def main(argv: list[str] | None = None) -> None:
     info = {"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
             "quick": args.quick, "builds": builds, "repeats": repeats,
             "command": " ".join(["python benchmarks/scaling.py", *(argv if argv is not None else sys.argv[1:])]),
-            "optimise": os.environ.get(OPTIMISE_ENV) or ("the default levels (-O2, -Og above 5 000 operations; "
-                                                         "their complex-step twins -O1, -O0 above 5 000; "
-                                                         "the dense product loop -O2)"),
+            "optimise": os.environ.get(OPTIMISE_ENV) or ("the default levels (-O2, -Og above 5 000 operations "
+                                                         "with IRA's priority allocator; their complex-step twins "
+                                                         "-O1, -O0 above 5 000; the dense product loop -O2; the "
+                                                         f"Newton iteration's units {_avx_twins()})"),
             "load": (load_at_start, os.getloadavg()[0])}
     if families_from is not None:
         info["families_from"] = {k: families_from[k] for k in ("date", "command", "builds", "repeats")}

@@ -12,6 +12,7 @@ from __future__ import annotations
 import importlib.resources
 import importlib.util
 import os
+import re
 import shlex
 import shutil
 import subprocess
@@ -203,8 +204,8 @@ def compile_shared_library(
     files = [Path(s) for s in sources]
     with tempfile.TemporaryDirectory(prefix="flexlink-objects-") as tmp:
         objects = [Path(tmp) / f"{k}_{s.stem}.o" for k, s in enumerate(files)]
-        # the largest files first, one compiler per core: the units of a large model compile side by side
-        order = sorted(range(len(files)), key=lambda k: -(files[k].stat().st_size if files[k].is_file() else 0))
+        # the largest first, one compiler per core: the units of a large model compile side by side
+        order = sorted(range(len(files)), key=lambda k: -_compiled_size(files[k]))
         with ThreadPoolExecutor(max_workers=max(1, os.cpu_count() or 1)) as pool:
             for _ in pool.map(lambda k: _run([*cc, *flags, "-c", str(files[k]), "-o", str(objects[k])],
                                              output.name), order):
@@ -214,6 +215,21 @@ def compile_shared_library(
         link = ["-static-libgcc"] if platform == "win64" else []
         _run([*cc, *flags, *(str(o) for o in objects), *link, "-o", str(output), "-lm"], output.name)
     return output
+
+
+_INCLUDED_UNIT = re.compile(r'^#include "([^"]+\.c)"', re.MULTILINE)
+
+
+def _compiled_size(source: Path) -> int:
+    """What a file gives the compiler to do, in bytes: its own text and the C files it includes.
+
+    A twin of a generated unit (codegen's ``<unit>_avx.c`` or ``<unit>_complex.c``) is a few lines around its unit.
+    """
+    if not source.is_file():
+        return 0
+    text = source.read_text(errors="replace")
+    return len(text) + sum((source.parent / name).stat().st_size for name in _INCLUDED_UNIT.findall(text)
+                           if (source.parent / name).is_file())
 
 
 def _run(command: list[str], what: str) -> None:
