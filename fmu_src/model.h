@@ -187,8 +187,8 @@ int model_validity(const double *q, const double *u, const double *p, double *g,
 extern const char *const MODEL_PARAMETER_CHECK_NAMES[N_PARAMETER_CHECKS > 0 ? N_PARAMETER_CHECKS : 1];
 int model_parameter_check(const double *p, double *h, ModelWork *work);
 
-/* 1 if the model's Newton-iteration units run as their AVX twins on this processor (avx.h), for the statistics
- * log; 0 for a model without twins. */
+/* 1 if model.c calls the AVX twins of the model's Newton-iteration units on this processor (avx.h: the build
+ * has twins and the processor has AVX), for the statistics log; 0 for a model without twins. */
 int model_avx_code(void);
 
 /* MODEL_LINEAR_IN_STATE (config.h): 1 if r is affine in (q, v, a): one linear solve

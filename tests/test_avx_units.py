@@ -4,8 +4,10 @@ A twin is the same generated C compiled a second time for processors with AVX, a
 processor has AVX.  It runs the same operations in the same order on the same doubles, so the claim is the
 same bits, and the reference is the baseline unit itself: evaluated side by side on random arguments
 (tests/c/avx_probe.c), and whole runs of an FMU against the same FMU compiled without its twins
-(``FLEXLINK_NO_AVX``), through fmpy.  The MinGW-w64 assembly of the twins must hold no 256-bit register:
-64-bit Windows aligns the stack to 16 bytes, and gcc would spill such a register to a 32-byte aligned slot.
+(``FLEXLINK_NO_AVX``), through fmpy.  That those runs did go through the twins is read off the shipped
+library's disassembly (model.c's calls reach them, and they are AVX code).  The MinGW-w64 assembly of the
+twins must hold no 256-bit register: 64-bit Windows aligns the stack to 16 bytes, and gcc would spill such a
+register to a 32-byte aligned slot.
 """
 
 from __future__ import annotations
@@ -103,6 +105,23 @@ def test_a_twin_gives_its_units_bits_on_random_arguments(which, chain_fmu, dense
     assert values >= 2000 * 17              # at least one value per coordinate and argument set
     assert nonfinite == 0
     assert differ == 0
+
+
+@pytest.mark.skipif(shutil.which("objdump") is None, reason="objdump (binutils) is not installed")
+def test_the_shipped_library_calls_the_twins_and_they_are_avx_code(chain_fmu, tmp_path):
+    """The linux64 library's disassembly: model_residual and model_newton_matrix's mass matrix reach the twins
+    (model.c's dispatch), and AVX's scalar instructions are in it (only the twins are compiled for AVX: the rest
+    of the library is SSE2 code)."""
+    with zipfile.ZipFile(chain_fmu) as z:
+        z.extract("binaries/linux64/planar_chain_5.so", tmp_path)
+    text = subprocess.run(["objdump", "-d", "--no-show-raw-insn", str(tmp_path / "binaries/linux64/planar_chain_5.so")],
+                          check=True, capture_output=True, text=True).stdout
+    bodies = {m.group(1): m.group(2) for m in re.finditer(r"^[0-9a-f]+ <([\w.]+)>:\n(.*?)(?=\n\n|\Z)", text,
+                                                          re.MULTILINE | re.DOTALL)}
+    assert "<planar_chain_5_residual_avx>" in bodies["model_residual"]
+    assert any("<planar_chain_5_mass_matrix_avx>" in body for body in bodies.values())
+    assert re.search(r"\bvmulsd\b", bodies["planar_chain_5_residual_avx__f0"])    # the twin's CasADi function
+    assert not re.search(r"\bv(mul|add|sub)sd\b", bodies["ss22_step"])   # the generic C: baseline code
 
 
 def _without_twins(fmu: Path, work: Path) -> Path:

@@ -111,11 +111,18 @@ LARGE_UNIT_ALLOCATOR = "-fira-algorithm=priority"
 
 
 def _optimise_pragma(level: str) -> str:
-    """unit.c.in's $optimise: the unit's level where it is not the build's own -O2 (-Og: LARGE_UNIT_ALLOCATOR)."""
+    """unit.c.in's $optimise: the unit's level where it is not the build's own -O2.
+
+    At -Og with LARGE_UNIT_ALLOCATOR, from gcc 12 (the version it was measured on; the options of
+    ``#pragma GCC optimize`` accumulate).
+    """
     if level == "O2":
         return ""
-    allocator = f', "{LARGE_UNIT_ALLOCATOR}"' if level == "Og" else ""
-    return f'#pragma GCC optimize ("{level}"{allocator})  /* large straight-line code */\n'
+    pragma = f'#pragma GCC optimize ("{level}")  /* large straight-line code */\n'
+    if level == "Og":
+        pragma += (f'#if __GNUC__ >= 12   /* its register allocator (codegen.py) */\n'
+                   f'#pragma GCC optimize ("{LARGE_UNIT_ALLOCATOR}")\n#endif\n')
+    return pragma
 
 
 @dataclass
@@ -582,12 +589,13 @@ def _avx_dispatch(units: list[str]) -> str:
     A function-like macro does not expand its own name again, so the macro's body calls the unit itself; the
     templates' calls stay as they are (fmu_src/avx.h).
     """
-    lines = ['#include "avx.h"', "#if FLEXLINK_AVX   /* the Newton iteration's units in AVX (avx.h) */"]
+    lines = ['#include "avx.h"', "#if FLEXLINK_AVX   /* the Newton iteration's units in AVX (avx.h) */",
+             f"#define MODEL_AVX_UNITS {len(units)}"]
     for u in units:
         lines += [f"int {u}_avx(const casadi_real **arg, casadi_real **res, casadi_int *iw, casadi_real *w, int mem);",
                   f"#define {u}(arg, res, iw, w, mem) \\",
-                  f"    (flexlink_avx_processor() ? {u}_avx : {u})(arg, res, iw, w, mem)"]
-    return "\n".join([*lines, "#endif"])
+                  f"    (flexlink_avx_processor() ? {u}_avx(arg, res, iw, w, mem) : {u}(arg, res, iw, w, mem))"]
+    return "\n".join([*lines, "#else", "#define MODEL_AVX_UNITS 0", "#endif"])
 
 
 def generate(model: SymbolicModel, directory: Path) -> GeneratedModel:

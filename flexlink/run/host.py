@@ -283,7 +283,8 @@ class FmuHost:
         SS22 steps, Newton iterations, factorisations and residual evaluations, logged at fmi2Terminate, the
         consistent accelerations' mass matrices and residual iterations (fmu_src/consistent.c), and how many of
         the factorisations were mass updates of the Newton matrix (``mass_updates``, fmu_src/mass_update.c);
-        ``avx_code`` is 1 where the model's Newton-iteration units ran as their AVX twins (fmu_src/avx.h).
+        ``avx_code`` is 1 where model.c calls the AVX twins of the model's Newton-iteration units: the build
+        has them and the processor has AVX (fmu_src/avx.h).
 
         Ends the run (the next :meth:`initialize` resets the instance).  Empty for an FMU without that
         category.
