@@ -128,7 +128,8 @@ static int invalid_recurrence(const SS22 *s) {
         !fmu_all_finite(r->u_before, N_U > 0 ? N_U : 1) || !fmu_all_finite(r->misses, N_Q * (SS22_RECURRENCE_ORDER + 1)))
         return 1;
     return r->valid && !(r->dt > 0.0 && isfinite(r->dt) && fmu_all_finite(r->P, N_Q * N_Q) &&
-                         fmu_all_finite(r->G, N_Q * N_Q) && fmu_all_finite(r->U, N_Q * (N_U > 0 ? N_U : 1)));
+                         fmu_all_finite(r->G, N_Q * N_Q) && fmu_all_finite(r->U, N_Q * (N_U > 0 ? N_U : 1)) &&
+                         fmu_all_finite(r->inverse, N_Q * N_Q));
 }
 
 /* Order 4's starts (cs_step.c): a vote is a running mean of +-1, a kept size is positive, a miss finite. */

@@ -157,12 +157,18 @@ SS22Status ss22_recurrence_form(SS22 *s, const SS22Factor *f, double dt, const d
         lu_solve(f->LU, N_Q, f->piv, G + (size_t)j * N_Q);
     }
     for (int k = 0; k < N_U; k++) lu_solve(f->LU, N_Q, f->piv, r->U + (size_t)k * N_Q);
+    memset(r->inverse, 0, sizeof(r->inverse));
+    for (int j = 0; j < N_Q; j++) {
+        r->inverse[(size_t)j * N_Q + j] = 1.0;
+        lu_solve(f->LU, N_Q, f->piv, r->inverse + (size_t)j * N_Q);
+    }
     const double c = 0.5 + s->theta1;
     for (int k = 0; k < N_Q * N_Q; k++) {
         G[k] *= dt * dt;
         P[k] = dt * P[k] + c * G[k];
     }
-    if (!finite_all(P, N_Q * N_Q) || !finite_all(G, N_Q * N_Q) || !finite_all(r->U, N_Q * N_U))
+    if (!finite_all(P, N_Q * N_Q) || !finite_all(G, N_Q * N_Q) || !finite_all(r->U, N_Q * N_U) ||
+        !finite_all(r->inverse, N_Q * N_Q))
         return SS22_NOT_FINITE;
     r->valid = 1;
     r->dt = dt;
@@ -183,11 +189,15 @@ static double fed_back(const SS22Recurrence *r, int order, int i) {
     }
 }
 
+/* the larger of two numbers that are not NaN: fmax without its NaN rule, which gcc leaves to a call of libm's */
+static double larger(double a, double b) { return a > b ? a : b; }
+
 double ss22_recurrence_floor(const SS22 *s, double dt, const double *start) {
     double scale = 0.0;
-    for (int i = 0; i < N_Q; i++) {     /* the start, and the accelerations it was formed from (its products' size) */
-        const double largest = fmax(fabs(start[i]), fmax(fabs(s->alpha_last[i]), fabs(s->alpha_before[i])));
-        scale = fmax(scale, largest * dt / MODEL_NOMINAL_Q[i]);
+    for (int i = 0; i < N_Q; i++) {     /* the start, and the accelerations it was formed from (its products' size);
+                                           all finite: the start is checked, the others were accepted */
+        const double largest = larger(fabs(start[i]), larger(fabs(s->alpha_last[i]), fabs(s->alpha_before[i])));
+        scale = larger(scale, largest * dt / MODEL_NOMINAL_Q[i]);
     }
     return fmax(s->tolerance / SS22_ROUNDING_FACTOR, SS22_ROUNDING_FACTOR * DBL_EPSILON * scale);
 }
@@ -196,12 +206,12 @@ int ss22_recurrence_predict(SS22 *s, double dt, const double *alpha, double *a) 
     SS22Recurrence *r = &s->rec;
     if (!r->valid || !same_step(r->dt, dt)) return 0;
     const double *before = s->alpha_before;
-    for (int i = 0; i < N_Q; i++) r->raw[i] = 2.0 * alpha[i] - before[i];
-    for (int j = 0; j < N_Q; j++) {                     /* - P d - G a-, by columns */
-        const double dj = alpha[j] - before[j], bj = before[j];
-        const double *Pj = r->P + (size_t)j * N_Q, *Gj = r->G + (size_t)j * N_Q;
-        linalg_subtract_two_scaled(r->raw, Pj, dj, Gj, bj, N_Q);
+    double d[N_Q];
+    for (int i = 0; i < N_Q; i++) {
+        r->raw[i] = 2.0 * alpha[i] - before[i];
+        d[i] = alpha[i] - before[i];
     }
+    linalg_subtract_products(r->raw, r->P, d, r->G, before, N_Q);     /* - P d - G a- */
     for (int k = 0; k < N_U; k++) {                     /* - U (u+ - 2u + u-): nothing for held inputs */
         const double d2u = input_bend(s, k);
         const double *Uk = r->U + (size_t)k * N_Q;
@@ -215,6 +225,22 @@ int ss22_recurrence_predict(SS22 *s, double dt, const double *alpha, double *a) 
     if (r->bias < 0.0) return 1;
     memcpy(a, r->start, sizeof(r->start));
     return 2;
+}
+
+const double *ss22_recurrence_inverse(const SS22 *s, const SS22Factor *f) {
+    const SS22Recurrence *r = &s->rec;
+    return r->valid && r->made == f->made + 1 && same_step(r->dt, f->dt) ? r->inverse : NULL;
+}
+
+void ss22_increment(const SS22 *s, const SS22Factor *f, const double *r, double *delta) {
+    const double *inverse = ss22_recurrence_inverse(s, f);
+    if (inverse != NULL) {
+        memset(delta, 0, sizeof(double) * N_Q);
+        linalg_subtract_products(delta, inverse, r, NULL, NULL, N_Q);
+        return;
+    }
+    for (int i = 0; i < N_Q; i++) delta[i] = -r[i];
+    lu_solve(f->LU, N_Q, f->piv, delta);
 }
 
 /* Whether the weighted inputs bent at this step: a host's new input at a communication point, in the two steps

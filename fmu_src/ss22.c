@@ -271,8 +271,7 @@ SS22Status ss22_step_from(SS22 *s, double dt, double *q, double *v, double *alph
                 with_f = 0;
             }
             with_f++;
-            for (int i = 0; i < N_Q; i++) delta[i] = -s->r[i];
-            lu_solve(f->LU, N_Q, f->piv, delta);
+            ss22_increment(s, f, s->r, delta);
             /* the increment's effect on the end-of-step rate, against the coordinate's nominal scale */
             double err = 0.0;
             for (int i = 0; i < N_Q; i++) {

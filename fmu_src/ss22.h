@@ -189,6 +189,8 @@ typedef struct {
                                                     column-major */
     double U[N_Q * (N_U > 0 ? N_U : 1)];         /* J^-1 B, column-major: a host's input that moves (a law's
                                                     columns are zero) */
+    double inverse[N_Q * N_Q];   /* J^-1 itself, column-major: the Newton increments' solve while J is the kept
+                                    matrix it was formed with (ss22_recurrence_inverse) */
 } SS22Recurrence;
 
 typedef struct {

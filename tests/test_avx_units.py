@@ -50,7 +50,7 @@ need_avx = pytest.mark.skipif(not _processor_has_avx(), reason="this processor h
 
 def _dense_link():
     """One link of 16 Hermite elements reduced to 16 modes: its nodal maps stay dense products
-    (kinematics.DENSE_MAP_MIN_ENTRIES), the generated loop the twin compiles too."""
+    (points.DENSE_MAP_MIN_ENTRIES), the generated loop the twin compiles too."""
     return parse_scene(dict(
         name="dense_link", gravity=[0.0, 0.0, 0.0],
         joint=[dict(name="hub", axis=[0.0, 0.0, 1.0], inertia=0.01)],

@@ -201,11 +201,11 @@ def test_nodal_points_equal_dense_points(monkeypatch, deformation):
 def test_nodal_points_cost_less_than_dense_points(monkeypatch):
     """The reason for the nodal form: the residual of a 16-mode link takes fewer operations (exact counts).
     The modal maps are counted as scalar code (a call of a dense map would count as one operation)."""
-    from flexlink.mechanics import kinematics
+    from flexlink.mechanics import points
     from flexlink.mechanics.shapes.base import point_rule
     from flexlink.mechanics.shapes.reduction import ModalBeamBasis
 
-    monkeypatch.setattr(kinematics, "DENSE_MAP_MIN_ENTRIES", 10**9)
+    monkeypatch.setattr(points, "DENSE_MAP_MIN_ENTRIES", 10**9)
     scene = _scene([_link({"kind": "fe", "count": 16, "modes": 16})])
     nodal = build_model(scene).residual.expand().n_instructions()
     monkeypatch.setattr(ModalBeamBasis, "nodal_basis", lambda self: None)

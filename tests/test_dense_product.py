@@ -1,7 +1,7 @@
 """The dense product loop the generated code uses in place of CasADi's (fmu_src/templates/dense_product.c.in).
 
 The reference is CasADi's own ``casadi_mtimes_dense``, taken from the C that CasADi generates for a product
-by a constant dense matrix (the form :func:`flexlink.mechanics.kinematics.dense_map` leaves as a call).  Ours
+by a constant dense matrix (the form :func:`flexlink.mechanics.points.dense_map` leaves as a call).  Ours
 must give the same values to the bit -- the same sums in the same order, only several entries carried side by
 side in registers -- for every shape (the blocks of 8 rows and 4 columns, and the rows and columns left over),
 both the plain and the transposed product, several right-hand sides, and at every optimisation level; and the

@@ -40,4 +40,4 @@ def test_the_predictors_against_closed_forms(tmp_path):
                     "-o", str(exe), "-lm"], check=True, capture_output=True, text=True)
     run = subprocess.run([str(exe)], capture_output=True, text=True)
     assert run.returncode == 0, run.stdout
-    assert run.stdout.count("ok ") == 50, run.stdout
+    assert run.stdout.count("ok ") == 51, run.stdout

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from flexlink.mechanics.kinematics import DENSE_MAP_PREFIX
 from flexlink.mechanics.model import SymbolicModel
+from flexlink.mechanics.points import DENSE_MAP_PREFIX
 
 __all__ = ["COMPLEX_STEP_OPERATIONS", "Structure", "complex_step_applies", "forward_functions", "structure"]
 

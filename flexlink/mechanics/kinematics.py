@@ -24,6 +24,7 @@ import casadi as ca
 import numpy as np
 import numpy.typing as npt
 
+from flexlink.mechanics.points import PointIntegration, PointShapes
 from flexlink.mechanics.shapes import ShapeIntegrals
 from flexlink.mechanics.shapes.base import PointRule
 from flexlink.mechanics.shapes.body import BodyIntegrals
@@ -238,7 +239,7 @@ def _foreshortening_points(rule: PointRule, d: LinkDeformation) -> _PointFields:
     def integral(f: ca.MX | float) -> ca.MX | ca.DM:  # ∫₀^{x_k} f at every point: this panel's + earlier panels
         return ca.mtimes(local, f) + ca.mtimes(start, ca.mtimes(sums, f))
 
-    values_and_slopes = _PointShapes(rule).at_points   # through the nodal values where the rule has them
+    values_and_slopes = PointShapes(rule).at_points   # through the nodal values where the rule has them
 
     squares: ca.MX | float = 0
     rates: ca.MX | float = 0
@@ -412,7 +413,7 @@ def tip_kinematics(g: ShapeIntegrals | None, t: TorsionIntegrals | None, length:
     if second_order and g is not None:
         # u(L) = −½ ηᵀ fs_tip η; on a rule with nodal values, the same sum over the points' slopes, exact for the
         # piecewise cubics, which the Kane form's slopes share (the tip's acceleration: N·n + 4K, not 3 n²)
-        shapes = _PointShapes(rule) if rule is not None and rule.factor is not None else None
+        shapes = PointShapes(rule) if rule is not None and rule.factor is not None else None
         for eta in (d.v, d.w):
             if eta is not None and shapes is not None:
                 slope = shapes.at_points(eta)[1]
@@ -485,81 +486,6 @@ class ForeshorteningForces:
     fields: dict[str, ca.MX]
 
 
-class _PointIntegration:
-    """C = ``local + start·panel_sums``, the rule's ∫₀^{x_k}, and its transpose, as running sums over panels."""
-
-    def __init__(self, rule: PointRule):
-        self.local, self.sums = (ca.sparsify(ca.DM(m)) for m in (rule.local, rule.panel_sums))
-        self.panel = [int(k) for k in np.rint(rule.start.sum(axis=1))]     # the panel of each point
-        self.panels = rule.panel_sums.shape[0]
-
-    def __call__(self, f: ca.MX) -> ca.MX:
-        """C f: this panel's part of ∫₀^{x_k} f, plus the Gauss sums of the panels before it."""
-        before = ca.vertcat(0, ca.cumsum(ca.mtimes(self.sums, f)))
-        return ca.mtimes(self.local, f) + before[self.panel]
-
-    def transpose(self, z: ca.MX) -> ca.MX:
-        """Cᵀ z: each point takes its panel's ``localᵀ z`` and its Gauss weight times the z of later panels."""
-        per_panel = ca.vertcat(*[ca.sum1(z[[k for k, p in enumerate(self.panel) if p == q]])
-                                 for q in range(self.panels)])
-        total = ca.cumsum(per_panel)
-        after = total[self.panels - 1] - total                   # Σ z over the panels after each panel
-        return ca.mtimes(self.local.T, z) + ca.mtimes(self.sums.T, after)
-
-
-class _PointShapes:
-    """Values and slopes of a field at the rule's points, through the nodal values where the rule has them."""
-
-    def __init__(self, rule: PointRule):
-        self.factor, self.weights = rule.factor, rule.w
-        if rule.factor is not None:
-            self.phi, self.slope = (ca.sparsify(ca.DM(m)) for m in (rule.factor.phi, rule.factor.slope))
-            self.to_nodal, self.to_modal = _dense_map(rule.factor.modal), _dense_map(rule.factor.modal.T)
-        else:
-            self.phi, self.slope = ca.sparsify(ca.DM(rule.phi)), ca.sparsify(ca.DM(rule.slope))
-
-    def at_points(self, eta: ca.MX) -> tuple[ca.MX, ca.MX]:
-        """(φ η, φ' η) at the points: N·n + 8 K operations through the nodal values, else 2 K·n."""
-        nodal = self.to_nodal(eta) if self.factor is not None else eta
-        return ca.mtimes(self.phi, nodal), ca.mtimes(self.slope, nodal)
-
-    def project(self, values: ca.MX, slopes: ca.MX) -> ca.MX:
-        """φᵀ values + φ'ᵀ slopes, summed over the points (one transpose of the nodal map)."""
-        nodal = ca.mtimes(self.phi.T, values) + ca.mtimes(self.slope.T, slopes)
-        return self.to_modal(nodal) if self.factor is not None else nodal
-
-
-#: A constant map with at least this many entries stays a matrix product in the generated code.
-DENSE_MAP_MIN_ENTRIES = 256
-#: the names of those maps' CasADi functions begin so (flexlink.export.derivatives: the complex step carries them)
-DENSE_MAP_PREFIX = "dense_map_"
-
-
-def _dense_map(matrix: np.ndarray):
-    """``x ↦ matrix @ x`` for the symbolic model; a call that stays one in scalar code, for a large matrix.
-
-    Where the matrix has DENSE_MAP_MIN_ENTRIES entries or more, the map is a CasADi function that expanding
-    the model to scalar code keeps as a call (``never_inline``).
-
-    The reduced FE link's modes in nodal coordinates are dense: as scalar code each entry is a constant, a
-    product and a sum, three lines of C (the 32-mode link's four maps were 12 000 of its residual's 24 000
-    operations); as a call, the generated code holds the matrix once as a constant array and multiplies in
-    CasADi's dense loop.  Small maps stay scalar code, where they are cheapest.
-    """
-    m = ca.DM(matrix)
-    if matrix.size < DENSE_MAP_MIN_ENTRIES:
-        return lambda x: ca.mtimes(m, x)
-    key = (matrix.shape, np.ascontiguousarray(matrix, dtype=float).tobytes())
-    if key not in _DENSE_MAPS:      # one function a matrix: the generated code holds each matrix once
-        x = ca.MX.sym("x", matrix.shape[1])
-        _DENSE_MAPS[key] = ca.Function(f"{DENSE_MAP_PREFIX}{matrix.shape[0]}x{matrix.shape[1]}", [x],
-                                       [ca.mtimes(m, x)], {"never_inline": True})
-    return _DENSE_MAPS[key]
-
-
-_DENSE_MAPS: dict[tuple, ca.Function] = {}
-
-
 def _weighted(a: ca.MX | None, b: ca.MX | None) -> Scalar:
     """Σ_k a_k b_k where the caller has already weighted ``a`` by the points' masses; 0 for an absent field."""
     return 0.0 if a is None or b is None else ca.dot(a, b)
@@ -597,7 +523,7 @@ class _PointMotion:
 
 
 def _point_motion(rule: PointRule, g: ShapeIntegrals, motion: dict[str, tuple[ca.MX, ca.MX, ca.MX]],
-                  rho: ca.MX, shapes: _PointShapes, integral: _PointIntegration) -> _PointMotion:
+                  rho: ca.MX, shapes: PointShapes, integral: PointIntegration) -> _PointMotion:
     """The :class:`_PointMotion`: u = −½C Σ s², u̇ = −C Σ s ṡ, ü = −C Σ (s s̈ + ṡ²) from the slopes s = φ'η."""
     m = rho * ca.DM(rule.w)
     values: dict[str, list[ca.MX]] = {}
@@ -665,7 +591,7 @@ def foreshortening_forces(rule: PointRule, g: ShapeIntegrals, d: LinkDeformation
     are formed once from u, u̇, ü at the points instead of forward over reverse.  ∫u and ∫xu are the point
     sums where the invariants take them so (a rule with nodal values), else their modal forms.
     """
-    shapes, integral = _PointShapes(rule), _PointIntegration(rule)
+    shapes, integral = PointShapes(rule), PointIntegration(rule)
     motion = {name: (getattr(d, name), _rate(getattr(d, f"{name}_dot")), accelerations[name])
               for name in ("v", "w") if getattr(d, name) is not None}
     p = _point_motion(rule, g, motion, rho, shapes, integral)

@@ -197,6 +197,7 @@ static double start_error(double scale0, double scale1, double hidden, double fa
     if (corrected && !(f->first[0] >= 0.0 && f->first_age[0] > 0 && f->first[2] < 0.0)) return INFINITY;
     f->LU[0] *= scale0;
     f->LU[3] *= scale1;
+    s.rec.valid = 0;         /* its kept inverse (ss22_recurrence_inverse) is of the matrix before the scaling */
     memcpy(exact, alpha, sizeof(exact));
     step_solution(&s, dt, q, v, u, u, exact);
     start[0] = exact[0] + hidden * s.tolerance * MODEL_NOMINAL_Q[0] / dt;
@@ -204,6 +205,39 @@ static double start_error(double scale0, double scale1, double hidden, double fa
     if (ss22_step_from(&s, dt, q, v, alpha, start, corrected, u, u, P, &work) != SS22_OK) return INFINITY;
     for (int i = 0; i < N_Q; i++) e = fmax(e, fabs(alpha[i] - exact[i]) * dt / MODEL_NOMINAL_Q[i] / s.tolerance);
     return e;
+}
+
+/* The kept matrix's inverse (ss22_recurrence_inverse), formed with the recurrence: its product is the matrix's own
+ * solve to rounding, and no other matrix (a new evaluation at the same step size, or another step size) gets it.
+ * Returns the largest difference from lu_solve relative to the solution, or INFINITY where the test failed. */
+static double kept_inverse(void) {
+    static SS22 s;
+    static ModelWork work;
+    const double dt = 1e-3;
+    double q[N_Q] = {0.03, 0.05}, v[N_Q] = {0.0}, alpha[N_Q] = {0.0}, u[N_U] = {0.4};
+    ss22_init(&s, 0.5, 0.5, 1e-10);
+    for (int n = 0; n < 400 && s.recurrences == 0; n++)
+        if (ss22_step(&s, dt, q, v, alpha, u, u, P, &work) != SS22_OK) return INFINITY;
+    SS22Factor *f = cached_factor(&s, dt);
+    const double *inverse = f != NULL ? ss22_recurrence_inverse(&s, f) : NULL;
+    if (inverse == NULL) return INFINITY;
+    double worst = 0.0;
+    for (int k = 0; k < 3; k++) {
+        double b[N_Q], x[N_Q], y[N_Q] = {0.0}, size = 0.0;
+        for (int i = 0; i < N_Q; i++) b[i] = x[i] = sin(1.3 * k + 0.7 * i + 0.1);
+        lu_solve(f->LU, N_Q, f->piv, x);
+        linalg_subtract_products(y, inverse, b, NULL, NULL, N_Q);      /* y = -J^-1 b */
+        for (int i = 0; i < N_Q; i++) size = fmax(size, fabs(x[i]));
+        for (int i = 0; i < N_Q; i++) worst = fmax(worst, fabs(x[i] + y[i]) / size);
+    }
+    SS22Factor *other = NULL, *again = NULL;
+    if (step_matrix(&s, dt / 3.0, alpha, P, &work, 0, &other) != SS22_OK || ss22_recurrence_inverse(&s, other) != NULL)
+        return INFINITY;
+    s.steps++;                                       /* a new evaluation at the same step size, a step later */
+    if (step_matrix(&s, dt, alpha, P, &work, 0, &again) != SS22_OK || again != f ||
+        ss22_recurrence_inverse(&s, again) != NULL)
+        return INFINITY;
+    return worst;
 }
 
 int main(void) {
@@ -319,6 +353,9 @@ int main(void) {
     check(jumps.predicted > 300 && jumps.fed < 0.1 * jumps.line, "nonlinear model, moving inputs: ahead of the line",
           jumps.fed / jumps.line);
     check(jumps.beyond == 0, "nonlinear model, moving inputs: every step within its tolerance", jumps.beyond);
+
+    const double inverse_error = kept_inverse();
+    check(inverse_error <= 1e-14, "the kept inverse: lu_solve's solution to rounding, its own matrix only", inverse_error);
 
     /* 5. the cadence: 4 steps on a kept rate, doubled by each step's measure in a row within the rate they are
      * accepted on (aged_rate of the kept one), up to SS22_RATE_CONFIRMATIONS doublings; a measure above it
