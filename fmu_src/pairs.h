@@ -87,10 +87,14 @@ static inline void linalg_subtract_products(double *y, const double *A, const do
         linalg_store_pair(y + i + 6, y3);
     }
 #endif
-    for (; i < n; i++) {
+    for (; i < n; i++) {                /* the same statements as the column updates (a compiler that
+                                           contracts one contracts the other alike) */
         double s = y[i];
-        for (int j = 0; j < n; j++) s -= B != NULL ? A[(size_t)j * n + i] * x[j] + B[(size_t)j * n + i] * z[j]
-                                                   : A[(size_t)j * n + i] * x[j];
+        if (B != NULL) {
+            for (int j = 0; j < n; j++) s -= A[(size_t)j * n + i] * x[j] + B[(size_t)j * n + i] * z[j];
+        } else {
+            for (int j = 0; j < n; j++) s -= A[(size_t)j * n + i] * x[j];
+        }
         y[i] = s;
     }
 }

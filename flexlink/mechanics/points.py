@@ -26,7 +26,7 @@ class PointIntegration:
     to the end).  So S = A + ½·1wᵀ with A odd under the mirror, A_{k'j'} = −A_kj: A takes the pairs' sums
     f_j + f_j' to the odd part of its image and their differences to the even part, two (n/2)² blocks in place of
     one n² (:class:`MirrorMap`), and ½·1wᵀ f is half the panel's own Gauss sum, which the running sum over the
-    panels forms anyway.  The same values as the dense panel blocks to rounding (tests/test_point_integration.py)
+    panels forms anyway.  The same values as the dense panel blocks to rounding (tests/test_point_maps.py)
     in two thirds of their operations (2 040 against 3 000 for C and Cᵀ on 96 points): the 32-mode link's
     residual went from 15 700 to 13 800 operations.  A rule of an odd number of points a panel keeps the dense
     blocks.
@@ -42,7 +42,11 @@ class PointIntegration:
             half = 0.5 * rule.panel_sums.sum(axis=1)        # each panel's half length: Gauss weights sum to 2
             _, wt, S = gauss_integration_matrix(n)
             A = S - 0.5 * wt[None, :]
-            self.forward, self.backward = MirrorMap(A, half), MirrorMap(A.T, half)
+            try:
+                self.forward, self.backward = MirrorMap(A, half), MirrorMap(A.T, half)
+            except ValueError:          # not a Gauss rule's panels: the dense blocks
+                self.mirrored = False
+        if self.mirrored:
             pair_weights = np.kron(half, wt[: n // 2])       # w_j = w_j' of each pair
             self.pair_weights = ca.DM(pair_weights)
             self.gauss_sums = ca.sparsify(ca.DM(np.kron(np.eye(self.panels), np.ones((1, n // 2))) * pair_weights))
@@ -105,8 +109,11 @@ class MirrorMap:
     def __init__(self, M: np.ndarray, half: np.ndarray):
         n = M.shape[0]
         m, flip = n // 2, np.arange(n)[::-1]
-        if not np.allclose(M[np.ix_(flip, flip)], -M, rtol=0.0, atol=1e-14 * np.abs(M).max()):
+        # odd exactly; in floating point to the rounding of S's inverse Vandermonde (5e-15 of |M| at 6 points,
+        # 3e-14 at 8, 1e-12 at 12): the odd part is taken, after a check that allows that rounding
+        if not np.allclose(M[np.ix_(flip, flip)], -M, rtol=0.0, atol=1e-10 * np.abs(M).max()):
             raise ValueError("the panel matrix is not odd under the mirror")
+        M = 0.5 * (M - M[np.ix_(flip, flip)])
         first, second = np.arange(m), flip[:m]
         alpha, beta = M[np.ix_(first, first)], M[np.ix_(first, second)]
         self.X = ca.sparsify(ca.DM(np.kron(np.diag(half), 0.5 * (alpha + beta))))
@@ -132,8 +139,9 @@ class PointShapes:
     the slopes' differences, and an odd part, which gives the values' differences and the slopes' sums; each
     part has as many coefficients as it has degrees of freedom (two for a cubic), formed once from the nodal
     values (:class:`_PanelParts`) and shared by values and slopes.  On the 32-mode link a field's values and
-    slopes with one projection back take 2 420 operations against 3 290 through the nodal shapes' rows, and the
-    residual went from 13 800 to 12 100 (tests/test_point_maps.py checks the maps against φ and φ').
+    slopes with one projection back take 2 100 operations against 3 290 through the nodal shapes' rows, and the
+    residual went from 13 800 to 11 500 (tests/test_point_maps.py checks the maps against the Hermite cubics
+    and the rule's φ and φ').
     """
 
     def __init__(self, rule: PointRule):
@@ -165,16 +173,19 @@ class PointShapes:
 class _PanelParts:
     """A rule's nodal shapes φ, φ' on the mirror pairs of its panels, as even and odd parts of few coefficients.
 
-    On a panel, with the pairs' halves E = ½(φ_k + φ_k'), O = ½(φ_k − φ_k') of the values and E', O' of the
-    slopes (restricted to the panel's nodal columns), the even coefficients c_e = V_e x span the rows of
-    [E; O'] and the odd ones c_o = V_o x those of [O; E'].  V is the rows' reduced echelon form (the identity on
-    its pivot columns: those coefficients are nodal values themselves, no operation) and [E; O'] = L_e V_e with
-    L_e the pivot columns.  Then
+    On a panel of half length ℓ and centred coordinate τ ∈ [−1, 1], a nodal shape is a polynomial of degree
+    below the panel's n points (a Hermite cubic): its monomial coefficients are T = Vᵀ⁻¹… read off its values at
+    the points (T = V⁻¹ φ, V_kj = τ_k^j).  The even monomials give the values' pair sums and the slopes' pair
+    differences, the odd ones the rest.  With c_e = T_e x and c_o = T_o x from the nodal values x, and A_e, A_o the
+    even and odd monomials at the first points of the pairs, B_e, B_o the slopes jτ^{j−1}/ℓ of the odd and even ones:
 
-        values: first = A_e c_e + A_o c_o, second = A_e c_e − A_o c_o   (A_e = L_e's value rows, A_o = L_o's)
-        slopes: first = B_e c_o + B_o c_e, second = B_e c_o − B_o c_e   (B_e = L_o's slope rows, B_o = L_e's)
+        values: first = A_e c_e + A_o c_o, second = A_e c_e − A_o c_o
+        slopes: first = B_e c_o + B_o c_e, second = B_e c_o − B_o c_e
 
-    and Kane's projection back is the transpose of the same.
+    and Kane's projection back is the transpose of the same.  A coefficient below 1e-8 of its shape's largest is
+    the shapes' rounding (a Hermite cubic's are 0 or at least a quarter of the largest; the rule's φ carries
+    1e-15, its φ' up to 1e-11 of a 5 mm element's); the parts must give the rule's φ and φ' back within 1e-9 of
+    their magnitudes, or the rule keeps its sparse rows (None).
     """
 
     def __init__(self, pairs: MirrorPairs, T_e: ca.DM, T_o: ca.DM, A_e: ca.DM, A_o: ca.DM, B_e: ca.DM, B_o: ca.DM):
@@ -191,23 +202,34 @@ class _PanelParts:
             return None
         pairs, m = MirrorPairs(panels, n), n // 2
         phi, slope = rule.factor.phi, rule.factor.slope
-        T: dict[str, list[np.ndarray]] = {"e": [], "o": []}
-        L: dict[str, list[np.ndarray]] = {"e": [], "o": []}
+        parts: dict[str, list[np.ndarray]] = {name: [] for name in ("T_e", "T_o", "A_e", "A_o", "B_e", "B_o")}
         for p in range(panels):
-            f, s = pairs.first[p * m:(p + 1) * m], pairs.second[p * m:(p + 1) * m]
-            cols = np.flatnonzero(np.any(phi[f + s] != 0.0, axis=0) | np.any(slope[f + s] != 0.0, axis=0))
-            E, O = 0.5 * (phi[f][:, cols] + phi[s][:, cols]), 0.5 * (phi[f][:, cols] - phi[s][:, cols])
-            Es, Os = 0.5 * (slope[f][:, cols] + slope[s][:, cols]), 0.5 * (slope[f][:, cols] - slope[s][:, cols])
-            for part, M in (("e", np.vstack([E, Os])), ("o", np.vstack([O, Es]))):
-                V, Lp = _echelon(M)
+            points = np.arange(p * n, (p + 1) * n)
+            half = 0.5 * rule.panel_sums[p].sum()                       # Gauss weights sum to 2 on [−1, 1]
+            tau = (rule.x[points] - rule.x[points].mean()) / half
+            cols = np.flatnonzero(np.any(phi[points] != 0.0, axis=0) | np.any(slope[points] != 0.0, axis=0))
+            T = np.linalg.solve(np.vander(tau, n, increasing=True), phi[np.ix_(points, cols)])
+            T[np.abs(T) <= 1e-8 * np.abs(T).max(axis=0, initial=0.0)] = 0.0
+            j = np.arange(n)
+            monomials = np.vander(tau, n, increasing=True)
+            rates = j[None, :] * tau[:, None] ** np.maximum(j - 1, 0)[None, :] / half
+            values, slopes = np.zeros((n, len(cols))), np.zeros((n, len(cols)))
+            for parity, kept in (("e", j % 2 == 0), ("o", j % 2 == 1)):
+                used = kept & np.any(T != 0.0, axis=1)                  # the monomials some shape has
+                W, V = _reduced(T[used])                                 # T[used] = W V
                 rows = np.zeros((V.shape[0], phi.shape[1]))
                 rows[:, cols] = V
-                T[part].append(rows)
-                L[part].append(Lp)
-        block = lambda part, half: ca.sparsify(ca.DM(_block_diagonal([Lp[half] for Lp in L[part]])))  # noqa: E731
-        values, slopes = slice(0, m), slice(m, 2 * m)
-        return cls(pairs, ca.sparsify(ca.DM(np.vstack(T["e"]))), ca.sparsify(ca.DM(np.vstack(T["o"]))),
-                   block("e", values), block("o", values), block("o", slopes), block("e", slopes))
+                parts[f"T_{parity}"].append(rows)
+                parts[f"A_{parity}"].append(monomials[:m][:, used] @ W)  # at the pairs' first points
+                parts[f"B_{'o' if parity == 'e' else 'e'}"].append(rates[:m][:, used] @ W)
+                values += monomials[:, used] @ W @ V
+                slopes += rates[:, used] @ W @ V
+            for got, want in ((values, phi[np.ix_(points, cols)]), (slopes, slope[np.ix_(points, cols)])):
+                if not np.all(np.abs(got - want) <= 1e-9 * np.abs(want).max(initial=0.0)):
+                    return None
+        stacked = {name: ca.sparsify(ca.DM(np.vstack(blocks) if name.startswith("T") else _block_diagonal(blocks)))
+                   for name, blocks in parts.items()}
+        return cls(pairs, **stacked)
 
     def at_points(self, nodal: ca.MX) -> tuple[ca.MX, ca.MX]:
         """φ x and φ' x from the nodal values x."""
@@ -225,21 +247,23 @@ class _PanelParts:
         return ca.mtimes(self.T_e.T, c_e) + ca.mtimes(self.T_o.T, c_o)
 
 
-def _echelon(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(V, L) with M = L V, V the reduced row echelon form of M's row space (identity on the pivot columns)."""
-    scale = np.abs(M).max(initial=0.0)
-    if scale == 0.0:
-        return np.zeros((0, M.shape[1])), np.zeros((M.shape[0], 0))
-    _, R, perm = scipy.linalg.qr(M, mode="economic", pivoting=True)
-    rank = int(np.sum(np.abs(np.diag(R)) > 1e-12 * abs(R[0, 0])))
-    pivots = np.sort(perm[:rank])
-    L = M[:, pivots]
-    V = np.linalg.lstsq(L, M, rcond=None)[0]
-    V[:, pivots] = np.eye(rank)
-    V[np.abs(V) < 1e-14 * np.abs(V).max()] = 0.0
-    if not np.allclose(L @ V, M, rtol=0.0, atol=1e-12 * scale):
-        raise ValueError("a panel's shapes are not the span of their pivot columns")
-    return V, L
+def _reduced(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(W, V) with T = W V and V in reduced row echelon form: on its pivot columns the identity, so that those
+    coefficients are nodal values themselves (no operation).  A Hermite element's even and odd coefficients
+    are sums and differences of its nodal values: V's entries are then 0 and ±1, which the solve gives to
+    rounding, and are set to them."""
+    if T.shape[0] == 0:
+        return np.zeros((0, 0)), np.zeros((0, T.shape[1]))
+    scale = np.abs(T).max(axis=0)
+    _, _, perm = scipy.linalg.qr(T / np.where(scale > 0.0, scale, 1.0), mode="economic", pivoting=True)
+    pivots = np.sort(perm[:T.shape[0]])
+    W = T[:, pivots]
+    V = np.linalg.solve(W, T)
+    whole = np.rint(V)
+    snap = (np.abs(V - whole) <= 1e-12) & (np.abs(whole) <= 1.0)
+    V[snap] = whole[snap]
+    V[:, pivots] = np.eye(T.shape[0])
+    return W, V
 
 
 def _block_diagonal(blocks: list[np.ndarray]) -> np.ndarray:

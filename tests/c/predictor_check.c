@@ -230,6 +230,19 @@ static double kept_inverse(void) {
         for (int i = 0; i < N_Q; i++) size = fmax(size, fabs(x[i]));
         for (int i = 0; i < N_Q; i++) worst = fmax(worst, fabs(x[i] + y[i]) / size);
     }
+    /* the product's orientation on a matrix that is not symmetric (the test model's J is diagonal): column-major,
+     * y_i -= sum_j A[i + j n] x_j, against the sums written out, for sizes with and without the eight-row blocks */
+    for (int n = 1; n <= 19; n += 9) {
+        double A[19 * 19], B[19 * 19], x[19], z[19], y[19] = {0.0}, sum[19];
+        for (int k = 0; k < n * n; k++) A[k] = sin(0.37 * k + 0.1), B[k] = cos(0.53 * k);
+        for (int j = 0; j < n; j++) x[j] = 1.0 + 0.5 * j, z[j] = 0.25 - 0.125 * j;
+        linalg_subtract_products(y, A, x, B, z, n);
+        for (int i = 0; i < n; i++) {
+            sum[i] = 0.0;
+            for (int j = 0; j < n; j++) sum[i] += A[i + j * n] * x[j] + B[i + j * n] * z[j];
+            worst = fmax(worst, fabs(y[i] + sum[i]) / (1.0 + fabs(sum[i])));
+        }
+    }
     SS22Factor *other = NULL, *again = NULL;
     if (step_matrix(&s, dt / 3.0, alpha, P, &work, 0, &other) != SS22_OK || ss22_recurrence_inverse(&s, other) != NULL)
         return INFINITY;
