@@ -21,9 +21,10 @@ from the dense Jacobian at 12 coordinates, and the families were built with "col
 For every scene: the build time (``build_fmu``: model, code generation, gcc, packaging; median of
 ``--builds``), the bytes of generated C, and the CPU time per internal SS22 step at the scene's step, from
 ``benchmarks/step_floor.py``'s driver (compiled with the FMU's own sources, run in one process over issue 6's
-manoeuvre: +τ, −τ, free; median of ``--repeats``).  Growth is reported as the exponent of a least-squares
-fit of log(figure) against log(size).  Writes ``scaling.md``, ``scaling.json`` and ``scaling.png`` into
-``--out`` (default: ``benchmarks/``).
+manoeuvre: +τ, −τ, free; median of ``--repeats``; the table's rows are timed in turns, one run of each a
+round, so that a burst of outside load falls on all of them alike: :func:`retime_interleaved`).  Growth is
+reported as the exponent of a least-squares fit of log(figure) against log(size).  Writes ``scaling.md``,
+``scaling.json`` and ``scaling.png`` into ``--out`` (default: ``benchmarks/``).
 """
 
 from __future__ import annotations
@@ -33,7 +34,9 @@ import dataclasses
 import json
 import os
 import platform
+import shutil
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -92,9 +95,12 @@ def modes_scene(modes: int, kinematics: str = "second-order") -> dict:
                 fmu=dict(step=1e-4, newton_matrix="auto"))
 
 
-def measure(scene, *, builds: int, repeats: int) -> dict:
-    """Build ``builds`` times (median), then time the SS22 step with the step-floor driver."""
-    from step_floor import compile_driver
+def measure(scene, *, builds: int, repeats: int, keep: Path | None = None) -> dict:
+    """Build ``builds`` times (median), then time the SS22 step with the step-floor driver.
+
+    ``keep``: a directory where the FMU and the driver stay, with the driver's command line as ``"timing"``
+    (:func:`retime_interleaved` times the table's rows again, in turns)."""
+    from step_floor import compile_driver, manoeuvre_tokens
     from step_floor import measure as measure_step
 
     from flexlink.export.codegen import OPTIMISE_ENV
@@ -102,22 +108,49 @@ def measure(scene, *, builds: int, repeats: int) -> dict:
     from flexlink.mechanics.model import build_model
     from flexlink.tools.bench import default_case
 
-    walls, report = [], None
-    with tempfile.TemporaryDirectory() as tmp:
+    walls, report, timing = [], None, None
+    with tempfile.TemporaryDirectory() as scratch:
+        tmp = Path(keep or scratch)
+        tmp.mkdir(parents=True, exist_ok=True)
         for _ in range(builds):
             t0 = time.perf_counter()
-            report = build_fmu(scene, Path(tmp) / "scaling.fmu")
+            report = build_fmu(scene, tmp / "scaling.fmu")
             walls.append(time.perf_counter() - t0)
         model = build_model(scene)
         exe = compile_driver(report.fmu, tmp)
-        step = measure_step(exe, report.fmu, default_case(model, stop=3.0), step=scene.fmu.solver.step, repeats=repeats)
-    return {"scene": scene.name, "n_q": model.n_q, "bodies": len(scene.links),
+        case = default_case(model, stop=3.0)
+        step = measure_step(exe, report.fmu, case, step=scene.fmu.solver.step, repeats=repeats)
+        if keep is not None:
+            import fmpy
+
+            tokens = manoeuvre_tokens(report.fmu, case, {"solver.step": scene.fmu.solver.step, "solver.order": 2})
+            timing = [str(exe), fmpy.read_model_description(str(report.fmu)).guid, "1", *tokens]
+    return {"scene": scene.name, "n_q": model.n_q, "bodies": len(scene.links), "timing": timing,
             "build_s": statistics.median(walls), "build_parts_s": report.seconds,
             "generated_bytes": report.generated_c_bytes, "operations": report.operations,
             "step_us": 1e6 * step["step_s"], "residual_us": 1e6 * step["residual_s"],
             "optimise": os.environ.get(OPTIMISE_ENV) or "-O2, -Og above 5 000 operations",
             "newton_matrix_us": 1e6 * step["newton_matrix_s"], "factorisations": step["factorisations"],
             "steps": step["ss22_steps"], "iterations_per_step": step["newton_iterations"] / step["ss22_steps"]}
+
+
+def retime_interleaved(rows: list[dict], rounds: int) -> None:
+    """The table's steps timed again in turns: ``rounds`` rounds of one run of each row's driver, the median of
+    each row's runs in place of its own.
+
+    The machine is shared, and outside load comes in bursts of seconds: one row's runs, taken one after the
+    other, can all fall in one (planar_chain_5 measured 8.6 µs in three runs of 2026-11-29 and 11.1 and 12.1 in
+    two others, with its driver varying 9 to 16 µs between alternated runs).  In turns, a burst costs each row
+    one or two of its runs, and the median keeps none of them."""
+    runs: dict[int, list[dict]] = {k: [] for k, r in enumerate(rows) if r.get("timing")}
+    for _ in range(rounds):
+        for k in runs:
+            out = subprocess.run(rows[k]["timing"], capture_output=True, text=True, check=True)
+            runs[k].append(json.loads(out.stdout))
+    for k, results in runs.items():
+        rows[k]["step_us"] = 1e6 * statistics.median(r["step_s"] for r in results)
+        rows[k]["residual_us"] = 1e6 * statistics.median(r["residual_s"] for r in results)
+        rows[k]["interleaved_runs"] = rounds
 
 
 def exponent(sizes, values) -> float:
@@ -159,6 +192,7 @@ def target_table(table: list[dict], info: dict) -> list[str]:
     """The issue's table: each scene's build, generated C and step against its targets, with how it was measured."""
     lines = [f"Measured {info['date']} on {info['machine']} (`{info['command']}`, generated C at "
              f"{info['optimise']}); builds: median of {info['builds']}, steps: median of {info['repeats']} runs"
+             + (", the rows timed in turns" if any(r.get("interleaved_runs") for r in table) else "")
              + (f"; load average {info['load'][0]:.1f} at the start, {info['load'][1]:.1f} at the end (2 cores: "
                 "above 2, the wall-clock build times grow with it)" if "load" in info else "") + ".", "",
              "| scene | n_q | build [s] (target) | generated C [MB] (target) | µs per SS22 step (target) |",
@@ -223,6 +257,7 @@ def main(argv: list[str] | None = None) -> None:
     link_counts = (1, 2, 3) if args.quick else (1, 2, 3, 4, 5, 6, 8)
     mode_counts = (2, 4) if args.quick else tuple(m for m in (1, 2, 4, 8, 16, 32) if m <= args.max_modes)
     bodies, modes, table = [], [], []
+    timing_dir = Path(tempfile.mkdtemp(prefix="flexlink-scaling-"))      # the table's drivers, timed in turns
     load_at_start = os.getloadavg()[0]          # the machine is shared: the report says how busy it was
     families_from = None
     kept_rows: dict[str, dict] = {}
@@ -239,7 +274,9 @@ def main(argv: list[str] | None = None) -> None:
         bodies.append(measure(parse_scene(chain_scene(n)), builds=builds, repeats=repeats))
         print(f"bodies {n}: {bodies[-1]}", flush=True)
     for m in mode_counts:
-        row = measure(parse_scene(modes_scene(m)), builds=builds, repeats=repeats)
+        in_table = not args.quick and m == TABLE[2][1]             # the table's row too: timed in turns there
+        row = measure(parse_scene(modes_scene(m)), builds=builds, repeats=repeats,
+                      keep=timing_dir / f"modes{m}" if in_table else None)
         modes.append({**row, "modes": m})
         print(f"modes {m}: {row}", flush=True)
     for label, source, targets in ([] if args.quick else TABLE):
@@ -254,7 +291,7 @@ def main(argv: list[str] | None = None) -> None:
                 scene = parse_scene(modes_scene(source[1], kinematics=source[0]))
             else:
                 scene = parse_scene(modes_scene(source)) if isinstance(source, int) else load_scene(source)
-            row = measure(scene, builds=builds, repeats=repeats)
+            row = measure(scene, builds=builds, repeats=repeats, keep=timing_dir / f"row{len(table)}")
         table.append({**row, "label": label, "targets": targets})
         print(f"table {label}: {table[-1]}", flush=True)
         if label in LEAN_ROWS:
@@ -262,6 +299,10 @@ def main(argv: list[str] | None = None) -> None:
             table.append({**measure(lean, builds=builds, repeats=repeats), "label": label + LEAN,
                           "targets": targets})
             print(f"table {label + LEAN}: {table[-1]}", flush=True)
+    retime_interleaved(table, repeats)
+    for row in [*table, *bodies, *modes]:
+        row.pop("timing", None)
+    shutil.rmtree(timing_dir, ignore_errors=True)
     fits = {"bodies": family(bodies, "bodies"), "modes": family(modes, "modes")}
     from flexlink.export.codegen import OPTIMISE_ENV
 
