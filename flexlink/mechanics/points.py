@@ -174,10 +174,12 @@ class _PanelParts:
     """A rule's nodal shapes φ, φ' on the mirror pairs of its panels, as even and odd parts of few coefficients.
 
     On a panel of half length ℓ and centred coordinate τ ∈ [−1, 1], a nodal shape is a polynomial of degree
-    below the panel's n points (a Hermite cubic): its monomial coefficients are T = Vᵀ⁻¹… read off its values at
-    the points (T = V⁻¹ φ, V_kj = τ_k^j).  The even monomials give the values' pair sums and the slopes' pair
-    differences, the odd ones the rest.  With c_e = T_e x and c_o = T_o x from the nodal values x, and A_e, A_o the
-    even and odd monomials at the first points of the pairs, B_e, B_o the slopes jτ^{j−1}/ℓ of the odd and even ones:
+    below the panel's n points (a Hermite cubic): its monomial coefficients are read off its values at the
+    points (V⁻¹ φ, V_kj = τ_k^j).  The even monomials give the values' pair sums and the slopes' pair
+    differences, the odd ones the rest.  Each part's coefficient rows are W V with V in reduced echelon form
+    (:func:`_reduced`), and c_e = V_e x, c_o = V_o x from the nodal values x (``T_e``, ``T_o``).  With A_e, A_o
+    the even and odd monomials at the first points of the pairs times W, and B_e, B_o the slopes jτ^{j−1}/ℓ of
+    the odd and even ones times W:
 
         values: first = A_e c_e + A_o c_o, second = A_e c_e − A_o c_o
         slopes: first = B_e c_o + B_o c_e, second = B_e c_o − B_o c_e
