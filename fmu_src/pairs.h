@@ -36,22 +36,10 @@ static inline void linalg_subtract_scaled(double *y, const double *x, double a, 
     for (; i < n; i++) y[i] -= x[i] * a;
 }
 
-/* y[i] -= x[i] * a + z[i] * b for i < n */
-static inline void linalg_subtract_two_scaled(double *y, const double *x, double a, const double *z, double b,
-                                              int n) {
-    int i = 0;
-#if FLEXLINK_LINALG_PAIRS
-    const linalg_pair a2 = {a, a}, b2 = {b, b};
-    for (; i + 2 <= n; i += 2)
-        linalg_store_pair(y + i,
-                          linalg_load_pair(y + i) - (linalg_load_pair(x + i) * a2 + linalg_load_pair(z + i) * b2));
-#endif
-    for (; i < n; i++) y[i] -= x[i] * a + z[i] * b;
-}
-
 /* y[i] -= sum_j (A[i + j n] x[j] + B[i + j n] z[j]) over the n columns of A and B (column-major; B may be NULL):
- * a matrix-vector product in the bits of n calls of the updates above, one column after the other (each
- * entry's terms in the order of j, the two products added before they are subtracted), with eight entries
+ * a matrix-vector product in the bits of the column updates it replaced in the recurrence's prediction, one
+ * column after the other (each entry's terms in the order of j, the two products added before they are
+ * subtracted; the column update of y[i] -= x[i] a + z[i] b was removed with its last caller), with eight entries
  * carried in registers across the columns.  The column updates load and store y at every column: on the
  * 32-mode link's 33 x 33 matrices the recurrence's two products took 0.32 us by columns and 0.26 us so, and
  * the kept inverse's product (predictor.c) 0.14 us against lu_solve's 0.53 (a micro-benchmark of 2026-11-29). */
